@@ -1,0 +1,1 @@
+"""Geometry: rigid transforms, planar polygons and polyhedral solids."""

@@ -1,0 +1,64 @@
+"""Rigid transforms as 4x4 homogeneous matrices.
+
+Convention (DESIGN.md): ``T_a_b`` maps coordinates in frame ``b`` to frame ``a``; it is the pose
+of frame ``b`` expressed in frame ``a``. Composition reads left to right:
+``T_base_link = T_base_robot @ T_robot_link``. Units are metres and radians.
+
+Roll-pitch-yaw follows the paper: ``R = Rz(yaw) @ Ry(pitch) @ Rx(roll)`` (fixed-axis XYZ,
+SciPy's ``"xyz"`` extrinsic sequence); conversions go through :mod:`scipy.spatial.transform`.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+RPY_SEQUENCE = "xyz"  # extrinsic x, then y, then z: R = Rz(yaw) Ry(pitch) Rx(roll)
+
+
+def make_pose(rotation: np.ndarray | None = None, translation=(0.0, 0.0, 0.0)) -> np.ndarray:
+    """Build a 4x4 pose from a 3x3 rotation (identity if None) and a translation in metres."""
+    T = np.eye(4)
+    if rotation is not None:
+        T[:3, :3] = rotation
+    T[:3, 3] = translation
+    return T
+
+
+def pose_from_xyz_rpy(xyz, rpy) -> np.ndarray:
+    """Pose from a position (m) and roll-pitch-yaw angles (rad), ``R = Rz(y) Ry(p) Rx(r)``."""
+    return make_pose(Rotation.from_euler(RPY_SEQUENCE, rpy).as_matrix(), xyz)
+
+
+def xyz_rpy_from_pose(T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Position (m) and roll-pitch-yaw (rad) of a pose; inverse of :func:`pose_from_xyz_rpy`."""
+    return T[:3, 3].copy(), Rotation.from_matrix(T[:3, :3]).as_euler(RPY_SEQUENCE)
+
+
+def invert_pose(T: np.ndarray) -> np.ndarray:
+    """Inverse of a rigid transform, using the transpose of its rotation."""
+    R = T[:3, :3]
+    out = np.eye(4)
+    out[:3, :3] = R.T
+    out[:3, 3] = -R.T @ T[:3, 3]
+    return out
+
+
+def transform_points(T: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """Apply the pose ``T_a_b`` to points given in frame ``b``; returns them in frame ``a``."""
+    points = np.asarray(points, dtype=float)
+    return points @ T[:3, :3].T + T[:3, 3]
+
+
+def look_at(eye, target, up=(0.0, 0.0, 1.0)) -> np.ndarray:
+    """Camera pose ``T_base_cam`` (OpenCV axes: x right, y down, z forward) at ``eye`` looking
+    at ``target``; ``up`` is the base-frame direction that appears upward in the image."""
+    eye, target, up = (np.asarray(v, dtype=float) for v in (eye, target, up))
+    z = target - eye
+    z /= np.linalg.norm(z)
+    x = np.cross(z, up)
+    if np.linalg.norm(x) < 1e-9:
+        raise ValueError(f"look_at: viewing direction {z} is parallel to up {up}")
+    x /= np.linalg.norm(x)
+    y = np.cross(z, x)
+    return make_pose(np.column_stack([x, y, z]), eye)

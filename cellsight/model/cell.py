@@ -1,0 +1,220 @@
+"""The cell and its snapshot at one sampling time (paper, Section III-A and Fig. 4).
+
+Every solid of the cell is a :class:`CellObject` with a fixed index. A :class:`Snapshot` holds
+the pose of each object in the base frame, ``T_base_obj``, computed from the joint values (DH
+kinematics), the jaw openings and the workpiece poses; ``T_cam_obj = T_cam_base @ T_base_obj``
+gives them in each camera frame.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+
+from cellsight.camera import Camera
+from cellsight.errors import CellsightError
+from cellsight.geometry.polyhedron import Polyhedron
+from cellsight.model.robot import Robot
+
+ObjectKind = Literal["link", "tool", "workpiece", "static"]
+
+
+@dataclass(frozen=True)
+class Workpiece:
+    """A workpiece: a closed polyhedron with named feature points and its nominal pose."""
+
+    name: str
+    solid: Polyhedron
+    T_base_part: np.ndarray
+
+    @property
+    def feature_points(self) -> np.ndarray:
+        """Feature points (F, 3) in the part frame (m)."""
+        return self.solid.feature_points
+
+    @property
+    def feature_names(self) -> tuple[str, ...]:
+        return self.solid.feature_names
+
+
+@dataclass(frozen=True)
+class StaticObject:
+    """A fixed object of the cell (table, conveyor, track, camera stand) at ``T_base_obj``."""
+
+    name: str
+    solids: tuple[Polyhedron, ...]
+    T_base_obj: np.ndarray
+
+
+@dataclass(frozen=True)
+class CellObject:
+    """One solid of the cell with its display name (e.g. ``R7AX.link3``, ``R7AX.gripper``),
+    its kind, the robot it belongs to (if any) and the workpiece index (if a workpiece)."""
+
+    name: str
+    kind: ObjectKind
+    solid: Polyhedron
+    robot: str | None = None
+    workpiece: int | None = None
+
+
+@dataclass
+class Snapshot:
+    """Poses of every cell object at one sampling time.
+
+    ``poses[i]`` is ``T_base_obj`` of ``cell.objects[i]``; ``joints``, ``openings`` and
+    ``part_poses`` are the inputs it was computed from.
+    """
+
+    cell: Cell
+    poses: np.ndarray
+    joints: dict[str, np.ndarray]
+    openings: dict[str, float]
+    part_poses: dict[str, np.ndarray]
+
+    def in_camera(self, camera: int | str) -> np.ndarray:
+        """``T_cam_obj`` of every object for one camera (index or name), (n_objects, 4, 4)."""
+        cam = self.cell.camera(camera)
+        return cam.T_cam_base @ self.poses
+
+    def pose(self, name: str) -> np.ndarray:
+        """``T_base_obj`` of the object with this name."""
+        return self.poses[self.cell.object_index(name)]
+
+
+class Cell:
+    """A robot cell: robots with tools, workpieces, static objects and calibrated cameras."""
+
+    def __init__(
+        self,
+        name: str,
+        robots: list[Robot],
+        workpieces: list[Workpiece],
+        static: list[StaticObject],
+        cameras: list[Camera],
+        source: str = "<memory>",
+    ) -> None:
+        self.name = name
+        self.robots = list(robots)
+        self.workpieces = list(workpieces)
+        self.static = list(static)
+        self.cameras = list(cameras)
+        self.source = source
+        self.objects: list[CellObject] = []
+        self._slots: list[tuple] = []  # how to compute each object's pose, see snapshot()
+        for robot in self.robots:
+            for i, solids in enumerate(robot.link_solids):
+                for j, solid in enumerate(solids):
+                    suffix = "" if len(solids) == 1 else f".{j + 1}"
+                    self._add(CellObject(f"{robot.name}.link{i}{suffix}", "link", solid, robot.name))
+                    self._slots.append(("link", robot.name, i, solid))
+            if robot.tool is not None:
+                for j, solid in enumerate(robot.tool.palm):
+                    suffix = "" if len(robot.tool.palm) == 1 else f".{j + 1}"
+                    self._add(CellObject(f"{robot.name}.gripper{suffix}", "tool", solid, robot.name))
+                    self._slots.append(("palm", robot.name, None, solid))
+                for jaw in (0, 1):
+                    name = f"{robot.name}.gripper.jaw{jaw + 1}"
+                    self._add(CellObject(name, "tool", robot.tool.jaw, robot.name))
+                    self._slots.append(("jaw", robot.name, jaw, robot.tool.jaw))
+        for k, part in enumerate(self.workpieces):
+            self._add(CellObject(part.name, "workpiece", part.solid, workpiece=k))
+            self._slots.append(("part", part.name, None, part.solid))
+        for obj in self.static:
+            for j, solid in enumerate(obj.solids):
+                suffix = "" if len(obj.solids) == 1 else f".{j + 1}"
+                self._add(CellObject(f"{obj.name}{suffix}", "static", solid))
+                self._slots.append(("static", obj.name, None, obj.T_base_obj))
+        self._index = {o.name: i for i, o in enumerate(self.objects)}
+        self._robot = {r.name: r for r in self.robots}
+        self._part = {p.name: p for p in self.workpieces}
+
+    def _add(self, obj: CellObject) -> None:
+        if any(o.name == obj.name for o in self.objects):
+            raise CellsightError(f"cell {self.name}: two objects are named {obj.name!r}")
+        self.objects.append(obj)
+
+    def object_index(self, name: str) -> int:
+        try:
+            return self._index[name]
+        except KeyError:
+            raise KeyError(f"cell {self.name} has no object {name!r}") from None
+
+    def robot(self, name: str) -> Robot:
+        try:
+            return self._robot[name]
+        except KeyError:
+            raise KeyError(f"cell {self.name} has no robot {name!r}") from None
+
+    def workpiece(self, name: str) -> Workpiece:
+        try:
+            return self._part[name]
+        except KeyError:
+            raise KeyError(f"cell {self.name} has no workpiece {name!r}") from None
+
+    def camera(self, camera: int | str) -> Camera:
+        if isinstance(camera, str):
+            for cam in self.cameras:
+                if cam.name == camera:
+                    return cam
+            raise KeyError(f"cell {self.name} has no camera {camera!r}")
+        return self.cameras[camera]
+
+    def home_joints(self) -> dict[str, np.ndarray]:
+        """Every robot's HOME joint vector."""
+        return {r.name: r.home.copy() for r in self.robots}
+
+    def snapshot(
+        self,
+        joints: Mapping[str, np.ndarray] | None = None,
+        part_poses: Mapping[str, np.ndarray] | None = None,
+        openings: Mapping[str, float] | None = None,
+    ) -> Snapshot:
+        """Pose of every object in the base frame (paper, III-A).
+
+        ``joints``: robot name -> joint vector (a robot left out stays at HOME); checked for
+        length, finiteness and limits. ``part_poses``: workpiece name -> ``T_base_part`` (left
+        out: its nominal pose). ``openings``: robot name -> jaw opening in metres (default: open).
+        """
+        joints = dict(joints or {})
+        part_poses = dict(part_poses or {})
+        openings = dict(openings or {})
+        for name in list(joints) + list(openings):
+            self.robot(name)
+        for name in part_poses:
+            self.workpiece(name)
+        link_poses, tool_poses, jaw_poses, used_q, used_open = {}, {}, {}, {}, {}
+        for robot in self.robots:
+            q = robot.chain.check_q(joints.get(robot.name, robot.home), check_limits=True)
+            used_q[robot.name] = q
+            link_poses[robot.name] = robot.link_poses(q)
+            if robot.tool is not None:
+                tool = link_poses[robot.name][-1] @ robot.tool.T_flange_tool
+                opening = float(openings.get(robot.name, robot.tool.max_opening))
+                if not np.isfinite(opening):
+                    raise CellsightError(f"robot {robot.name}: jaw opening is {opening}")
+                used_open[robot.name] = opening
+                tool_poses[robot.name] = tool
+                jaw_poses[robot.name] = [tool @ T for T in robot.tool.jaw_poses(opening)]
+        used_parts = {}
+        for part in self.workpieces:
+            T = np.asarray(part_poses.get(part.name, part.T_base_part), dtype=float)
+            if T.shape != (4, 4) or not np.all(np.isfinite(T)):
+                raise CellsightError(f"workpiece {part.name}: pose must be a finite 4x4 matrix")
+            used_parts[part.name] = T
+        poses = np.empty((len(self.objects), 4, 4))
+        for k, (kind, owner, index, extra) in enumerate(self._slots):
+            if kind == "link":
+                poses[k] = link_poses[owner][index]
+            elif kind == "palm":
+                poses[k] = tool_poses[owner]
+            elif kind == "jaw":
+                poses[k] = jaw_poses[owner][index]
+            elif kind == "part":
+                poses[k] = used_parts[owner]
+            else:
+                poses[k] = extra
+        return Snapshot(self, poses, used_q, used_open, used_parts)

@@ -1,0 +1,324 @@
+"""Load and validate a YAML cell file.
+
+The schema is written with pydantic; any error becomes a :class:`CellFileError` naming the file,
+the path of the bad field (``robots[1].links[2].qlim``), the value and what was expected. Solids
+are given as ``box``, ``prism``, ``segment`` (a box along a segment, for links), inline
+``vertices`` + ``faces`` (CCW seen from outside), or a ``mesh`` file (STL/OBJ, path relative to
+the cell file), each with an optional ``pose`` in its parent frame. Lengths in metres, angles in
+radians; ``deg`` fields are accepted where noted.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Annotated, Literal
+
+import numpy as np
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+
+from cellsight.camera import Camera
+from cellsight.errors import CellFileError, CellsightError
+from cellsight.geometry.meshes import load_mesh_solid
+from cellsight.geometry.polyhedron import Polyhedron, box, prism, segment_box
+from cellsight.geometry.transforms import look_at, pose_from_xyz_rpy
+from cellsight.kinematics import DHChain, DHLink
+from cellsight.model.cell import Cell, StaticObject, Workpiece
+from cellsight.model.robot import ParallelGripper, Robot
+
+Finite = Annotated[float, Field(allow_inf_nan=False)]
+Vec3 = Annotated[list[Finite], Field(min_length=3, max_length=3)]
+Positive = Annotated[float, Field(gt=0, allow_inf_nan=False)]
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+
+class PoseSpec(_Strict):
+    """A pose: position (m) and roll-pitch-yaw (rad), R = Rz(yaw) Ry(pitch) Rx(roll)."""
+
+    xyz: Vec3 = [0.0, 0.0, 0.0]
+    rpy: Vec3 = [0.0, 0.0, 0.0]
+
+    def matrix(self) -> np.ndarray:
+        return pose_from_xyz_rpy(self.xyz, self.rpy)
+
+
+class BoxSpec(_Strict):
+    size: Annotated[list[Positive], Field(min_length=3, max_length=3)]
+    center: Vec3 = [0.0, 0.0, 0.0]
+
+
+class PrismSpec(_Strict):
+    polygon: Annotated[list[Annotated[list[Finite], Field(min_length=2, max_length=2)]], Field(min_length=3)]
+    height: Positive
+    z0: Finite = 0.0
+
+
+class SegmentSpec(_Strict):
+    start: Vec3
+    end: Vec3
+    width: Positive
+    height: Positive | None = None
+
+
+class MeshSpec(_Strict):
+    file: str
+    scale: Positive = 1.0
+
+
+class SolidSpec(_Strict):
+    """Exactly one of box / prism / segment / mesh / (vertices + faces)."""
+
+    box: BoxSpec | None = None
+    prism: PrismSpec | None = None
+    segment: SegmentSpec | None = None
+    mesh: MeshSpec | None = None
+    vertices: list[Vec3] | None = None
+    faces: list[Annotated[list[Annotated[int, Field(ge=0)]], Field(min_length=3)]] | None = None
+    closed: bool = True
+    pose: PoseSpec | None = None
+    features: list[str] | None = None
+
+    @model_validator(mode="after")
+    def _one_kind(self) -> SolidSpec:
+        kinds = [k for k in ("box", "prism", "segment", "mesh", "vertices") if getattr(self, k)]
+        if len(kinds) != 1:
+            raise ValueError(
+                f"a solid needs exactly one of box, prism, segment, mesh, vertices+faces; got {kinds}"
+            )
+        if (self.vertices is None) != (self.faces is None):
+            raise ValueError("inline solids need both 'vertices' and 'faces'")
+        return self
+
+
+class LinkSpec(_Strict):
+    """A DH link (standard convention) and the solids fixed to its frame."""
+
+    a: Finite = 0.0
+    alpha: Finite = 0.0
+    d: Finite = 0.0
+    theta: Finite = 0.0
+    kind: Literal["revolute", "prismatic"] = "revolute"
+    qlim: Annotated[list[Finite], Field(min_length=2, max_length=2)] = [-math.pi, math.pi]
+    solids: list[SolidSpec] = []
+
+    @model_validator(mode="after")
+    def _limits(self) -> LinkSpec:
+        if self.qlim[0] >= self.qlim[1]:
+            raise ValueError(f"qlim must be [lo, hi] with lo < hi, got {self.qlim}")
+        return self
+
+
+class GripperSpec(_Strict):
+    mount: PoseSpec = PoseSpec()
+    palm: Annotated[list[SolidSpec], Field(min_length=1)]
+    jaw: SolidSpec
+    max_opening: Positive
+    tcp: Vec3 = [0.0, 0.0, 0.0]
+
+
+class RobotSpec(_Strict):
+    name: Annotated[str, Field(min_length=1)]
+    base: PoseSpec = PoseSpec()
+    base_solids: list[SolidSpec] = []
+    links: Annotated[list[LinkSpec], Field(min_length=1)]
+    tool: GripperSpec | None = None
+    home: list[Finite]
+    final: list[Finite] | None = None
+
+
+class WorkpieceSpec(_Strict):
+    name: Annotated[str, Field(min_length=1)]
+    solid: SolidSpec
+    pose: PoseSpec = PoseSpec()
+
+
+class StaticSpec(_Strict):
+    name: Annotated[str, Field(min_length=1)]
+    pose: PoseSpec = PoseSpec()
+    solids: Annotated[list[SolidSpec], Field(min_length=1)]
+
+
+class LookAtSpec(_Strict):
+    eye: Vec3
+    target: Vec3
+    up: Vec3 = [0.0, 0.0, 1.0]
+
+
+class CameraSpec(_Strict):
+    """OpenCV pinhole camera. Focal length either in pixels (fx, fy) or as a lens (mm) with
+    the pixel pitch (mm); the pose either as xyz/rpy of T_base_cam or as look_at."""
+
+    name: Annotated[str, Field(min_length=1)]
+    width: Annotated[int, Field(gt=0)]
+    height: Annotated[int, Field(gt=0)]
+    fx: Positive | None = None
+    fy: Positive | None = None
+    lens_mm: Positive | None = None
+    pixel_mm: Positive | None = None
+    cx: Finite | None = None
+    cy: Finite | None = None
+    dist: Annotated[list[Finite], Field(min_length=4, max_length=5)] | None = None
+    pose: PoseSpec | None = None
+    look_at: LookAtSpec | None = None
+
+    @model_validator(mode="after")
+    def _complete(self) -> CameraSpec:
+        if (self.fx is None) == (self.lens_mm is None):
+            raise ValueError("give either fx (and optionally fy) in pixels, or lens_mm + pixel_mm")
+        if self.lens_mm is not None and self.pixel_mm is None:
+            raise ValueError("lens_mm needs pixel_mm")
+        if (self.pose is None) == (self.look_at is None):
+            raise ValueError("give exactly one of pose or look_at")
+        return self
+
+    def K(self) -> np.ndarray:
+        fx = self.fx if self.fx is not None else self.lens_mm / self.pixel_mm
+        fy = self.fy if self.fy is not None else fx
+        cx = self.cx if self.cx is not None else (self.width - 1) / 2
+        cy = self.cy if self.cy is not None else (self.height - 1) / 2
+        return np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
+
+
+class CellSpec(_Strict):
+    name: str = "cell"
+    robots: list[RobotSpec] = []
+    workpieces: list[WorkpieceSpec] = []
+    static: list[StaticSpec] = []
+    cameras: Annotated[list[CameraSpec], Field(min_length=1)]
+
+
+def _loc(parts) -> str:
+    out = ""
+    for p in parts:
+        out += f"[{p}]" if isinstance(p, int) else (f".{p}" if out else str(p))
+    return out or "<root>"
+
+
+def _solid(spec: SolidSpec, name: str, where: str, file: str, folder: Path) -> Polyhedron:
+    """Build one solid; geometry errors become CellFileErrors naming the field."""
+    try:
+        features = {}
+        if spec.features:
+            features = {"feature_names": tuple(spec.features)}
+        if spec.box:
+            solid = box(name, spec.box.size, spec.box.center)
+        elif spec.prism:
+            solid = prism(name, spec.prism.polygon, spec.prism.height, spec.prism.z0, **features)
+        elif spec.segment:
+            s = spec.segment
+            solid = segment_box(name, s.start, s.end, s.width, s.height)
+        elif spec.mesh:
+            solid = load_mesh_solid(folder / spec.mesh.file, name, spec.mesh.scale)
+        else:
+            solid = Polyhedron(name, np.array(spec.vertices), tuple(map(tuple, spec.faces)),
+                               spec.closed, **features)
+        if spec.features and not spec.prism and not spec.vertices:
+            solid = Polyhedron(name, solid.vertices, solid.faces, solid.closed,
+                               tuple(spec.features))
+    except CellsightError as exc:
+        raise CellFileError(file, where, spec.model_dump(exclude_none=True), str(exc)) from exc
+    return solid.transformed(spec.pose.matrix()) if spec.pose else solid
+
+
+def _check_len(file: str, where: str, values, n: int, what: str) -> np.ndarray:
+    if len(values) != n:
+        raise CellFileError(file, where, values, f"{n} values ({what})")
+    return np.array(values, dtype=float)
+
+
+def build_cell(spec: CellSpec, file: str, folder: Path) -> Cell:
+    """Turn a validated :class:`CellSpec` into a :class:`Cell`."""
+    robots = []
+    for r, rs in enumerate(spec.robots):
+        at = f"robots[{r}]"
+        chain = DHChain(
+            [DHLink(lk.a, lk.alpha, lk.d, lk.theta, lk.kind, tuple(lk.qlim)) for lk in rs.links],
+            name=rs.name,
+        )
+        solids = [tuple(_solid(s, f"{rs.name}.link0", f"{at}.base_solids[{j}]", file, folder)
+                        for j, s in enumerate(rs.base_solids))]
+        for i, lk in enumerate(rs.links):
+            solids.append(tuple(
+                _solid(s, f"{rs.name}.link{i + 1}", f"{at}.links[{i}].solids[{j}]", file, folder)
+                for j, s in enumerate(lk.solids)
+            ))
+        tool = None
+        if rs.tool:
+            t = rs.tool
+            palm = tuple(_solid(s, f"{rs.name}.gripper", f"{at}.tool.palm[{j}]", file, folder)
+                         for j, s in enumerate(t.palm))
+            jaw = _solid(t.jaw, f"{rs.name}.gripper.jaw", f"{at}.tool.jaw", file, folder)
+            tool = ParallelGripper(palm, jaw, t.mount.matrix(), t.max_opening, np.array(t.tcp))
+        home = _check_len(file, f"{at}.home", rs.home, chain.n, "one per joint")
+        final = None if rs.final is None else _check_len(
+            file, f"{at}.final", rs.final, chain.n, "one per joint")
+        for field, q in (("home", home), ("final", final)):
+            if q is not None:
+                try:
+                    chain.check_q(q, check_limits=True)
+                except CellsightError as exc:
+                    raise CellFileError(file, f"{at}.{field}", list(q), str(exc)) from exc
+        robots.append(Robot(rs.name, rs.base.matrix(), chain, tuple(solids), tool, home, final))
+    parts = [
+        Workpiece(w.name, _solid(w.solid, w.name, f"workpieces[{k}].solid", file, folder),
+                  w.pose.matrix())
+        for k, w in enumerate(spec.workpieces)
+    ]
+    static = [
+        StaticObject(s.name, tuple(_solid(x, s.name, f"static[{k}].solids[{j}]", file, folder)
+                                   for j, x in enumerate(s.solids)), s.pose.matrix())
+        for k, s in enumerate(spec.static)
+    ]
+    cameras = []
+    for c, cs in enumerate(spec.cameras):
+        try:
+            T = cs.pose.matrix() if cs.pose else look_at(cs.look_at.eye, cs.look_at.target,
+                                                         cs.look_at.up)
+            cameras.append(Camera(cs.K(), cs.width, cs.height, T, cs.dist, cs.name))
+        except (CellsightError, ValueError) as exc:
+            raise CellFileError(file, f"cameras[{c}]", cs.model_dump(exclude_none=True),
+                                str(exc)) from exc
+    names = [r.name for r in robots] + [w.name for w in parts] + [s.name for s in static]
+    dup = {n for n in names if names.count(n) > 1}
+    if dup:
+        raise CellFileError(file, "name", sorted(dup), "unique names of robots, workpieces, static")
+    try:
+        return Cell(spec.name, robots, parts, static, cameras, source=file)
+    except CellsightError as exc:
+        raise CellFileError(file, "<cell>", spec.name, str(exc)) from exc
+
+
+def builtin_cell_path() -> Path:
+    """Path of the built-in dual-arm cell file."""
+    return Path(__file__).resolve().parent.parent / "data" / "dual_arm_cell.yaml"
+
+
+def parse_cell_text(text: str, file: str, folder: Path) -> tuple[CellSpec, dict]:
+    """Parse and validate YAML text; returns the spec and the raw mapping."""
+    try:
+        raw = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f"line {mark.line + 1}" if mark else "<yaml>"
+        raise CellFileError(file, where, getattr(exc, "problem", ""), "valid YAML") from exc
+    if not isinstance(raw, dict):
+        raise CellFileError(file, "<root>", raw, "a mapping with robots, workpieces, cameras")
+    try:
+        spec = CellSpec.model_validate(raw)
+    except ValidationError as exc:
+        err = exc.errors()[0]
+        raise CellFileError(file, _loc(err["loc"]), err.get("input"), err["msg"]) from exc
+    return spec, raw
+
+
+def load_cell(path: str | Path | None = None) -> Cell:
+    """Load a cell from a YAML file; the built-in dual-arm cell when ``path`` is None."""
+    path = Path(path) if path is not None else builtin_cell_path()
+    if not path.is_file():
+        raise CellFileError(str(path), "<file>", str(path), "an existing YAML cell file")
+    spec, _ = parse_cell_text(path.read_text(), str(path), path.parent)
+    return build_cell(spec, str(path), path.parent)
