@@ -31,7 +31,9 @@ class DHLink:
 
     def __post_init__(self) -> None:
         if self.kind not in ("revolute", "prismatic"):
-            raise KinematicsError(f"DHLink kind must be 'revolute' or 'prismatic', got {self.kind!r}")
+            raise KinematicsError(
+                f"DHLink kind must be 'revolute' or 'prismatic', got {self.kind!r}"
+            )
         values = (self.a, self.alpha, self.d, self.theta, *self.qlim)
         if not all(np.isfinite(v) for v in values):
             raise KinematicsError(f"DHLink parameters must be finite, got {values}")

@@ -18,7 +18,9 @@ from cellsight.geometry.polyhedron import Polyhedron
 
 def _boundary_loop(name: str, triangles: np.ndarray) -> list[int]:
     """Walk the boundary of a set of consistently wound triangles into one vertex loop."""
-    directed = {(int(a), int(b)) for t in triangles for a, b in ((t[0], t[1]), (t[1], t[2]), (t[2], t[0]))}
+    directed = {
+        (int(t[i]), int(t[(i + 1) % 3])) for t in triangles for i in range(3)
+    }
     boundary = [(a, b) for a, b in directed if (b, a) not in directed]
     nxt: dict[int, int] = {}
     for a, b in boundary:

@@ -69,7 +69,8 @@ def check_polygon(points, label: str, planarity_tol: float = PLANARITY_TOL) -> n
 
     Checks: at least 3 vertices, all finite, no repeated consecutive vertex, area above
     ``AREA_TOL``, every vertex within ``planarity_tol`` of the best plane, and simple (no two
-    non-adjacent edges touch). ``label`` names the polygon in the error (e.g. "solid 'part' face 3").
+    non-adjacent edges touch). ``label`` names the polygon in the error, e.g. "solid 'part'
+    face 3".
     """
     p = np.asarray(points, dtype=float)
     if p.ndim != 2 or p.shape[1] != 3:
@@ -86,7 +87,9 @@ def check_polygon(points, label: str, planarity_tol: float = PLANARITY_TOL) -> n
     n = newell_normal(p)
     area = 0.5 * np.linalg.norm(n)
     if area <= AREA_TOL:
-        raise GeometryError(f"{label}: degenerate polygon (area {area:.3g} m^2, collinear vertices)")
+        raise GeometryError(
+            f"{label}: degenerate polygon (area {area:.3g} m^2, collinear vertices)"
+        )
     n_unit = n / (2 * area)
     dist = (p - p.mean(axis=0)) @ n_unit
     worst = float(np.abs(dist).max())

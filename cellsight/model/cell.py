@@ -109,12 +109,14 @@ class Cell:
             for i, solids in enumerate(robot.link_solids):
                 for j, solid in enumerate(solids):
                     suffix = "" if len(solids) == 1 else f".{j + 1}"
-                    self._add(CellObject(f"{robot.name}.link{i}{suffix}", "link", solid, robot.name))
+                    name = f"{robot.name}.link{i}{suffix}"
+                    self._add(CellObject(name, "link", solid, robot.name))
                     self._slots.append(("link", robot.name, i, solid))
             if robot.tool is not None:
                 for j, solid in enumerate(robot.tool.palm):
                     suffix = "" if len(robot.tool.palm) == 1 else f".{j + 1}"
-                    self._add(CellObject(f"{robot.name}.gripper{suffix}", "tool", solid, robot.name))
+                    name = f"{robot.name}.gripper{suffix}"
+                    self._add(CellObject(name, "tool", solid, robot.name))
                     self._slots.append(("palm", robot.name, None, solid))
                 for jaw in (0, 1):
                     name = f"{robot.name}.gripper.jaw{jaw + 1}"

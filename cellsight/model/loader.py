@@ -28,6 +28,7 @@ from cellsight.model.cell import Cell, StaticObject, Workpiece
 from cellsight.model.robot import ParallelGripper, Robot
 
 Finite = Annotated[float, Field(allow_inf_nan=False)]
+Vec2 = Annotated[list[Finite], Field(min_length=2, max_length=2)]
 Vec3 = Annotated[list[Finite], Field(min_length=3, max_length=3)]
 Positive = Annotated[float, Field(gt=0, allow_inf_nan=False)]
 
@@ -52,7 +53,7 @@ class BoxSpec(_Strict):
 
 
 class PrismSpec(_Strict):
-    polygon: Annotated[list[Annotated[list[Finite], Field(min_length=2, max_length=2)]], Field(min_length=3)]
+    polygon: Annotated[list[Vec2], Field(min_length=3)]
     height: Positive
     z0: Finite = 0.0
 
@@ -87,7 +88,8 @@ class SolidSpec(_Strict):
         kinds = [k for k in ("box", "prism", "segment", "mesh", "vertices") if getattr(self, k)]
         if len(kinds) != 1:
             raise ValueError(
-                f"a solid needs exactly one of box, prism, segment, mesh, vertices+faces; got {kinds}"
+                "a solid needs exactly one of box, prism, segment, mesh, vertices+faces; "
+                f"got {kinds}"
             )
         if (self.vertices is None) != (self.faces is None):
             raise ValueError("inline solids need both 'vertices' and 'faces'")

@@ -1,0 +1,148 @@
+"""The ``cellsight`` command line.
+
+Commands: ``show`` (pictures of the cell and each camera's view), ``visibility`` (which feature
+points each camera sees, and why not), ``run`` (the paper's experiments), ``compare`` (two runs'
+metrics side by side). Every error on bad input is printed as one line naming its source.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from cellsight.errors import CellsightError
+
+
+def _json_arg(text: str | None, what: str):
+    """Parse a JSON command-line value, or read it from a file when it names one."""
+    if text is None:
+        return None
+    source = Path(text).read_text() if Path(text).is_file() else text
+    try:
+        return json.loads(source)
+    except json.JSONDecodeError as exc:
+        raise CellsightError(f"--{what}: not valid JSON ({exc.msg} at column {exc.colno})") from exc
+
+
+def _joints(text: str | None) -> dict[str, np.ndarray]:
+    """``{"R7AX": [...], ...}`` -> robot name -> joint vector."""
+    data = _json_arg(text, "joints") or {}
+    if not isinstance(data, dict):
+        raise CellsightError(f"--joints: expected an object robot -> list of numbers, got {data!r}")
+    return {name: np.asarray(q, dtype=float) for name, q in data.items()}
+
+
+def _part_poses(text: str | None) -> dict[str, np.ndarray]:
+    """``{"part": {"xyz": [...], "rpy": [...]}}`` or a 4x4 matrix per workpiece."""
+    from cellsight.geometry.transforms import pose_from_xyz_rpy
+
+    data = _json_arg(text, "part-pose") or {}
+    if not isinstance(data, dict):
+        raise CellsightError(f"--part-pose: expected an object name -> pose, got {data!r}")
+    poses = {}
+    for name, value in data.items():
+        if isinstance(value, dict):
+            xyz, rpy = value.get("xyz", [0, 0, 0]), value.get("rpy", [0, 0, 0])
+            poses[name] = pose_from_xyz_rpy(xyz, rpy)
+        else:
+            poses[name] = np.asarray(value, dtype=float)
+    return poses
+
+
+def cmd_show(args: argparse.Namespace) -> int:
+    from rich.console import Console
+
+    from cellsight.model.loader import load_cell
+    from cellsight.occlusion.predictor import VisibilityPredictor
+    from cellsight.report.show import show_cell
+
+    cell = load_cell(args.cell)
+    snapshot = cell.snapshot(_joints(args.joints), _part_poses(args.part_pose))
+    visibility = VisibilityPredictor(cell).predict_snapshot(snapshot)
+    paths = show_cell(snapshot, Path(args.out), visibility)
+    console = Console()
+    for path in paths:
+        console.print(f"wrote [bold]{path}[/bold]")
+    return 0
+
+
+def cmd_visibility(args: argparse.Namespace) -> int:
+    from rich.console import Console
+    from rich.table import Table
+
+    from cellsight.model.loader import load_cell
+    from cellsight.occlusion.predictor import VisibilityPredictor
+
+    cell = load_cell(args.cell)
+    result = VisibilityPredictor(cell).predict(_joints(args.joints), _part_poses(args.part_pose))
+    if args.json:
+        out = {
+            part: [
+                {
+                    "camera": v.camera,
+                    "features": [
+                        {"name": name, "visible": bool(v.visible[j]),
+                         "pixel": None if not np.isfinite(v.pixels[j]).all()
+                         else [round(float(x), 3) for x in v.pixels[j]],
+                         "reason": v.reason[j] or None}
+                        for j, name in enumerate(cell.workpiece(part).feature_names)
+                    ],
+                }
+                for v in views
+            ]
+            for part, views in result.items()
+        }
+        print(json.dumps(out, indent=2))
+        return 0
+    console = Console()
+    for part, views in result.items():
+        names = cell.workpiece(part).feature_names
+        for v in views:
+            table = Table(title=f"{part} seen by {v.camera}: {v.count} of {len(names)} visible")
+            for col in ("feature", "visible", "u (px)", "v (px)", "hidden by"):
+                table.add_column(col, justify="right" if col.endswith(")") else "left")
+            for j, name in enumerate(names):
+                u, w = v.pixels[j]
+                table.add_row(name, "[green]yes[/green]" if v.visible[j] else "[red]no[/red]",
+                              f"{u:.1f}", f"{w:.1f}", v.reason[j])
+            console.print(table)
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="cellsight", description=__doc__.splitlines()[0])
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    def cell_args(p: argparse.ArgumentParser) -> None:
+        p.add_argument("--cell", help="YAML cell file (default: the built-in dual-arm cell)")
+        p.add_argument("--joints", help='JSON (or a JSON file): {"R7AX": [q1, ...], ...}; '
+                                         "robots left out stay at HOME")
+        p.add_argument("--part-pose", help='JSON (or file): {"part": {"xyz": [..], "rpy": [..]}}')
+
+    show = sub.add_parser("show", help="picture of the cell and each camera's projected view")
+    cell_args(show)
+    show.add_argument("--out", default="out/show", help="output folder (default out/show)")
+    show.set_defaults(func=cmd_show)
+
+    vis = sub.add_parser("visibility", help="which feature points each camera sees, and why not")
+    cell_args(vis)
+    vis.add_argument("--json", action="store_true", help="print JSON instead of tables")
+    vis.set_defaults(func=cmd_visibility)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        return args.func(args)
+    except (CellsightError, KeyError) as exc:
+        print(f"cellsight: error: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

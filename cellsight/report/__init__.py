@@ -1,0 +1,1 @@
+"""Pictures and reports: the cell overview, run figures and the HTML report."""
