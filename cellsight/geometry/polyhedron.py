@@ -108,20 +108,23 @@ class Polyhedron:
             self.feature_vertices,
         )
 
-    def triangles(self) -> np.ndarray:
-        """Vertex-index triangles (T, 3) covering every face, wound like the face (outward).
+    def face_triangles(self, k: int) -> np.ndarray:
+        """Triangles (t, 3) covering face ``k``, as positions in the face's vertex list, wound
+        like the face. Earcut in the face's plane, so non-convex faces are right."""
+        pts = self.face_points(k)
+        xy = (pts - pts[0]) @ plane_basis(self.normals[k]).T
+        tris = mapbox_earcut.triangulate_float64(xy, np.array([len(pts)], dtype=np.uint32))
+        tris = np.asarray(tris, dtype=np.int64).reshape(-1, 3)
+        normals = np.cross(pts[tris[:, 1]] - pts[tris[:, 0]], pts[tris[:, 2]] - pts[tris[:, 0]])
+        flip = normals @ self.normals[k] < 0
+        tris[flip] = tris[flip][:, ::-1]
+        return tris
 
-        Faces are triangulated with earcut in their own plane, so non-convex faces are right.
-        """
-        tris = []
-        for k, face in enumerate(self.faces):
-            xy = (self.face_points(k) - self.face_points(k)[0]) @ plane_basis(self.normals[k]).T
-            local = mapbox_earcut.triangulate_float64(xy, np.array([len(face)], dtype=np.uint32))
-            for a, b, c in np.asarray(local).reshape(-1, 3):
-                tri = [face[a], face[b], face[c]]
-                n = newell_normal(self.vertices[tri])
-                tris.append(tri if n @ self.normals[k] > 0 else tri[::-1])
-        return np.asarray(tris, dtype=np.int64)
+    def triangles(self) -> np.ndarray:
+        """Vertex-index triangles (T, 3) covering every face, wound like the faces (outward)."""
+        return np.concatenate([
+            np.asarray(face)[self.face_triangles(k)] for k, face in enumerate(self.faces)
+        ])
 
 
 def _check_closed(name: str, v: np.ndarray, faces: Sequence[Sequence[int]]) -> None:

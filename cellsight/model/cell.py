@@ -51,12 +51,14 @@ class StaticObject:
 
 @dataclass(frozen=True)
 class CellObject:
-    """One solid of the cell with its display name (e.g. ``R7AX.link3``, ``R7AX.gripper``),
-    its kind, the robot it belongs to (if any) and the workpiece index (if a workpiece)."""
+    """One solid of the cell: its unique name (``R7AX.link2.1``, ``R7AX.gripper.jaw1``,
+    ``table.3``), the object it is part of (``label``: ``R7AX.link2``, ``R7AX.gripper``,
+    ``table``; what occlusion reports name), its kind, its robot and workpiece index."""
 
     name: str
     kind: ObjectKind
     solid: Polyhedron
+    label: str
     robot: str | None = None
     workpiece: int | None = None
 
@@ -109,26 +111,27 @@ class Cell:
             for i, solids in enumerate(robot.link_solids):
                 for j, solid in enumerate(solids):
                     suffix = "" if len(solids) == 1 else f".{j + 1}"
-                    name = f"{robot.name}.link{i}{suffix}"
-                    self._add(CellObject(name, "link", solid, robot.name))
+                    label = f"{robot.name}.link{i}"
+                    self._add(CellObject(label + suffix, "link", solid, label, robot.name))
                     self._slots.append(("link", robot.name, i, solid))
             if robot.tool is not None:
                 for j, solid in enumerate(robot.tool.palm):
                     suffix = "" if len(robot.tool.palm) == 1 else f".{j + 1}"
-                    name = f"{robot.name}.gripper{suffix}"
-                    self._add(CellObject(name, "tool", solid, robot.name))
+                    label = f"{robot.name}.gripper"
+                    self._add(CellObject(label + suffix, "tool", solid, label, robot.name))
                     self._slots.append(("palm", robot.name, None, solid))
                 for jaw in (0, 1):
                     name = f"{robot.name}.gripper.jaw{jaw + 1}"
-                    self._add(CellObject(name, "tool", robot.tool.jaw, robot.name))
+                    self._add(CellObject(name, "tool", robot.tool.jaw, f"{robot.name}.gripper",
+                                         robot.name))
                     self._slots.append(("jaw", robot.name, jaw, robot.tool.jaw))
         for k, part in enumerate(self.workpieces):
-            self._add(CellObject(part.name, "workpiece", part.solid, workpiece=k))
+            self._add(CellObject(part.name, "workpiece", part.solid, part.name, workpiece=k))
             self._slots.append(("part", part.name, None, part.solid))
         for obj in self.static:
             for j, solid in enumerate(obj.solids):
                 suffix = "" if len(obj.solids) == 1 else f".{j + 1}"
-                self._add(CellObject(f"{obj.name}{suffix}", "static", solid))
+                self._add(CellObject(f"{obj.name}{suffix}", "static", solid, obj.name))
                 self._slots.append(("static", obj.name, None, obj.T_base_obj))
         self._index = {o.name: i for i, o in enumerate(self.objects)}
         self._robot = {r.name: r for r in self.robots}

@@ -10,7 +10,7 @@ feature point gets a label per camera:
 - ``behind``: it lies behind the camera (depth <= 0);
 - ``outside``: it projects outside the image;
 - ``self``: hidden by a surface of its own workpiece (self-occlusion);
-- an object name (``R7AX.gripper.jaw1``, ``R6AX.link3``, ``table``): hidden by that object
+- an object label (``R7AX.gripper``, ``R6AX.link3``, ``table``): hidden by that object
   (mutual occlusion); the nearest occluder along the line of sight is named.
 
 Culling (exact, ``cull=True``): a surface can hide a feature from a camera only if (1) it faces
@@ -58,15 +58,18 @@ class VisibilityPredictor:
     """Predicts, for a cell snapshot, which workpiece features each camera sees.
 
     Offline (constructor): flat arrays of every surface in its object's frame, static surfaces
-    in the base frame. Per frame (:meth:`predict`): transform, cull, build, visit.
+    in the base frame. Per frame (:meth:`predict`): transform, cull, build, visit. ``cameras``
+    restricts the prediction to some cameras (indices into ``cell.cameras``; default all).
     """
 
-    def __init__(self, cell: Cell, *, cull: bool = True) -> None:
+    def __init__(self, cell: Cell, *, cull: bool = True, cameras: list[int] | None = None) -> None:
         self.cell = cell
         self.cull = cull
-        verts, offsets, owner, vertex_owner = [], [0], [], []
+        self.cameras = [cell.cameras[k] for k in (cameras or range(len(cell.cameras)))]
+        verts, offsets, owner, vertex_owner, self.poly_source = [], [0], [], [], []
         for k, obj in enumerate(cell.objects):
-            for face in obj.solid.faces:
+            for f, face in enumerate(obj.solid.faces):
+                self.poly_source.append((k, f))
                 verts.append(obj.solid.vertices[list(face)])
                 offsets.append(offsets[-1] + len(face))
                 owner.append(k)
@@ -84,7 +87,7 @@ class VisibilityPredictor:
         self._static_vertices = self._transform(static_poses, self.vertex_static)
         self.part_objects = [cell.object_index(p.name) for p in cell.workpieces]
         self.part_polys = np.isin(self.poly_owner, self.part_objects)
-        self.names = [o.name for o in cell.objects]
+        self.labels = [o.label for o in cell.objects]
 
     def _transform(self, poses: np.ndarray, mask: np.ndarray) -> np.ndarray:
         """Vertices selected by ``mask`` moved by their objects' poses (base frame)."""
@@ -107,7 +110,8 @@ class VisibilityPredictor:
         return self.predict_snapshot(self.cell.snapshot(joints, part_poses, openings))
 
     def predict_snapshot(self, snapshot: Snapshot) -> dict[str, list[CameraVisibility]]:
-        """Workpiece name -> one :class:`CameraVisibility` per camera (``cell.cameras`` order)."""
+        """Workpiece name -> one :class:`CameraVisibility` per camera (``cell.cameras`` order,
+        or the predictor's ``cameras``)."""
         cell = self.cell
         vertices = self.world_vertices(snapshot)
         features = [
@@ -123,7 +127,7 @@ class VisibilityPredictor:
 
         depth, pixels, labels = [], [], []
         keep = self.part_polys.copy()
-        for cam in cell.cameras:
+        for cam in self.cameras:
             cam_points = cam.to_camera(points)
             px = cam.project_camera(cam_points)
             in_front = cam_points[:, 2] > 1e-9
@@ -139,7 +143,7 @@ class VisibilityPredictor:
         polys = np.flatnonzero(keep)
         tree = self._build(vertices, polys)
         result = {part.name: [] for part in cell.workpieces}
-        for c, cam in enumerate(cell.cameras):
+        for c, cam in enumerate(self.cameras):
             in_front, inside = labels[c]
             visible = np.zeros(len(points), dtype=bool)
             occluder = np.full(len(points), -1, dtype=np.int32)
@@ -152,7 +156,7 @@ class VisibilityPredictor:
             reasons = np.where(~in_front, BEHIND, np.where(~inside, OUTSIDE, VISIBLE))
             reasons = reasons.astype(object)
             for i in np.flatnonzero(occluder >= 0):
-                reasons[i] = SELF if occluder[i] == point_owner[i] else self.names[occluder[i]]
+                reasons[i] = SELF if occluder[i] == point_owner[i] else self.labels[occluder[i]]
             start = 0
             for part, f in zip(cell.workpieces, features, strict=True):
                 sl = slice(start, start + len(f))

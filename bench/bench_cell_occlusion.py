@@ -1,0 +1,144 @@
+"""Per-frame occlusion prediction on the built-in cell: cellsight's BSP against ray casters.
+
+The question, each frame: for every camera and every workpiece feature, does the open segment
+from the optical centre to the feature cross a surface? Every method starts from the same
+snapshot (object poses) and pays for moving the surfaces to the base frame.
+
+- cellsight: ``VisibilityPredictor.predict_snapshot`` (transform, cull, BSP build, visit per
+  camera, labels), with and without culling; per camera and for all cameras.
+- Open3D ``RaycastingScene``: rebuilt each frame from the triangulated surfaces, then
+  ``test_occlusions`` on the rays centre -> feature with tfar just short of the feature.
+- trimesh + embreex: ``RayMeshIntersector`` rebuilt each frame, then ``intersects_any`` on
+  rays cast from just off each feature towards the camera (which answers the same segment
+  question as long as nothing lies behind the camera on that line).
+
+Median of warm frames; ratios are peer time / cellsight time. Answers are compared with
+cellsight's; disagreements are counted and printed.
+"""
+
+from __future__ import annotations
+
+import statistics
+import time
+
+import numpy as np
+
+from cellsight import load_cell
+from cellsight.occlusion.predictor import VisibilityPredictor
+from cellsight.occlusion.scenarios import random_snapshots
+
+FRAMES = 300
+
+
+def _triangles(predictor: VisibilityPredictor) -> np.ndarray:
+    """Triangles over the predictor's flat vertex array (each face's vertices in order)."""
+    tris = []
+    for k, (obj_index, face_index) in enumerate(predictor.poly_source):
+        solid = predictor.cell.objects[obj_index].solid
+        tris.append(predictor.offsets[k] + solid.face_triangles(face_index))
+    return np.concatenate(tris)
+
+
+def _features(predictor: VisibilityPredictor, snapshot) -> np.ndarray:
+    cell = predictor.cell
+    return np.concatenate([
+        (snapshot.poses[k][:3, :3] @ p.feature_points.T).T + snapshot.poses[k][:3, 3]
+        for k, p in zip(predictor.part_objects, cell.workpieces, strict=True)
+    ])
+
+
+def _median_ms(fn, snapshots) -> tuple[float, list]:
+    out = [fn(s) for s in snapshots[:20]]  # warm-up (JIT, caches)
+    times, out = [], []
+    for s in snapshots:
+        t0 = time.perf_counter()
+        out.append(fn(s))
+        times.append(time.perf_counter() - t0)
+    return 1e3 * statistics.median(times), out
+
+
+def run(frames: int = FRAMES) -> list[dict]:
+    """Rows: method, cameras, median ms per frame, ratio to cellsight, disagreements."""
+    import open3d as o3d
+    import trimesh
+    from trimesh.ray.ray_pyembree import RayMeshIntersector
+
+    cell = load_cell()
+    snapshots = random_snapshots(cell, frames, seed=7)
+    n_cam = len(cell.cameras)
+    rows = []
+    ours_all = VisibilityPredictor(cell)
+    tris = _triangles(ours_all)
+
+    def ours(predictor):
+        def fn(s):
+            return np.concatenate([np.concatenate([v.visible for v in views])
+                                   for views in predictor.predict_snapshot(s).values()])
+        return fn
+
+    def in_view(s, cams):
+        pts = _features(ours_all, s)
+        return pts, np.concatenate([cell.cameras[c].sees(pts) for c in cams])
+
+    def open3d_fn(cams):
+        def fn(s):
+            verts = ours_all.world_vertices(s).astype(np.float32)
+            scene = o3d.t.geometry.RaycastingScene()
+            scene.add_triangles(o3d.core.Tensor(verts), o3d.core.Tensor(tris.astype(np.uint32)))
+            pts = _features(ours_all, s)
+            rays = np.concatenate([
+                np.hstack([np.repeat(cell.cameras[c].center[None], len(pts), 0),
+                           pts - cell.cameras[c].center]) for c in cams]).astype(np.float32)
+            hit = scene.test_occlusions(o3d.core.Tensor(rays), tnear=0.0, tfar=1.0 - 1e-4)
+            return ~hit.numpy()
+        return fn
+
+    def embree_fn(cams):
+        def fn(s):
+            verts = ours_all.world_vertices(s)
+            mesh = trimesh.Trimesh(verts, tris, process=False)
+            caster = RayMeshIntersector(mesh)
+            pts = _features(ours_all, s)
+            dirs = np.concatenate([cell.cameras[c].center - pts for c in cams])
+            origins = np.concatenate([pts] * len(cams)) + 1e-4 * dirs
+            return ~caster.intersects_any(origins, dirs)
+        return fn
+
+    for label, cams in [(f"all {n_cam} cameras", list(range(n_cam)))] + [
+        (cell.cameras[c].name, [c]) for c in range(n_cam)
+    ]:
+        masks = [in_view(s, cams)[1] for s in snapshots]
+        base_ms, base = _median_ms(ours(VisibilityPredictor(cell, cameras=cams)), snapshots)
+        rows.append({"method": "cellsight BSP (culled)", "cameras": label, "ms": base_ms,
+                     "ratio": 1.0, "disagree": 0, "checked": int(sum(m.sum() for m in masks))})
+        for name, fn in [
+            ("cellsight BSP, no culling", ours(VisibilityPredictor(cell, cameras=cams,
+                                                                   cull=False))),
+            ("Open3D RaycastingScene", open3d_fn(cams)),
+            ("trimesh + embreex", embree_fn(cams)),
+        ]:
+            ms, answers = _median_ms(fn, snapshots)
+            disagree = sum(int(((a != b) & m).sum()) for a, b, m in zip(answers, base, masks,
+                                                                        strict=True))
+            rows.append({"method": name, "cameras": label, "ms": ms, "ratio": ms / base_ms,
+                         "disagree": disagree, "checked": rows[-1]["checked"]})
+    return rows
+
+
+def main() -> None:
+    from rich.console import Console
+    from rich.table import Table
+
+    rows = run()
+    table = Table(title=f"Occlusion prediction per frame, built-in cell ({FRAMES} random frames,"
+                        " median, warm)")
+    for col in ("cameras", "method", "ms / frame", "x cellsight", "disagreements"):
+        table.add_column(col, justify="left" if col in ("cameras", "method") else "right")
+    for r in rows:
+        table.add_row(r["cameras"], r["method"], f"{r['ms']:.3f}", f"{r['ratio']:.1f}",
+                      f"{r['disagree']} / {r['checked']}")
+    Console().print(table)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,92 @@
+"""Cell-level occlusion prediction against the independent segment oracle."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from cellsight import load_cell
+from cellsight.geometry.transforms import pose_from_xyz_rpy, transform_points
+from cellsight.occlusion.predictor import VisibilityPredictor
+from cellsight.occlusion.scenarios import random_snapshots
+from tests.oracle import segment_oracle
+
+SNAPSHOTS = 250
+
+
+@pytest.fixture(scope="module")
+def cell():
+    return load_cell()
+
+
+def _scene(cell, snapshot):
+    """Every surface in the base frame with its object's label, and the features."""
+    polygons, labels = [], []
+    for obj, T in zip(cell.objects, snapshot.poses, strict=True):
+        for k in range(len(obj.solid.faces)):
+            polygons.append(transform_points(T, obj.solid.face_points(k)))
+            labels.append("self" if obj.kind == "workpiece" else obj.label)
+    part = cell.workpieces[0]
+    features = transform_points(snapshot.pose(part.name), part.feature_points)
+    return polygons, labels, features
+
+
+@pytest.mark.parametrize("cull", [True, False])
+def test_builtin_cell_matches_oracle_at_random_configurations(cell, cull) -> None:
+    predictor = VisibilityPredictor(cell, cull=cull)
+    snapshots = random_snapshots(cell, SNAPSHOTS if cull else SNAPSHOTS // 5, seed=11)
+    checked = left_out = hidden_by_others = 0
+    mismatches = []
+    for s, snapshot in enumerate(snapshots):
+        polygons, labels, features = _scene(cell, snapshot)
+        result = predictor.predict_snapshot(snapshot)["part"]
+        for c, cam in enumerate(cell.cameras):
+            pred = result[c]
+            seen = cam.sees(features)
+            np.testing.assert_array_equal(pred.visible & ~seen, False)
+            np.testing.assert_allclose(pred.pixels[seen], cam.project(features[seen]))
+            if not seen.any():
+                continue
+            oracle = segment_oracle(polygons, features[seen], cam.center)
+            for j, i in enumerate(np.flatnonzero(seen)):
+                if oracle.ambiguous[j]:
+                    left_out += 1
+                    continue
+                checked += 1
+                want = "" if oracle.visible[j] else labels[oracle.occluder[j]]
+                hidden_by_others += want not in ("", "self")
+                if pred.visible[i] != oracle.visible[j] or pred.reason[i] != want:
+                    mismatches.append((s, cam.name, i, pred.reason[i], want))
+    assert not mismatches, mismatches[:10]
+    assert left_out <= 0.02 * (checked + left_out)
+    assert hidden_by_others > 0.05 * checked  # the scenes really exercise mutual occlusion
+    assert checked > (3000 if cull else 600)
+
+
+def test_labels_behind_outside_self_and_gripper(cell) -> None:
+    predictor = VisibilityPredictor(cell)
+    r7 = cell.robot("R7AX")
+    # The part far to the side: outside both images; under the floor: hidden by the table.
+    result = predictor.predict(part_poses={"part": pose_from_xyz_rpy([3.0, -3.0, 0.6], [0, 0, 0])})
+    assert all(set(v.reason) == {"outside"} for v in result["part"])
+    # Behind a camera: the part placed 0.5 m behind cam1's optical centre.
+    cam1 = cell.cameras[0]
+    behind = cam1.center - 0.5 * cam1.T_base_cam[:3, 2]
+    result = predictor.predict(part_poses={"part": pose_from_xyz_rpy(behind, [0, 0, 0])})
+    assert set(result["part"][0].reason) == {"behind"}
+    # At HOME: bottom corners hidden by the part itself, the rest visible.
+    home = predictor.predict()["part"]
+    for view in home:
+        assert 0 < view.reason.count("self") < 8
+        assert set(view.reason) <= {"", "self"}
+    # Part held in the closed gripper in view: some features hidden by the gripper.
+    from cellsight.occlusion.scenarios import _joints_with_tcp_in_view
+
+    rng = np.random.default_rng(0)
+    found = False
+    for _ in range(50):
+        q = _joints_with_tcp_in_view(cell, r7, rng)
+        T_part = r7.tcp_pose(q) @ pose_from_xyz_rpy([0, 0, -0.015], [0, 0, 0])
+        views = predictor.predict({"R7AX": q}, {"part": T_part}, {"R7AX": 0.06})["part"]
+        found |= any("R7AX.gripper" in v.reason for v in views)
+    assert found
