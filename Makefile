@@ -21,8 +21,11 @@ test: venv lint
 
 demo: venv
 	.venv/bin/cellsight show --out out/show
+	.venv/bin/cellsight visibility
 
+# Open3D (a benchmark peer) needs libusb; install it from Debian when missing.
 bench: venv
+	@ldconfig -p | grep -q libusb-1.0 || (apt-get update -qq && apt-get install -y -qq libusb-1.0-0)
 	$(PY) bench/run_all.py
 
 clean:

@@ -28,10 +28,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from cellsight.model.cell import Cell, Snapshot
+from cellsight.occlusion._cull_kernel import cull_polygons, transform_vertices
 from cellsight.occlusion.bsp import BSPTree
 from cellsight.occlusion.soup import PolygonSoup
 
 VISIBLE, BEHIND, OUTSIDE, SELF = "", "behind", "outside", "self"
+CULL_MARGIN_PX = 2.0  # safety margin of the image-box overlap test, pixels
 
 
 @dataclass
@@ -78,29 +80,27 @@ class VisibilityPredictor:
         self.offsets = np.asarray(offsets, dtype=np.int64)
         self.poly_owner = np.asarray(owner, dtype=np.int32)
         self.vertex_owner = np.asarray(vertex_owner, dtype=np.int64)
-        self.vertex_poly = np.repeat(np.arange(len(owner)), np.diff(self.offsets))
+        self.poly_sizes = np.diff(self.offsets)
+        self.vertex_poly = np.repeat(np.arange(len(owner)), self.poly_sizes)
         closed = np.array([o.solid.closed for o in cell.objects])
         self.poly_closed = closed[self.poly_owner]
         kinds = np.array([o.kind for o in cell.objects])
-        self.vertex_static = kinds[self.vertex_owner] == "static"
-        static_poses = cell.snapshot().poses  # static poses never change
-        self._static_vertices = self._transform(static_poses, self.vertex_static)
+        self._moving = np.flatnonzero(kinds[self.vertex_owner] != "static")
+        # static poses never change: their vertices are placed once, here
+        self._static_vertices = np.zeros_like(self.local_vertices)
+        transform_vertices(self.local_vertices, self.vertex_owner,
+                           np.arange(len(self.local_vertices)), cell.snapshot().poses,
+                           self._static_vertices)
         self.part_objects = [cell.object_index(p.name) for p in cell.workpieces]
+        self.part_features = [p.feature_points for p in cell.workpieces]
         self.part_polys = np.isin(self.poly_owner, self.part_objects)
         self.labels = [o.label for o in cell.objects]
 
-    def _transform(self, poses: np.ndarray, mask: np.ndarray) -> np.ndarray:
-        """Vertices selected by ``mask`` moved by their objects' poses (base frame)."""
-        T = poses[self.vertex_owner[mask]]
-        v = self.local_vertices[mask]
-        return np.einsum("nij,nj->ni", T[:, :3, :3], v) + T[:, :3, 3]
-
     def world_vertices(self, snapshot: Snapshot) -> np.ndarray:
         """Every surface vertex in the base frame for this snapshot, (V, 3)."""
-        out = np.empty_like(self.local_vertices)
-        out[self.vertex_static] = self._static_vertices
-        moving = ~self.vertex_static
-        out[moving] = self._transform(snapshot.poses, moving)
+        out = self._static_vertices.copy()
+        transform_vertices(self.local_vertices, self.vertex_owner, self._moving, snapshot.poses,
+                           out)
         return out
 
     def predict(
@@ -115,33 +115,30 @@ class VisibilityPredictor:
         cell = self.cell
         vertices = self.world_vertices(snapshot)
         features = [
-            snapshot.poses[k][:3, :3] @ part.feature_points.T
-            for k, part in zip(self.part_objects, cell.workpieces, strict=True)
-        ]
-        features = [
-            (f + snapshot.poses[k][:3, 3:4]).T
-            for f, k in zip(features, self.part_objects, strict=True)
+            local @ snapshot.poses[k][:3, :3].T + snapshot.poses[k][:3, 3]
+            for k, local in zip(self.part_objects, self.part_features, strict=True)
         ]
         points = np.concatenate(features)
         point_owner = np.repeat(self.part_objects, [len(f) for f in features])
 
-        depth, pixels, labels = [], [], []
+        pixels, labels = [], []
         keep = self.part_polys.copy()
         for cam in self.cameras:
             cam_points = cam.to_camera(points)
             px = cam.project_camera(cam_points)
             in_front = cam_points[:, 2] > 1e-9
             inside = in_front & cam.in_image(px)
-            depth.append(cam_points[:, 2])
             pixels.append(px)
             labels.append((in_front, inside))
             if self.cull and inside.any():
-                keep |= self._candidates(vertices, cam, cam_points[inside])
-            elif not self.cull:
-                keep[:] = True
-
-        polys = np.flatnonzero(keep)
-        tree = self._build(vertices, polys)
+                seen = cam_points[inside]
+                x, y = seen[:, 0] / seen[:, 2], seen[:, 1] / seen[:, 2]
+                box = np.array([x.min(), x.max(), y.min(), y.max(), seen[:, 2].max()])
+                cull_polygons(vertices, self.offsets, self.poly_closed, cam.T_cam_base, box,
+                              CULL_MARGIN_PX / cam.focal_px, keep)
+        if not self.cull:
+            keep[:] = True
+        tree, polys = self._build(vertices, keep)
         result = {part.name: [] for part in cell.workpieces}
         for c, cam in enumerate(self.cameras):
             in_front, inside = labels[c]
@@ -165,46 +162,10 @@ class VisibilityPredictor:
                     cam.name, visible[sl], pixels[c][sl], list(reasons[sl]), occluder[sl]))
         return result
 
-    def _build(self, vertices: np.ndarray, polys: np.ndarray) -> BSPTree:
-        """BSP tree of the selected polygons (indices into this predictor's polygon list)."""
-        counts = np.diff(self.offsets)[polys]
+    def _build(self, vertices: np.ndarray, keep: np.ndarray) -> tuple[BSPTree, np.ndarray]:
+        """BSP tree of the kept polygons, and their indices in this predictor's list."""
+        polys = np.flatnonzero(keep)
         offsets = np.zeros(len(polys) + 1, dtype=np.int64)
-        np.cumsum(counts, out=offsets[1:])
-        take = np.concatenate([np.arange(self.offsets[p], self.offsets[p + 1]) for p in polys])
-        soup = PolygonSoup.from_arrays(vertices[take], offsets, np.arange(len(polys)))
-        return BSPTree.build(soup)
-
-    def _candidates(self, vertices, cam, features_cam: np.ndarray) -> np.ndarray:
-        """Polygons that may hide one of the features (camera frame, in front and inside the
-        image) from ``cam``; see the module doc. Returns (P,) bool."""
-        vc = cam.to_camera(vertices)
-        z = vc[:, 2]
-        starts = self.offsets[:-1]
-        zmin = np.minimum.reduceat(z, starts)
-        near = zmin < features_cam[:, 2].max()
-        normals = self._plane_normals(vc)
-        facing = ~self.poly_closed | (np.einsum("ij,ij->i", normals, -vc[starts]) > 0)
-        crossing = zmin <= 1e-6
-        with np.errstate(divide="ignore", invalid="ignore"):
-            x, y = vc[:, 0] / z, vc[:, 1] / z
-        fx, fy = features_cam[:, 0] / features_cam[:, 2], features_cam[:, 1] / features_cam[:, 2]
-        margin = 2.0 / cam.focal_px  # 2 px, in normalised image coordinates
-        overlap = (
-            (np.maximum.reduceat(x, starts) >= fx.min() - margin)
-            & (np.minimum.reduceat(x, starts) <= fx.max() + margin)
-            & (np.maximum.reduceat(y, starts) >= fy.min() - margin)
-            & (np.minimum.reduceat(y, starts) <= fy.max() + margin)
-        )
-        return near & facing & (overlap | crossing)
-
-    def _plane_normals(self, v: np.ndarray) -> np.ndarray:
-        """Newell normals (P, 3) of every polygon for vertices ``v`` (V, 3)."""
-        nxt = np.arange(len(v)) + 1
-        nxt[self.offsets[1:] - 1] = self.offsets[:-1]
-        w = v[nxt]
-        terms = np.column_stack([
-            (v[:, 1] - w[:, 1]) * (v[:, 2] + w[:, 2]),
-            (v[:, 2] - w[:, 2]) * (v[:, 0] + w[:, 0]),
-            (v[:, 0] - w[:, 0]) * (v[:, 1] + w[:, 1]),
-        ])
-        return np.add.reduceat(terms, self.offsets[:-1], axis=0)
+        np.cumsum(self.poly_sizes[polys], out=offsets[1:])
+        soup = PolygonSoup.from_arrays(vertices[keep[self.vertex_poly]], offsets)
+        return BSPTree.build(soup), polys

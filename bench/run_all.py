@@ -1,0 +1,22 @@
+"""Run every benchmark in bench/ and print their tables (``make bench``)."""
+
+from __future__ import annotations
+
+import importlib
+import sys
+from pathlib import Path
+
+BENCHES = ["bench_cell_occlusion", "bench_bsp_scaling", "bench_tracking"]
+
+
+def main() -> None:
+    sys.path.insert(0, str(Path(__file__).parent))
+    for name in BENCHES:
+        if not (Path(__file__).parent / f"{name}.py").exists():
+            continue
+        print(f"\n== {name}")
+        importlib.import_module(name).main()
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,71 @@
+"""Compiled per-frame kernels of the cell-level predictor: moving the surfaces to the base
+frame and culling the surfaces that cannot hide a feature from a camera (exact; see
+:mod:`cellsight.occlusion.predictor`)."""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+
+@njit(cache=True)
+def transform_vertices(local, vertex_owner, moving, poses, out):  # pragma: no cover - jit
+    """``out[i] = poses[vertex_owner[i]] @ local[i]`` for the vertex indices in ``moving``."""
+    for i in moving:
+        T = poses[vertex_owner[i]]
+        x, y, z = local[i, 0], local[i, 1], local[i, 2]
+        for r in range(3):
+            out[i, r] = T[r, 0] * x + T[r, 1] * y + T[r, 2] * z + T[r, 3]
+
+
+@njit(cache=True, inline="always")
+def _to_camera(R, t, v):  # pragma: no cover - jit
+    """Camera coordinates of the base-frame point ``v``."""
+    return (
+        R[0, 0] * v[0] + R[0, 1] * v[1] + R[0, 2] * v[2] + t[0],
+        R[1, 0] * v[0] + R[1, 1] * v[1] + R[1, 2] * v[2] + t[1],
+        R[2, 0] * v[0] + R[2, 1] * v[1] + R[2, 2] * v[2] + t[2],
+    )
+
+
+@njit(cache=True)
+def cull_polygons(vertices, offsets, closed, T_cam_base, box, margin, keep):  # pragma: no cover
+    """Mark in ``keep`` the polygons that may hide a point of the features' box from a camera.
+
+    ``T_cam_base`` maps base to camera coordinates; ``box`` = (xmin, xmax, ymin, ymax, zmax):
+    the features' bounds in normalised image coordinates (x/z, y/z) and their largest depth.
+    A polygon is kept when some vertex is nearer than ``zmax``, it faces the camera (or its
+    solid is open) and its normalised bounding box overlaps ``box`` grown by ``margin`` — or
+    when it reaches the camera's focal plane (z <= 1e-6 m), where its projection is unbounded.
+    """
+    R = T_cam_base[:3, :3]
+    t = T_cam_base[:3, 3]
+    for p in range(offsets.shape[0] - 1):
+        if keep[p]:
+            continue
+        s, e = offsets[p], offsets[p + 1]
+        zmin, xmin, xmax, ymin, ymax = np.inf, np.inf, -np.inf, np.inf, -np.inf
+        nx = ny = nz = 0.0
+        cx0 = cy0 = cz0 = 0.0
+        for j in range(s, e):
+            jn = j + 1 if j + 1 < e else s
+            ax, ay, az = _to_camera(R, t, vertices[j])
+            bx, by, bz = _to_camera(R, t, vertices[jn])
+            nx += (ay - by) * (az + bz)
+            ny += (az - bz) * (ax + bx)
+            nz += (ax - bx) * (ay + by)
+            if j == s:
+                cx0, cy0, cz0 = ax, ay, az
+            zmin = min(zmin, az)
+            if az > 1e-6:
+                xmin, xmax = min(xmin, ax / az), max(xmax, ax / az)
+                ymin, ymax = min(ymin, ay / az), max(ymax, ay / az)
+        if zmin >= box[4]:
+            continue
+        if closed[p] and nx * -cx0 + ny * -cy0 + nz * -cz0 <= 0.0:
+            continue
+        if zmin <= 1e-6:
+            keep[p] = True
+        elif (xmax >= box[0] - margin and xmin <= box[1] + margin
+              and ymax >= box[2] - margin and ymin <= box[3] + margin):
+            keep[p] = True
