@@ -1,0 +1,243 @@
+"""The MuJoCo model (MJCF text) generated from a :class:`~cellsight.model.Cell`.
+
+Every cell object becomes a mesh geom named like the object (``R7AX.link3``, ``part``,
+``table.2``) on a body whose frame *is* the object's frame, so that the body poses equal
+``cell.snapshot(...).poses``:
+
+- robot ``R``: body ``R/0`` at ``T_base_robot`` (DH frame 0, holds ``R.link0`` solids), bodies
+  ``R/1`` .. ``R/n`` at the DH frames (standard DH; joint ``R/q<i>`` on the axis z_{i-1}, a
+  hinge for a revolute joint, a slide for a prismatic one), body ``R/tool`` at
+  ``T_flange_tool`` (palm geoms, site ``R/tcp``), jaw bodies ``R/jaw1``, ``R/jaw2`` sliding
+  along their own y by half the opening (joints ``R/jaw1``, ``R/jaw2``);
+- workpiece ``P``: a mocap body ``P`` (driven kinematically by the world);
+- static object ``S``: a fixed body ``S`` at ``T_base_obj``;
+- a floor plane ``floor`` at z = 0, lights, and one fixed camera per cell camera.
+
+Geom groups: 0 static objects and floor, 1 robots, 2 workpieces. Contacts are off and the
+jointed bodies get a nominal inertia (1 kg): the world is kinematic, the model is never
+integrated. Vertices and poses are written with full float64 precision (MuJoCo stores mesh
+vertices as float32, about 1e-8 m here).
+"""
+
+from __future__ import annotations
+
+from xml.sax.saxutils import quoteattr
+
+import mujoco
+import numpy as np
+
+from cellsight.camera import Camera
+from cellsight.geometry.polyhedron import Polyhedron
+from cellsight.model import Cell, CellObject
+
+GROUP_STATIC, GROUP_ROBOT, GROUP_PART = 0, 1, 2
+_FLIP_YZ = np.diag([1.0, -1.0, -1.0])  # OpenCV camera axes <-> MuJoCo camera axes
+
+# Grey levels (B/W cameras): a bright part on darker surroundings, so its edges stand out.
+_GREY = {"workpiece": 0.92, "link": 0.62, "tool": 0.38, "static": 0.34}
+_FLOOR_GREY = 0.12
+
+
+def _num(values) -> str:
+    """Numbers as MJCF text with full float64 precision."""
+    return " ".join(f"{float(v):.17g}" for v in np.ravel(values))
+
+
+def _quat(R: np.ndarray) -> np.ndarray:
+    """MuJoCo quaternion (w, x, y, z) of a rotation matrix."""
+    q = np.empty(4)
+    mujoco.mju_mat2Quat(q, np.ascontiguousarray(R, dtype=float).ravel())
+    return q
+
+
+def _pose_attrs(T: np.ndarray) -> str:
+    return f'pos="{_num(T[:3, 3])}" quat="{_num(_quat(T[:3, :3]))}"'
+
+
+def body_name(robot: str, frame: int | str) -> str:
+    """Name of a robot body: ``R/<i>`` for DH frame i, ``R/tool``, ``R/jaw1``, ``R/jaw2``."""
+    return f"{robot}/{frame}"
+
+
+def joint_name(robot: str, i: int) -> str:
+    """Name of the MuJoCo joint of robot joint ``i`` (1-based, like the DH frames)."""
+    return f"{robot}/q{i}"
+
+
+def tcp_site_name(robot: str) -> str:
+    return f"{robot}/tcp"
+
+
+def scaled_K(camera: Camera, size: tuple[int, int]) -> np.ndarray:
+    """The camera matrix for images of ``size`` = (width, height) showing the same field of view
+    (pixel centres at integer coordinates, as in OpenCV)."""
+    sx, sy = size[0] / camera.width, size[1] / camera.height
+    K = camera.K.copy()
+    K[0, :2] *= sx
+    K[1, 1] *= sy
+    K[0, 2] = (camera.K[0, 2] + 0.5) * sx - 0.5
+    K[1, 2] = (camera.K[1, 2] + 0.5) * sy - 0.5
+    return K
+
+
+def mjcf_camera(camera: Camera, size: tuple[int, int] | None = None) -> str:
+    """MJCF ``<camera>`` element reproducing an OpenCV pinhole camera (undistorted part).
+
+    Frames: OpenCV cameras look along +z with x right and y down; MuJoCo cameras look along -z
+    with x right and y up, so ``R_base_mjcam = R_base_cvcam @ diag(1, -1, -1)``.
+
+    Intrinsics: the camera's ``focalpixel`` is (fx, fy) and its ``principalpixel`` is the
+    principal point's offset from the image centre; MuJoCo's vertical field of view then
+    follows from fy (``fovy = 2 atan(H / (2 fy))``). OpenCV puts the centre of the top-left
+    pixel at (0, 0), so the image centre is ((W - 1) / 2, (H - 1) / 2); MuJoCo's offset is the
+    image centre minus the principal point in both axes, ``((W - 1) / 2 - cx, (H - 1) / 2 - cy)``
+    (checked on MuJoCo's frustum and on rendered images by the tests). ``sensorsize`` is set to
+    the resolution (one length unit per pixel) only to switch MuJoCo's intrinsics on; ``ipd`` is
+    0 so that the stereo eyes coincide with the camera.
+
+    ``size`` = (width, height) renders at another resolution with the intrinsics scaled to it
+    (same field of view); default: the camera's own size.
+    """
+    w, h = size if size is not None else (camera.width, camera.height)
+    K = scaled_K(camera, (w, h))
+    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
+    R = camera.T_base_cam[:3, :3] @ _FLIP_YZ
+    return (
+        f"<camera name={quoteattr(camera.name)} pos=\"{_num(camera.T_base_cam[:3, 3])}\" "
+        f'quat="{_num(_quat(R))}" ipd="0" resolution="{w} {h}" sensorsize="{w} {h}" '
+        f'focalpixel="{_num([fx, fy])}" '
+        f'principalpixel="{_num([(w - 1) / 2 - cx, (h - 1) / 2 - cy])}"/>'
+    )
+
+
+def _mesh_asset(name: str, solid: Polyhedron) -> str:
+    return (
+        f'<mesh name={quoteattr(name)} vertex="{_num(solid.vertices)}" '
+        f'face="{" ".join(map(str, solid.triangles().ravel()))}" inertia="shell"/>'
+    )
+
+
+def _geom(obj: CellObject, group: int) -> str:
+    g = _GREY[obj.kind]
+    return (
+        f'<geom name={quoteattr(obj.name)} type="mesh" mesh={quoteattr(obj.name)} '
+        f'group="{group}" rgba="{g} {g} {g} 1"/>'
+    )
+
+
+def object_bodies(cell: Cell) -> tuple[str, ...]:
+    """Name of the body that carries each cell object (the object's frame is the body's frame),
+    in ``cell.objects`` order: the order in which
+    :class:`~cellsight.model.Cell` lists its objects (robots' links, palm, jaws; workpieces;
+    static objects)."""
+    names: list[str] = []
+    for robot in cell.robots:
+        for i, solids in enumerate(robot.link_solids):
+            names += [body_name(robot.name, i)] * len(solids)
+        if robot.tool is not None:
+            names += [body_name(robot.name, "tool")] * len(robot.tool.palm)
+            names += [body_name(robot.name, "jaw1"), body_name(robot.name, "jaw2")]
+    names += [part.name for part in cell.workpieces]
+    for obj in cell.static:
+        names += [obj.name] * len(obj.solids)
+    if len(names) != len(cell.objects):
+        raise AssertionError("cellsight.world: cell object order changed; update object_bodies")
+    return tuple(names)
+
+
+def cell_mjcf(cell: Cell, render_size: tuple[int, int] | None = None) -> str:
+    """MJCF text of the cell (see the module docstring for names and frames).
+
+    ``render_size`` = (width, height) of the rendered images (default: each camera's own).
+    """
+    bodies = object_bodies(cell)
+    geoms: dict[str, list[str]] = {}
+    assets = []
+    for obj, body in zip(cell.objects, bodies, strict=True):
+        group = {"link": GROUP_ROBOT, "tool": GROUP_ROBOT, "workpiece": GROUP_PART}.get(
+            obj.kind, GROUP_STATIC
+        )
+        geoms.setdefault(body, []).append(_geom(obj, group))
+        assets.append(_mesh_asset(obj.name, obj.solid))
+
+    inertial = '<inertial pos="0 0 0" mass="1" diaginertia="0.01 0.01 0.01"/>'
+    world = []
+    for robot in cell.robots:
+        base = body_name(robot.name, 0)
+        xml = [f"<body name={quoteattr(base)} {_pose_attrs(robot.T_base_robot)}>"]
+        xml += geoms.get(base, [])
+        A0 = robot.chain.link_transforms(np.zeros(robot.n_joints))
+        for i, (A, link) in enumerate(zip(A0, robot.chain.links, strict=True), start=1):
+            # The joint acts about/along z of frame i-1, written in frame i (the child body).
+            R, t = A[:3, :3], A[:3, 3]
+            kind = "slide" if link.is_prismatic else "hinge"
+            xml.append(f"<body name={quoteattr(body_name(robot.name, i))} {_pose_attrs(A)}>")
+            xml.append(inertial)
+            xml.append(
+                f"<joint name={quoteattr(joint_name(robot.name, i))} type=\"{kind}\" "
+                f'pos="{_num(-R.T @ t)}" axis="{_num(R.T[:, 2])}" range="{_num(link.qlim)}"/>'
+            )
+            xml += geoms.get(body_name(robot.name, i), [])
+        closes = robot.n_joints
+        if robot.tool is not None:
+            tool = robot.tool
+            xml.append(
+                f"<body name={quoteattr(body_name(robot.name, 'tool'))} "
+                f"{_pose_attrs(tool.T_flange_tool)}>"
+            )
+            xml += geoms[body_name(robot.name, "tool")]
+            site = quoteattr(tcp_site_name(robot.name))
+            xml.append(f'<site name={site} pos="{_num(tool.tcp)}"/>')
+            for jaw, quat in (("jaw1", "1 0 0 0"), ("jaw2", "0 0 0 1")):
+                name = body_name(robot.name, jaw)
+                xml.append(f"<body name={quoteattr(name)} quat=\"{quat}\">{inertial}")
+                xml.append(
+                    f'<joint name={quoteattr(name)} type="slide" axis="0 1 0" '
+                    f'range="0 {tool.max_opening / 2:.17g}"/>'
+                )
+                xml += geoms[name]
+                xml.append("</body>")
+            xml.append("</body>")
+        xml.append("</body>" * (closes + 1))
+        world.append("\n".join(xml))
+    for part in cell.workpieces:
+        world.append(
+            f'<body name={quoteattr(part.name)} mocap="true" {_pose_attrs(part.T_base_part)}>'
+            + "".join(geoms[part.name])
+            + "</body>"
+        )
+    for obj in cell.static:
+        world.append(
+            f"<body name={quoteattr(obj.name)} {_pose_attrs(obj.T_base_obj)}>"
+            + "".join(geoms[obj.name])
+            + "</body>"
+        )
+
+    sizes = [render_size or (c.width, c.height) for c in cell.cameras] or [(640, 480)]
+    offw, offh = max(s[0] for s in sizes), max(s[1] for s in sizes)
+    cameras = [mjcf_camera(c, render_size) for c in cell.cameras]
+    return f"""<mujoco model={quoteattr(cell.name)}>
+<compiler angle="radian" inertiafromgeom="false" autolimits="true"/>
+<option timestep="0.002"/>
+<visual>
+  <global offwidth="{offw}" offheight="{offh}"/>
+  <quality offsamples="4" shadowsize="0"/>
+  <headlight ambient="0.22 0.22 0.22" diffuse="0.38 0.38 0.38" specular="0 0 0"/>
+  <map znear="0.005" zfar="40"/>
+</visual>
+<default><geom contype="0" conaffinity="0"/></default>
+<asset>
+{chr(10).join(assets)}
+</asset>
+<worldbody>
+<light name="key" directional="true" castshadow="false" dir="0.35 0.25 -1"
+       diffuse="0.5 0.5 0.5" specular="0.05 0.05 0.05"/>
+<light name="fill" directional="true" castshadow="false" dir="-0.6 -0.4 -0.5"
+       diffuse="0.18 0.18 0.18" specular="0 0 0"/>
+<geom name="floor" type="plane" size="6 6 0.1" group="{GROUP_STATIC}"
+      rgba="{_FLOOR_GREY} {_FLOOR_GREY} {_FLOOR_GREY} 1"/>
+{chr(10).join(cameras)}
+{chr(10).join(world)}
+</worldbody>
+</mujoco>
+"""
