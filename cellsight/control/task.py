@@ -1,0 +1,297 @@
+"""The grasping task of the paper (Section V) as a phase machine driving the servo loop of Fig. 7.
+
+Phases, in order: ``waiting`` -> ``approach`` -> ``grasp`` -> ``manipulate`` -> ``release`` ->
+``done`` (``failed`` if the grasp check fails ``max_attempts`` times). Each phase has stages:
+
+- waiting: hold the start pose until the part is localised and ``t >= timing.start``.
+- approach: ``over`` (go 5 cm above the part's grasp pose, following it while it moves) until the
+  horizontal TCP error has stayed under tolerance for ``timing.stable``; ``descend`` (lower to the
+  grasp pose, still following) until the grasp pose is reached.
+- grasp: ``closing`` (close the jaws, keep moving with the part's last estimated velocity,
+  without vision feedback, for ``timing.close``), then check the jaws; closed on the part:
+  ``holding`` for ``timing.hold``; not closed: open the jaws and go back to ``approach``.
+- manipulate: ``lift`` by ``lift_height``, then ``home`` (back to the HOME pose carrying the part).
+  No vision from here on: the planner uses the joint measurements only.
+- release: ``final`` (go to the FINAL pose), ``opening`` (open the jaws, ``timing.open``), ``home``.
+
+:meth:`GraspTask.update_vision` runs at the vision rate (26 Hz): phase logic, planner, new target
+for the interpolating filter. :meth:`GraspTask.step_control` runs at the control rate (500 Hz):
+filter step and CLIK, returning the joint set-point and the gripper opening command (m). The CLIK
+integrates its own joint set-point, started from the first measured joints. Phase changes are
+logged in ``transitions`` as ``(t, from, to, reason)``, stage changes in ``events`` as
+``(t, phase, stage, note)``, and both through :mod:`logging`. Times in seconds, lengths in metres,
+angles in radians, poses ``T_base_tcp`` in the cell base frame.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, fields, replace
+from enum import Enum
+
+import numpy as np
+
+from cellsight.control.clik import Clik, rotation_error
+from cellsight.control.interpolator import InterpolatingFilter
+from cellsight.control.planner import PartGoal, PoseGoal, TrajectoryPlanner, grasp_pose_in_part
+from cellsight.model.cell import Workpiece
+from cellsight.model.robot import Robot
+
+log = logging.getLogger(__name__)
+
+
+class Phase(str, Enum):
+    """Task phases. A phase equals, prints and serialises as its name (``"approach"``)."""
+
+    WAITING = "waiting"
+    APPROACH = "approach"
+    GRASP = "grasp"
+    MANIPULATE = "manipulate"
+    RELEASE = "release"
+    DONE = "done"
+    FAILED = "failed"
+
+    def __str__(self) -> str:
+        return self.value
+
+
+@dataclass(frozen=True)
+class TaskTiming:
+    """Durations of the task's steps (s). The defaults give the paper's timeline roughly: the
+    approach from 4 s to about 12 s, the grasp about 8 s, and the whole task about 50 s."""
+
+    start: float = 4.0  # earliest start of the approach
+    over: float = 4.0  # move to the approach height over the part
+    stable: float = 1.0  # horizontal error under tolerance for this long before descending
+    descend: float = 2.0  # descent from the approach height to the grasp pose
+    close: float = 1.5  # jaws closing before their state is checked
+    hold: float = 6.5  # holding after a successful check, before manipulating
+    retreat: float = 1.5  # back up to the approach height after a failed check
+    lift: float = 2.0  # lift the part before returning HOME
+    to_home: float = 7.0  # move to HOME (manipulate, and at the end of release)
+    to_final: float = 8.0  # move from HOME to FINAL
+    open: float = 1.5  # jaws opening at FINAL
+    settle: float = 0.5  # least dwell at the end of a move before checking it is reached
+    reach_timeout: float = 3.0  # after the end of a move, go on even if not reached
+
+    def scaled(self, factor: float) -> TaskTiming:
+        """All durations multiplied by ``factor`` (e.g. 0.4 for short test runs)."""
+        return replace(self, **{f.name: getattr(self, f.name) * factor for f in fields(self)})
+
+
+@dataclass(frozen=True)
+class TaskTolerances:
+    """When a pose counts as reached: ``horizontal`` (m) error in the base xy plane to start
+    the descent, ``position`` (m) and ``angle`` (rad) for the end of a move."""
+
+    horizontal: float = 0.005
+    position: float = 0.005
+    angle: float = 0.035
+
+
+class GraspTask:
+    """Phase machine + servo loop for one robot grasping one workpiece (paper, Section V).
+
+    ``part`` gives the grasp geometry (:func:`grasp_pose_in_part`). ``approach_height`` (m,
+    default 5 cm as in the paper) and ``lift_height`` (m) along base +z. ``planner``, ``clik``
+    and ``interpolator`` default to a :class:`TrajectoryPlanner`, :class:`Clik` and
+    :class:`InterpolatingFilter` with their default parameters; the control period is the
+    interpolator's ``dt``. Gripper commands: ``robot.tool.max_opening`` open, 0 closed.
+    """
+
+    def __init__(
+        self,
+        robot: Robot,
+        part: Workpiece,
+        *,
+        timing: TaskTiming | None = None,
+        tolerances: TaskTolerances | None = None,
+        approach_height: float = 0.05,
+        lift_height: float = 0.10,
+        max_attempts: int = 3,
+        planner: TrajectoryPlanner | None = None,
+        clik: Clik | None = None,
+        interpolator: InterpolatingFilter | None = None,
+    ) -> None:
+        if robot.tool is None or robot.final is None:
+            raise ValueError(f"GraspTask: robot {robot.name} needs a tool and a FINAL pose")
+        self.robot = robot
+        self.timing = timing or TaskTiming()
+        self.tolerances = tolerances or TaskTolerances()
+        self.approach_height = float(approach_height)
+        self.lift_height = float(lift_height)
+        self.max_attempts = int(max_attempts)
+        self.planner = planner or TrajectoryPlanner(grasp_pose_in_part(part))
+        self.clik = clik or Clik(robot)
+        self.interpolator = interpolator or InterpolatingFilter()
+        self.dt = self.interpolator.dt
+        self.T_home = robot.tcp_pose(robot.home)
+        self.T_final = robot.tcp_pose(robot.final)
+        self.open_command = robot.tool.max_opening
+        self.closed_command = 0.0
+        self.phase = Phase.WAITING
+        self.stage = "start"
+        self.attempts = 0
+        self.transitions: list[tuple[float, Phase, Phase, str]] = []
+        self.events: list[tuple[float, Phase, str, str]] = []
+        self._q: np.ndarray | None = None
+        self._t0 = 0.0
+        self._gripper = self.open_command
+        self._stage_t = 0.0
+        self._stable_since: float | None = None
+        self._handlers = {
+            Phase.WAITING: self._waiting, Phase.APPROACH: self._approach, Phase.GRASP: self._grasp,
+            Phase.MANIPULATE: self._manipulate, Phase.RELEASE: self._release,
+            Phase.DONE: self._done, Phase.FAILED: self._failed,
+        }
+
+    # ---- rates -------------------------------------------------------------------------------
+
+    def update_vision(self, t: float, part_pose: np.ndarray | None, joints_measured: np.ndarray,
+                      jaws_closed: bool, part_velocity: np.ndarray | None = None) -> None:
+        """Vision-rate update at time ``t``: ``part_pose`` is the estimated ``T_base_part``
+        (None when not localised), ``part_velocity`` its optional linear velocity (m/s),
+        ``joints_measured`` the robot's joints, ``jaws_closed`` the gripper's jaw sensor."""
+        self._start(t, joints_measured)
+        if self.phase in (Phase.WAITING, Phase.APPROACH, Phase.GRASP):
+            self.planner.part.update(t, part_pose, part_velocity)
+        T_meas = self.robot.tcp_pose(joints_measured)
+        self._handlers[self.phase](t, T_meas, bool(jaws_closed))
+        self.interpolator.set_target(*self.planner.target(t))
+
+    def step_control(self, t: float, q_measured: np.ndarray) -> tuple[np.ndarray, float]:
+        """Control-rate step at time ``t``: next joint set-point and gripper opening (m)."""
+        self._start(t, q_measured)
+        T, twist = self.interpolator.step()
+        self._q = self.clik.step(self._q, T, twist, self.dt)
+        return self._q.copy(), self._gripper
+
+    def phase_intervals(self, t_end: float) -> list[tuple[Phase, float, float]]:
+        """``(phase, start, end)`` of every phase entered so far, the last one ending at
+        ``t_end``."""
+        starts = [(Phase.WAITING, self._t0)] + [(to, t) for t, _, to, _ in self.transitions]
+        ends = [t for _, t in starts[1:]] + [t_end]
+        return [(phase, t0, t1) for (phase, t0), t1 in zip(starts, ends, strict=True)]
+
+    # ---- phases (26 Hz) ----------------------------------------------------------------------
+
+    def _waiting(self, t: float, T_meas: np.ndarray, jaws_closed: bool) -> None:
+        if self.planner.part.known and t >= self.timing.start:
+            self._go(t, Phase.APPROACH, "part localised")
+            self._over(t, self.timing.over)
+
+    def _approach(self, t: float, T_meas: np.ndarray, jaws_closed: bool) -> None:
+        if self.stage == "over" and t >= self.planner.segment_end():
+            goal, _ = self.planner.goal_at(self.planner.goal, t)
+            error = float(np.linalg.norm(goal[:2, 3] - T_meas[:2, 3]))
+            if error > self.tolerances.horizontal:
+                self._stable_since = None
+                if t < self.planner.segment_end() + self.timing.reach_timeout:
+                    return
+                note = f"horizontal error {1e3 * error:.1f} mm not settled; descending anyway"
+            else:
+                self._stable_since = t if self._stable_since is None else self._stable_since
+                if t - self._stable_since < self.timing.stable:
+                    return
+                note = f"horizontal error {1e3 * error:.1f} mm stable"
+            self._set_stage(t, "descend", note)
+            self.planner.move_to(t, PartGoal(0.0), self.timing.descend)
+        elif self.stage == "descend" and (note := self._arrived(t, T_meas)):
+            self._go(t, Phase.GRASP, f"grasp pose {note}")
+            self._gripper = self.closed_command
+            T, twist, _ = self.planner.target(t)
+            self._set_stage(t, "closing", "jaws closing, following the part's last velocity")
+            self.planner.move_to(t, PoseGoal(T, t, twist[:3]), 0.0)
+
+    def _grasp(self, t: float, T_meas: np.ndarray, jaws_closed: bool) -> None:
+        if self.stage == "closing" and t - self._stage_t >= self.timing.close:
+            if jaws_closed:
+                self._set_stage(t, "holding", "jaws closed on the part")
+                self.planner.move_to(t, PoseGoal(self.planner.target(t)[0], t), 0.0)
+                return
+            self.attempts += 1
+            self._gripper = self.open_command
+            reason = f"jaws not closed on the part (attempt {self.attempts})"
+            if self.attempts >= self.max_attempts:
+                self._go(t, Phase.FAILED, f"{reason}; giving up")
+                self._set_stage(t, "home", "returning HOME")
+                self.planner.move_to(t, PoseGoal(self.T_home), self.timing.to_home)
+            else:
+                self._go(t, Phase.APPROACH, reason)
+                self._over(t, self.timing.retreat)
+        elif self.stage == "holding" and t - self._stage_t >= self.timing.hold:
+            self._go(t, Phase.MANIPULATE, "part held")
+            self._set_stage(t, "lift", f"lifting {1e2 * self.lift_height:.0f} cm")
+            T = self.planner.target(t)[0]
+            T[2, 3] += self.lift_height
+            self.planner.move_to(t, PoseGoal(T), self.timing.lift)
+
+    def _manipulate(self, t: float, T_meas: np.ndarray, jaws_closed: bool) -> None:
+        if self.stage == "lift" and t >= self.planner.segment_end():
+            self._set_stage(t, "home", "returning HOME with the part")
+            self.planner.move_to(t, PoseGoal(self.T_home), self.timing.to_home)
+        elif self.stage == "home" and (note := self._arrived(t, T_meas)):
+            self._go(t, Phase.RELEASE, f"HOME {note}")
+            self._set_stage(t, "final", "going to FINAL")
+            self.planner.move_to(t, PoseGoal(self.T_final), self.timing.to_final)
+
+    def _release(self, t: float, T_meas: np.ndarray, jaws_closed: bool) -> None:
+        if self.stage == "final" and (note := self._arrived(t, T_meas)):
+            self._set_stage(t, "opening", f"FINAL {note}; opening the jaws")
+            self._gripper = self.open_command
+        elif self.stage == "opening" and t - self._stage_t >= self.timing.open:
+            self._set_stage(t, "home", "returning HOME")
+            self.planner.move_to(t, PoseGoal(self.T_home), self.timing.to_home)
+        elif self.stage == "home" and (note := self._arrived(t, T_meas)):
+            self._go(t, Phase.DONE, f"HOME {note}")
+            self._set_stage(t, "hold", "task complete")
+
+    def _done(self, t: float, T_meas: np.ndarray, jaws_closed: bool) -> None:
+        """Nothing left to do: hold HOME."""
+
+    def _failed(self, t: float, T_meas: np.ndarray, jaws_closed: bool) -> None:
+        """Grasp given up: the robot returns HOME with the jaws open and stays there."""
+        if self.stage == "home" and (note := self._arrived(t, T_meas)):
+            self._set_stage(t, "hold", f"HOME {note}; task failed")
+
+    # ---- helpers -----------------------------------------------------------------------------
+
+    def _start(self, t: float, q: np.ndarray) -> None:
+        if self._q is not None:
+            return
+        self._q = self.robot.chain.check_q(q).copy()
+        self._t0 = float(t)
+        T = self.robot.tcp_pose(self._q)
+        self.planner.reset(t, T)
+        self.interpolator.reset(T)
+
+    def _over(self, t: float, duration: float) -> None:
+        self._stable_since = None
+        self._set_stage(t, "over", f"{1e2 * self.approach_height:.0f} cm over the part")
+        self.planner.move_to(t, PartGoal(self.approach_height), duration)
+
+    def _arrived(self, t: float, T_meas: np.ndarray) -> str | None:
+        """Why the current move counts as finished (reached, or timed out), or None."""
+        end = self.planner.segment_end()
+        if t < end + self.timing.settle:
+            return None
+        goal, _ = self.planner.goal_at(self.planner.goal, t)
+        position = float(np.linalg.norm(goal[:3, 3] - T_meas[:3, 3]))
+        angle = float(np.linalg.norm(rotation_error(goal[:3, :3], T_meas[:3, :3])))
+        error = f"error {1e3 * position:.1f} mm, {np.degrees(angle):.1f} deg"
+        if position <= self.tolerances.position and angle <= self.tolerances.angle:
+            return f"reached ({error})"
+        if t >= end + self.timing.reach_timeout:
+            return f"not reached after {self.timing.reach_timeout:g} s ({error}); going on"
+        return None
+
+    def _go(self, t: float, to: Phase, reason: str) -> None:
+        self.transitions.append((t, self.phase, to, reason))
+        log.info("t=%.3f s: %s -> %s (%s)", t, self.phase.value, to.value, reason)
+        self.phase = to
+
+    def _set_stage(self, t: float, stage: str, note: str) -> None:
+        self.stage = stage
+        self._stage_t = t
+        self.events.append((t, self.phase, stage, note))
+        log.debug("t=%.3f s: %s/%s (%s)", t, self.phase.value, stage, note)
