@@ -4,12 +4,12 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from oracle import segment_oracle
 
 from cellsight import load_cell
 from cellsight.geometry.transforms import pose_from_xyz_rpy, transform_points
 from cellsight.occlusion.predictor import VisibilityPredictor
 from cellsight.occlusion.scenarios import random_snapshots
-from tests.oracle import segment_oracle
 
 SNAPSHOTS = 250
 

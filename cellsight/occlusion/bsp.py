@@ -1,0 +1,133 @@
+"""BSP-tree visibility of points from a viewpoint (paper, Sections II and III-B).
+
+:class:`BSPTree` partitions a :class:`~cellsight.occlusion.soup.PolygonSoup` by planes of its
+own polygons (Section II) and answers which points a viewpoint (a camera's optical centre) sees
+by the paper's back-to-front visit ``not_occluded`` / ``process_surfaces`` (Section III-B). The
+build and the visit are each one compiled (numba) call on flat arrays; see
+:mod:`._build_kernel` and :mod:`._visit_kernel` for the algorithms.
+
+Semantics of ``visibility(points, viewpoint)``: a point is visible iff the open segment from the
+viewpoint to the point crosses no polygon, where
+
+- a crossing within the plane thickness ``eps`` of the point itself does not count: a point lying
+  on a polygon is not hidden by it, so a vertex is never hidden by its own faces;
+- a polygon whose plane passes within ``eps`` of the viewpoint is seen edge-on and hides nothing
+  (the paper's ON_THE_PLANE case), even a coplanar polygon lying between the two;
+- a point coincident with the viewpoint is visible (empty segment); a point "behind" the camera is
+  judged like any other, since the segment test has no viewing direction: the field of view is
+  the caller's business.
+
+``eps`` is the soup's plane thickness (relative to its size, see :mod:`.soup`). Answers may
+differ from exact arithmetic only for points or viewpoints within a few ``eps`` of a polygon's
+plane, or crossings within a few ``eps`` of a polygon's edge.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from cellsight.errors import GeometryError
+from cellsight.occlusion._build_kernel import build_tree
+from cellsight.occlusion._visit_kernel import BAD_VIEWPOINT, NO_BAD_INPUT, visit_tree
+from cellsight.occlusion.soup import PolygonSoup
+
+#: Candidate splitters tested per node (all of them when a node has no more fragments).
+DEFAULT_CANDIDATES = 8
+#: Weight of the split count against the front/back imbalance in the splitter score.
+DEFAULT_SPLIT_WEIGHT = 0.8
+_SEED = 0x5EED
+
+
+class BSPTree:
+    """A BSP tree of a polygon soup, in flat arrays; build with :meth:`build`.
+
+    ``node_planes`` (M, 4): partition plane ``(n, d)`` of each node (node 0 is the root);
+    ``node_links`` (M, 4) int64: ``(front child, back child, first surface, surface count)``,
+    -1 for an empty child; ``surfaces``: indices of the soup polygons stored in the nodes
+    (a polygon split by a plane appears once per fragment); ``stats``: a dict with ``nodes``,
+    ``splits`` (polygon fragments cut in two), ``depth`` (nodes on the longest root-leaf path),
+    ``fragments`` (surfaces stored, = polygons + splits).
+    """
+
+    def __init__(
+        self,
+        soup: PolygonSoup,
+        node_planes: np.ndarray,
+        node_links: np.ndarray,
+        surfaces: np.ndarray,
+        splits: int,
+        depth: int,
+    ) -> None:
+        self.soup = soup
+        self.node_planes = node_planes
+        self.node_links = node_links
+        self.surfaces = surfaces
+        self.stats = {
+            "nodes": int(node_planes.shape[0]),
+            "splits": int(splits),
+            "depth": int(depth),
+            "fragments": int(surfaces.shape[0]),
+        }
+
+    @classmethod
+    def build(
+        cls,
+        soup: PolygonSoup,
+        *,
+        candidates: int = DEFAULT_CANDIDATES,
+        split_weight: float = DEFAULT_SPLIT_WEIGHT,
+    ) -> BSPTree:
+        """Build the tree of ``soup`` (one compiled call).
+
+        At each node the splitter is the candidate plane with the lowest
+        ``split_weight * splits + (1 - split_weight) * |front - back|``; the candidates are all
+        the node's polygons when there are at most ``candidates``, else a seeded (reproducible)
+        sample of ``candidates`` of them.
+        """
+        if candidates < 1 or not 0.0 <= split_weight <= 1.0:
+            raise ValueError(
+                f"candidates must be >= 1 and split_weight in [0, 1], got {candidates}, "
+                f"{split_weight}"
+            )
+        node_planes, node_links, surfaces, splits, depth = build_tree(
+            soup.vertices, soup.offsets, soup.planes, soup.spheres, soup.eps,
+            candidates, split_weight, _SEED,
+        )
+        return cls(soup, node_planes, node_links, surfaces, splits, depth)
+
+    def visibility(
+        self, points: np.ndarray, viewpoint: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Which ``points`` (N, 3) the ``viewpoint`` (3,) sees, by the back-to-front visit.
+
+        Returns ``visible`` (N,) bool and ``occluder`` (N,) int32: the index in the soup of the
+        nearest polygon hiding the point (the first one crossed from the viewpoint), -1 when
+        visible. Non-finite input raises :class:`GeometryError`.
+        """
+        points = np.ascontiguousarray(points, dtype=np.float64)
+        viewpoint = np.ascontiguousarray(viewpoint, dtype=np.float64)
+        if points.ndim != 2 or points.shape[1] != 3 or viewpoint.shape != (3,):
+            raise GeometryError(
+                f"expected points (N, 3) and a viewpoint (3,), got shapes {points.shape} and "
+                f"{viewpoint.shape}"
+            )
+        soup = self.soup
+        visible, occluder, bad = visit_tree(
+            soup.vertices, soup.offsets, soup.planes, soup.boxes, self.node_planes,
+            self.node_links, self.surfaces, self.stats["depth"], soup.eps, points, viewpoint,
+        )
+        if bad == BAD_VIEWPOINT:
+            raise GeometryError(f"viewpoint has a non-finite coordinate: {viewpoint.tolist()}")
+        if bad != NO_BAD_INPUT:
+            raise GeometryError(f"point {bad} has a non-finite coordinate: {points[bad].tolist()}")
+        return visible, occluder
+
+
+def visible_mask(
+    polygons: Sequence[np.ndarray], points: np.ndarray, viewpoint: np.ndarray
+) -> np.ndarray:
+    """Visible flags (N,) of ``points`` seen from ``viewpoint`` among ``polygons`` (validated)."""
+    tree = BSPTree.build(PolygonSoup.from_polygons(polygons))
+    return tree.visibility(points, viewpoint)[0]
