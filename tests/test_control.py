@@ -341,15 +341,16 @@ def test_min_jerk_profile() -> None:
 
 
 def test_grasp_pose_geometry() -> None:
-    """Tool z down, tool y along the part's y axis, TCP at the part's mid-height; of the two
-    symmetric grasps the planner picks the one nearer in orientation."""
+    """Tool z down, tool y along the part's y axis, TCP at the cell file's grasp point (mid-height,
+    1 cm off-centre); of the two symmetric grasps the planner picks the one nearer in
+    orientation."""
     T_part = PART.T_base_part
     planner = TrajectoryPlanner(grasp_pose_in_part(PART))
     T_home = ROBOT.tcp_pose(ROBOT.home)
     G = planner.grasp_pose(T_part, T_home)
     np.testing.assert_allclose(G[:3, 2], [0.0, 0.0, -1.0], atol=1e-12)
     assert abs(G[:3, 1] @ T_part[:3, 1]) == pytest.approx(1.0)
-    np.testing.assert_allclose(G[:3, 3], T_part[:3, 3] + [0.0, 0.0, 0.015], atol=1e-12)
+    np.testing.assert_allclose(G[:3, 3], (T_part @ [0.0, -0.01, 0.015, 1.0])[:3], atol=1e-12)
     other = G @ HALF_TURN_Z
     assert _angle(G[:3, :3], T_home[:3, :3]) < _angle(other[:3, :3], T_home[:3, :3])
     np.testing.assert_allclose(planner.grasp_pose(T_part, other), other, atol=1e-12)
@@ -452,7 +453,8 @@ def test_still_part_is_grasped_and_delivered_with_paper_like_durations(still_run
     assert task.attempts == 0
     # delivered: released at FINAL, the robot back HOME with the jaws open
     T_final = ROBOT.tcp_pose(ROBOT.final)
-    assert np.linalg.norm(sim.T_part[:2, 3] - T_final[:2, 3]) < 0.005
+    held_at = (sim.T_part @ grasp_pose_in_part(PART))[:2, 3]  # where the jaws held the part
+    assert np.linalg.norm(held_at - T_final[:2, 3]) < 0.005
     T_end = ROBOT.tcp_pose(sim.q)
     assert np.linalg.norm(T_end[:3, 3] - task.T_home[:3, 3]) < 0.005
     assert rec.opening[-1] == ROBOT.tool.max_opening
@@ -491,7 +493,8 @@ def test_moving_part_is_followed_and_grasped(moving_run) -> None:
     # grasped while moving and carried: the part ends at FINAL, not on the conveyor
     assert not sim.on_conveyor
     T_final = ROBOT.tcp_pose(ROBOT.final)
-    assert np.linalg.norm(sim.T_part[:2, 3] - T_final[:2, 3]) < 0.005
+    held_at = (sim.T_part @ grasp_pose_in_part(PART))[:2, 3]  # where the jaws held the part
+    assert np.linalg.norm(held_at - T_final[:2, 3]) < 0.005
     assert t_over == pytest.approx(FAST.start, abs=0.05)
 
 

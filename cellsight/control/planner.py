@@ -52,10 +52,13 @@ def min_jerk(tau: float) -> tuple[float, float, float]:
 
 
 def grasp_pose_in_part(part: Workpiece) -> np.ndarray:
-    """``T_part_tcp`` of the grasp: TCP at the centre of the part's bounding box (mid-height),
-    tool z along -z of the part (pointing down onto it), tool y along the part's y axis (the
-    jaws close across the part's width). The other grasp, turned half a turn about the tool z
-    axis, is equivalent; :class:`TrajectoryPlanner` picks the nearer one."""
+    """``T_part_tcp`` of the grasp: the cell file's ``grasp`` when it gives one, else the TCP at
+    the centre of the part's bounding box (mid-height), tool z along -z of the part (pointing
+    down onto it), tool y along the part's y axis (the jaws close across the part's width).
+    The other grasp, turned half a turn about the tool z axis, is equivalent;
+    :class:`TrajectoryPlanner` picks the nearer one."""
+    if part.T_part_grasp is not None:
+        return part.T_part_grasp.copy()
     vertices = part.solid.vertices
     centre = 0.5 * (vertices.min(axis=0) + vertices.max(axis=0))
     return make_pose(np.diag([-1.0, 1.0, -1.0]), centre)

@@ -24,11 +24,14 @@ ObjectKind = Literal["link", "tool", "workpiece", "static"]
 
 @dataclass(frozen=True)
 class Workpiece:
-    """A workpiece: a closed polyhedron with named feature points and its nominal pose."""
+    """A workpiece: a closed polyhedron with named feature points, its nominal pose and,
+    optionally, its grasp ``T_part_grasp``: the pose of a gripper's tool centre point in the
+    part frame when it holds the part (the world and the planner both use it)."""
 
     name: str
     solid: Polyhedron
     T_base_part: np.ndarray
+    T_part_grasp: np.ndarray | None = None
 
     @property
     def feature_points(self) -> np.ndarray:

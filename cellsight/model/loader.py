@@ -136,6 +136,7 @@ class WorkpieceSpec(_Strict):
     name: Annotated[str, Field(min_length=1)]
     solid: SolidSpec
     pose: PoseSpec = PoseSpec()
+    grasp: PoseSpec | None = None  # tool centre point in the part frame when held
 
 
 class StaticSpec(_Strict):
@@ -267,7 +268,7 @@ def build_cell(spec: CellSpec, file: str, folder: Path) -> Cell:
         robots.append(Robot(rs.name, rs.base.matrix(), chain, tuple(solids), tool, home, final))
     parts = [
         Workpiece(w.name, _solid(w.solid, w.name, f"workpieces[{k}].solid", file, folder),
-                  w.pose.matrix())
+                  w.pose.matrix(), None if w.grasp is None else w.grasp.matrix())
         for k, w in enumerate(spec.workpieces)
     ]
     static = [

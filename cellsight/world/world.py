@@ -82,7 +82,8 @@ class World:
     deviation of the measured joints (rad or m). ``render_size``: (width, height) of the
     rendered images (default: each camera's own size). ``initial_joints``: robot name -> joint
     vector at t = 0 (default HOME). ``grasp_poses``: workpiece name -> ``T_part_tcp`` of its
-    grasp (default :func:`~cellsight.world.grasp.default_grasp_pose`). ``grasp_tolerance``:
+    grasp (default: the cell file's ``grasp``, else
+    :func:`~cellsight.world.grasp.default_grasp_pose`). ``grasp_tolerance``:
     largest TCP position (m) and rotation (rad) error for a grasp to engage. ``jaw_speed``: rate
     of change of the jaw opening (m/s).
     """
@@ -166,6 +167,8 @@ class World:
             self._sections[part.name] = PartSection(part.solid)
             if part.name in grasp_poses:
                 self._grasp[part.name] = np.asarray(grasp_poses.pop(part.name), dtype=float)
+            elif part.T_part_grasp is not None:
+                self._grasp[part.name] = part.T_part_grasp.copy()
             elif gripper is not None:
                 self._grasp[part.name] = default_grasp_pose(part.solid, gripper)
             self._part_body[part.name] = m.body(part.name).id
