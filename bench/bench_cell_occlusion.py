@@ -133,7 +133,8 @@ def main() -> None:
     table = Table(title=f"Occlusion prediction per frame, built-in cell ({FRAMES} random frames,"
                         " median, warm)")
     for col in ("cameras", "method", "ms / frame", "x cellsight", "disagreements"):
-        table.add_column(col, justify="left" if col in ("cameras", "method") else "right")
+        table.add_column(col, justify="left" if col in ("cameras", "method") else "right",
+                         no_wrap=True)
     for r in rows:
         table.add_row(r["cameras"], r["method"], f"{r['ms']:.3f}", f"{r['ratio']:.1f}",
                       f"{r['disagree']} / {r['checked']}")

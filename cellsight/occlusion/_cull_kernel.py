@@ -69,3 +69,40 @@ def cull_polygons(vertices, offsets, closed, T_cam_base, box, margin, keep):  # 
         elif (xmax >= box[0] - margin and xmin <= box[1] + margin
               and ymax >= box[2] - margin and ymin <= box[3] + margin):
             keep[p] = True
+
+
+@njit(cache=True)
+def project_points(points, T_cam_base, K, dist, width, height, px, status, box):  # pragma: no cover
+    """Project base-frame ``points`` (N, 3) into a camera, OpenCV model with ``dist`` =
+    (k1, k2, p1, p2, k3). Fills ``px`` (N, 2) (NaN behind the camera), ``status`` (N,)
+    (0 inside the image, 1 behind the camera, 2 outside the image) and ``box`` = (xmin, xmax,
+    ymin, ymax, zmax) of the inside points in normalised coordinates; returns their count."""
+    R = T_cam_base[:3, :3]
+    t = T_cam_base[:3, 3]
+    k1, k2, p1, p2, k3 = dist[0], dist[1], dist[2], dist[3], dist[4]
+    box[0] = box[2] = np.inf
+    box[1] = box[3] = box[4] = -np.inf
+    count = 0
+    for i in range(points.shape[0]):
+        x, y, z = _to_camera(R, t, points[i])
+        if z <= 1e-9:
+            px[i, 0] = px[i, 1] = np.nan
+            status[i] = 1
+            continue
+        xn, yn = x / z, y / z
+        r2 = xn * xn + yn * yn
+        radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+        xd = xn * radial + 2.0 * p1 * xn * yn + p2 * (r2 + 2.0 * xn * xn)
+        yd = yn * radial + p1 * (r2 + 2.0 * yn * yn) + 2.0 * p2 * xn * yn
+        u = K[0, 0] * xd + K[0, 1] * yd + K[0, 2]
+        v = K[1, 1] * yd + K[1, 2]
+        px[i, 0], px[i, 1] = u, v
+        if -0.5 <= u <= width - 0.5 and -0.5 <= v <= height - 0.5:
+            status[i] = 0
+            count += 1
+            box[0], box[1] = min(box[0], xn), max(box[1], xn)
+            box[2], box[3] = min(box[2], yn), max(box[3], yn)
+            box[4] = max(box[4], z)
+        else:
+            status[i] = 2
+    return count

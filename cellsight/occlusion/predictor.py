@@ -28,11 +28,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from cellsight.model.cell import Cell, Snapshot
-from cellsight.occlusion._cull_kernel import cull_polygons, transform_vertices
+from cellsight.occlusion._cull_kernel import cull_polygons, project_points, transform_vertices
 from cellsight.occlusion.bsp import BSPTree
 from cellsight.occlusion.soup import PolygonSoup
 
-VISIBLE, BEHIND, OUTSIDE, SELF = "", "behind", "outside", "self"
+BEHIND, OUTSIDE, SELF = "behind", "outside", "self"
+_INSIDE, _BEHIND, _OUTSIDE = 0, 1, 2  # status codes of project_points
 CULL_MARGIN_PX = 2.0  # safety margin of the image-box overlap test, pixels
 
 
@@ -41,19 +42,38 @@ class CameraVisibility:
     """One workpiece seen by one camera at one sampling time.
 
     ``visible`` (F,) bool in feature order; ``pixels`` (F, 2) predicted (u, v) (NaN behind
-    the camera); ``reason`` per feature: '' when visible, else 'behind', 'outside', 'self' or
-    the occluding object's name; ``occluder`` (F,) cell object index or -1.
+    the camera); ``occluder`` (F,) index in ``cell.objects`` of the nearest hiding object, or
+    -1; ``status`` (F,) 0 in the image, 1 behind the camera, 2 outside the image.
+    :attr:`reason` names why each feature is hidden.
     """
 
     camera: str
     visible: np.ndarray
     pixels: np.ndarray
-    reason: list[str]
     occluder: np.ndarray
+    status: np.ndarray
+    object_labels: list[str]
+    part_object: int
 
     @property
     def count(self) -> int:
         return int(self.visible.sum())
+
+    @property
+    def reason(self) -> list[str]:
+        """Per feature: '' when visible, else 'behind', 'outside', 'self' (hidden by its own
+        workpiece) or the label of the object hiding it (``R7AX.gripper``, ``table``)."""
+        out = []
+        for st, occ in zip(self.status, self.occluder, strict=True):
+            if st == _BEHIND:
+                out.append(BEHIND)
+            elif st == _OUTSIDE:
+                out.append(OUTSIDE)
+            elif occ < 0:
+                out.append("")
+            else:
+                out.append(SELF if occ == self.part_object else self.object_labels[occ])
+        return out
 
 
 class VisibilityPredictor:
@@ -93,6 +113,7 @@ class VisibilityPredictor:
                            self._static_vertices)
         self.part_objects = [cell.object_index(p.name) for p in cell.workpieces]
         self.part_features = [p.feature_points for p in cell.workpieces]
+        self._dist = {c.name: np.zeros(5) if c.dist is None else c.dist for c in self.cameras}
         self.part_polys = np.isin(self.poly_owner, self.part_objects)
         self.labels = [o.label for o in cell.objects]
 
@@ -119,47 +140,35 @@ class VisibilityPredictor:
             for k, local in zip(self.part_objects, self.part_features, strict=True)
         ]
         points = np.concatenate(features)
-        point_owner = np.repeat(self.part_objects, [len(f) for f in features])
-
-        pixels, labels = [], []
+        n = len(points)
+        views = []
         keep = self.part_polys.copy()
         for cam in self.cameras:
-            cam_points = cam.to_camera(points)
-            px = cam.project_camera(cam_points)
-            in_front = cam_points[:, 2] > 1e-9
-            inside = in_front & cam.in_image(px)
-            pixels.append(px)
-            labels.append((in_front, inside))
-            if self.cull and inside.any():
-                seen = cam_points[inside]
-                x, y = seen[:, 0] / seen[:, 2], seen[:, 1] / seen[:, 2]
-                box = np.array([x.min(), x.max(), y.min(), y.max(), seen[:, 2].max()])
+            px, status, box = np.empty((n, 2)), np.empty(n, dtype=np.int8), np.empty(5)
+            seen = project_points(points, cam.T_cam_base, cam.K, self._dist[cam.name],
+                                  cam.width, cam.height, px, status, box)
+            views.append((px, status))
+            if self.cull and seen:
                 cull_polygons(vertices, self.offsets, self.poly_closed, cam.T_cam_base, box,
                               CULL_MARGIN_PX / cam.focal_px, keep)
         if not self.cull:
             keep[:] = True
         tree, polys = self._build(vertices, keep)
         result = {part.name: [] for part in cell.workpieces}
-        for c, cam in enumerate(self.cameras):
-            in_front, inside = labels[c]
-            visible = np.zeros(len(points), dtype=bool)
-            occluder = np.full(len(points), -1, dtype=np.int32)
-            query = np.flatnonzero(inside)
+        for cam, (px, status) in zip(self.cameras, views, strict=True):
+            visible = np.zeros(n, dtype=bool)
+            occluder = np.full(n, -1, dtype=np.int32)
+            query = np.flatnonzero(status == _INSIDE)
             if query.size:
                 vis, occ = tree.visibility(points[query], cam.center)
                 visible[query] = vis
-                hidden = query[~vis]
-                occluder[hidden] = self.poly_owner[polys[occ[~vis]]]
-            reasons = np.where(~in_front, BEHIND, np.where(~inside, OUTSIDE, VISIBLE))
-            reasons = reasons.astype(object)
-            for i in np.flatnonzero(occluder >= 0):
-                reasons[i] = SELF if occluder[i] == point_owner[i] else self.labels[occluder[i]]
+                occluder[query[~vis]] = self.poly_owner[polys[occ[~vis]]]
             start = 0
-            for part, f in zip(cell.workpieces, features, strict=True):
+            for k, f in zip(self.part_objects, features, strict=True):
                 sl = slice(start, start + len(f))
                 start += len(f)
-                result[part.name].append(CameraVisibility(
-                    cam.name, visible[sl], pixels[c][sl], list(reasons[sl]), occluder[sl]))
+                result[cell.objects[k].name].append(CameraVisibility(
+                    cam.name, visible[sl], px[sl], occluder[sl], status[sl], self.labels, k))
         return result
 
     def _build(self, vertices: np.ndarray, keep: np.ndarray) -> tuple[BSPTree, np.ndarray]:
