@@ -1,0 +1,251 @@
+"""Extended Kalman filter of one workpiece's pose from stacked multi-camera pixel measurements.
+
+State and motion model: :mod:`cellsight.tracking.motion`; per-camera measurement model:
+:mod:`cellsight.tracking.measurement`. One filter per workpiece.
+
+Recursion, per vision frame:
+
+* predict: ``w- = A w``, ``P- = A P A^T + Q`` (a frame without measurement stops here);
+* innovation of feature ``j`` in camera ``c``: ``nu_j = z_j - h_j(w-)`` (2,), with covariance
+  ``S_j = C_j P- C_j^T + sigma_c^2 I`` (2x2);
+* gating (beyond the paper): ``d_j^2 = nu_j^T S_j^-1 nu_j``; a feature with ``d_j^2`` above the
+  chi-square quantile with 2 degrees of freedom at ``gate_probability`` is rejected (an outlier:
+  a wrong corner, an unpredicted occlusion) and reported;
+* update with the accepted features stacked: ``S = C P- C^T + R``, ``K = P- C^T S^-1``,
+  ``w = w- + K nu`` and the Joseph form ``P = (I - K C) P- (I - K C)^T + K R K^T``;
+  roll and yaw are wrapped to ``[-pi, pi)``.
+
+Adaptive noise (optional, beyond the paper): a scalar pixel variance per camera re-estimated by
+robust covariance matching over a sliding window of the last innovations (:class:`AdaptiveNoise`).
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass, field
+
+import numba
+import numpy as np
+from scipy.stats import chi2
+
+from cellsight.geometry.transforms import make_pose
+from cellsight.tracking.measurement import Observation, PinholeMeasurement, rotation_of_state
+from cellsight.tracking.motion import STATE_DIM, ConstantVelocity
+
+
+@dataclass(frozen=True)
+class UpdateReport:
+    """Per-feature outcome of an update, rows in the order of the observations' features.
+
+    ``innovation`` (m, 2) px, ``mahalanobis2`` (m,), ``accepted`` (m,) bool; ``sigma_px`` is the
+    pixel noise used for each camera index.
+    """
+
+    camera_index: np.ndarray
+    feature_ids: np.ndarray
+    innovation: np.ndarray
+    mahalanobis2: np.ndarray
+    accepted: np.ndarray
+    sigma_px: dict[int, float]
+
+    @property
+    def n_accepted(self) -> int:
+        """Number of features used by the update."""
+        return int(self.accepted.sum())
+
+
+@dataclass
+class AdaptiveNoise:
+    """Robust covariance-matching estimate of a scalar pixel noise per camera.
+
+    For a feature's innovation ``nu`` (2,) with ``C P- C^T`` of trace ``tr``, in the isotropic
+    approximation ``|nu|^2 ~ (sigma^2 + tr / 2) chi2_2``, whose median is
+    ``(sigma^2 + tr / 2) 2 ln 2``. Each feature gives ``y = |nu|^2 / (2 ln 2) - tr / 2`` and
+    ``sigma^2 = median(y)`` over the last ``window`` features of the camera: the median keeps
+    outliers out, so every innovation, gated or not, is used (gating with a too small sigma
+    would otherwise keep only the small innovations and drive the estimate down).
+    ``min_samples`` are needed before the estimate replaces the model's default sigma; the
+    result is clamped to ``[sigma_min, sigma_max]`` (px).
+    """
+
+    window: int = 200
+    min_samples: int = 20
+    sigma_min: float = 0.1
+    sigma_max: float = 5.0
+    _samples: dict[int, deque] = field(default_factory=dict, init=False, repr=False)
+
+    def sigma(self, camera_index: int, default: float) -> float:
+        """Current pixel sigma (px) for a camera, ``default`` until enough samples."""
+        samples = self._samples.get(camera_index)
+        if samples is None or len(samples) < self.min_samples:
+            return default
+        var = float(np.median(samples))
+        return float(np.clip(np.sqrt(max(var, 0.0)), self.sigma_min, self.sigma_max))
+
+    def add(self, camera_index: int, innovation: np.ndarray, predicted_trace: np.ndarray) -> None:
+        """Add innovations (m, 2) and the traces of their ``C_j P- C_j^T`` (m,)."""
+        samples = self._samples.setdefault(camera_index, deque(maxlen=self.window))
+        samples.extend(np.sum(innovation**2, axis=1) / (2 * np.log(2)) - 0.5 * predicted_trace)
+
+
+class PoseEKF:
+    """EKF of one workpiece: constant-velocity motion, stacked pinhole measurements.
+
+    ``state`` (12,) and ``covariance`` (12x12) at time ``t`` (s). ``gate_probability`` sets the
+    per-feature chi-square gate (None disables gating). ``adaptive`` enables the per-camera noise
+    estimate.
+    """
+
+    def __init__(
+        self,
+        motion: ConstantVelocity,
+        state: np.ndarray,
+        covariance: np.ndarray,
+        t: float,
+        gate_probability: float | None = 0.999,
+        adaptive: AdaptiveNoise | None = None,
+    ) -> None:
+        state = np.asarray(state, dtype=float)
+        covariance = np.asarray(covariance, dtype=float)
+        if state.shape != (STATE_DIM,) or covariance.shape != (STATE_DIM, STATE_DIM):
+            raise ValueError(
+                f"PoseEKF: state must be (12,) and covariance (12, 12), got {state.shape} and "
+                f"{covariance.shape}"
+            )
+        if gate_probability is not None and not 0 < gate_probability < 1:
+            raise ValueError(f"PoseEKF: gate_probability must be in (0, 1), got {gate_probability}")
+        self.motion = motion
+        self.state = state.copy()
+        self.covariance = covariance.copy()
+        self.t = float(t)
+        self.gate = np.inf if gate_probability is None else float(chi2.ppf(gate_probability, 2))
+        self.adaptive = adaptive
+        self._transition: tuple[float, np.ndarray, np.ndarray] | None = None
+
+    @property
+    def pose(self) -> np.ndarray:
+        """Current pose estimate ``T_base_part`` (4x4)."""
+        return make_pose(rotation_of_state(self.state), self.state[:3])
+
+    def predict(self, t: float) -> None:
+        """Propagate state and covariance to time ``t`` (s), ``t >= self.t``."""
+        dt = float(t) - self.t
+        if dt < 0:
+            raise ValueError(f"PoseEKF.predict: time goes backwards ({self.t} -> {t})")
+        if self._transition is None or self._transition[0] != dt:
+            self._transition = (dt, self.motion.matrix(dt), self.motion.covar(dt))
+        _, A, Q = self._transition
+        self.state = A @ self.state
+        self.covariance = A @ self.covariance @ A.T + Q
+        self.t = float(t)
+
+    def sigma_px(self, model: PinholeMeasurement, camera_index: int) -> float:
+        """Pixel noise sigma (px) used for a camera: adaptive estimate or the model's default."""
+        if self.adaptive is None:
+            return model.sigma_px
+        return self.adaptive.sigma(camera_index, model.sigma_px)
+
+    def innovation_covariance(
+        self, model: PinholeMeasurement, camera_index: int, points_model: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Predicted pixels (n, 2) and innovation covariances ``S_j`` (n, 2, 2) at the current
+        state, for the windows of the features ``points_model`` (n, 3) in one camera."""
+        pixels, H = model.evaluate(self.state, points_model)
+        sigma2 = np.full(len(pixels), self.sigma_px(model, camera_index) ** 2)
+        return pixels, _blocks(H, self.covariance, sigma2)
+
+    def update(self, observations: list[Observation]) -> UpdateReport:
+        """Gate and fuse the observations of all cameras in one Joseph-form update.
+
+        An empty list (or one where every feature is gated out) leaves the prediction unchanged.
+        """
+        R_part = rotation_of_state(self.state)
+        cams, ids, nus, Hs, sig, s2 = [], [], [], [], {}, []
+        for obs in observations:
+            n = len(obs.feature_ids)
+            if n == 0:
+                continue
+            pred, H = obs.model.evaluate(self.state, obs.points_model, R_part)
+            sigma = self.sigma_px(obs.model, obs.camera_index)
+            sig[obs.camera_index] = sigma
+            cams.append(np.full(n, obs.camera_index))
+            s2.append(np.full(n, sigma**2))
+            ids.append(np.asarray(obs.feature_ids))
+            nus.append(np.asarray(obs.pixels, dtype=float) - pred)
+            Hs.append(H)
+        if not nus:
+            empty = np.zeros(0, dtype=int)
+            return UpdateReport(empty, empty, np.zeros((0, 2)), np.zeros(0), np.zeros(0, bool), {})
+        cam = np.concatenate(cams)
+        nu = np.concatenate(nus)
+        state, P_new, d2, accepted, trace = _gated_update(
+            self.state, self.covariance, np.concatenate(Hs), nu, np.concatenate(s2), self.gate
+        )
+        report = UpdateReport(cam, np.concatenate(ids), nu, d2, accepted, sig)
+        if self.adaptive is not None:
+            for c in np.unique(cam):
+                rows = cam == c
+                self.adaptive.add(int(c), nu[rows], trace[rows])
+        if accepted.any():
+            for i in (3, 5):  # roll and yaw to [-pi, pi)
+                state[i] = (state[i] + np.pi) % (2 * np.pi) - np.pi
+            self.state, self.covariance = state, P_new
+        return report
+
+
+@numba.njit(cache=True)
+def _blocks(H, P, sigma2):
+    """Per-feature innovation covariances ``S_j = C_j P C_j^T + sigma_j^2 I`` (m, 2, 2)."""
+    m = len(sigma2)
+    HP = H @ P
+    S = np.empty((m, 2, 2))
+    for j in range(m):
+        for a in range(2):
+            for b in range(2):
+                S[j, a, b] = np.dot(HP[2 * j + a], H[2 * j + b])
+        S[j, 0, 0] += sigma2[j]
+        S[j, 1, 1] += sigma2[j]
+    return S
+
+
+@numba.njit(cache=True)
+def _gated_update(x, P, H, nu, sigma2, gate):
+    """Gate each feature on ``d^2 = nu^T S_j^-1 nu`` and update with the accepted ones (Joseph
+    form). Returns the new state and covariance, ``d^2``, the accepted mask and the traces of
+    ``C_j P C_j^T``."""
+    m = len(nu)
+    S = _blocks(H, P, sigma2)
+    d2 = np.empty(m)
+    trace = np.empty(m)
+    accepted = np.zeros(m, dtype=np.bool_)
+    n_acc = 0
+    for j in range(m):
+        a, b, c = S[j, 0, 0], S[j, 0, 1], S[j, 1, 1]
+        det = a * c - b * b
+        d2[j] = (c * nu[j, 0] ** 2 - 2 * b * nu[j, 0] * nu[j, 1] + a * nu[j, 1] ** 2) / det
+        trace[j] = a + c - 2 * sigma2[j]
+        accepted[j] = d2[j] <= gate
+        n_acc += accepted[j]
+    if n_acc == 0:
+        return x.copy(), P.copy(), d2, accepted, trace
+    rows = np.empty(2 * n_acc, dtype=np.int64)
+    r = np.empty(2 * n_acc)
+    z = np.empty(2 * n_acc)
+    i = 0
+    for j in range(m):
+        if accepted[j]:
+            for a in range(2):
+                rows[i] = 2 * j + a
+                r[i] = sigma2[j]
+                z[i] = nu[j, a]
+                i += 1
+    Ha = H[rows]
+    HP = Ha @ P
+    Sa = HP @ Ha.T
+    for i in range(len(r)):
+        Sa[i, i] += r[i]
+    K = np.linalg.solve(Sa, HP).T  # P H^T S^-1 (S and P symmetric)
+    x_new = x + K @ z
+    IKH = np.eye(len(x)) - K @ Ha
+    P_new = IKH @ P @ IKH.T + (K * r) @ K.T
+    return x_new, 0.5 * (P_new + P_new.T), d2, accepted, trace

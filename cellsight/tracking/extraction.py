@@ -1,0 +1,204 @@
+"""Sub-pixel corner extraction inside the image windows of the selected features.
+
+Inside a window (half-open integer box ``(u0, v0, u1, v1)`` of a grayscale image):
+
+1. candidates: Shi-Tomasi corners (``cv2.goodFeaturesToTrack``, minimum-eigenvalue response);
+   the one nearest to the predicted projection is kept;
+2. sub-pixel refinement: ``cv2.cornerSubPix`` (the point where the image gradients of the
+   surrounding pixels are orthogonal to the lines joining it to them: the common point of the
+   edges of any junction, L, Y or X), started from the candidate and from three points 1 px
+   around it; the runs must agree within ``max_spread_px`` (an ill-posed junction, e.g. two
+   nearly parallel edges a few pixels apart, gives scattered runs) and their mean is kept;
+3. credibility: the refined point must stay inside the window (``border_px`` from its sides) and
+   within ``max_shift_px`` of the candidate; the gradient structure tensor ``G`` summed over the
+   refinement patch (``N`` pixels, gradients in gray levels per pixel) must show two edge
+   directions: ``sqrt(lambda_min(G) / N) >= min_gradient`` and
+   ``lambda_min / lambda_max >= min_eigen_ratio`` (a straight edge or a flat patch fails).
+
+When any step fails the feature gets no measurement: a measurement is never forced.
+Returned pixels are in full-image coordinates (u = column, v = row; OpenCV pixel centres).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from cellsight.tracking.windowing import WindowPlan
+
+
+@dataclass(frozen=True)
+class ExtractionConfig:
+    """Corner detection and acceptance parameters (px, gray levels; module docstring)."""
+
+    max_candidates: int = 5
+    quality_level: float = 0.05
+    min_distance_px: float = 3.0
+    block_size: int = 3
+    refine_half_px: int = 4
+    max_shift_px: float = 2.5
+    max_spread_px: float = 0.15
+    line_inner_px: float = 2.5
+    line_outer_px: float = 10.0
+    line_threshold: float = 0.25
+    line_max_offset_px: float = 1.0
+    border_px: float = 2.0
+    min_gradient: float = 2.0
+    min_eigen_ratio: float = 0.03
+
+
+def _to_gray(image: np.ndarray) -> np.ndarray:
+    if image.ndim == 3:
+        return cv2.cvtColor(np.ascontiguousarray(image), cv2.COLOR_RGB2GRAY)
+    return image
+
+
+def _structure_ok(patch: np.ndarray, cfg: ExtractionConfig) -> bool:
+    gy, gx = np.gradient(patch.astype(np.float64))
+    G = np.array([[np.sum(gx * gx), np.sum(gx * gy)], [np.sum(gx * gy), np.sum(gy * gy)]])
+    lam_min, lam_max = np.linalg.eigvalsh(G)
+    if lam_max <= 0:
+        return False
+    return bool(
+        np.sqrt(max(lam_min, 0.0) / patch.size) >= cfg.min_gradient
+        and lam_min / lam_max >= cfg.min_eigen_ratio
+    )
+
+
+def _intersect_edges(
+    crop: np.ndarray, q: np.ndarray, cfg: ExtractionConfig
+) -> np.ndarray | None:
+    """Corner as the least-squares intersection of the edges leaving ``q`` (crop coordinates).
+
+    Edge directions: peaks of a 10-degree histogram of the directions from ``q`` of the strong
+    gradient pixels (magnitude above ``line_threshold`` of the largest) in the ring
+    ``line_inner_px..line_outer_px``. Each edge starts as the line through ``q`` along its peak
+    and is refitted three times by weighted total least squares to every pixel of the band
+    within 1.5 px of the line and ``line_inner_px..line_outer_px`` along it (weights: gradient
+    magnitude, whose centroid across an edge is the edge; a band symmetric about the line keeps
+    the fit unbiased). Lines passing within ``line_max_offset_px`` of ``q`` are intersected,
+    weighted by their total gradient. None when fewer than two non-parallel edges are found.
+    """
+    gy, gx = np.gradient(crop.astype(np.float64))
+    mag = np.hypot(gx, gy).ravel()
+    vv, uu = np.mgrid[0 : crop.shape[0], 0 : crop.shape[1]]
+    pts = np.column_stack([uu.ravel(), vv.ravel()]).astype(np.float64)
+    rel = pts - q
+    r = np.hypot(rel[:, 0], rel[:, 1])
+    ring = (r >= cfg.line_inner_px) & (r <= cfg.line_outer_px)
+    if not ring.any():
+        return None
+    strong = ring & (mag >= cfg.line_threshold * mag[ring].max())
+    if strong.sum() < 6:
+        return None
+    phi = np.arctan2(rel[strong, 1], rel[strong, 0])
+    nb = 36
+    hist = np.bincount(((phi + np.pi) / (2 * np.pi) * nb).astype(int) % nb, mag[strong], nb)
+    smooth = hist + 0.5 * (np.roll(hist, 1) + np.roll(hist, -1))
+    peaks = (smooth >= np.roll(smooth, 1)) & (smooth > np.roll(smooth, -1))
+    A, b = np.zeros((2, 2)), np.zeros(2)
+    for k in np.flatnonzero(peaks & (smooth >= 0.1 * smooth.sum())):
+        angle = (k + 0.5) * 2 * np.pi / nb - np.pi
+        direction = np.array([np.cos(angle), np.sin(angle)])
+        normal = np.array([-direction[1], direction[0]])
+        offset = normal @ q
+        for _ in range(3):
+            t = rel @ direction
+            band = (np.abs(pts @ normal - offset) <= 1.5) & (t >= cfg.line_inner_px)
+            band &= t <= cfg.line_outer_px
+            w, p = mag[band], pts[band]
+            if band.sum() < 6 or w.sum() <= 0:
+                break
+            mean = w @ p / w.sum()
+            cov = (p - mean).T @ ((p - mean) * w[:, None])
+            normal, new_dir = np.linalg.eigh(cov)[1].T
+            direction = new_dir if new_dir @ direction > 0 else -new_dir
+            offset = normal @ mean
+        else:
+            if abs(normal @ q - offset) <= cfg.line_max_offset_px:
+                A += w.sum() * np.outer(normal, normal)
+                b += w.sum() * normal * offset
+    lam = np.linalg.eigvalsh(A)
+    if lam[1] <= 0 or lam[0] / lam[1] < 0.05:
+        return None
+    return np.linalg.solve(A, b)
+
+
+def extract_corner(
+    image: np.ndarray,
+    box: np.ndarray,
+    predicted: np.ndarray,
+    config: ExtractionConfig | None = None,
+) -> np.ndarray | None:
+    """Sub-pixel corner (2,) in the window ``box`` nearest to ``predicted`` (px), or None."""
+    cfg = config or ExtractionConfig()
+    gray = _to_gray(image)
+    u0, v0, u1, v1 = (int(x) for x in box)
+    u0, v0 = max(u0, 0), max(v0, 0)
+    u1, v1 = min(u1, gray.shape[1]), min(v1, gray.shape[0])
+    crop = np.ascontiguousarray(gray[v0:v1, u0:u1], dtype=np.float32)
+    if crop.shape[0] < 5 or crop.shape[1] < 5:
+        return None
+    found = cv2.goodFeaturesToTrack(
+        crop,
+        maxCorners=cfg.max_candidates,
+        qualityLevel=cfg.quality_level,
+        minDistance=cfg.min_distance_px,
+        blockSize=cfg.block_size,
+    )
+    if found is None:
+        return None
+    cand = found.reshape(-1, 2)
+    local = np.asarray(predicted, dtype=float) - (u0, v0)
+    start = cand[np.argmin(np.sum((cand - local) ** 2, axis=1))]
+    h, w = crop.shape
+    half = int(min(cfg.refine_half_px, *(start - 1), *((w - 2, h - 2) - start)))
+    if half < 2:
+        return None
+    criteria = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_COUNT, 40, 1e-3)
+    starts = start + np.array([[0.0, 0.0], [1.0, 1.0], [-1.0, 1.0], [0.0, -1.0]])
+    runs = cv2.cornerSubPix(
+        crop, starts.reshape(-1, 1, 2).astype(np.float32), (half, half), (-1, -1), criteria
+    ).reshape(-1, 2).astype(np.float64)
+    spread = np.max(np.linalg.norm(runs - runs.mean(axis=0), axis=1))
+    if spread > cfg.max_spread_px:
+        return None
+    refined = runs.mean(axis=0)
+    b = cfg.border_px
+    if not (b <= refined[0] <= w - 1 - b and b <= refined[1] <= h - 1 - b):
+        return None
+    if np.hypot(*(refined - start)) > cfg.max_shift_px:
+        return None
+    iu, iv = int(round(refined[0])), int(round(refined[1]))
+    patch = crop[max(iv - half, 0) : iv + half + 1, max(iu - half, 0) : iu + half + 1]
+    if not _structure_ok(patch, cfg):
+        return None
+    q = refined
+    for _ in range(2):  # edge-line intersection, recentred once on its own result
+        lines = _intersect_edges(crop, q, cfg)
+        if lines is None or np.hypot(*(lines - refined)) > cfg.line_max_offset_px:
+            break
+        q = lines
+    return q + (u0, v0)
+
+
+@dataclass(frozen=True)
+class CornerExtractor:
+    """Extractor of the Tracker for real grayscale images: one corner per window."""
+
+    config: ExtractionConfig = ExtractionConfig()
+
+    def extract(
+        self, camera_index: int, image: np.ndarray, plan: WindowPlan
+    ) -> dict[int, np.ndarray]:
+        """Measured pixels (distorted, as in the image) by feature index; missing = not found."""
+        out: dict[int, np.ndarray] = {}
+        if image is None:
+            return out
+        for f, box, c in zip(plan.features, plan.boxes, plan.centers, strict=True):
+            px = extract_corner(image, box, c, self.config)
+            if px is not None:
+                out[int(f)] = px
+        return out

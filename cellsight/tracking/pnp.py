@@ -1,0 +1,134 @@
+"""Perspective-n-point pose of a workpiece from one frame's pixels in one or more cameras.
+
+Used to initialise the EKF when a part is first seen, and as the per-frame baseline the EKF is
+compared against. Steps:
+
+1. per camera with at least ``min_points`` features: ``cv2.solvePnP`` (SQPnP, then
+   Levenberg-Marquardt refinement) gives ``T_cam_part``, hence
+   ``T_base_part = T_base_cam T_cam_part``;
+2. fusion: each per-camera solution seeds a damped Gauss-Newton (Levenberg-Marquardt) minimisation
+   of the reprojection error over all cameras' features together, in the pose parameters
+   ``[x, y, z, roll, pitch, yaw]`` with the analytic Jacobian of
+   :class:`~cellsight.tracking.measurement.PinholeMeasurement`; the lowest-cost result wins.
+
+Pixels are ideal pinhole pixels (distortion removed). The returned covariance of the six pose
+parameters is ``sigma^2 (J^T J)^-1`` at the solution.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from cellsight.geometry.transforms import pose_from_xyz_rpy, xyz_rpy_from_pose
+from cellsight.tracking.measurement import Observation
+from cellsight.tracking.motion import POSE_DIM, STATE_DIM
+
+
+@dataclass(frozen=True)
+class PoseFix:
+    """A single-frame pose estimate: ``T_base_part``, 6x6 covariance of ``[xyz, rpy]``,
+    RMS reprojection error (px), number of points and of cameras used."""
+
+    T_base_part: np.ndarray
+    covariance: np.ndarray
+    rms_px: float
+    n_points: int
+    n_cameras: int
+
+
+def solve_pnp_camera(observation: Observation) -> np.ndarray | None:
+    """``T_base_part`` from one camera's observation (>= 4 points), or None if OpenCV fails."""
+    obj = np.ascontiguousarray(observation.points_model, dtype=np.float64).reshape(-1, 1, 3)
+    img = np.ascontiguousarray(observation.pixels, dtype=np.float64).reshape(-1, 1, 2)
+    if len(obj) < 4:
+        return None
+    K = observation.model.camera.K
+    ok, rvec, tvec = cv2.solvePnP(obj, img, K, None, flags=cv2.SOLVEPNP_SQPNP)
+    if not ok:
+        return None
+    rvec, tvec = cv2.solvePnPRefineLM(obj, img, K, None, rvec, tvec)
+    T_cam_part = np.eye(4)
+    T_cam_part[:3, :3] = cv2.Rodrigues(rvec)[0]
+    T_cam_part[:3, 3] = tvec.ravel()
+    return observation.model.camera.T_base_cam @ T_cam_part
+
+
+def _residuals(observations: list[Observation], params: np.ndarray):
+    state = np.zeros(STATE_DIM)
+    state[:POSE_DIM] = params
+    res, jac = [], []
+    for obs in observations:
+        pred, H = obs.model.evaluate(state, obs.points_model)
+        res.append((np.asarray(obs.pixels, dtype=float) - pred).ravel())
+        jac.append(H[:, :POSE_DIM])
+    return np.concatenate(res), np.concatenate(jac)
+
+
+def refine_pose(
+    observations: list[Observation],
+    T_init: np.ndarray,
+    iterations: int = 30,
+    sigma_px: float = 0.5,
+) -> PoseFix | None:
+    """Levenberg-Marquardt refinement of ``T_base_part`` over all observations' pixels.
+
+    Returns None when a point ends behind a camera or the normal equations are singular.
+    """
+    xyz, rpy = xyz_rpy_from_pose(T_init)
+    params = np.concatenate([xyz, rpy])
+    lam = 1e-3
+    try:
+        r, J = _residuals(observations, params)
+        cost = r @ r
+        for _ in range(iterations):
+            A = J.T @ J
+            step = np.linalg.solve(A + lam * np.diag(np.diag(A)), J.T @ r)
+            trial = params + step
+            r_t, J_t = _residuals(observations, trial)
+            cost_t = r_t @ r_t
+            if np.isfinite(cost_t) and cost_t < cost:
+                params, r, J, cost = trial, r_t, J_t, cost_t
+                lam = max(lam / 10, 1e-9)
+                if np.linalg.norm(step) < 1e-10:
+                    break
+            else:
+                lam *= 10
+                if lam > 1e8:
+                    break
+        cov = sigma_px**2 * np.linalg.inv(J.T @ J)
+    except np.linalg.LinAlgError:
+        return None
+    T = pose_from_xyz_rpy(params[:3], params[3:])
+    in_front = all(
+        np.all(o.model.camera.depth(o.points_model @ T[:3, :3].T + T[:3, 3]) > 0)
+        for o in observations
+    )
+    if not (np.isfinite(cost) and in_front):
+        return None
+    n = len(r) // 2
+    return PoseFix(
+        T_base_part=T,
+        covariance=cov,
+        rms_px=float(np.sqrt(cost / n)),
+        n_points=n,
+        n_cameras=sum(1 for o in observations if len(o.feature_ids)),
+    )
+
+
+def estimate_pose(
+    observations: list[Observation], min_points: int = 4, sigma_px: float = 0.5
+) -> PoseFix | None:
+    """Fused multi-camera PnP (module docstring); None if no camera has ``min_points`` points."""
+    used = [o for o in observations if len(o.feature_ids) > 0]
+    seeds = [solve_pnp_camera(o) for o in used if len(o.feature_ids) >= max(min_points, 4)]
+    best: PoseFix | None = None
+    for T0 in seeds:
+        if T0 is None:
+            continue
+        fix = refine_pose(used, T0, sigma_px=sigma_px)
+        if fix is not None and (best is None or fix.rms_px < best.rms_px):
+            best = fix
+    return best

@@ -1,0 +1,228 @@
+"""EKF pieces: motion model, measurement Jacobian, update, gating, adaptive noise, PnP."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.linalg import expm
+
+from cellsight.camera import Camera
+from cellsight.geometry.transforms import look_at, pose_from_xyz_rpy, xyz_rpy_from_pose
+from cellsight.tracking import (
+    AdaptiveNoise,
+    ConstantVelocity,
+    Observation,
+    PinholeMeasurement,
+    PoseEKF,
+    estimate_pose,
+    solve_pnp_camera,
+)
+from cellsight.tracking.measurement import rotation_of_state, undistort_pixels
+
+K = np.array([[1200.0, 0.0, 380.0], [0.0, 1180.0, 290.0], [0.0, 0.0, 1.0]])
+TARGET = np.array([0.6, 0.0, 0.6])
+
+
+def _cameras() -> list[Camera]:
+    return [
+        Camera(K, 768, 576, look_at([0.2, 1.2, 1.7], TARGET), name="a"),
+        Camera(K, 768, 576, look_at([1.4, 1.0, 1.6], TARGET), name="b"),
+    ]
+
+
+def _prism() -> np.ndarray:
+    """16 corners of a non-convex octagonal prism, ~10 cm across, 3.5 cm thick (part frame)."""
+    ang = np.deg2rad(22.5 + 45.0 * np.arange(8))
+    r = np.full(8, 0.05)
+    r[3] = 0.025  # one vertex pushed in: non-convex
+    xy = np.column_stack([r * np.cos(ang), r * np.sin(ang)])
+    return np.vstack([np.column_stack([xy, np.zeros(8)]), np.column_stack([xy, np.full(8, 0.035)])])
+
+
+def _state(xyz, rpy, vel=(0.0,) * 6) -> np.ndarray:
+    return np.concatenate([xyz, rpy, vel])
+
+
+def _observe(cams, pts, state, sigma, rng, ids=None):
+    ids = np.arange(len(pts)) if ids is None else ids
+    out = []
+    for c, cam in enumerate(cams):
+        model = PinholeMeasurement(cam, 0.5)
+        px = model.function(state, pts[ids]) + rng.normal(0, sigma, (len(ids), 2))
+        out.append(Observation(model, c, ids, pts[ids], px))
+    return out
+
+
+def test_process_noise_matches_continuous_white_acceleration():
+    """Q equals the integral of the continuous model (Van Loan, independent of the formula)."""
+    model = ConstantVelocity(q_linear=0.3, q_angular=2.0)
+    dt = 1 / 26
+    F = np.zeros((12, 12))
+    F[:6, 6:] = np.eye(6)
+    Qc = np.zeros((12, 12))
+    Qc[6:, 6:] = np.diag([0.3] * 3 + [2.0] * 3)
+    M = np.block([[-F, Qc], [np.zeros((12, 12)), F.T]]) * dt
+    E = expm(M)
+    Q_ref = E[12:, 12:].T @ E[:12, 12:]
+    np.testing.assert_allclose(model.covar(dt), Q_ref, atol=1e-12)
+    np.testing.assert_allclose(model.matrix(dt), expm(F * dt), atol=1e-12)
+
+
+@pytest.mark.parametrize("skew", [0.0, 3.0])
+def test_measurement_jacobian_matches_finite_differences(skew):
+    Ks = K.copy()
+    Ks[0, 1] = skew
+    cam = Camera(Ks, 768, 576, look_at([0.2, 1.2, 1.7], TARGET))
+    model = PinholeMeasurement(cam)
+    pts = _prism()
+    rng = np.random.default_rng(3)
+    for _ in range(5):
+        xyz, rpy = TARGET + rng.normal(0, 0.05, 3), rng.uniform(-0.6, 0.6, 3)
+        state = _state(xyz, rpy, rng.normal(0, 1, 6))
+        pix, J = model.evaluate(state, pts)
+        T = pose_from_xyz_rpy(xyz, rpy)
+        np.testing.assert_allclose(pix, cam.project(pts @ T[:3, :3].T + xyz), atol=1e-9)
+        J_fd = np.zeros_like(J)
+        h = 1e-6
+        for i in range(12):
+            d = np.zeros(12)
+            d[i] = h
+            diff = model.function(state + d, pts) - model.function(state - d, pts)
+            J_fd[:, i] = diff.ravel() / (2 * h)
+        np.testing.assert_allclose(J, J_fd, rtol=1e-5, atol=1e-4)
+        assert np.all(J[:, 6:] == 0)
+
+
+def test_update_matches_information_form_and_stays_symmetric():
+    """One Joseph-form update equals the information-form posterior (same linearisation)."""
+    cams = _cameras()
+    pts = _prism()
+    truth = _state(TARGET, [0.05, -0.02, 0.3])
+    rng = np.random.default_rng(0)
+    obs = _observe(cams, pts, truth, 0.5, rng)
+    x0 = truth + np.concatenate([[0.002, -0.001, 0.001, 0.01, -0.01, 0.02], np.zeros(6)])
+    P0 = np.diag([1e-4] * 3 + [1e-3] * 3 + [0.04] * 3 + [0.25] * 3)
+    ekf = PoseEKF(ConstantVelocity(), x0, P0, 0.0, gate_probability=None)
+    H = np.concatenate([o.model.evaluate(x0, o.points_model)[1] for o in obs])
+    R = 0.25 * np.eye(len(H))
+    P_info = np.linalg.inv(np.linalg.inv(P0) + H.T @ np.linalg.inv(R) @ H)
+    nu = np.concatenate([(o.pixels - o.model.function(x0, o.points_model)).ravel() for o in obs])
+    x_info = x0 + P_info @ H.T @ np.linalg.inv(R) @ nu
+    report = ekf.update(obs)
+    assert report.n_accepted == 2 * len(pts)
+    np.testing.assert_allclose(ekf.covariance, P_info, rtol=1e-6, atol=1e-14)
+    np.testing.assert_allclose(ekf.state, x_info, atol=1e-9)
+    assert np.allclose(ekf.covariance, ekf.covariance.T)
+    assert np.all(np.linalg.eigvalsh(ekf.covariance) > 0)
+
+
+def test_no_measurement_only_predicts():
+    motion = ConstantVelocity()
+    x0 = _state(TARGET, [0, 0, 0.1], [0.1, 0, 0, 0, 0, 0.2])
+    P0 = np.eye(12) * 1e-3
+    ekf = PoseEKF(motion, x0, P0, 1.0)
+    ekf.predict(1.0 + 1 / 26)
+    report = ekf.update([])
+    A, Q = motion.matrix(1 / 26), motion.covar(1 / 26)
+    np.testing.assert_allclose(ekf.state, A @ x0)
+    np.testing.assert_allclose(ekf.covariance, A @ P0 @ A.T + Q)
+    assert report.n_accepted == 0 and len(report.accepted) == 0
+
+
+def test_static_pose_converges_within_its_covariance():
+    cams = _cameras()
+    pts = _prism()
+    truth = _state(TARGET, [0.1, 0.05, -0.4])
+    rng = np.random.default_rng(1)
+    x0 = truth + np.concatenate([[0.01, -0.01, 0.005, 0.05, -0.05, 0.05], np.zeros(6)])
+    P0 = np.diag([0.02**2] * 3 + [0.1**2] * 3 + [0.1**2] * 3 + [0.3**2] * 3)
+    ekf = PoseEKF(ConstantVelocity(), x0, P0, 0.0)
+    for k in range(1, 60):
+        ekf.predict(k / 26)
+        ekf.update(_observe(cams, pts, truth, 0.5, rng))
+    err = ekf.state[:6] - truth[:6]
+    assert np.linalg.norm(err[:3]) < 1e-3 and np.linalg.norm(err[3:]) < 5e-3
+    nees = err @ np.linalg.solve(ekf.covariance[:6, :6], err)
+    assert nees < 22.5  # chi-square(6) 0.999 quantile
+
+
+def test_gating_rejects_an_outlier_and_records_it():
+    cams = _cameras()
+    pts = _prism()
+    truth = _state(TARGET, [0.0, 0.0, 0.2])
+    P0 = np.diag([1e-5] * 3 + [1e-4] * 3 + [1e-3] * 6)
+    obs = _observe(cams, pts, truth, 0.5, np.random.default_rng(2))
+    bad = obs[1].pixels.copy()
+    bad[4] += [15.0, -10.0]
+    obs_bad = [obs[0], Observation(obs[1].model, 1, obs[1].feature_ids, obs[1].points_model, bad)]
+    keep = np.arange(len(pts)) != 4
+    clean = [obs[0], Observation(obs[1].model, 1, obs[1].feature_ids[keep],
+                                 obs[1].points_model[keep], bad[keep])]
+    ekf_a = PoseEKF(ConstantVelocity(), truth, P0, 0.0)
+    ekf_b = PoseEKF(ConstantVelocity(), truth, P0, 0.0)
+    report = ekf_a.update(obs_bad)
+    ekf_b.update(clean)
+    rejected = ~report.accepted
+    assert rejected.sum() == 1
+    assert report.camera_index[rejected][0] == 1 and report.feature_ids[rejected][0] == 4
+    assert report.mahalanobis2[rejected][0] > 3 * ekf_a.gate
+    np.testing.assert_allclose(ekf_a.state, ekf_b.state, atol=1e-12)
+    ekf_c = PoseEKF(ConstantVelocity(), truth, P0, 0.0, gate_probability=None)
+    ekf_c.update(obs_bad)
+    err_gated = np.linalg.norm(ekf_a.state[:3] - truth[:3])
+    assert np.linalg.norm(ekf_c.state[:3] - truth[:3]) > 5 * err_gated
+
+
+def test_adaptive_noise_finds_the_true_pixel_noise():
+    cams = _cameras()
+    pts = _prism()
+    truth = _state(TARGET, [0.0, 0.1, 0.2])
+    rng = np.random.default_rng(4)
+    P0 = np.diag([1e-4] * 3 + [1e-3] * 3 + [1e-2] * 6)
+    ekf = PoseEKF(ConstantVelocity(q_linear=1e-6, q_angular=1e-6), truth, P0, 0.0,
+                  adaptive=AdaptiveNoise(window=400))
+    for k in range(1, 80):
+        ekf.predict(k / 26)
+        ekf.update(_observe(cams, pts, truth, 1.5, rng))
+    for c, cam in enumerate(cams):
+        assert ekf.sigma_px(PinholeMeasurement(cam, 0.5), c) == pytest.approx(1.5, rel=0.15)
+
+
+def test_pnp_single_and_fused_recover_the_pose():
+    cams = _cameras()
+    pts = _prism()
+    T = pose_from_xyz_rpy(TARGET + [0.03, -0.02, 0.01], [0.1, -0.05, 0.7])
+    xyz, rpy = xyz_rpy_from_pose(T)
+    state = _state(xyz, rpy)
+    exact = _observe(cams, pts, state, 0.0, np.random.default_rng(0))
+    for o in exact:
+        np.testing.assert_allclose(solve_pnp_camera(o), T, atol=1e-6)
+    fix = estimate_pose(exact)
+    np.testing.assert_allclose(fix.T_base_part, T, atol=1e-8)
+    assert fix.n_points == 32 and fix.n_cameras == 2 and fix.rms_px < 1e-6
+    errs_single, errs_fused = [], []
+    for seed in range(10):
+        noisy = _observe(cams, pts, state, 0.5, np.random.default_rng(seed))
+        errs_single.append(np.linalg.norm(solve_pnp_camera(noisy[0])[:3, 3] - T[:3, 3]))
+        errs_fused.append(np.linalg.norm(estimate_pose(noisy).T_base_part[:3, 3] - T[:3, 3]))
+    assert np.mean(errs_fused) < 0.5 * np.mean(errs_single)
+    assert estimate_pose([exact[0].__class__(exact[0].model, 0, np.arange(3), pts[:3],
+                                             exact[0].pixels[:3])]) is None
+
+
+def test_undistort_pixels_inverts_the_camera_distortion():
+    cam = Camera(K, 768, 576, look_at([0.2, 1.2, 1.7], TARGET), dist=[-0.2, 0.05, 0.001, -0.001])
+    ideal = Camera(K, 768, 576, cam.T_base_cam)
+    pts = TARGET + _prism()
+    np.testing.assert_allclose(
+        undistort_pixels(cam, cam.project(pts)), ideal.project(pts), atol=1e-3
+    )
+
+
+def test_state_rotation_follows_the_transforms_convention():
+    rng = np.random.default_rng(9)
+    for _ in range(20):
+        rpy = rng.uniform(-np.pi, np.pi, 3) * [1, 0.49, 1]
+        state = _state(np.zeros(3), rpy)
+        R = pose_from_xyz_rpy(np.zeros(3), rpy)[:3, :3]
+        np.testing.assert_allclose(rotation_of_state(state), R, atol=1e-12)

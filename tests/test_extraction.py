@@ -1,0 +1,112 @@
+"""Sub-pixel corner extraction: drawn corners, MuJoCo renders of the workpiece, no forced
+measurements."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+from render_helpers import PartRenderer, conveyor_pose
+
+from cellsight import load_cell
+from cellsight.tracking import CornerExtractor, WindowConfig, extract_corner, plan_windows
+
+SS = 32  # supersampling of the drawn test images
+
+
+def _draw(polygons: list[tuple[np.ndarray, int]], shape=(60, 80), background=30) -> np.ndarray:
+    """Anti-aliased image of filled polygons (vertices in OpenCV pixel coordinates), drawn at
+    SS x resolution and area-averaged: a pixel's value is the mean over its own square."""
+    big = np.full((shape[0] * SS, shape[1] * SS), background, np.uint8)
+    for poly, value in polygons:
+        pts = np.round(((poly + 0.5) * SS - 0.5) * 256).astype(np.int32)
+        cv2.fillPoly(big, [pts], int(value), lineType=cv2.LINE_8, shift=8)
+    small = big.reshape(shape[0], SS, shape[1], SS).mean(axis=(1, 3))
+    return np.round(small).astype(np.uint8)
+
+
+@pytest.mark.parametrize("angle_deg", [50.0, 90.0, 135.0])
+def test_drawn_corner_is_found_to_subpixel_accuracy(angle_deg):
+    """Ideal anti-aliased L corners at random orientations and sub-pixel positions."""
+    rng = np.random.default_rng(int(angle_deg))
+    errors = []
+    for _ in range(8):
+        corner = np.array([40.0, 30.0]) + rng.uniform(-0.5, 0.5, 2)
+        a0 = rng.uniform(0, 2 * np.pi)
+        a1 = a0 + np.deg2rad(angle_deg)
+        poly = np.array([corner, corner + 200 * np.array([np.cos(a0), np.sin(a0)]),
+                         corner + 200 * np.array([np.cos((a0 + a1) / 2), np.sin((a0 + a1) / 2)]),
+                         corner + 200 * np.array([np.cos(a1), np.sin(a1)])])
+        img = _draw([(poly, 180)])
+        pred = corner + rng.normal(0, 1.5, 2)
+        box = np.array([pred[0] - 12, pred[1] - 12, pred[0] + 13, pred[1] + 13]).astype(int)
+        found = extract_corner(img, box, pred)
+        assert found is not None
+        errors.append(np.linalg.norm(found - corner))
+    assert np.median(errors) < 0.2 and max(errors) < 0.35
+
+
+def test_no_corner_no_measurement():
+    flat = np.full((60, 80), 90, np.uint8)
+    edge = _draw([(np.array([[-10.0, -10.0], [37.3, -10.0], [42.1, 70.0], [-10.0, 70.0]]), 200)])
+    noisy = np.clip(90 + np.random.default_rng(0).normal(0, 2, (60, 80)), 0, 255).astype(np.uint8)
+    for img in (flat, edge, noisy):
+        assert extract_corner(img, np.array([20, 10, 60, 50]), np.array([40.0, 30.0])) is None
+
+
+@pytest.fixture(scope="module")
+def rendered():
+    cell = load_cell()
+    part = cell.workpieces[0]
+    renderer = PartRenderer(cell.cameras, part.solid)
+    yield cell, part, renderer
+    renderer.close()
+
+
+def test_extraction_on_mujoco_renders_is_subpixel(rendered):
+    """Windows planned around noisy predictions of the truly visible features (MuJoCo ray casts)
+    of the built-in workpiece at known poses; extracted corners against the true projections."""
+    cell, part, renderer = rendered
+    rng = np.random.default_rng(5)
+    extractor = CornerExtractor()
+    cfg = WindowConfig()
+    errors, n_windows, wrong = [], 0, 0
+    for t in (0.0, 1.1, 2.3, 3.4, 4.6):
+        T = conveyor_pose(t, part.T_base_part)
+        for c, cam in enumerate(cell.cameras):
+            image = renderer.render(c, T)
+            visible = renderer.visible(c, T)
+            true_px = cam.project(part.feature_points @ T[:3, :3].T + T[:3, 3])
+            idx = np.flatnonzero(visible)
+            pred = true_px[idx] + rng.normal(0, 1.0, (len(idx), 2))
+            S = np.tile(np.eye(2) * 1.5**2, (len(idx), 1, 1))
+            plan = plan_windows(pred, idx, S, cam.width, cam.height, pred,
+                                np.arange(len(idx)), config=cfg)
+            n_windows += len(plan.features)
+            for f, px in extractor.extract(c, image, plan).items():
+                err = np.linalg.norm(px - true_px[f])
+                errors.append(err)
+                wrong += err > 3.0
+    errors = np.array(errors)
+    assert len(errors) >= 0.7 * n_windows
+    assert np.median(errors) <= 0.3
+    assert wrong == 0
+
+
+def test_windows_on_faces_edges_or_background_give_nothing(rendered):
+    cell, part, renderer = rendered
+    T = conveyor_pose(2.0, part.T_base_part)
+    c = 0
+    cam = cell.cameras[c]
+    image = renderer.render(c, T)
+    pts = part.feature_points @ T[:3, :3].T + T[:3, 3]
+    top_face = pts[8:11].mean(axis=0)  # inside the top face, away from its edges
+    top_edge = 0.5 * (pts[8] + pts[9])  # middle of a visible top edge (5 cm long)
+    side_face = 0.5 * (pts[0] + pts[9])  # middle of a side face
+    centres = np.vstack([cam.project(np.array([top_face, top_edge, side_face])), [100.0, 100.0]])
+    ids = np.arange(len(centres))
+    visible_px = cam.project(pts[renderer.visible(c, T)])
+    plan = plan_windows(centres, ids, np.tile(np.eye(2), (len(ids), 1, 1)), cam.width,
+                        cam.height, visible_px, config=WindowConfig(max_size_px=24))
+    found = CornerExtractor().extract(c, image, plan)
+    assert len(plan.features) == 4 and found == {}

@@ -1,0 +1,229 @@
+"""The closed tracking loop on the built-in cell: accuracy against per-frame PnP, occlusions,
+re-acquisition, outliers, the per-frame record, and the loop on rendered images.
+
+Synthetic measurements: true projections of the truly visible features plus 0.5 px Gaussian
+noise, for the windows the tracker plans (render_helpers.SyntheticExtractor). The occlusion
+predictor is the test-only back-face predictor (render_helpers.BackfacePredictor).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from render_helpers import (
+    VISION_PERIOD,
+    BackfacePredictor,
+    PartRenderer,
+    SyntheticExtractor,
+    SyntheticView,
+    conveyor_pose,
+    rotation_error,
+)
+
+from cellsight import load_cell
+from cellsight.geometry.transforms import pose_from_xyz_rpy
+from cellsight.tracking import (
+    Observation,
+    PinholeMeasurement,
+    Tracker,
+    TrackerConfig,
+    estimate_pose,
+)
+from cellsight.tracking.tracker import STAGES
+
+
+class Run:
+    """One synthetic run of the tracker on the built-in cell along the known trajectory."""
+
+    def __init__(self, seed: int = 0, config: TrackerConfig | None = None, sway: float = 1.0):
+        self.cell = load_cell()
+        self.part = self.cell.workpieces[0]
+        self.cams = self.cell.cameras
+        self.predictor = BackfacePredictor(self.cams, self.part.name, self.part.solid)
+        self.truth_vis = BackfacePredictor(self.cams, self.part.name, self.part.solid)
+        self.extractor = SyntheticExtractor(0.5, seed)
+        self.sway = sway
+        T0 = conveyor_pose(0.0, self.part.T_base_part, sway)
+        guess = T0 @ pose_from_xyz_rpy([0.006, -0.004, 0.003], [0.02, -0.01, 0.03])
+        self.tracker = Tracker(
+            self.cams, {self.part.name: self.part.feature_points}, self.predictor,
+            self.extractor, config, {self.part.name: guess},
+        )
+        self.frames, self.truth = [], []
+
+    def step(self, k: int):
+        t = k * VISION_PERIOD
+        T = conveyor_pose(t, self.part.T_base_part, self.sway)
+        pts = self.part.feature_points @ T[:3, :3].T + T[:3, 3]
+        views = [
+            SyntheticView(cam.project(pts), self.truth_vis.visibility(c, T).visible)
+            for c, cam in enumerate(self.cams)
+        ]
+        frame = self.tracker.step(views, None, t)
+        self.frames.append(frame.parts[self.part.name])
+        self.truth.append(T)
+        return frame
+
+    def errors(self, k: int) -> tuple[float, float]:
+        est, T = self.frames[k].T_base_part, self.truth[k]
+        return float(np.linalg.norm(est[:3, 3] - T[:3, 3])), rotation_error(est[:3, :3], T[:3, :3])
+
+    def pnp_errors(self, k: int) -> tuple[float, float] | None:
+        rec = self.frames[k]
+        obs = []
+        for c, cam in enumerate(self.cams):
+            ids = np.flatnonzero(np.isfinite(rec.measured[c, :, 0]))
+            if len(ids):
+                obs.append(Observation(PinholeMeasurement(cam), c, ids,
+                                       self.part.feature_points[ids], rec.measured[c, ids]))
+        fix = estimate_pose(obs)
+        if fix is None:
+            return None
+        T = self.truth[k]
+        return (float(np.linalg.norm(fix.T_base_part[:3, 3] - T[:3, 3])),
+                rotation_error(fix.T_base_part[:3, :3], T[:3, :3]))
+
+
+def _rmse(values) -> float:
+    return float(np.sqrt(np.mean(np.square(values))))
+
+
+def test_ekf_beats_per_frame_pnp_on_the_same_measurements():
+    run = Run(seed=1)
+    n = int(6.0 / VISION_PERIOD)
+    for k in range(n):
+        run.step(k)
+    steady = range(int(2.0 / VISION_PERIOD), n)
+    ekf = np.array([run.errors(k) for k in steady])
+    pnp = np.array([run.pnp_errors(k) for k in steady])
+    assert all(run.frames[k].status == "tracking" for k in steady)
+    ekf_pos, ekf_rot = _rmse(ekf[:, 0]), _rmse(ekf[:, 1])
+    pnp_pos, pnp_rot = _rmse(pnp[:, 0]), _rmse(pnp[:, 1])
+    assert ekf_pos < pnp_pos and ekf_rot < pnp_rot
+    assert ekf_pos < 0.6e-3 and ekf_rot < np.deg2rad(0.6)
+
+
+def test_one_camera_fully_occluded_keeps_tracking_with_the_other():
+    run = Run(seed=2)
+    start, stop = int(2.0 / VISION_PERIOD), int(3.5 / VISION_PERIOD)
+    for k in range(int(5.0 / VISION_PERIOD)):
+        blind = {1} if start <= k < stop else set()
+        run.predictor.blind = run.truth_vis.blind = blind
+        run.step(k)
+    for k in range(start, stop):  # one camera: depth is poorer, but within the covariance
+        rec = run.frames[k]
+        assert rec.status == "tracking"
+        assert not rec.selected[1].any() and rec.windows[1] is None
+        pos, rot = run.errors(k)
+        assert pos < 1e-2 and rot < np.deg2rad(1.5)
+        err = rec.state[:3] - run.truth[k][:3, 3]
+        assert err @ np.linalg.solve(rec.covariance[:3, :3], err) < 16.27  # chi2(3) 0.999
+    assert run.frames[stop + 2].selected[1].sum() >= 4
+    assert max(run.errors(k)[0] for k in range(stop + 26, len(run.frames))) < 1.5e-3
+
+
+@pytest.mark.parametrize(("blackout_s", "sway"), [(1.2, 1.0), (2.6, 0.0)])
+def test_both_cameras_occluded_predicts_then_reacquires(blackout_s, sway):
+    """1.2 s on the swaying trajectory: the filter only predicts and takes the features back in
+    its windows; 2.6 s on a steady conveyor: past ``lost_after_s`` the part is lost, then
+    re-acquired by PnP in windows around the prediction."""
+    run = Run(seed=3, sway=sway)
+    start = int(2.0 / VISION_PERIOD)
+    stop = start + int(blackout_s / VISION_PERIOD)
+    n = stop + int(2.0 / VISION_PERIOD)
+    for k in range(n):
+        blind = {0, 1} if start <= k < stop else set()
+        run.predictor.blind = run.truth_vis.blind = blind
+        run.step(k)
+    during = [run.frames[k].status for k in range(start, stop)]
+    assert set(during) <= {"predicting", "lost"} and during[0] == "predicting"
+    for k in range(start, stop):  # the truth stays inside the growing uncertainty
+        rec, T = run.frames[k], run.truth[k]
+        err = rec.state[:3] - T[:3, 3]
+        assert err @ np.linalg.solve(rec.covariance[:3, :3], err) < 16.27  # chi2(3) 0.999
+    after = [run.frames[k].status for k in range(stop, stop + 5)]
+    assert "tracking" in after or "acquired" in after
+    if blackout_s > TrackerConfig().lost_after_s:
+        assert "lost" in during and "acquired" in after
+    else:
+        assert "lost" not in during
+    tail = [run.errors(k) for k in range(stop + 26, n)]
+    assert max(e[0] for e in tail) < 1.5e-3 and max(e[1] for e in tail) < np.deg2rad(1.5)
+
+
+def test_wrong_corners_are_gated_out_and_recorded():
+    run = Run(seed=4)
+    k0, n = int(2.0 / VISION_PERIOD), int(4.0 / VISION_PERIOD)
+    for k in range(n):
+        if k == k0:  # from now on, one selected feature is measured on a wrong corner
+            bad = int(np.flatnonzero(run.frames[-1].selected.any(axis=0))[0])
+            run.extractor.outliers = {bad: np.array([6.0, -5.0])}
+        run.step(k)
+    measured_bad = [r for r in run.frames[k0:] if np.isfinite(r.measured[:, bad, 0]).any()]
+    assert len(measured_bad) > 10
+    false_rejections = good = 0
+    for rec in measured_bad:
+        cams = np.flatnonzero(np.isfinite(rec.measured[:, bad, 0]))
+        assert rec.rejected[cams, bad].all()
+        others = np.isfinite(rec.measured[:, :, 0])
+        others[:, bad] = False
+        false_rejections += rec.rejected[others].sum()
+        good += others.sum()
+    assert false_rejections <= 0.01 * good  # the gate's 0.1 % false alarms
+    assert max(run.errors(k)[0] for k in range(k0, n)) < 2e-3
+
+
+def test_frame_record_holds_what_a_user_plots():
+    run = Run(seed=5)
+    for k in range(40):
+        frame = run.step(k)
+    rec = run.frames[0]
+    assert rec.status == "acquired"
+    rec = frame.parts[run.part.name]
+    C, F = len(run.cams), len(run.part.feature_points)
+    assert rec.status == "tracking"
+    assert rec.visible.shape == rec.selected.shape == rec.rejected.shape == (C, F)
+    assert rec.pixels.shape == rec.measured.shape == rec.innovation.shape == (C, F, 2)
+    assert not np.any(rec.selected & ~rec.visible)
+    assert rec.selected.sum() <= TrackerConfig().selection.max_points
+    measured = np.isfinite(rec.measured[:, :, 0])
+    assert np.all(measured <= rec.selected)
+    assert np.all(np.isfinite(rec.innovation[measured]))
+    assert np.all(np.abs(rec.innovation[measured]) < 5.0)
+    for c, plan in enumerate(rec.windows):
+        for f, box in zip(plan.features, plan.boxes, strict=True):
+            u, v = rec.pixels[c, f]
+            assert box[0] <= u < box[2] and box[1] <= v < box[3]
+    assert rec.covariance.shape == (12, 12) and rec.state.shape == (12,)
+    assert set(frame.timings) == set(STAGES) and all(v >= 0 for v in frame.timings.values())
+    assert frame.timings["total"] >= frame.timings["selection"] + frame.timings["update"]
+    assert np.all((frame.grabbed_fraction > 0) & (frame.grabbed_fraction < 0.05))
+    assert len(run.tracker.history) == 40
+
+
+def test_closed_loop_on_rendered_images():
+    """MuJoCo renders of the moving workpiece, corners extracted in the planned windows."""
+    cell = load_cell()
+    part = cell.workpieces[0]
+    renderer = PartRenderer(cell.cameras, part.solid)
+    T0 = conveyor_pose(0.0, part.T_base_part)
+    guess = T0 @ pose_from_xyz_rpy([0.004, -0.003, 0.002], [0.01, 0.0, 0.02])
+    tracker = Tracker(cell.cameras, {part.name: part.feature_points},
+                      BackfacePredictor(cell.cameras, part.name, part.solid),
+                      initial_poses={part.name: guess})
+    errors = []
+    try:
+        for k in range(80):
+            t = k * VISION_PERIOD
+            T = conveyor_pose(t, part.T_base_part)
+            frame = tracker.step([renderer.render(c, T) for c in range(2)], None, t)
+            rec = frame.parts[part.name]
+            assert rec.status == ("acquired" if k == 0 else "tracking")
+            if k >= 26:
+                errors.append((np.linalg.norm(rec.T_base_part[:3, 3] - T[:3, 3]),
+                               rotation_error(rec.T_base_part[:3, :3], T[:3, :3])))
+                assert np.isfinite(rec.measured[:, :, 0]).sum() >= 8
+    finally:
+        renderer.close()
+    errors = np.array(errors)
+    assert _rmse(errors[:, 0]) < 1e-3 and _rmse(errors[:, 1]) < np.deg2rad(0.5)
