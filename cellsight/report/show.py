@@ -78,22 +78,21 @@ def plot_camera_view(snapshot: Snapshot, camera: int, path: Path, visibility=Non
     fig, ax = plt.subplots(figsize=(7.68, 5.76))
     ax.set_facecolor("#202020")
     draw_wireframe(ax, snapshot, camera)
-    for k, part in enumerate(cell.workpieces):
+    for part in cell.workpieces:
         pts = transform_points(snapshot.part_poses[part.name], part.feature_points)
         uv = cam.project(pts)
         vis = None if visibility is None else visibility[part.name][camera]
         for j, name in enumerate(part.feature_names):
             if not np.all(np.isfinite(uv[j])):
                 continue
-            colour = "#ffd92f" if vis is None else ("#59d659" if vis.visible[j] else "#ff5050")
+            colour = "#ffd92f" if vis is None else ("#59d659" if vis.visible[j] else "#ff40ff")
             ax.plot(*uv[j], "o", ms=4, color=colour)
             ax.annotate(name.lstrip("f"), uv[j], xytext=(3, -3), textcoords="offset points",
                         color=colour, fontsize=8)
-        del k
     title = f"{cam.name}: {cam.width}x{cam.height}, f = {cam.focal_px:.0f} px"
     if visibility is not None:
         n_vis = sum(int(v[camera].visible.sum()) for v in visibility.values())
-        title += f" - {n_vis} features visible (green), hidden in red"
+        title += f" - {n_vis} features visible (green), hidden (magenta)"
     ax.set_title(title, fontsize=10)
     fig.tight_layout()
     fig.savefig(path, dpi=100)
