@@ -1,30 +1,37 @@
 # cellsight: the whole set-up is `make demo` and `make test`.
 PY      := .venv/bin/python
 STAMP   := .venv/.installed
+DEV     := .venv/.installed-dev
 export MUJOCO_GL ?= egl
 
-.PHONY: venv test demo bench lint clean
+.PHONY: venv dev test demo bench lint clean
 
+# `venv`: what cellsight needs to run; `dev`: plus the test tools and the benchmark peers.
 venv: $(STAMP)
+dev: $(DEV)
 
 $(STAMP): pyproject.toml
 	test -x $(PY) || python3 -m venv .venv
 	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -e ".[dev]"
+	$(PY) -m pip install --quiet -e .
 	touch $(STAMP)
 
-lint: venv
+$(DEV): $(STAMP)
+	$(PY) -m pip install --quiet -e ".[dev]"
+	touch $(DEV)
+
+lint: dev
 	.venv/bin/ruff check cellsight tests bench
 
-test: venv lint
+test: dev lint
 	$(PY) -m pytest
 
+# The main job: the paper's third experiment on the built-in cell (report in out/experiment3).
 demo: venv
-	.venv/bin/cellsight show --out out/show
-	.venv/bin/cellsight visibility
+	.venv/bin/cellsight run 3 --out out/experiment3
 
 # Open3D (a benchmark peer) needs libusb; install it from Debian when missing.
-bench: venv
+bench: dev
 	@ldconfig -p | grep -q libusb-1.0 || (apt-get update -qq && apt-get install -y -qq libusb-1.0-0)
 	$(PY) bench/run_all.py
 

@@ -113,6 +113,85 @@ def cmd_visibility(args: argparse.Namespace) -> int:
     return 0
 
 
+SUMMARY_KEYS = (
+    "experiment", "seed", "sensor", "occlusion_prediction", "frames", "grasp_success",
+    "grasp_position_error_mm", "position_rmse_mm", "orientation_rmse_deg",
+    "max_position_error_mm", "pnp_position_rmse_mm", "pnp_orientation_rmse_deg",
+    "visibility_accuracy", "false_visible", "false_hidden", "pixels_grabbed_fraction",
+    "extraction_error_px_median", "wall_s",
+)
+
+
+def _fmt(value) -> str:
+    if isinstance(value, float):
+        return f"{value:.4g}"
+    return "-" if value is None else str(value)
+
+
+def _metric_rows(metrics: dict) -> dict[str, object]:
+    """The scalar metrics, with the stage timings flattened to ``timing_<stage>_ms``."""
+    rows = {k: metrics.get(k) for k in SUMMARY_KEYS}
+    rows.update({f"timing_{k}_ms": v for k, v in (metrics.get("timing_ms") or {}).items()})
+    return rows
+
+
+def cmd_run(args: argparse.Namespace) -> int:
+    from rich.console import Console
+    from rich.table import Table
+
+    from cellsight.experiments import RunConfig, run_experiment
+
+    if args.duration is not None and not args.duration > 0:
+        raise CellsightError(f"--duration: expected a positive number of seconds, got "
+                             f"{args.duration}")
+    out = Path(args.out or f"out/experiment{args.experiment}")
+    config = RunConfig(
+        experiment=args.experiment, out=out, cell=args.cell, seed=args.seed,
+        sensor=args.sensor, occlusion_prediction=not args.no_occlusion_prediction,
+        duration=args.duration, progress=not args.quiet,
+    )
+    metrics = run_experiment(config)
+    table = Table(title=f"experiment {args.experiment}: {metrics['description']}")
+    table.add_column("metric")
+    table.add_column("value", justify="right")
+    for key, value in _metric_rows(metrics).items():
+        table.add_row(key, _fmt(value))
+    console = Console()
+    console.print(table)
+    console.print(f"wrote [bold]{out}[/bold]: frames.csv, metrics.json, run.log, report.html")
+    return 0
+
+
+def _load_metrics(folder: str) -> dict:
+    path = Path(folder) / "metrics.json"
+    if not path.is_file():
+        raise CellsightError(f"{path}: no metrics.json here (is {folder} a run's output folder?)")
+    try:
+        return json.loads(path.read_text())
+    except json.JSONDecodeError as exc:
+        raise CellsightError(f"{path}: not valid JSON ({exc.msg}, line {exc.lineno})") from exc
+
+
+def cmd_compare(args: argparse.Namespace) -> int:
+    from rich.console import Console
+    from rich.table import Table
+
+    a, b = _load_metrics(args.run_a), _load_metrics(args.run_b)
+    rows_a, rows_b = _metric_rows(a), _metric_rows(b)
+    table = Table(title="cellsight compare")
+    table.add_column("metric")
+    table.add_column(args.run_a, justify="right")
+    table.add_column(args.run_b, justify="right")
+    table.add_column("B / A", justify="right")
+    for key in list(rows_a) + [k for k in rows_b if k not in rows_a]:
+        va, vb = rows_a.get(key), rows_b.get(key)
+        numeric = all(isinstance(v, int | float) and not isinstance(v, bool) for v in (va, vb))
+        ratio = f"{vb / va:.3g}" if numeric and va else ""
+        table.add_row(key, _fmt(va), _fmt(vb), ratio)
+    Console().print(table)
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="cellsight", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True)
@@ -132,6 +211,27 @@ def build_parser() -> argparse.ArgumentParser:
     cell_args(vis)
     vis.add_argument("--json", action="store_true", help="print JSON instead of tables")
     vis.set_defaults(func=cmd_visibility)
+
+    run = sub.add_parser("run", help="run one of the paper's experiments end to end")
+    run.add_argument("experiment", type=int, choices=(1, 2, 3),
+                     help="1: part still; 2: part on the conveyor; 3: as 2, with R6AX crossing")
+    run.add_argument("--cell", help="YAML cell file (default: the built-in dual-arm cell)")
+    run.add_argument("--seed", type=int, default=0, help="seed of every random thing (0)")
+    run.add_argument("--out", help="output folder (default out/experiment<N>)")
+    run.add_argument("--sensor", choices=("rendered", "ideal"), default="rendered",
+                     help="rendered: MuJoCo images + corner extraction (default); ideal: true "
+                          "projections + Gaussian pixel noise")
+    run.add_argument("--no-occlusion-prediction", action="store_true",
+                     help="windows on every model point inside the image (no BSP)")
+    run.add_argument("--duration", type=float,
+                     help="simulated seconds (default: until the task is done)")
+    run.add_argument("--quiet", action="store_true", help="no progress bar")
+    run.set_defaults(func=cmd_run)
+
+    compare = sub.add_parser("compare", help="two runs' metrics side by side")
+    compare.add_argument("run_a", help="output folder of a run")
+    compare.add_argument("run_b", help="output folder of another run")
+    compare.set_defaults(func=cmd_compare)
     return parser
 
 

@@ -79,8 +79,12 @@ def boundary_distance(poly2d: np.ndarray, xy: np.ndarray) -> np.ndarray:
     return np.linalg.norm(rel - u[..., None] * e, axis=-1).min(axis=1)
 
 
-def segment_oracle(polygons, points, viewpoint) -> OracleAnswer:
-    """Exact-arithmetic-style answers for every (point, polygon) pair; see the module doc."""
+def segment_oracle(polygons, points, viewpoint, surface_tolerance: float = 0.0) -> OracleAnswer:
+    """Exact-arithmetic-style answers for every (point, polygon) pair; see the module doc.
+
+    ``surface_tolerance`` (absolute): a point nearer than this to a polygon's plane is not hidden
+    by it either (a feature resting on a surface); points within the band around that distance
+    are ambiguous."""
     points = np.asarray(points, dtype=float).reshape(-1, 3)
     view = np.asarray(viewpoint, dtype=float)
     polygons = [np.asarray(p, dtype=float) for p in polygons]
@@ -110,13 +114,16 @@ def segment_oracle(polygons, points, viewpoint) -> OracleAnswer:
         inside[ok] = winding_inside(poly2d, xy[ok])
         dist[ok] = boundary_distance(poly2d, xy[ok])
         region = np.where(inside, 0.0, dist)
-        crossing = (abs(sv) > contact) & (np.abs(sp) > contact) & (sv * sp < 0)
+        crossing = ((abs(sv) > contact) & (np.abs(sp) > max(contact, surface_tolerance))
+                    & (sv * sp < 0))
         hits[:, q] = crossing & inside
         t[:, q], edge[:, q], sp_all[:, q], sv_all[q] = tq, dist, np.abs(sp), abs(sv)
         # ambiguous: crossing near the boundary, or point / viewpoint in the tolerance band
         amb |= (abs(sv) > lo) & (np.abs(sp) > lo) & (sv * sp < 0) & (dist < hi)
         p_region = _region_distance(poly2d, (points - centre) @ to2d)
         amb |= (np.abs(sp) > lo) & (np.abs(sp) < hi) & (np.minimum(p_region, region) < hi)
+        if surface_tolerance > 0:
+            amb |= (np.abs(np.abs(sp) - surface_tolerance) < hi) & (sv * sp < 0) & inside
         if lo < abs(sv) < hi:
             v_region = _region_distance(poly2d, ((view - centre) @ to2d)[None, :])[0]
             amb |= min(v_region, region.min(initial=np.inf)) < hi

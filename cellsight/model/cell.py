@@ -44,6 +44,26 @@ class Workpiece:
 
 
 @dataclass(frozen=True)
+class ExperimentSetup:
+    """What the cell file says about the paper's experiments (Section V), all optional.
+
+    ``robot`` grasps ``workpiece``; ``conveyor_points`` (k, 2) x, y (m, base frame) and
+    ``conveyor_speed`` (m/s, from ``conveyor_t_start`` s) move the part in experiments 2 and 3;
+    ``crossing_robot`` follows ``crossing_waypoints`` ((t s, q) pairs, absolute times) in
+    experiment 3. ``source`` is the cell file, for error messages.
+    """
+
+    robot: str | None = None
+    workpiece: str | None = None
+    conveyor_points: np.ndarray | None = None
+    conveyor_speed: float = 0.0
+    conveyor_t_start: float = 0.0
+    crossing_robot: str | None = None
+    crossing_waypoints: tuple[tuple[float, np.ndarray], ...] = ()
+    source: str = "<memory>"
+
+
+@dataclass(frozen=True)
 class StaticObject:
     """A fixed object of the cell (table, conveyor, track, camera stand) at ``T_base_obj``."""
 
@@ -91,7 +111,8 @@ class Snapshot:
 
 
 class Cell:
-    """A robot cell: robots with tools, workpieces, static objects and calibrated cameras."""
+    """A robot cell: robots with tools, workpieces, static objects and calibrated cameras,
+    and the cell file's optional set-up of the paper's experiments (``experiments``)."""
 
     def __init__(
         self,
@@ -101,8 +122,10 @@ class Cell:
         static: list[StaticObject],
         cameras: list[Camera],
         source: str = "<memory>",
+        experiments: ExperimentSetup | None = None,
     ) -> None:
         self.name = name
+        self.experiments = experiments or ExperimentSetup(source=source)
         self.robots = list(robots)
         self.workpieces = list(workpieces)
         self.static = list(static)

@@ -4,13 +4,16 @@ The schema is written with pydantic; any error becomes a :class:`CellFileError` 
 the path of the bad field (``robots[1].links[2].qlim``), the value and what was expected. Solids
 are given as ``box``, ``prism``, ``segment`` (a box along a segment, for links), inline
 ``vertices`` + ``faces`` (CCW seen from outside), or a ``mesh`` file (STL/OBJ, path relative to
-the cell file), each with an optional ``pose`` in its parent frame. Lengths in metres, angles in
+the cell file), each with an optional ``pose`` in its parent frame. An optional ``experiments``
+section sets up the paper's experiments: the grasping ``robot`` and ``workpiece``, the
+``conveyor`` path and a ``crossing`` robot's timed joint waypoints. Lengths in metres, angles in
 radians; ``deg`` fields are accepted where noted.
 """
 
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 from pathlib import Path
 from typing import Annotated, Literal
 
@@ -24,7 +27,7 @@ from cellsight.geometry.meshes import load_mesh_solid
 from cellsight.geometry.polyhedron import Polyhedron, box, prism, segment_box
 from cellsight.geometry.transforms import look_at, pose_from_xyz_rpy
 from cellsight.kinematics import DHChain, DHLink
-from cellsight.model.cell import Cell, StaticObject, Workpiece
+from cellsight.model.cell import Cell, ExperimentSetup, StaticObject, Workpiece
 from cellsight.model.robot import ParallelGripper, Robot
 
 Finite = Annotated[float, Field(allow_inf_nan=False)]
@@ -186,12 +189,40 @@ class CameraSpec(_Strict):
         return np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
 
 
+class ConveyorSpec(_Strict):
+    """The conveyor's path of the part in experiments 2 and 3: x, y points (m), speed (m/s)."""
+
+    points: Annotated[list[Vec2], Field(min_length=2)]
+    speed: Positive
+    t_start: Annotated[float, Field(ge=0, allow_inf_nan=False)] = 0.0
+
+
+class WaypointSpec(_Strict):
+    t: Positive
+    q: Annotated[list[Finite], Field(min_length=1)]
+
+
+class CrossingSpec(_Strict):
+    """Experiment 3: a robot's own timed joint waypoints (absolute times, s)."""
+
+    robot: Annotated[str, Field(min_length=1)]
+    waypoints: Annotated[list[WaypointSpec], Field(min_length=1)]
+
+
+class ExperimentsSpec(_Strict):
+    robot: str | None = None
+    workpiece: str | None = None
+    conveyor: ConveyorSpec | None = None
+    crossing: CrossingSpec | None = None
+
+
 class CellSpec(_Strict):
     name: str = "cell"
     robots: list[RobotSpec] = []
     workpieces: list[WorkpieceSpec] = []
     static: list[StaticSpec] = []
     cameras: Annotated[list[CameraSpec], Field(min_length=1)]
+    experiments: ExperimentsSpec | None = None
 
 
 def _loc(parts) -> str:
@@ -289,10 +320,48 @@ def build_cell(spec: CellSpec, file: str, folder: Path) -> Cell:
     dup = {n for n in names if names.count(n) > 1}
     if dup:
         raise CellFileError(file, "name", sorted(dup), "unique names of robots, workpieces, static")
+    setup = _experiments(spec.experiments, robots, parts, file)
     try:
-        return Cell(spec.name, robots, parts, static, cameras, source=file)
+        return Cell(spec.name, robots, parts, static, cameras, source=file, experiments=setup)
     except CellsightError as exc:
         raise CellFileError(file, "<cell>", spec.name, str(exc)) from exc
+
+
+def _experiments(spec: ExperimentsSpec | None, robots: list[Robot], parts: list[Workpiece],
+                 file: str) -> ExperimentSetup:
+    """Check the ``experiments`` section against the cell's robots and workpieces."""
+    if spec is None:
+        return ExperimentSetup(source=file)
+    by_name = {r.name: r for r in robots}
+    for field, name, names in (("robot", spec.robot, by_name),
+                               ("workpiece", spec.workpiece, [w.name for w in parts])):
+        if name is not None and name not in names:
+            raise CellFileError(file, f"experiments.{field}", name, f"one of {sorted(names)}")
+    setup = ExperimentSetup(robot=spec.robot, workpiece=spec.workpiece, source=file)
+    if spec.conveyor is not None:
+        setup = replace(setup, conveyor_points=np.array(spec.conveyor.points),
+                        conveyor_speed=spec.conveyor.speed,
+                        conveyor_t_start=spec.conveyor.t_start)
+    if spec.crossing is not None:
+        at = "experiments.crossing"
+        robot = by_name.get(spec.crossing.robot)
+        if robot is None:
+            raise CellFileError(file, f"{at}.robot", spec.crossing.robot,
+                                f"one of {sorted(by_name)}")
+        waypoints, last = [], 0.0
+        for k, w in enumerate(spec.crossing.waypoints):
+            if w.t <= last:
+                raise CellFileError(file, f"{at}.waypoints[{k}].t", w.t,
+                                    f"a time after the previous waypoint's ({last} s)")
+            q = _check_len(file, f"{at}.waypoints[{k}].q", w.q, robot.chain.n, "one per joint")
+            try:
+                robot.chain.check_q(q, check_limits=True)
+            except CellsightError as exc:
+                raise CellFileError(file, f"{at}.waypoints[{k}].q", w.q, str(exc)) from exc
+            waypoints.append((w.t, q))
+            last = w.t
+        setup = replace(setup, crossing_robot=robot.name, crossing_waypoints=tuple(waypoints))
+    return setup
 
 
 def builtin_cell_path() -> Path:

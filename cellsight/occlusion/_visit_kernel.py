@@ -18,8 +18,10 @@ surface whose box misses the box of the viewpoint and the active points (cheap b
 then tests each active point against the surface ``q``, on the original polygon: ``q`` hides the
 point ``p`` when the segment from the viewpoint ``v`` crosses ``q`` strictly before ``p``. With
 ``sv``/``sp`` the signed distances of ``v``/``p`` to ``q``'s plane: ``|sv| > eps`` (else edge-on),
-``sv`` and ``sp`` of opposite signs with ``|sp| > eps`` (a point on the polygon, e.g. a vertex of
-its own face, is not hidden by it), i.e. the crossing parameter ``t = sv / (sv - sp)`` satisfies
+``sv`` and ``sp`` of opposite signs with ``|sp| > max(eps, tol)`` (a point on the polygon, e.g. a
+vertex of its own face, is not hidden by it; ``tol``, the caller's surface tolerance, extends
+this to points resting on a surface, such as a part's bottom corners on its support), i.e. the
+crossing parameter ``t = sv / (sv - sp)`` satisfies
 ``t < 1 - eps / (|sv| + |sp|)``; then the crossing ``v + t (p - v)`` must fall in ``q``'s box
 (grown by ``eps``) and inside ``q`` (even-odd rule in the coordinate plane most parallel to
 ``q``: any simple polygon, convex or not).
@@ -102,7 +104,7 @@ def _inside(x0, x1, q, a0, a1, vertices, offsets) -> bool:
 
 @njit(cache=True)
 def visit_tree(vertices, offsets, planes, boxes, node_planes, node_links, surfaces, depth, eps,
-               points, view):
+               tol, points, view):
     """Visible flags (N,), nearest occluder indices (N,) int32 (-1 if visible) and ``bad``.
 
     ``bad`` is ``NO_BAD_INPUT``, ``BAD_VIEWPOINT`` or the first point with a non-finite
@@ -120,6 +122,7 @@ def visit_tree(vertices, offsets, planes, boxes, node_planes, node_links, surfac
         visible[:] = bad == NO_BAD_INPUT
         return visible, occluder, bad
     best_t = np.full(n_points, np.inf)
+    on_plane = max(eps, tol)
     head, following = _locate(points, node_planes, node_links, eps)
     active = np.empty(n_points, np.int64)
     n_active = 0
@@ -177,7 +180,7 @@ def visit_tree(vertices, offsets, planes, boxes, node_planes, node_links, surfac
                     p = active[i]
                     px, py, pz = points[p, 0], points[p, 1], points[p, 2]
                     sp = nx * px + ny * py + nz * pz - dq
-                    if (sv > 0.0 and sp >= -eps) or (sv < 0.0 and sp <= eps):
+                    if (sv > 0.0 and sp >= -on_plane) or (sv < 0.0 and sp <= on_plane):
                         continue  # same side as the viewpoint, or on the plane
                     t = sv / (sv - sp)
                     if t >= best_t[p]:

@@ -98,13 +98,15 @@ class BSPTree:
         return cls(soup, node_planes, node_links, surfaces, splits, depth)
 
     def visibility(
-        self, points: np.ndarray, viewpoint: np.ndarray
+        self, points: np.ndarray, viewpoint: np.ndarray, surface_tolerance: float = 0.0
     ) -> tuple[np.ndarray, np.ndarray]:
         """Which ``points`` (N, 3) the ``viewpoint`` (3,) sees, by the back-to-front visit.
 
         Returns ``visible`` (N,) bool and ``occluder`` (N,) int32: the index in the soup of the
         nearest polygon hiding the point (the first one crossed from the viewpoint), -1 when
-        visible. Non-finite input raises :class:`GeometryError`.
+        visible. A point within ``surface_tolerance`` (m; at least the soup's ``eps``) of a
+        polygon's plane is never hidden by that polygon. Non-finite input raises
+        :class:`GeometryError`.
         """
         points = np.ascontiguousarray(points, dtype=np.float64)
         viewpoint = np.ascontiguousarray(viewpoint, dtype=np.float64)
@@ -116,7 +118,8 @@ class BSPTree:
         soup = self.soup
         visible, occluder, bad = visit_tree(
             soup.vertices, soup.offsets, soup.planes, soup.boxes, self.node_planes,
-            self.node_links, self.surfaces, self.stats["depth"], soup.eps, points, viewpoint,
+            self.node_links, self.surfaces, self.stats["depth"], soup.eps,
+            float(surface_tolerance), points, viewpoint,
         )
         if bad == BAD_VIEWPOINT:
             raise GeometryError(f"viewpoint has a non-finite coordinate: {viewpoint.tolist()}")

@@ -82,11 +82,16 @@ class VisibilityPredictor:
     Offline (constructor): flat arrays of every surface in its object's frame, static surfaces
     in the base frame. Per frame (:meth:`predict`): transform, cull, build, visit. ``cameras``
     restricts the prediction to some cameras (indices into ``cell.cameras``; default all).
+    ``surface_tolerance`` (m): a feature within this distance of a surface's plane is not hidden
+    by it, so that features resting on a support (the part's bottom corners on the conveyor)
+    stay visible although the tracker's pose is off by a fraction of a millimetre.
     """
 
-    def __init__(self, cell: Cell, *, cull: bool = True, cameras: list[int] | None = None) -> None:
+    def __init__(self, cell: Cell, *, cull: bool = True, cameras: list[int] | None = None,
+                 surface_tolerance: float = 2e-3) -> None:
         self.cell = cell
         self.cull = cull
+        self.surface_tolerance = float(surface_tolerance)
         self.cameras = [cell.cameras[k] for k in (cameras or range(len(cell.cameras)))]
         verts, offsets, owner, vertex_owner, self.poly_source = [], [0], [], [], []
         for k, obj in enumerate(cell.objects):
@@ -160,7 +165,7 @@ class VisibilityPredictor:
             occluder = np.full(n, -1, dtype=np.int32)
             query = np.flatnonzero(status == _INSIDE)
             if query.size:
-                vis, occ = tree.visibility(points[query], cam.center)
+                vis, occ = tree.visibility(points[query], cam.center, self.surface_tolerance)
                 visible[query] = vis
                 occluder[query[~vis]] = self.poly_owner[polys[occ[~vis]]]
             start = 0

@@ -21,9 +21,11 @@ Returned pixels are in full-image coordinates (u = column, v = row; OpenCV pixel
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import cv2
+import numba
 import numpy as np
 
 from cellsight.tracking.windowing import WindowPlan
@@ -82,48 +84,98 @@ def _intersect_edges(
     weighted by their total gradient. None when fewer than two non-parallel edges are found.
     """
     gy, gx = np.gradient(crop.astype(np.float64))
-    mag = np.hypot(gx, gy).ravel()
-    vv, uu = np.mgrid[0 : crop.shape[0], 0 : crop.shape[1]]
-    pts = np.column_stack([uu.ravel(), vv.ravel()]).astype(np.float64)
-    rel = pts - q
-    r = np.hypot(rel[:, 0], rel[:, 1])
-    ring = (r >= cfg.line_inner_px) & (r <= cfg.line_outer_px)
-    if not ring.any():
-        return None
-    strong = ring & (mag >= cfg.line_threshold * mag[ring].max())
-    if strong.sum() < 6:
-        return None
-    phi = np.arctan2(rel[strong, 1], rel[strong, 0])
-    nb = 36
-    hist = np.bincount(((phi + np.pi) / (2 * np.pi) * nb).astype(int) % nb, mag[strong], nb)
-    smooth = hist + 0.5 * (np.roll(hist, 1) + np.roll(hist, -1))
-    peaks = (smooth >= np.roll(smooth, 1)) & (smooth > np.roll(smooth, -1))
-    A, b = np.zeros((2, 2)), np.zeros(2)
-    for k in np.flatnonzero(peaks & (smooth >= 0.1 * smooth.sum())):
-        angle = (k + 0.5) * 2 * np.pi / nb - np.pi
-        direction = np.array([np.cos(angle), np.sin(angle)])
-        normal = np.array([-direction[1], direction[0]])
-        offset = normal @ q
-        for _ in range(3):
-            t = rel @ direction
-            band = (np.abs(pts @ normal - offset) <= 1.5) & (t >= cfg.line_inner_px)
-            band &= t <= cfg.line_outer_px
-            w, p = mag[band], pts[band]
-            if band.sum() < 6 or w.sum() <= 0:
+    ok, x, y = _edge_intersection(np.hypot(gx, gy), float(q[0]), float(q[1]), cfg.line_inner_px,
+                                  cfg.line_outer_px, cfg.line_threshold, cfg.line_max_offset_px)
+    return np.array([x, y]) if ok else None
+
+
+_BINS = 36  # direction histogram of the edges around a corner: 10-degree bins
+
+
+@numba.njit(cache=True)
+def _principal_axes(a: float, b: float, c: float) -> tuple[float, float, float, float]:
+    """Unit eigenvectors (largest, smallest eigenvalue) of the symmetric [[a, b], [b, c]]."""
+    theta = 0.5 * math.atan2(2.0 * b, a - c)
+    dx, dy = math.cos(theta), math.sin(theta)
+    return dx, dy, -dy, dx
+
+
+@numba.njit(cache=True)
+def _edge_intersection(mag, qx, qy, inner, outer, threshold, max_offset):
+    """Compiled body of :func:`_intersect_edges` on the gradient magnitude ``mag`` (h, w):
+    ``(found, x, y)``."""
+    h, w = mag.shape
+    ring_max = 0.0
+    for v in range(h):
+        for u in range(w):
+            r = math.hypot(u - qx, v - qy)
+            if inner <= r <= outer and mag[v, u] > ring_max:
+                ring_max = mag[v, u]
+    hist = np.zeros(_BINS)
+    n_strong = 0
+    for v in range(h):
+        for u in range(w):
+            r = math.hypot(u - qx, v - qy)
+            if inner <= r <= outer and mag[v, u] >= threshold * ring_max:
+                phi = math.atan2(v - qy, u - qx)
+                hist[int((phi + math.pi) / (2 * math.pi) * _BINS) % _BINS] += mag[v, u]
+                n_strong += 1
+    if n_strong < 6:
+        return False, 0.0, 0.0
+    smooth = np.empty(_BINS)
+    for k in range(_BINS):
+        smooth[k] = hist[k] + 0.5 * (hist[(k - 1) % _BINS] + hist[(k + 1) % _BINS])
+    total = smooth.sum()
+    a00 = a01 = a11 = b0 = b1 = 0.0
+    for k in range(_BINS):
+        if not (smooth[k] >= smooth[(k - 1) % _BINS] and smooth[k] > smooth[(k + 1) % _BINS]
+                and smooth[k] >= 0.1 * total):
+            continue
+        angle = (k + 0.5) * 2 * math.pi / _BINS - math.pi
+        dx, dy = math.cos(angle), math.sin(angle)
+        nx, ny = -dy, dx
+        offset = nx * qx + ny * qy
+        fitted = True
+        weight = 0.0
+        for _ in range(3):  # refit the line to the band around it
+            sw = su = sv = 0.0
+            count = 0
+            for v in range(h):
+                for u in range(w):
+                    t = (u - qx) * dx + (v - qy) * dy
+                    if abs(u * nx + v * ny - offset) <= 1.5 and inner <= t <= outer:
+                        sw += mag[v, u]
+                        su += mag[v, u] * u
+                        sv += mag[v, u] * v
+                        count += 1
+            if count < 6 or sw <= 0:
+                fitted = False
                 break
-            mean = w @ p / w.sum()
-            cov = (p - mean).T @ ((p - mean) * w[:, None])
-            normal, new_dir = np.linalg.eigh(cov)[1].T
-            direction = new_dir if new_dir @ direction > 0 else -new_dir
-            offset = normal @ mean
-        else:
-            if abs(normal @ q - offset) <= cfg.line_max_offset_px:
-                A += w.sum() * np.outer(normal, normal)
-                b += w.sum() * normal * offset
-    lam = np.linalg.eigvalsh(A)
-    if lam[1] <= 0 or lam[0] / lam[1] < 0.05:
-        return None
-    return np.linalg.solve(A, b)
+            mu, mv = su / sw, sv / sw
+            cuu = cuv = cvv = 0.0
+            for v in range(h):
+                for u in range(w):
+                    t = (u - qx) * dx + (v - qy) * dy
+                    if abs(u * nx + v * ny - offset) <= 1.5 and inner <= t <= outer:
+                        cuu += mag[v, u] * (u - mu) ** 2
+                        cuv += mag[v, u] * (u - mu) * (v - mv)
+                        cvv += mag[v, u] * (v - mv) ** 2
+            ex, ey, nx, ny = _principal_axes(cuu, cuv, cvv)
+            dx, dy = (ex, ey) if ex * dx + ey * dy > 0 else (-ex, -ey)
+            offset = nx * mu + ny * mv
+            weight = sw
+        if fitted and abs(nx * qx + ny * qy - offset) <= max_offset:
+            a00 += weight * nx * nx
+            a01 += weight * nx * ny
+            a11 += weight * ny * ny
+            b0 += weight * nx * offset
+            b1 += weight * ny * offset
+    mean, diff = 0.5 * (a00 + a11), math.hypot(0.5 * (a00 - a11), a01)
+    lam_max, lam_min = mean + diff, mean - diff
+    if lam_max <= 0 or lam_min / lam_max < 0.05:
+        return False, 0.0, 0.0
+    det = a00 * a11 - a01 * a01
+    return True, (a11 * b0 - a01 * b1) / det, (a00 * b1 - a01 * b0) / det
 
 
 def extract_corner(

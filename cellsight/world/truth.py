@@ -3,6 +3,10 @@
 A feature is visible in a camera when it lies in front of the camera, projects inside the
 image, and the ray from the optical centre to it meets no geom before it; hits within
 ``tol`` (m) of the feature along the ray are the feature's own surfaces and do not count.
+The default, 2 mm (a little over two pixels' footprint at the part's distance), also lets a
+feature resting on a support stay visible when the kinematic world has pressed the part a
+fraction of a millimetre into it (a held part follows the gripper, with no contact forces);
+it matches the predictor's ``surface_tolerance``.
 A hidden feature is attributed to the cell object whose geom the ray hits first
 (``'floor'`` for the floor plane), or to ``'outside'`` / ``'behind'``.
 """
@@ -33,7 +37,7 @@ def cast_visibility(
     camera: Camera,
     points: np.ndarray,
     geom_names: list[str],
-    tol: float = 1e-3,
+    tol: float = 2e-3,
 ) -> RayVisibility:
     """Visibility of base-frame ``points`` (F, 3) from ``camera`` by ray casts in ``data``'s
     current (kinematically up-to-date) state. ``geom_names[g]`` names the object of geom g."""
