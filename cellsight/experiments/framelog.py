@@ -5,18 +5,20 @@ Columns (C cameras numbered c = 1..C, F features; an empty field is a missing va
 - ``t`` (s), ``phase`` and ``stage`` of the grasping task, ``status`` of the tracker;
 - ``true_x, true_y, true_z, true_roll, true_pitch, true_yaw``: the part's true pose (m, rad,
   base frame, roll-pitch-yaw as in :func:`~cellsight.geometry.transforms.xyz_rpy_from_pose`);
-  ``est_*`` the EKF's estimate after this frame's update; ``pnp_*`` the per-frame multi-camera
+  ``est_*`` the EKF's estimate after this frame's update (empty while the part is not acquired
+  yet or lost); ``pnp_*`` the per-frame multi-camera
   PnP baseline on the same measurements (the last one held when a frame has too few);
 - ``gripper_x, gripper_y, gripper_z`` (m): the grasping robot's true TCP; ``jaw_opening`` (m);
   ``jaws_closed`` (jaws closed on the part, 0/1); ``grasped`` (part held, 0/1);
 - per camera: ``vis_pred_c{c}`` (predicted visible at the tracker's predicted pose),
   ``vis_true_c{c}`` (visible by the simulator's ray casts at the true pose), ``sel_c{c}``
   (selected: a window was planned), ``meas_c{c}`` (a feature was measured in it), ``rej_c{c}``
-  (measured, rejected by the EKF's gate): strings of F characters ``0``/``1`` in feature
-  order; ``occ_pred_c{c}``, ``occ_true_c{c}``: F labels joined by ``;`` (empty when visible,
-  ``self``, ``behind``, ``outside`` or the hiding object's label); ``grab_c{c}``: fraction of
-  the image's pixels grabbed; ``err_px_c{c}``: median distance (px) of this frame's
-  measurements from the true projections;
+  (measured, rejected by the EKF's gate), ``wrong_c{c}`` (measured more than ``WRONG_PX`` from
+  the feature's true projection): strings of F characters ``0``/``1`` in feature order;
+  ``occ_pred_c{c}``, ``occ_true_c{c}``: F labels joined by ``;`` (empty when visible, ``self``,
+  ``behind``, ``outside`` or the hiding object's label); ``grab_c{c}``: fraction of the image's
+  pixels grabbed; ``err_px_c{c}``: median distance (px) of this frame's measurements from the
+  true projections (rendered sensor);
 - ``t_occlusion_ms, t_selection_ms, t_windowing_ms, t_extraction_ms, t_ekf_ms, t_total_ms``:
   the tracker's stage times (EKF = prediction + update).
 
@@ -33,8 +35,9 @@ from typing import TextIO
 
 POSE = ("x", "y", "z", "roll", "pitch", "yaw")
 STAGES = ("occlusion", "selection", "windowing", "extraction", "ekf", "total")
-PER_CAMERA = ("vis_pred", "vis_true", "sel", "meas", "rej", "occ_pred", "occ_true", "grab",
-              "err_px")
+PER_CAMERA = ("vis_pred", "vis_true", "sel", "meas", "rej", "wrong", "occ_pred", "occ_true",
+              "grab", "err_px")
+WRONG_PX = 3.0  # a measurement this far (px) from the true projection is another image point
 
 
 def columns(n_cameras: int) -> list[str]:

@@ -8,6 +8,9 @@
 - ``visibility_accuracy``: fraction of frame x camera x feature labels where the prediction (at
   the tracker's predicted pose) equals the simulator's truth; ``false_visible`` counts labels
   predicted visible but truly hidden, ``false_hidden`` the reverse. All frames.
+- ``measurements``: features measured; ``rejected_measurements``: of those, rejected by the EKF's
+  gate; ``wrong_measurements``: measured more than ``WRONG_PX`` from the true projection (another
+  image point: an occluder's corner); ``wrong_accepted``: wrong and not rejected. All frames.
 - ``pixels_grabbed_fraction``: mean over frames and cameras of the fraction of pixels grabbed.
 - ``extraction_error_px_median``: median over frames and cameras of each frame's median
   extraction error (px); None when no frame has one (ideal sensor).
@@ -53,6 +56,11 @@ def metric_window(rows: Sequence[dict[str, str]]) -> tuple[int, int]:
     return start, stop
 
 
+def _bits(text: str) -> np.ndarray:
+    """A '0'/'1' string as a boolean mask."""
+    return np.frombuffer(text.encode(), dtype=np.uint8) == ord("1")
+
+
 def _rmse(x: np.ndarray) -> float | None:
     x = x[np.isfinite(x)]
     return float(np.sqrt(np.mean(x**2))) if len(x) else None
@@ -70,15 +78,21 @@ def frame_metrics(rows: Sequence[dict[str, str]], n_cameras: int) -> dict:
     est_pos, est_ang = pose_errors(_pose_columns(rows, "est")[win], truth[win])
     pnp_pos, pnp_ang = pose_errors(_pose_columns(rows, "pnp")[win], truth[win])
     agree = total = false_visible = false_hidden = 0
+    counts = dict.fromkeys(("measurements", "rejected_measurements", "wrong_measurements",
+                            "wrong_accepted"), 0)
     grabbed, errors = [], []
     for row in rows:
         for c in range(1, n_cameras + 1):
-            pred = np.frombuffer(row[f"vis_pred_c{c}"].encode(), dtype=np.uint8) == ord("1")
-            true = np.frombuffer(row[f"vis_true_c{c}"].encode(), dtype=np.uint8) == ord("1")
+            pred, true = _bits(row[f"vis_pred_c{c}"]), _bits(row[f"vis_true_c{c}"])
             agree += int(np.sum(pred == true))
             total += len(pred)
             false_visible += int(np.sum(pred & ~true))
             false_hidden += int(np.sum(~pred & true))
+            meas, rej, wrong = (_bits(row[f"{k}_c{c}"]) for k in ("meas", "rej", "wrong"))
+            counts["measurements"] += int(meas.sum())
+            counts["rejected_measurements"] += int(rej.sum())
+            counts["wrong_measurements"] += int(wrong.sum())
+            counts["wrong_accepted"] += int(np.sum(wrong & ~rej))
             grabbed.append(float(row[f"grab_c{c}"]))
             if row[f"err_px_c{c}"] != "":
                 errors.append(float(row[f"err_px_c{c}"]))
@@ -100,6 +114,7 @@ def frame_metrics(rows: Sequence[dict[str, str]], n_cameras: int) -> dict:
         "visibility_accuracy": agree / total if total else None,
         "false_visible": false_visible,
         "false_hidden": false_hidden,
+        **counts,
         "pixels_grabbed_fraction": float(np.mean(grabbed)) if grabbed else None,
         "extraction_error_px_median": float(np.median(errors)) if errors else None,
         "timing_ms": timing,

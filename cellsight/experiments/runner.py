@@ -30,7 +30,7 @@ from rich.progress import BarColumn, Progress, TextColumn
 
 from cellsight.control import GraspTask, Phase
 from cellsight.control.clik import rotation_error
-from cellsight.experiments.framelog import STAGES, FrameLog, bits, read_frames
+from cellsight.experiments.framelog import STAGES, WRONG_PX, FrameLog, bits, read_frames
 from cellsight.experiments.metrics import frame_metrics
 from cellsight.experiments.scenario import Scenario, scenario
 from cellsight.experiments.sensors import FramePredictor, IdealExtractor, ProjectionOnly
@@ -163,7 +163,8 @@ class ExperimentRun:
         T_true, pixels, visible, occluders = truth
         row: dict[str, object] = {"t": round(t, 5), "phase": str(self.task.phase),
                                   "stage": self.task.stage, "status": rec.status}
-        for prefix, T in (("true", T_true), ("est", rec.T_base_part), ("pnp", pnp)):
+        estimate = rec.T_base_part if rec.status in ESTIMATED else None
+        for prefix, T in (("true", T_true), ("est", estimate), ("pnp", pnp)):
             if T is not None:
                 xyz, rpy = xyz_rpy_from_pose(T)
                 row.update(zip([f"{prefix}_{a}" for a in ("x", "y", "z")], xyz, strict=True))
@@ -179,11 +180,14 @@ class ExperimentRun:
             k = c + 1
             measured = np.all(np.isfinite(rec.measured[c]), axis=1)
             err = np.linalg.norm(rec.measured[c, measured] - pixels[c, measured], axis=1)
+            wrong = np.zeros_like(measured)
+            wrong[measured] = ~(err <= WRONG_PX)
             plan = rec.windows[c]
             row.update({
                 f"vis_pred_c{k}": bits(rec.visible[c]), f"vis_true_c{k}": bits(visible[c]),
                 f"sel_c{k}": bits(rec.selected[c]), f"meas_c{k}": bits(measured),
-                f"rej_c{k}": bits(rec.rejected[c]), f"occ_pred_c{k}": ";".join(reasons[c]),
+                f"rej_c{k}": bits(rec.rejected[c]), f"wrong_c{k}": bits(wrong),
+                f"occ_pred_c{k}": ";".join(reasons[c]),
                 f"occ_true_c{k}": ";".join(occluders[c]),
                 f"grab_c{k}": 0.0 if plan is None else plan.fraction,
                 f"err_px_c{k}": (float(np.median(err))

@@ -11,7 +11,9 @@ predicted-visible feature gets a fixed-size window (``acquisition_window_px``); 
 found there give a fused multi-camera PnP (:func:`~cellsight.tracking.pnp.estimate_pose`); the
 filter starts from it when its RMS reprojection error is below ``acquisition_max_rms_px``.
 A part is *lost* after ``lost_after_s`` seconds without an accepted measurement; until then
-frames without measurements only predict.
+frames without measurements only predict. The prediction coasts at most ``coast_s`` seconds
+after the last accepted measurement, then stops (the last velocity would carry the pose away
+for ever): a part that left the views is looked for where it was last predicted.
 
 Measured pixels are as in the image (distorted); they are undistorted before the update.
 """
@@ -80,6 +82,7 @@ class TrackerConfig:
     init_velocity_std: tuple[float, float] = (0.2, 0.5)
     init_pose_inflation: float = 4.0
     lost_after_s: float = 2.0
+    coast_s: float = 4.0
 
 
 @dataclass
@@ -230,7 +233,8 @@ class Tracker:
         tic = time.perf_counter()
         for name, track in self.tracks.items():
             if track.ekf is not None:
-                track.ekf.predict(t)
+                if t - track.last_update <= self.config.coast_s:
+                    track.ekf.predict(t)
                 track.lost = t - track.last_update > self.config.lost_after_s
                 poses[name] = track.ekf.pose
             elif track.guess is not None:

@@ -1,0 +1,582 @@
+"""Figures and a self-contained HTML report built from a run directory.
+
+A run directory (written by ``cellsight run``) holds ``frames.csv`` (one row per vision frame,
+strings quoted, empty field = missing value), ``metrics.json`` and optionally ``keyframes.json``
+with ``keyframes/*.png``, ``run.log`` and ``views.mp4``. :func:`write_report` writes the PNG
+figures next to them and ``report.html`` with every figure, key frame and (if small enough) the
+video embedded as base64 data URIs, so the page can be moved or mailed on its own. It also
+works on a partial run (an interrupted one: few frames, a short ``metrics.json``).
+
+Conventions: time in s, positions in the base frame in m (errors in mm), roll-pitch-yaw in rad
+with ``R = Rz(yaw) Ry(pitch) Rx(roll)`` (:mod:`cellsight.geometry.transforms`); frame ``k``
+is drawn as covering ``[t_k, t_{k+1})``, the last one a median frame period long.
+"""
+
+from __future__ import annotations
+
+import base64
+import csv
+import html
+import json
+from dataclasses import dataclass
+from functools import cached_property
+from pathlib import Path
+
+import numpy as np
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.colors import ListedColormap
+from matplotlib.figure import Figure
+from matplotlib.lines import Line2D
+from matplotlib.patches import Patch
+from scipy.spatial.transform import Rotation
+
+from cellsight.geometry.transforms import RPY_SEQUENCE
+
+PHASE_COLOURS = {
+    "waiting": "#bab0ac", "approach": "#4e79a7", "grasp": "#f28e2b", "manipulate": "#59a14f",
+    "release": "#b07aa1", "done": "#76b7b2", "failed": "#e15759",
+}
+STAGES = ("occlusion", "selection", "windowing", "extraction", "ekf")
+VISIBLE_COLOUR = "#2e7d32"
+SELECTED_COLOUR = "#4e79a7"
+MEASURED_COLOUR = "#1b2f4a"
+FIXED_OCCLUDER_COLOURS = {"self": "#9e9e9e", "behind": "#5d6d7e", "outside": "#d7ccc8"}
+OBJECT_PALETTE = ("#e15759", "#f28e2b", "#b07aa1", "#edc948", "#9c755f", "#ff9da7",
+                  "#76b7b2", "#8c564b", "#bcbd22", "#17becf")
+VIDEO_EMBED_LIMIT = 25 * 1024 * 1024  # bytes; larger videos are linked, not embedded
+DEFAULT_FRAME_PERIOD = 1.0 / 26.0  # s, used when a run has a single frame
+UNITS = ("mm", "deg", "px", "ms", "s")  # unit tokens in metric keys, e.g. error_px_median
+
+
+@dataclass
+class Frames:
+    """``frames.csv`` as columns of strings; an empty string is a missing value."""
+
+    columns: dict[str, list[str]]
+    n: int
+
+    @classmethod
+    def read(cls, path: Path) -> Frames:
+        """Read a frames file; rows with the wrong field count (a truncated last line) are
+        dropped. Every value stays a string, so '0101' flags keep their leading zeros."""
+        with open(path, newline="") as f:
+            reader = csv.reader(f)
+            header = next(reader, [])
+            rows = [r for r in reader if header and len(r) == len(header)]
+        return cls({name: [r[i] for r in rows] for i, name in enumerate(header)}, len(rows))
+
+    def text(self, name: str) -> list[str]:
+        """A column's strings; all empty when the column is absent."""
+        return self.columns.get(name, [""] * self.n)
+
+    def num(self, name: str) -> np.ndarray:
+        """A column as float (N,), NaN where empty or absent."""
+        return np.array([float(v) if v else np.nan for v in self.text(name)], dtype=float)
+
+    def present(self, name: str) -> np.ndarray:
+        """(N,) bool: rows where the column has a value."""
+        return np.array([bool(v) for v in self.text(name)], dtype=bool)
+
+    def bits(self, name: str, n_features: int) -> np.ndarray:
+        """A per-feature '0'/'1' flag column as (N, F) bool; missing rows are all False."""
+        out = np.zeros((self.n, n_features), dtype=bool)
+        for i, s in enumerate(self.text(name)):
+            if s:
+                if len(s) != n_features:
+                    raise ValueError(f"{name} row {i}: {len(s)} flags, expected {n_features}")
+                out[i] = np.frombuffer(s.encode(), dtype=np.uint8) == ord("1")
+        return out
+
+    def labels(self, name: str, n_features: int) -> np.ndarray:
+        """A per-feature ';'-joined label column as (N, F) str objects ('' = none/missing)."""
+        out = np.full((self.n, n_features), "", dtype=object)
+        for i, s in enumerate(self.text(name)):
+            if s:
+                parts = s.split(";")
+                if len(parts) != n_features:
+                    raise ValueError(f"{name} row {i}: {len(parts)} labels, "
+                                     f"expected {n_features}")
+                out[i] = parts
+        return out
+
+
+@dataclass
+class Run:
+    """A loaded run directory."""
+
+    dir: Path
+    frames: Frames
+    metrics: dict
+    cameras: list[str]
+    n_features: int
+
+    @cached_property
+    def t(self) -> np.ndarray:
+        """(N,) frame times, s."""
+        return self.frames.num("t")
+
+    @cached_property
+    def edges(self) -> np.ndarray:
+        """(N + 1,) frame boundaries, s: frame k covers ``[edges[k], edges[k + 1])``."""
+        t = self.t
+        dt = float(np.median(np.diff(t))) if len(t) > 1 else DEFAULT_FRAME_PERIOD
+        return np.append(t, t[-1] + dt) if len(t) else t
+
+
+def _count_cameras(frames: Frames) -> int:
+    """Number of cameras c = 1, 2, ... that have a ``vis_pred_c{c}`` column."""
+    c = 0
+    while f"vis_pred_c{c + 1}" in frames.columns:
+        c += 1
+    return c
+
+
+def load_run(run_dir: Path) -> Run:
+    """Read ``frames.csv`` and ``metrics.json`` (either may be absent in a partial run)."""
+    run_dir = Path(run_dir)
+    frames_path, metrics_path = run_dir / "frames.csv", run_dir / "metrics.json"
+    frames = Frames.read(frames_path) if frames_path.exists() else Frames({}, 0)
+    metrics = json.loads(metrics_path.read_text()) if metrics_path.exists() else {}
+    cameras = list(metrics.get("cameras") or
+                   [f"cam{c}" for c in range(1, _count_cameras(frames) + 1)])
+    n_features = metrics.get("features")
+    if not n_features:
+        flags = [s for s in frames.text("vis_pred_c1") if s]
+        n_features = len(flags[0]) if flags else 0
+    return Run(run_dir, frames, metrics, cameras, int(n_features))
+
+
+# --------------------------------------------------------------------------- helpers
+
+
+def runs_of(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Start and stop indices (stop exclusive) of the runs of True in a (N,) bool mask."""
+    d = np.diff(np.concatenate([[0], np.asarray(mask, dtype=np.int8), [0]]))
+    return np.flatnonzero(d == 1), np.flatnonzero(d == -1)
+
+
+def spans(mask: np.ndarray, edges: np.ndarray) -> list[tuple[float, float]]:
+    """``(start, width)`` in s of every run of True frames, for ``broken_barh``."""
+    starts, stops = runs_of(mask)
+    return [(edges[a], edges[b] - edges[a]) for a, b in zip(starts, stops, strict=True)]
+
+
+def phase_spans(run: Run) -> list[tuple[str, float, float]]:
+    """``(phase, t_start, t_end)`` for each run of equal ``phase`` values, in s."""
+    phases, edges = run.frames.text("phase"), run.edges
+    out: list[tuple[str, float, float]] = []
+    for k, p in enumerate(phases):
+        if out and out[-1][0] == p:
+            out[-1] = (p, out[-1][1], edges[k + 1])
+        else:
+            out.append((p, edges[k], edges[k + 1]))
+    return out
+
+
+def _time_axis(ax, run: Run) -> None:
+    """Phases as light vertical bands behind the data; x limits the run's time span (s)."""
+    for p, t0, t1 in phase_spans(run):
+        ax.axvspan(t0, t1, color=PHASE_COLOURS.get(p, "#dddddd"), alpha=0.15, lw=0, zorder=0)
+    if len(run.edges):
+        ax.set_xlim(run.edges[0], run.edges[-1])
+
+
+def _phase_legend(fig: Figure, run: Run) -> None:
+    """One legend entry per phase present, along the top of the figure."""
+    names = list(dict.fromkeys(p for p, _, _ in phase_spans(run)))
+    handles = [Patch(color=PHASE_COLOURS.get(p, "#dddddd"), alpha=0.35, label=p or "?")
+               for p in names]
+    if handles:
+        fig.legend(handles=handles, loc="upper center", ncol=len(handles), frameon=False,
+                   fontsize=8, title="phase", title_fontsize=8)
+
+
+def _figure(width: float, height: float) -> Figure:
+    """A matplotlib figure rendered by Agg (no pyplot global state)."""
+    fig = Figure(figsize=(width, height))
+    FigureCanvasAgg(fig)
+    return fig
+
+
+def _save(fig: Figure, path: Path) -> Path:
+    """Save a figure as PNG (100 dpi), leaving room for the phase legend on top."""
+    fig.tight_layout(rect=(0, 0, 1, 0.93))
+    fig.savefig(path, dpi=100)
+    return path
+
+
+def _use_log(ax, *series: np.ndarray) -> None:
+    """Log y axis when the finite data are all positive and exist."""
+    data = np.concatenate([s[np.isfinite(s)] for s in series])
+    if data.size and (data > 0).all():
+        ax.set_yscale("log")
+
+
+def position_error_mm(run: Run, prefix: str) -> np.ndarray:
+    """(N,) distance between ``{prefix}_xyz`` and the true part position, mm (NaN if none)."""
+    f = run.frames
+    diff = [f.num(f"{prefix}_{k}") - f.num(f"true_{k}") for k in "xyz"]
+    return 1000.0 * np.sqrt(np.sum(np.square(diff), axis=0))
+
+
+def orientation_error_deg(run: Run, prefix: str) -> np.ndarray:
+    """(N,) angle of ``R_true^T R_{prefix}``, deg (NaN where the estimate is missing)."""
+    f = run.frames
+    rpy = {p: np.column_stack([f.num(f"{p}_{k}") for k in ("roll", "pitch", "yaw")])
+           for p in (prefix, "true")}
+    ok = np.isfinite(rpy[prefix]).all(axis=1) & np.isfinite(rpy["true"]).all(axis=1)
+    out = np.full(run.frames.n, np.nan)
+    if ok.any():
+        r_true = Rotation.from_euler(RPY_SEQUENCE, rpy["true"][ok])
+        r_est = Rotation.from_euler(RPY_SEQUENCE, rpy[prefix][ok])
+        out[ok] = np.degrees((r_true.inv() * r_est).magnitude())
+    return out
+
+
+def occluder_colours(run: Run) -> dict[str, str]:
+    """Colour of every occluder label in any camera's ``occ_pred``: 'self', 'behind' and
+    'outside' fixed, object labels from a palette in sorted order (same across cameras)."""
+    labels: set[str] = set()
+    for c in range(1, len(run.cameras) + 1):
+        for s in run.frames.text(f"occ_pred_c{c}"):
+            labels.update(s.split(";"))
+    objects = sorted(labels - set(FIXED_OCCLUDER_COLOURS) - {""})
+    colours = {k: v for k, v in FIXED_OCCLUDER_COLOURS.items() if k in labels}
+    colours.update({o: OBJECT_PALETTE[i % len(OBJECT_PALETTE)] for i, o in enumerate(objects)})
+    return colours
+
+
+# --------------------------------------------------------------------------- figures
+
+
+def plot_trajectory(run: Run, path: Path) -> Path:
+    """Paper Fig. 8/10: x, y, z (m) of the gripper TCP (solid), the EKF-estimated part
+    (dashed) and the true part (thin grey) over time, phases shaded."""
+    f, t = run.frames, run.t
+    fig = _figure(10, 7.5)
+    axes = fig.subplots(3, 1, sharex=True)
+    for ax, k in zip(axes, "xyz", strict=True):
+        _time_axis(ax, run)
+        ax.plot(t, f.num(f"true_{k}"), color="0.5", lw=0.8, label="part (true)")
+        ax.plot(t, f.num(f"gripper_{k}"), color="C0", lw=1.6, label="gripper")
+        ax.plot(t, f.num(f"est_{k}"), color="C3", lw=1.4, ls="--", label="part (estimated)")
+        ax.set_ylabel(f"{k} [m]")
+        ax.grid(alpha=0.3)
+    axes[0].legend(loc="upper right", fontsize=8)
+    axes[-1].set_xlabel("t [s]")
+    _phase_legend(fig, run)
+    return _save(fig, path)
+
+
+def plot_visibility(run: Run, camera: int, colours: dict[str, str], path: Path) -> Path:
+    """Paper Fig. 9/11 for camera ``camera`` (1-based): per feature, a bottom lane that is
+    green where the feature is predicted visible and coloured by the predicted occluder where
+    it is not, and a top lane that is blue where selected for a window, with a dark line where
+    a corner was measured and black crosses where the measurement was rejected."""
+    f, edges, n_f = run.frames, run.edges, run.n_features
+    vis = f.bits(f"vis_pred_c{camera}", n_f)
+    occ = f.labels(f"occ_pred_c{camera}", n_f)
+    sel = f.bits(f"sel_c{camera}", n_f)
+    meas = f.bits(f"meas_c{camera}", n_f)
+    rej = f.bits(f"rej_c{camera}", n_f)
+    fig = _figure(11, 1.6 + 0.36 * n_f)
+    ax = fig.subplots()
+    _time_axis(ax, run)
+    present = [lab for lab in colours if (occ == lab).any()]
+    for j in range(n_f):
+        y = j + 1
+        ax.broken_barh(spans(vis[:, j], edges), (y - 0.42, 0.36), facecolors=VISIBLE_COLOUR)
+        for lab in present:
+            ax.broken_barh(spans((occ[:, j] == lab) & ~vis[:, j], edges), (y - 0.42, 0.36),
+                           facecolors=colours[lab])
+        ax.broken_barh(spans(sel[:, j], edges), (y + 0.06, 0.36), facecolors=SELECTED_COLOUR)
+        ax.broken_barh(spans(meas[:, j], edges), (y + 0.19, 0.10), facecolors=MEASURED_COLOUR)
+    k, j = np.nonzero(rej)
+    ax.plot(run.t[k], j + 1.24, "x", color="k", ms=4, mew=1, ls="none")
+    handles = [Patch(color=VISIBLE_COLOUR, label="predicted visible (bottom)"),
+               Patch(color=SELECTED_COLOUR, label="selected (top)"),
+               Patch(color=MEASURED_COLOUR, label="measured"),
+               Line2D([], [], marker="x", color="k", ls="none", label="rejected by gate")]
+    handles += [Patch(color=colours[lab], label=f"occluded: {lab}") for lab in present]
+    ax.legend(handles=handles, loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8)
+    ax.set(xlabel="t [s]", ylabel="feature", ylim=(0.5, n_f + 0.5),
+           title=f"{run.cameras[camera - 1]}: predicted visibility and selection")
+    ax.set_yticks(range(1, n_f + 1))
+    _phase_legend(fig, run)
+    return _save(fig, path)
+
+
+def plot_error(run: Run, path: Path) -> Path:
+    """Position error (mm) and orientation error (deg) of the EKF estimate and the per-frame
+    PnP baseline against the true pose over time; the metric window hatched, the RMSEs from
+    ``metrics.json`` in the legend."""
+    m, t = run.metrics, run.t
+    fig = _figure(10, 6.5)
+    axes = fig.subplots(2, 1, sharex=True)
+    panels = [("position error [mm]", position_error_mm, "position_rmse_mm",
+               "pnp_position_rmse_mm", "mm"),
+              ("orientation error [deg]", orientation_error_deg, "orientation_rmse_deg",
+               "pnp_orientation_rmse_deg", "deg")]
+    for ax, (label, error, ekf_key, pnp_key, unit) in zip(axes, panels, strict=True):
+        _time_axis(ax, run)
+        ekf, pnp = error(run, "est"), error(run, "pnp")
+        ax.plot(t, pnp, color="C1", lw=0.8, marker=".", ms=2, alpha=0.8,
+                label=_rmse_label("PnP baseline", m.get(pnp_key), unit))
+        ax.plot(t, ekf, color="C3", lw=1.3, label=_rmse_label("EKF", m.get(ekf_key), unit))
+        window = m.get("metric_window_s")
+        if window:
+            ax.axvspan(*window, facecolor="none", edgecolor="0.75", hatch="//", lw=0,
+                       zorder=0, label="metric window")
+            for x in window:
+                ax.axvline(x, color="0.4", lw=0.8, ls=":")
+        _use_log(ax, ekf, pnp)
+        ax.set_ylabel(label)
+        ax.grid(alpha=0.3, which="both")
+        ax.legend(loc="upper right", fontsize=8)
+    axes[-1].set_xlabel("t [s]")
+    _phase_legend(fig, run)
+    return _save(fig, path)
+
+
+def _rmse_label(name: str, rmse: float | None, unit: str) -> str:
+    """Legend label with the RMSE when known."""
+    return name if rmse is None else f"{name} (RMSE {rmse:.3g} {unit})"
+
+
+def plot_visibility_agreement(run: Run, path: Path) -> Path:
+    """Per camera: the number of predicted-visible and truly-visible (ray-cast) features over
+    time, and below it every frame x feature where they disagree: false visible (predicted
+    visible, truly hidden) red, false hidden blue, frames without a prediction grey."""
+    f, edges, n_f, n_c = run.frames, run.edges, run.n_features, len(run.cameras)
+    fig = _figure(10, 1.0 + 3.6 * n_c)
+    axes = fig.subplots(2 * n_c, 1, sharex=True, squeeze=False,
+                        gridspec_kw={"height_ratios": [1.0, 1.2] * n_c})[:, 0]
+    cmap = ListedColormap(["white", "#d62728", "#1f77b4", "#d9d9d9"])
+    for c in range(1, n_c + 1):
+        pred = f.bits(f"vis_pred_c{c}", n_f)
+        true = f.bits(f"vis_true_c{c}", n_f)
+        has_pred = f.present(f"vis_pred_c{c}")
+        code = np.where(pred & ~true, 1, np.where(~pred & true, 2, 0))
+        code[~has_pred] = 3
+        top, bottom = axes[2 * c - 2], axes[2 * c - 1]
+        _time_axis(top, run)
+        top.step(run.t, np.where(has_pred, pred.sum(axis=1), np.nan), where="post",
+                 color="C2", label="predicted visible")
+        top.step(run.t, true.sum(axis=1), where="post", color="k", lw=0.8, ls="--",
+                 label="truly visible")
+        top.set(ylabel="# features", ylim=(-0.5, n_f + 0.5),
+                title=f"{run.cameras[c - 1]}: false visible {int((code == 1).sum())}, "
+                      f"false hidden {int((code == 2).sum())} of {int(has_pred.sum()) * n_f}")
+        top.legend(loc="upper right", fontsize=8)
+        top.grid(alpha=0.3)
+        bottom.pcolormesh(edges, np.arange(n_f + 1) + 0.5, code.T, cmap=cmap, vmin=-0.5,
+                          vmax=3.5)
+        bottom.set(ylabel="feature", ylim=(0.5, n_f + 0.5))
+    axes[-1].legend(handles=[Patch(color="#d62728", label="false visible"),
+                             Patch(color="#1f77b4", label="false hidden"),
+                             Patch(color="#d9d9d9", label="no prediction")],
+                    loc="upper left", bbox_to_anchor=(1.0, 1.0), fontsize=8)
+    axes[-1].set_xlabel("t [s]")
+    _phase_legend(fig, run)
+    return _save(fig, path)
+
+
+def plot_timing(run: Run, path: Path) -> Path:
+    """Left: box plot of each pipeline stage's time per frame (ms); right: the total time per
+    frame (ms) over time with its median."""
+    f, t = run.frames, run.t
+    fig = _figure(12, 4.5)
+    left, right = fig.subplots(1, 2, gridspec_kw={"width_ratios": [1, 2]})
+    data = {s: f.num(f"t_{s}_ms") for s in STAGES}
+    data = {s: v[np.isfinite(v)] for s, v in data.items() if np.isfinite(v).any()}
+    if data:
+        left.boxplot(list(data.values()), tick_labels=list(data), flierprops={"ms": 2})
+        _use_log(left, *data.values())
+    left.set(ylabel="time per frame [ms]", title="per stage")
+    left.tick_params(axis="x", labelrotation=25)
+    left.grid(alpha=0.3, axis="y", which="both")
+    total = f.num("t_total_ms")
+    _time_axis(right, run)
+    right.plot(t, total, color="k", lw=0.8, label="total")
+    if np.isfinite(total).any():
+        right.axhline(np.nanmedian(total), color="C3", ls="--", lw=1,
+                      label=f"median {np.nanmedian(total):.3g} ms")
+    right.set(xlabel="t [s]", ylabel="total per frame [ms]", title="total")
+    right.legend(loc="upper right", fontsize=8)
+    right.grid(alpha=0.3)
+    _phase_legend(fig, run)
+    return _save(fig, path)
+
+
+def write_figures(run: Run) -> list[tuple[str, Path]]:
+    """Every figure of a run as ``(title, path)``, written into the run directory."""
+    if run.frames.n == 0:
+        return []
+    d = run.dir
+    figures = [("Trajectories (gripper solid, estimated part dashed, true part grey)",
+                plot_trajectory(run, d / "fig_trajectory.png")),
+               ("Pose error of the EKF and the PnP baseline", plot_error(run, d / "fig_error.png"))]
+    if run.n_features and run.cameras:
+        colours = occluder_colours(run)
+        for c, name in enumerate(run.cameras, start=1):
+            figures.append((f"Visibility and selection, {name}",
+                            plot_visibility(run, c, colours, d / f"fig_visibility_cam{c}.png")))
+        figures.append(("Predicted vs true visibility", plot_visibility_agreement(
+            run, d / "fig_visibility_agreement.png")))
+    figures.append(("Timing", plot_timing(run, d / "fig_timing.png")))
+    return figures
+
+
+# --------------------------------------------------------------------------- HTML
+
+CSS = """
+body { font-family: system-ui, sans-serif; max-width: 1150px; margin: 2em auto; color: #222;
+       padding: 0 1em; }
+h1 { margin-bottom: 0.2em; } .sub { color: #555; margin-top: 0; }
+.warn { background: #fff3cd; border: 1px solid #e0c36a; padding: 0.6em 1em; }
+table { border-collapse: collapse; margin: 0.5em 0 1.5em; font-size: 0.92em; }
+td, th { border-bottom: 1px solid #ddd; padding: 0.25em 0.9em; text-align: left; }
+td.v { text-align: right; font-variant-numeric: tabular-nums; } code { color: #333; }
+figure { margin: 1em 0 2em; } img, video { max-width: 100%; border: 1px solid #ddd; }
+figcaption { color: #444; font-size: 0.92em; margin-top: 0.3em; }
+pre { background: #f6f6f6; padding: 1em; overflow-x: auto; font-size: 0.82em; }
+"""
+
+
+def _data_uri(path: Path, mime: str) -> str:
+    """A file as a base64 data URI."""
+    return f"data:{mime};base64,{base64.b64encode(path.read_bytes()).decode('ascii')}"
+
+
+def _unit(key: str) -> str:
+    """Unit named by the last unit token of a metric key ('' if none)."""
+    return next((tok for tok in reversed(key.split("_")) if tok in UNITS), "")
+
+
+def format_value(value) -> str:
+    """A metric value for the table: floats to 4 significant digits, bools yes/no, null '—'."""
+    if value is None or (isinstance(value, float) and not np.isfinite(value)):
+        return "—"
+    if isinstance(value, bool):
+        return "yes" if value else "no"
+    if isinstance(value, float):
+        return f"{value:.4g}"
+    if isinstance(value, list):
+        return "[" + ", ".join(format_value(v) for v in value) + "]"
+    return str(value)
+
+
+def metric_rows(metrics: dict) -> list[tuple[str, str]]:
+    """``(key, formatted value with unit)`` for every scalar, list of scalars and dict of
+    scalars (flattened as ``key.sub``) in ``metrics.json``; ``phases`` has its own table."""
+    rows = []
+    for key, value in metrics.items():
+        if key == "phases":
+            continue
+        items = value.items() if isinstance(value, dict) else [(None, value)]
+        for sub, v in items:
+            text = format_value(v)
+            unit = _unit(key) if text != "—" else ""
+            rows.append((key if sub is None else f"{key}.{sub}", f"{text} {unit}".strip()))
+    return rows
+
+
+def _metrics_html(metrics: dict) -> str:
+    """The metrics table and, if present, the phases table."""
+    if not metrics:
+        return "<p>No metrics.json.</p>"
+    rows = "".join(f"<tr><td><code>{html.escape(k)}</code></td><td class=v>{html.escape(v)}"
+                   "</td></tr>" for k, v in metric_rows(metrics))
+    out = f"<h2>Metrics</h2><table>{rows}</table>"
+    phases = metrics.get("phases") or []
+    if phases:
+        prow = "".join(f"<tr><td>{html.escape(str(p))}</td><td class=v>{format_value(t0)}</td>"
+                       f"<td class=v>{format_value(t1)}</td></tr>" for p, t0, t1 in phases)
+        out += ("<h3>Phases</h3><table><tr><th>phase</th><th>start [s]</th><th>end [s]</th>"
+                f"</tr>{prow}</table>")
+    return out
+
+
+def _figures_html(figures: list[tuple[str, Path]]) -> str:
+    """Embedded figures with captions."""
+    if not figures:
+        return "<h2>Figures</h2><p>No frames recorded.</p>"
+    items = "".join(f'<figure><img src="{_data_uri(p, "image/png")}" alt="{p.name}">'
+                    f"<figcaption>{html.escape(title)} ({p.name})</figcaption></figure>"
+                    for title, p in figures)
+    return f"<h2>Figures</h2>{items}"
+
+
+def _keyframes_html(run_dir: Path) -> str:
+    """Key frames from ``keyframes.json`` (``file`` relative to the run directory, else looked
+    up by name in ``keyframes/``); missing images are skipped."""
+    path = run_dir / "keyframes.json"
+    if not path.exists():
+        return ""
+    items = []
+    for kf in json.loads(path.read_text()):
+        name = str(kf.get("name", ""))
+        candidates = [run_dir / str(kf.get("file", "")), run_dir / "keyframes" / f"{name}.png"]
+        image = next((p for p in candidates if p.is_file()), None)
+        if image is None:
+            continue
+        caption = f"{name}, t = {format_value(kf.get('t'))} s: {kf.get('caption', '')}"
+        items.append(f'<figure><img src="{_data_uri(image, "image/png")}" alt="{name}">'
+                     f"<figcaption>{html.escape(caption)}</figcaption></figure>")
+    return f"<h2>Key frames</h2>{''.join(items)}" if items else ""
+
+
+def _video_html(run_dir: Path) -> str:
+    """``views.mp4`` embedded (up to ``VIDEO_EMBED_LIMIT`` bytes) or linked."""
+    path = run_dir / "views.mp4"
+    if not path.is_file():
+        return ""
+    if path.stat().st_size <= VIDEO_EMBED_LIMIT:
+        source = _data_uri(path, "video/mp4")
+        link = ""
+    else:
+        source = path.name
+        link = f'<p><a href="{path.name}">{path.name}</a> (too large to embed)</p>'
+    return (f'<h2>Camera views</h2><video controls loop muted><source src="{source}" '
+            f'type="video/mp4"></video>{link}')
+
+
+def _log_html(run_dir: Path) -> str:
+    """``run.log`` in a collapsed block."""
+    path = run_dir / "run.log"
+    if not path.is_file():
+        return ""
+    text = path.read_text(errors="replace")
+    return (f"<details><summary>Run log ({len(text.splitlines())} lines)</summary>"
+            f"<pre>{html.escape(text)}</pre></details>")
+
+
+def _header_html(run: Run) -> str:
+    """Title, run description and a banner for interrupted runs."""
+    m = run.metrics
+    occ = m.get("occlusion_prediction")
+    occ_text = "?" if occ is None else ("on" if occ else "off")
+    sub = (f"experiment {m.get('experiment', '?')} · seed {m.get('seed', '?')} · "
+           f"sensor {m.get('sensor', '?')} · occlusion prediction {occ_text} · "
+           f"{run.frames.n} frames")
+    out = f"<h1>cellsight run report</h1><p class=sub>{html.escape(sub)}</p>"
+    if m.get("interrupted") or not m:
+        out += "<p class=warn>Partial run: interrupted or unfinished; results are incomplete.</p>"
+    return out
+
+
+def write_report(run_dir: Path) -> Path:
+    """Write the figures (``fig_*.png``) and ``report.html`` into ``run_dir``; returns the
+    report's path. Works on partial runs (few frames, short or missing ``metrics.json``)."""
+    run = load_run(Path(run_dir))
+    body = "".join([_header_html(run), _metrics_html(run.metrics),
+                    _figures_html(write_figures(run)), _keyframes_html(run.dir),
+                    _video_html(run.dir), _log_html(run.dir)])
+    m = run.metrics
+    title = f"cellsight run: experiment {m.get('experiment', '?')}, seed {m.get('seed', '?')}"
+    page = (f"<!DOCTYPE html><html lang=en><head><meta charset=utf-8>"
+            f"<title>{html.escape(title)}</title><style>{CSS}</style></head>"
+            f"<body>{body}</body></html>\n")
+    out = run.dir / "report.html"
+    out.write_text(page)
+    return out
