@@ -4,7 +4,7 @@ STAMP   := .venv/.installed
 DEV     := .venv/.installed-dev
 export MUJOCO_GL ?= egl
 
-.PHONY: venv dev test demo bench lint clean
+.PHONY: venv dev test demo experiments bench lint clean
 
 # `venv`: what cellsight needs to run; `dev`: plus the test tools and the benchmark peers.
 venv: $(STAMP)
@@ -21,7 +21,7 @@ $(DEV): $(STAMP)
 	touch $(DEV)
 
 lint: dev
-	.venv/bin/ruff check cellsight tests bench
+	.venv/bin/ruff check cellsight tests bench scripts
 
 test: dev lint
 	$(PY) -m pytest
@@ -29,6 +29,10 @@ test: dev lint
 # The main job: the paper's third experiment on the built-in cell (report in out/experiment3).
 demo: venv
 	.venv/bin/cellsight run 3 --out out/experiment3
+
+# The README's table: experiments 1-3 x sensors x seeds, with and without occlusion prediction.
+experiments: venv
+	$(PY) scripts/experiment_table.py --out out/table
 
 # Open3D (a benchmark peer) needs libusb; install it from Debian when missing.
 bench: dev

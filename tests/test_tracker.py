@@ -227,3 +227,20 @@ def test_closed_loop_on_rendered_images():
         renderer.close()
     errors = np.array(errors)
     assert _rmse(errors[:, 0]) < 1e-3 and _rmse(errors[:, 1]) < np.deg2rad(0.5)
+
+
+def test_a_part_gone_for_good_stops_coasting():
+    """Both cameras blind for good: the prediction coasts on the last velocity for ``coast_s``
+    seconds after the last measurement, then stays put (it would otherwise drift for ever)."""
+    config = TrackerConfig(coast_s=1.0)
+    run = Run(seed=2, config=config, sway=0.0)
+    start = int(2.0 / VISION_PERIOD)
+    for k in range(start + int(3.0 / VISION_PERIOD)):
+        run.predictor.blind = run.truth_vis.blind = {0, 1} if k >= start else set()
+        run.step(k)
+    positions = np.array([f.T_base_part[:3, 3] for f in run.frames])
+    steps = np.linalg.norm(np.diff(positions, axis=0), axis=1)
+    coasting = slice(start + 2, start + int(0.9 / VISION_PERIOD))
+    stopped = slice(start + int(1.1 / VISION_PERIOD), None)
+    assert np.all(steps[coasting] > 1e-4)  # moving with the conveyor's speed
+    assert np.all(steps[stopped] == 0.0) and run.frames[-1].status == "lost"

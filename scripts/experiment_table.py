@@ -1,0 +1,83 @@
+"""Run the paper's three experiments over sensors, seeds and with/without occlusion prediction,
+and print the README's table of their metrics (Markdown).
+
+    .venv/bin/python scripts/experiment_table.py [--out out/table] [--seeds 0 1 2] [--jobs 2]
+
+Each run writes its own folder ``<out>/e<N>_<sensor>_<pred|nopred>_s<seed>``; runs already done
+(with a metrics.json that was not interrupted) are reused.
+"""
+
+from __future__ import annotations
+
+import argparse
+import itertools
+import json
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+from rich.progress import Progress
+
+COLUMNS = (
+    ("grasp_success", "grasp", "{}"),
+    ("position_rmse_mm", "pos. RMSE mm", "{:.2f}"),
+    ("orientation_rmse_deg", "orient. RMSE deg", "{:.2f}"),
+    ("max_position_error_mm", "max pos. mm", "{:.2f}"),
+    ("pnp_position_rmse_mm", "PnP pos. RMSE mm", "{:.2f}"),
+    ("visibility_accuracy", "visibility acc.", "{:.4f}"),
+    ("false_visible", "false visible", "{}"),
+    ("rejected_measurements", "rejected", "{}"),
+    ("wrong_measurements", "wrong", "{}"),
+    ("wrong_accepted", "wrong accepted", "{}"),
+    ("grasp_position_error_mm", "grasp err. mm", "{:.2f}"),
+)
+
+
+def run_one(args: tuple[int, str, bool, int, Path]) -> dict:
+    from cellsight.experiments import RunConfig, run_experiment
+
+    experiment, sensor, prediction, seed, folder = args
+    done = folder / "metrics.json"
+    if done.is_file():
+        metrics = json.loads(done.read_text())
+        if not metrics.get("interrupted"):
+            return metrics
+    return run_experiment(RunConfig(experiment, folder, seed=seed, sensor=sensor,
+                                    occlusion_prediction=prediction, progress=False))
+
+
+def fmt(metrics: dict, key: str, pattern: str) -> str:
+    value = metrics.get(key)
+    return "–" if value is None else pattern.format(value)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--out", type=Path, default=Path("out/table"))
+    parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
+    parser.add_argument("--sensors", nargs="+", default=["rendered", "ideal"])
+    parser.add_argument("--jobs", type=int, default=2)
+    args = parser.parse_args()
+    runs = []
+    for experiment, sensor, prediction, seed in itertools.product(
+            (1, 2, 3), args.sensors, (True, False), args.seeds):
+        if not prediction and seed != args.seeds[0]:
+            continue  # the comparison without prediction: default seed only
+        name = f"e{experiment}_{sensor}_{'pred' if prediction else 'nopred'}_s{seed}"
+        runs.append((experiment, sensor, prediction, seed, args.out / name))
+    results = []
+    with Progress() as progress, ProcessPoolExecutor(args.jobs) as pool:
+        bar = progress.add_task("experiments", total=len(runs))
+        for metrics in pool.map(run_one, runs):
+            results.append(metrics)
+            progress.advance(bar)
+    header = ["exp.", "sensor", "occlusion prediction", "seed"] + [c[1] for c in COLUMNS]
+    print("| " + " | ".join(header) + " |")
+    print("|" + "---|" * len(header))
+    for (experiment, sensor, prediction, seed, _), metrics in zip(runs, results, strict=True):
+        cells = [str(experiment), sensor, "on" if prediction else "**off**", str(seed)]
+        cells += [fmt(metrics, key, pattern) for key, _, pattern in COLUMNS]
+        print("| " + " | ".join(cells) + " |")
+
+
+if __name__ == "__main__":
+    main()
