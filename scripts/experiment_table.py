@@ -55,11 +55,12 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=Path("out/table"))
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
     parser.add_argument("--sensors", nargs="+", default=["rendered", "ideal"])
+    parser.add_argument("--experiments", type=int, nargs="+", default=[1, 2, 3])
     parser.add_argument("--jobs", type=int, default=2)
     args = parser.parse_args()
     runs = []
     for experiment, sensor, prediction, seed in itertools.product(
-            (1, 2, 3), args.sensors, (True, False), args.seeds):
+            args.experiments, args.sensors, (True, False), args.seeds):
         if not prediction and seed != args.seeds[0]:
             continue  # the comparison without prediction: default seed only
         name = f"e{experiment}_{sensor}_{'pred' if prediction else 'nopred'}_s{seed}"

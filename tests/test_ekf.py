@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 from scipy.linalg import expm
 
+from cellsight import load_cell
 from cellsight.camera import Camera
 from cellsight.geometry.transforms import look_at, pose_from_xyz_rpy, xyz_rpy_from_pose
 from cellsight.tracking import (
@@ -226,3 +227,16 @@ def test_state_rotation_follows_the_transforms_convention():
         state = _state(np.zeros(3), rpy)
         R = pose_from_xyz_rpy(np.zeros(3), rpy)[:3, :3]
         np.testing.assert_allclose(rotation_of_state(state), R, atol=1e-12)
+
+
+@pytest.mark.parametrize("points", [
+    np.zeros((5, 3)),  # all at one point
+    np.array([[0.0, 0.0, 0.0], [0.01, 0.0, 0.0], [0.02, 0.0, 0.0], [0.03, 0.0, 0.0]]),  # a line
+])
+def test_pnp_on_degenerate_points_gives_no_pose(points):
+    """Degenerate point sets make OpenCV's SQPnP raise; the baseline reports no pose."""
+    cam = load_cell().cameras[0]
+    obs = Observation(PinholeMeasurement(cam), 0, np.arange(len(points)), points,
+                      np.full((len(points), 2), 300.0))
+    assert solve_pnp_camera(obs) is None
+    assert estimate_pose([obs]) is None

@@ -7,7 +7,8 @@ Columns (C cameras numbered c = 1..C, F features; an empty field is a missing va
   base frame, roll-pitch-yaw as in :func:`~cellsight.geometry.transforms.xyz_rpy_from_pose`);
   ``est_*`` the EKF's estimate after this frame's update (empty while the part is not acquired
   yet or lost); ``pnp_*`` the per-frame multi-camera
-  PnP baseline on the same measurements (the last one held when a frame has too few);
+  PnP baseline on the same measurements (a frame with too few holds the last fix, for at
+  most the tracker's ``lost_after_s``);
 - ``gripper_x, gripper_y, gripper_z`` (m): the grasping robot's true TCP; ``jaw_opening`` (m);
   ``jaws_closed`` (jaws closed on the part, 0/1); ``grasped`` (part held, 0/1);
 - per camera: ``vis_pred_c{c}`` (predicted visible at the tracker's predicted pose),

@@ -4,7 +4,7 @@
   ``pnp_position_rmse_mm``, ``pnp_orientation_rmse_deg``) over the *metric window*: from the
   first frame with an estimate up to (not including) the first frame where the jaws are closed
   on the part (the end of the run if they never close). The orientation error is the angle of
-  ``R_est^T R_true``. The PnP baseline is taken on the same frames.
+  ``R_est^T R_true``. The PnP baseline is taken on the same frames (those where it has a pose).
 - ``visibility_accuracy``: fraction of frame x camera x feature labels where the prediction (at
   the tracker's predicted pose) equals the simulator's truth; ``false_visible`` counts labels
   predicted visible but truly hidden, ``false_hidden`` the reverse. All frames.

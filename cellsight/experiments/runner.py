@@ -29,7 +29,6 @@ import numpy as np
 from rich.progress import BarColumn, Progress, TextColumn
 
 from cellsight.control import GraspTask, Phase
-from cellsight.control.clik import rotation_error
 from cellsight.experiments.framelog import STAGES, WRONG_PX, FrameLog, bits, read_frames
 from cellsight.experiments.metrics import frame_metrics
 from cellsight.experiments.scenario import Scenario, scenario
@@ -43,6 +42,7 @@ from cellsight.report.run_report import write_report
 from cellsight.report.video import VideoWriter
 from cellsight.tracking import Observation, PartFrame, Tracker, estimate_pose, undistort_pixels
 from cellsight.world import World
+from cellsight.world.grasp import grasp_error
 
 log = logging.getLogger(__name__)
 
@@ -113,8 +113,8 @@ class ExperimentRun:
         self.cameras = cell.cameras
         self.labels = {o.name: o.label for o in cell.objects}
         self.crossing = next(iter(sc.tasks), None)
-        self._pnp: np.ndarray | None = None
-        self._events: dict[int, str] = {}
+        self._pnp: tuple[float, np.ndarray] | None = None  # (t, T_base_part) of the last fix
+        self._events: dict[int, tuple] = {}
         self._grasp_error_mm: float | None = None
         self._held_at_manipulate = False
 
@@ -132,8 +132,9 @@ class ExperimentRun:
         ]
         return T, pixels, visible, occluders
 
-    def _pnp_baseline(self, rec: PartFrame) -> np.ndarray | None:
-        """Per-frame multi-camera PnP on this frame's measurements (the last one held)."""
+    def _pnp_baseline(self, t: float, rec: PartFrame) -> np.ndarray | None:
+        """Per-frame multi-camera PnP on this frame's measurements; a frame with too few holds
+        the last fix for at most the tracker's ``lost_after_s``."""
         obs = []
         for c, cam in enumerate(self.cameras):
             ids = np.flatnonzero(np.all(np.isfinite(rec.measured[c]), axis=1))
@@ -143,21 +144,25 @@ class ExperimentRun:
                                        undistort_pixels(cam, rec.measured[c, ids])))
         fix = estimate_pose(obs, sigma_px=self.tracker.config.sigma_px) if obs else None
         if fix is not None:
-            self._pnp = fix.T_base_part
-        return self._pnp
+            self._pnp = (t, fix.T_base_part)
+        if self._pnp is None or t - self._pnp[0] > self.tracker.config.lost_after_s:
+            return None
+        return self._pnp[1]
 
     def _log_occlusions(self, t: float, reasons: list[list[str]]) -> None:
-        """A line in the log whenever what hides the part from a camera changes."""
+        """A line in the log (predicted visibility) whenever the set of what hides the part
+        from a camera changes, or the count of visible points crosses 3 or 1."""
         for c, per_feature in enumerate(reasons):
             hidden = Counter(r for r in per_feature if r)
             n_visible = sum(1 for r in per_feature if not r)
+            state = (frozenset(hidden), min(n_visible, 3), n_visible == 0)
+            if self._events.get(c) == state:
+                continue
+            self._events[c] = state
             text = ", ".join(f"{label} {n}" for label, n in sorted(hidden.items()))
-            summary = f"{n_visible}/{len(per_feature)} visible" + (f"; hidden: {text}"
-                                                                    if text else "")
-            if self._events.get(c) != summary:
-                self._events[c] = summary
-                log.info("t=%6.2f s %-10s %s: %s", t, self.task.phase, self.cameras[c].name,
-                         summary)
+            log.info("t=%6.2f s %-10s %s: %d/%d visible%s", t, self.task.phase,
+                     self.cameras[c].name, n_visible, len(per_feature),
+                     f"; hidden: {text}" if text else "")
 
     def _row(self, t: float, frame, rec: PartFrame, truth, pnp, reasons) -> dict:
         T_true, pixels, visible, occluders = truth
@@ -321,7 +326,7 @@ class ExperimentRun:
         reasons = self.predictor.last[self.part.name]
         reasons = [v.reason for v in reasons]
         self._log_occlusions(t, reasons)
-        pnp = self._pnp_baseline(rec)
+        pnp = self._pnp_baseline(t, rec)
         frames.write(self._row(t, frame, rec, truth, pnp, reasons))
         self._offer_key_moments(keys, t, images, rec, reasons, truth[2])
         if video is not None and k % self.config.video_every == 0:
@@ -335,10 +340,10 @@ class ExperimentRun:
             T_tcp = self.robot.tcp_pose(self.world.true_joints()[name])
             T_grasp = (self.world.true_part_poses()[self.part.name]
                        @ self.world.grasp_pose(self.part.name))
-            self._grasp_error_mm = 1e3 * float(np.linalg.norm(T_tcp[:3, 3] - T_grasp[:3, 3]))
-            angle = np.degrees(np.linalg.norm(rotation_error(T_grasp[:3, :3], T_tcp[:3, :3])))
+            position, angle = grasp_error(T_tcp, T_grasp)
+            self._grasp_error_mm = 1e3 * position
             log.info("t=%6.2f s grasp engaged: TCP %.1f mm, %.1f deg from the grasp pose",
-                     self.world.time, self._grasp_error_mm, angle)
+                     self.world.time, self._grasp_error_mm, np.degrees(angle))
 
     def _metrics(self, wall_s: float, interrupted: bool) -> dict:
         cfg = self.config

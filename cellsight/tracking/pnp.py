@@ -40,13 +40,17 @@ class PoseFix:
 
 
 def solve_pnp_camera(observation: Observation) -> np.ndarray | None:
-    """``T_base_part`` from one camera's observation (>= 4 points), or None if OpenCV fails."""
+    """``T_base_part`` from one camera's observation (>= 4 points), or None if OpenCV fails
+    (including a degenerate point set that makes SQPnP raise)."""
     obj = np.ascontiguousarray(observation.points_model, dtype=np.float64).reshape(-1, 1, 3)
     img = np.ascontiguousarray(observation.pixels, dtype=np.float64).reshape(-1, 1, 2)
     if len(obj) < 4:
         return None
     K = observation.model.camera.K
-    ok, rvec, tvec = cv2.solvePnP(obj, img, K, None, flags=cv2.SOLVEPNP_SQPNP)
+    try:
+        ok, rvec, tvec = cv2.solvePnP(obj, img, K, None, flags=cv2.SOLVEPNP_SQPNP)
+    except cv2.error:  # degenerate configurations trip SQPnP's internal assertions
+        return None
     if not ok:
         return None
     rvec, tvec = cv2.solvePnPRefineLM(obj, img, K, None, rvec, tvec)

@@ -1,0 +1,202 @@
+"""The experiment runner end to end (short runs, ideal sensor): its log, its metrics, and that
+the metrics agree with the log when recomputed here independently."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+from scipy.spatial.transform import Rotation
+
+from cellsight import load_cell
+from cellsight.cli import main
+from cellsight.errors import CellFileError
+from cellsight.experiments import RunConfig, scenario
+from cellsight.experiments.framelog import columns, read_frames
+from cellsight.experiments.runner import ExperimentRun
+from cellsight.experiments.sensors import IdealExtractor, ProjectionOnly
+from cellsight.model.loader import builtin_cell_path
+from cellsight.occlusion.predictor import VisibilityPredictor
+from cellsight.tracking.windowing import plan_windows
+
+DURATION = 4.0
+REQUIRED_METRICS = {
+    "experiment", "seed", "sensor", "occlusion_prediction", "frames", "grasp_success",
+    "grasp_position_error_mm", "position_rmse_mm", "orientation_rmse_deg",
+    "max_position_error_mm", "pnp_position_rmse_mm", "visibility_accuracy", "false_visible",
+    "pixels_grabbed_fraction", "extraction_error_px_median", "timing_ms", "wall_s",
+}
+TIMING_COLUMNS = {c for c in columns(2) if c.startswith("t_") and c.endswith("_ms")}
+
+
+@pytest.fixture(scope="module")
+def short_run(tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("exp3")
+    code = main(["run", "3", "--sensor", "ideal", "--duration", str(DURATION), "--out", str(out),
+                 "--quiet", "--seed", "5"])
+    assert code == 0
+    return out
+
+
+def _mask(text: str) -> np.ndarray:
+    return np.array([ch == "1" for ch in text])
+
+
+def test_short_run_writes_every_log_column_and_metric(short_run: Path) -> None:
+    rows = list(read_frames(short_run / "frames.csv"))
+    assert list(rows[0]) == columns(2)
+    assert len(rows) == int(DURATION * 26) + 1
+    t = np.array([float(r["t"]) for r in rows])
+    assert np.allclose(np.diff(t), 1 / 26, atol=1.5e-3)  # vision frames on the control grid
+    for r in rows:
+        for c in (1, 2):
+            for name in ("vis_pred", "vis_true", "sel", "meas", "rej", "wrong"):
+                assert len(r[f"{name}_c{c}"]) == 16 and set(r[f"{name}_c{c}"]) <= {"0", "1"}
+            assert len(r[f"occ_pred_c{c}"].split(";")) == 16
+            sel, meas = _mask(r[f"sel_c{c}"]), _mask(r[f"meas_c{c}"])
+            assert not np.any(meas & ~sel)  # only selected features are measured
+    metrics = json.loads((short_run / "metrics.json").read_text())
+    assert REQUIRED_METRICS <= set(metrics)
+    assert set(metrics["timing_ms"]) == {"occlusion", "selection", "windowing", "extraction",
+                                         "ekf", "total"}
+    assert metrics["experiment"] == 3 and metrics["sensor"] == "ideal"
+    assert metrics["extraction_error_px_median"] is None and not metrics["interrupted"]
+    assert metrics["frames"] == len(rows)
+    for name in ("report.html", "run.log", "fig_trajectory.png", "fig_visibility_cam1.png"):
+        assert (short_run / name).stat().st_size > 0
+    assert "waiting -> approach" not in (short_run / "run.log").read_text()  # starts at 4 s
+
+
+def test_metrics_agree_with_the_log(short_run: Path) -> None:
+    """Recompute the metrics from frames.csv here, without the package's metric code."""
+    rows = list(read_frames(short_run / "frames.csv"))
+    metrics = json.loads((short_run / "metrics.json").read_text())
+    labels = np.array([[_mask(r[f"vis_pred_c{c}"]) for c in (1, 2)] for r in rows])
+    truth = np.array([[_mask(r[f"vis_true_c{c}"]) for c in (1, 2)] for r in rows])
+    assert metrics["visibility_accuracy"] == pytest.approx(np.mean(labels == truth))
+    assert metrics["false_visible"] == int(np.sum(labels & ~truth))
+    with_estimate = [r for r in rows if r["est_x"] != ""]
+    closed = [r for r in with_estimate if r["jaws_closed"] == "1"]
+    window = with_estimate if not closed else [
+        r for r in with_estimate if float(r["t"]) < float(closed[0]["t"])]
+    assert window, "the short run never estimated the part"
+
+    def errors(prefix: str) -> tuple[np.ndarray, np.ndarray]:
+        rows = [r for r in window if r[f"{prefix}_x"] != ""]
+        pos = np.array([[float(r[f"{prefix}_{a}"]) - float(r[f"true_{a}"]) for a in "xyz"]
+                        for r in rows])
+        rot = [Rotation.from_euler("xyz", [float(r[f"{prefix}_{a}"]) for a in
+                                           ("roll", "pitch", "yaw")]).as_matrix().T
+               @ Rotation.from_euler("xyz", [float(r[f"true_{a}"]) for a in
+                                             ("roll", "pitch", "yaw")]).as_matrix()
+               for r in rows]
+        angles = np.array([np.arccos(np.clip((np.trace(R) - 1) / 2, -1, 1)) for R in rot])
+        return np.linalg.norm(pos, axis=1), angles
+
+    pos, ang = errors("est")
+    assert metrics["position_rmse_mm"] == pytest.approx(1e3 * np.sqrt(np.mean(pos**2)))
+    assert metrics["max_position_error_mm"] == pytest.approx(1e3 * pos.max())
+    assert metrics["orientation_rmse_deg"] == pytest.approx(
+        np.degrees(np.sqrt(np.mean(ang**2))), abs=1e-6)
+    pnp_pos, _ = errors("pnp")
+    assert metrics["pnp_position_rmse_mm"] == pytest.approx(1e3 * np.sqrt(np.mean(pnp_pos**2)))
+    def count(name: str, unless: str | None = None) -> int:
+        return sum(int(np.sum(_mask(r[f"{name}_c{c}"])
+                              & ~(_mask(r[f"{unless}_c{c}"]) if unless else False)))
+                   for r in rows for c in (1, 2))
+
+    assert metrics["measurements"] == count("meas") > 0
+    assert metrics["rejected_measurements"] == count("rej")
+    assert metrics["wrong_measurements"] == count("wrong")
+    assert metrics["wrong_accepted"] == count("wrong", unless="rej")
+    grab = [float(r[f"grab_c{c}"]) for r in rows for c in (1, 2)]
+    assert metrics["pixels_grabbed_fraction"] == pytest.approx(np.mean(grab))
+    total = [float(r["t_total_ms"]) for r in rows]
+    assert metrics["timing_ms"]["total"] == pytest.approx(np.median(total))
+    # and the run itself is sane: a tracked part, sub-millimetre, predictions that match
+    assert metrics["position_rmse_mm"] < 1.0 and metrics["visibility_accuracy"] > 0.98
+
+
+def test_same_seed_same_run(short_run: Path, tmp_path: Path) -> None:
+    main(["run", "3", "--sensor", "ideal", "--duration", str(DURATION), "--out", str(tmp_path),
+          "--quiet", "--seed", "5"])
+    first = list(read_frames(short_run / "frames.csv"))
+    again = list(read_frames(tmp_path / "frames.csv"))
+    strip = [{k: v for k, v in r.items() if k not in TIMING_COLUMNS} for r in first]
+    assert strip == [{k: v for k, v in r.items() if k not in TIMING_COLUMNS} for r in again]
+
+
+def test_compare_prints_both_runs(short_run: Path, capsys) -> None:
+    assert main(["compare", str(short_run), str(short_run)]) == 0
+    out = capsys.readouterr().out
+    assert "visibility_accuracy" in out and "position_rmse_mm" in out
+    assert main(["compare", str(short_run), str(short_run / "missing")]) == 2
+    assert "no metrics.json" in capsys.readouterr().err
+
+
+def test_an_interrupted_run_keeps_what_it_wrote(tmp_path: Path, monkeypatch) -> None:
+    run = ExperimentRun(RunConfig(1, tmp_path, sensor="ideal", duration=5.0, progress=False))
+    step, calls = run.world.step, [0]
+
+    def step_then_stop(*args, **kwargs):
+        calls[0] += 1
+        if calls[0] > 500:  # one second of simulated time
+            raise KeyboardInterrupt
+        step(*args, **kwargs)
+
+    monkeypatch.setattr(run.world, "step", step_then_stop)
+    with pytest.raises(KeyboardInterrupt):
+        run.run()
+    metrics = json.loads((tmp_path / "metrics.json").read_text())
+    rows = list(read_frames(tmp_path / "frames.csv"))
+    assert metrics["interrupted"] and metrics["frames"] == len(rows) == 27
+    assert (tmp_path / "report.html").stat().st_size > 0
+
+
+def test_experiments_need_their_section_of_the_cell_file(tmp_path: Path) -> None:
+    text = builtin_cell_path().read_text()
+    bare = tmp_path / "bare.yaml"
+    bare.write_text(text[: text.index("\nexperiments:")])
+    cell = load_cell(bare)
+    assert scenario(cell, 1).robot.name == "R7AX"  # experiment 1 needs nothing more
+    with pytest.raises(CellFileError, match=r"experiments\.conveyor"):
+        scenario(cell, 2)
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(text.replace("robot: R6AX", "robot: R9AX"))
+    with pytest.raises(CellFileError, match=r"experiments\.crossing\.robot.*R9AX"):
+        load_cell(bad)
+    raw = yaml.safe_load(text)
+    raw["experiments"]["crossing"]["waypoints"][1]["q"] = [0.0, 0.0]
+    short = tmp_path / "short.yaml"
+    short.write_text(yaml.safe_dump(raw))
+    with pytest.raises(CellFileError, match=r"experiments\.crossing\.waypoints\[1\]\.q"):
+        load_cell(short)
+    assert main(["run", "3", "--cell", str(short), "--duration", "1", "--quiet"]) == 2
+
+
+def test_projection_only_sees_through_occluders() -> None:
+    """Without occlusion prediction, every feature inside the image counts as visible: a
+    superset of the BSP's answer that includes the self-occluded features."""
+    cell = load_cell()
+    bsp = VisibilityPredictor(cell).predict()["part"]
+    plain = ProjectionOnly(cell).predict()["part"]
+    for b, p in zip(bsp, plain, strict=True):
+        assert np.all(p.visible >= b.visible) and p.count > b.count
+        assert np.allclose(p.pixels, b.pixels)
+
+
+def test_ideal_extractor_measures_truly_visible_features_in_their_windows() -> None:
+    rng = np.random.default_rng(0)
+    pixels = rng.uniform(100, 500, (1, 6, 2))
+    visible = np.array([[True, True, False, True, True, True]])
+    plan = plan_windows(pixels[0, :5], np.arange(5), np.zeros((5, 2, 2)), 768, 576)
+    pixels[0, 4] += 200  # the truth is far from where the window was planned
+    extractor = IdealExtractor(0.3, seed=1)
+    extractor.set_truth(pixels, visible)
+    found = extractor.extract(0, None, plan)
+    assert set(found) == set(plan.features.tolist()) - {2, 4}
+    for f, px in found.items():
+        assert np.linalg.norm(px - pixels[0, f]) < 2.0
