@@ -117,9 +117,9 @@ SUMMARY_KEYS = (
     "experiment", "seed", "sensor", "occlusion_prediction", "frames", "grasp_success",
     "grasp_position_error_mm", "position_rmse_mm", "orientation_rmse_deg",
     "max_position_error_mm", "pnp_position_rmse_mm", "pnp_orientation_rmse_deg",
-    "visibility_accuracy", "false_visible", "false_hidden", "measurements",
-    "rejected_measurements", "wrong_measurements", "wrong_accepted", "pixels_grabbed_fraction",
-    "extraction_error_px_median", "wall_s",
+    "visibility_accuracy", "visibility_accuracy_in_view", "false_visible", "false_hidden",
+    "measurements", "rejected_measurements", "wrong_measurements", "wrong_accepted",
+    "pixels_grabbed_fraction", "extraction_error_px_median", "wall_s",
 )
 
 

@@ -24,6 +24,7 @@ COLUMNS = (
     ("max_position_error_mm", "max pos. mm", "{:.2f}"),
     ("pnp_position_rmse_mm", "PnP pos. RMSE mm", "{:.2f}"),
     ("visibility_accuracy", "visibility acc.", "{:.4f}"),
+    ("visibility_accuracy_in_view", "in view", "{:.4f}"),
     ("false_visible", "false visible", "{}"),
     ("rejected_measurements", "rejected", "{}"),
     ("wrong_measurements", "wrong", "{}"),

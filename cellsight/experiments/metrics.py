@@ -8,6 +8,8 @@
 - ``visibility_accuracy``: fraction of frame x camera x feature labels where the prediction (at
   the tracker's predicted pose) equals the simulator's truth; ``false_visible`` counts labels
   predicted visible but truly hidden, ``false_hidden`` the reverse. All frames.
+  ``visibility_accuracy_in_view``: the same over the labels of features that truly project
+  inside the image (leaving out the easy ones: the part out of view).
 - ``measurements``: features measured; ``rejected_measurements``: of those, rejected by the EKF's
   gate; ``wrong_measurements``: measured more than ``WRONG_PX`` from the true projection (another
   image point: an occluder's corner); ``wrong_accepted``: wrong and not rejected. All frames.
@@ -77,7 +79,7 @@ def frame_metrics(rows: Sequence[dict[str, str]], n_cameras: int) -> dict:
     win = slice(start, stop)
     est_pos, est_ang = pose_errors(_pose_columns(rows, "est")[win], truth[win])
     pnp_pos, pnp_ang = pose_errors(_pose_columns(rows, "pnp")[win], truth[win])
-    agree = total = false_visible = false_hidden = 0
+    agree = total = false_visible = false_hidden = agree_in_view = in_view = 0
     counts = dict.fromkeys(("measurements", "rejected_measurements", "wrong_measurements",
                             "wrong_accepted"), 0)
     grabbed, errors = [], []
@@ -86,6 +88,10 @@ def frame_metrics(rows: Sequence[dict[str, str]], n_cameras: int) -> dict:
             pred, true = _bits(row[f"vis_pred_c{c}"]), _bits(row[f"vis_true_c{c}"])
             agree += int(np.sum(pred == true))
             total += len(pred)
+            inside = np.array([r not in ("outside", "behind")
+                               for r in row[f"occ_true_c{c}"].split(";")])
+            agree_in_view += int(np.sum((pred == true) & inside))
+            in_view += int(inside.sum())
             false_visible += int(np.sum(pred & ~true))
             false_hidden += int(np.sum(~pred & true))
             meas, rej, wrong = (_bits(row[f"{k}_c{c}"]) for k in ("meas", "rej", "wrong"))
@@ -112,6 +118,7 @@ def frame_metrics(rows: Sequence[dict[str, str]], n_cameras: int) -> dict:
         "pnp_position_rmse_mm": _scaled(_rmse(pnp_pos), 1e3),
         "pnp_orientation_rmse_deg": _scaled(_rmse(pnp_ang), 180.0 / np.pi),
         "visibility_accuracy": agree / total if total else None,
+        "visibility_accuracy_in_view": agree_in_view / in_view if in_view else None,
         "false_visible": false_visible,
         "false_hidden": false_hidden,
         **counts,
