@@ -16,6 +16,7 @@ from cellsight.tracking import (
     PinholeMeasurement,
     PoseEKF,
     estimate_pose,
+    estimate_pose_robust,
     solve_pnp_camera,
 )
 from cellsight.tracking.measurement import rotation_of_state, undistort_pixels
@@ -240,3 +241,24 @@ def test_pnp_on_degenerate_points_gives_no_pose(points):
                       np.full((len(points), 2), 300.0))
     assert solve_pnp_camera(obs) is None
     assert estimate_pose([obs]) is None
+
+
+def test_robust_pnp_drops_a_wrong_corner():
+    """One corner 8 px off spoils the plain fused PnP (RMS above 2 px); the robust one drops it
+    and recovers the pose."""
+    cell = load_cell()
+    part = cell.workpieces[0]
+    T = part.T_base_part
+    pts = part.feature_points
+    rng = np.random.default_rng(3)
+    obs = []
+    for c, cam in enumerate(cell.cameras):
+        ids = np.arange(0, 16, 2) + c
+        px = cam.project(pts[ids] @ T[:3, :3].T + T[:3, 3]) + rng.normal(0, 0.2, (len(ids), 2))
+        if c == 0:
+            px[3] += [8.0, -5.0]
+        obs.append(Observation(PinholeMeasurement(cam), c, ids, pts[ids], px))
+    assert estimate_pose(obs).rms_px > 2.0
+    fix = estimate_pose_robust(obs, max_rms_px=2.0)
+    assert fix.rms_px < 0.5 and fix.n_points == 15
+    assert np.linalg.norm(fix.T_base_part[:3, 3] - T[:3, 3]) < 1e-3

@@ -10,7 +10,13 @@ from cellsight.tracking.ekf import AdaptiveNoise, PoseEKF, UpdateReport
 from cellsight.tracking.extraction import CornerExtractor, ExtractionConfig, extract_corner
 from cellsight.tracking.measurement import Observation, PinholeMeasurement, undistort_pixels
 from cellsight.tracking.motion import ConstantVelocity
-from cellsight.tracking.pnp import PoseFix, estimate_pose, refine_pose, solve_pnp_camera
+from cellsight.tracking.pnp import (
+    PoseFix,
+    estimate_pose,
+    estimate_pose_robust,
+    refine_pose,
+    solve_pnp_camera,
+)
 from cellsight.tracking.selection import (
     Selection,
     SelectionConfig,
@@ -39,6 +45,7 @@ __all__ = [
     "WindowConfig",
     "WindowPlan",
     "estimate_pose",
+    "estimate_pose_robust",
     "extract_corner",
     "plan_windows",
     "refine_pose",

@@ -136,3 +136,34 @@ def estimate_pose(
         if fix is not None and (best is None or fix.rms_px < best.rms_px):
             best = fix
     return best
+
+
+def estimate_pose_robust(
+    observations: list[Observation],
+    max_rms_px: float,
+    min_points: int = 4,
+    sigma_px: float = 0.5,
+    max_outliers: int = 3,
+) -> PoseFix | None:
+    """:func:`estimate_pose`, dropping the worst-fitting point and solving again while the RMS
+    reprojection error exceeds ``max_rms_px`` (at most ``max_outliers`` points): one wrong
+    corner (an occluder's, a background edge's) would otherwise spoil a still part's
+    acquisition in every frame. Returns the last fix, whatever its RMS (the caller checks)."""
+    obs = [o for o in observations if len(o.feature_ids) > 0]
+    fix = estimate_pose(obs, min_points, sigma_px)
+    for _ in range(max_outliers):
+        if fix is None or fix.rms_px <= max_rms_px or fix.n_points <= min_points + 2:
+            break
+        xyz, rpy = xyz_rpy_from_pose(fix.T_base_part)
+        r, _ = _residuals(obs, np.concatenate([xyz, rpy]))
+        worst = int(np.argmax(np.linalg.norm(r.reshape(-1, 2), axis=1)))
+        sizes = np.cumsum([len(o.feature_ids) for o in obs])
+        k = int(np.searchsorted(sizes, worst, side="right"))
+        row = worst - (sizes[k - 1] if k else 0)
+        o = obs[k]
+        keep = np.arange(len(o.feature_ids)) != row
+        obs[k] = Observation(o.model, o.camera_index, o.feature_ids[keep], o.points_model[keep],
+                             o.pixels[keep])
+        obs = [o for o in obs if len(o.feature_ids) > 0]
+        fix = estimate_pose(obs, min_points, sigma_px)
+    return fix

@@ -8,8 +8,9 @@ to the occlusion predictor, so parts can hide each other.
 Acquisition (a part not tracked yet, or lost): the occlusion predictor runs at a guess of the
 pose (the cell's nominal pose of the part, or the last prediction of a lost part); every
 predicted-visible feature gets a fixed-size window (``acquisition_window_px``); the corners
-found there give a fused multi-camera PnP (:func:`~cellsight.tracking.pnp.estimate_pose`); the
-filter starts from it when its RMS reprojection error is below ``acquisition_max_rms_px``.
+found there give a fused multi-camera PnP that drops up to three wrong corners
+(:func:`~cellsight.tracking.pnp.estimate_pose_robust`); the filter starts from it when its RMS
+reprojection error is below ``acquisition_max_rms_px``.
 A part is *lost* after ``lost_after_s`` seconds without an accepted measurement; until then
 frames without measurements only predict. The prediction coasts at most ``coast_s`` seconds
 after the last accepted measurement, then stops (the last velocity would carry the pose away
@@ -33,7 +34,7 @@ from cellsight.tracking.ekf import AdaptiveNoise, PoseEKF
 from cellsight.tracking.extraction import CornerExtractor
 from cellsight.tracking.measurement import Observation, PinholeMeasurement, undistort_pixels
 from cellsight.tracking.motion import POSE_DIM, STATE_DIM, ConstantVelocity
-from cellsight.tracking.pnp import estimate_pose
+from cellsight.tracking.pnp import estimate_pose_robust
 from cellsight.tracking.selection import Selection, SelectionConfig, select_features
 from cellsight.tracking.windowing import WindowConfig, WindowPlan, plan_windows
 
@@ -385,7 +386,8 @@ class Tracker:
             rec, track, per_cam, all_visible, images, timings, rec.selected, cov_of, wcfg
         )
         tic = time.perf_counter()
-        fix = estimate_pose(obs, sigma_px=self.config.sigma_px)
+        fix = estimate_pose_robust(obs, self.config.acquisition_max_rms_px,
+                                   sigma_px=self.config.sigma_px)
         if fix is not None and fix.rms_px <= self.config.acquisition_max_rms_px:
             P = self._initial_covariance(self.config.init_pose_inflation * fix.covariance)
             self.initialise(name, fix.T_base_part, t, P)
