@@ -123,12 +123,6 @@ SUMMARY_KEYS = (
 )
 
 
-def _fmt(value) -> str:
-    if isinstance(value, float):
-        return f"{value:.4g}"
-    return "-" if value is None else str(value)
-
-
 def _metric_rows(metrics: dict) -> dict[str, object]:
     """The scalar metrics, with the stage timings flattened to ``timing_<stage>_ms``."""
     rows = {k: metrics.get(k) for k in SUMMARY_KEYS}
@@ -141,6 +135,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     from rich.table import Table
 
     from cellsight.experiments import RunConfig, run_experiment
+    from cellsight.report.run_report import format_value
 
     if args.duration is not None and not args.duration > 0:
         raise CellsightError(f"--duration: expected a positive number of seconds, got "
@@ -156,7 +151,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     table.add_column("metric")
     table.add_column("value", justify="right")
     for key, value in _metric_rows(metrics).items():
-        table.add_row(key, _fmt(value))
+        table.add_row(key, format_value(value))
     console = Console()
     console.print(table)
     console.print(f"wrote [bold]{out}[/bold]: frames.csv, metrics.json, run.log, report.html")
@@ -177,6 +172,8 @@ def cmd_compare(args: argparse.Namespace) -> int:
     from rich.console import Console
     from rich.table import Table
 
+    from cellsight.report.run_report import format_value
+
     a, b = _load_metrics(args.run_a), _load_metrics(args.run_b)
     rows_a, rows_b = _metric_rows(a), _metric_rows(b)
     table = Table(title="cellsight compare")
@@ -188,7 +185,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
         va, vb = rows_a.get(key), rows_b.get(key)
         numeric = all(isinstance(v, int | float) and not isinstance(v, bool) for v in (va, vb))
         ratio = f"{vb / va:.3g}" if numeric and va else ""
-        table.add_row(key, _fmt(va), _fmt(vb), ratio)
+        table.add_row(key, format_value(va), format_value(vb), ratio)
     Console().print(table)
     return 0
 

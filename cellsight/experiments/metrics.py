@@ -24,9 +24,9 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from cellsight.experiments.framelog import POSE, STAGES
+from cellsight.geometry.transforms import pose_errors
 
 
 def _pose_columns(rows: Sequence[dict[str, str]], prefix: str) -> np.ndarray:
@@ -36,18 +36,6 @@ def _pose_columns(rows: Sequence[dict[str, str]], prefix: str) -> np.ndarray:
         if row[f"{prefix}_x"] != "":
             out[i] = [float(row[f"{prefix}_{a}"]) for a in POSE]
     return out
-
-
-def pose_errors(estimate: np.ndarray, truth: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Position (m) and orientation (rad) errors between (n, 6) xyz-rpy pose rows."""
-    pos = np.linalg.norm(estimate[:, :3] - truth[:, :3], axis=1)
-    ok = np.all(np.isfinite(estimate), axis=1)
-    ang = np.full(len(estimate), np.nan)
-    if ok.any():
-        R_est = Rotation.from_euler("xyz", estimate[ok, 3:])
-        R_true = Rotation.from_euler("xyz", truth[ok, 3:])
-        ang[ok] = (R_est.inv() * R_true).magnitude()
-    return pos, ang
 
 
 def metric_window(rows: Sequence[dict[str, str]]) -> tuple[int, int]:

@@ -323,8 +323,7 @@ class ExperimentRun:
         self.task.update_vision(t, pose, joints[name], world.jaws_closed_on_part(name), velocity)
         if before == Phase.GRASP and self.task.phase == Phase.MANIPULATE:
             self._held_at_manipulate = world.grasped(name)
-        reasons = self.predictor.last[self.part.name]
-        reasons = [v.reason for v in reasons]
+        reasons = [v.reason for v in self.predictor.last[self.part.name]]
         self._log_occlusions(t, reasons)
         pnp = self._pnp_baseline(t, rec)
         frames.write(self._row(t, frame, rec, truth, pnp, reasons))

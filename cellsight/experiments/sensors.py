@@ -15,10 +15,13 @@ from collections.abc import Mapping
 import numpy as np
 
 from cellsight.model.cell import Cell
-from cellsight.occlusion.predictor import CameraVisibility
+from cellsight.occlusion.predictor import (
+    STATUS_BEHIND,
+    STATUS_INSIDE,
+    STATUS_OUTSIDE,
+    CameraVisibility,
+)
 from cellsight.tracking.windowing import WindowPlan
-
-_INSIDE, _BEHIND, _OUTSIDE = 0, 1, 2  # CameraVisibility.status codes
 
 
 class FramePredictor:
@@ -54,7 +57,8 @@ class ProjectionOnly:
                 front = cam.in_front(points)
                 pixels = cam.project(points)
                 inside = front & cam.in_image(np.nan_to_num(pixels, nan=-1e9))
-                status = np.where(~front, _BEHIND, np.where(inside, _INSIDE, _OUTSIDE))
+                status = np.where(~front, STATUS_BEHIND,
+                                  np.where(inside, STATUS_INSIDE, STATUS_OUTSIDE))
                 out[part.name].append(CameraVisibility(
                     cam.name, inside, pixels, np.full(len(points), -1, dtype=np.int32),
                     status.astype(np.int8), self.labels, self.cell.object_index(part.name)))

@@ -35,6 +35,20 @@ def xyz_rpy_from_pose(T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return T[:3, 3].copy(), Rotation.from_matrix(T[:3, :3]).as_euler(RPY_SEQUENCE)
 
 
+def pose_errors(estimate: np.ndarray, truth: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Position (m) and orientation (rad, the angle of ``R_est^T R_true``) errors between
+    (n, 6) rows of ``[x, y, z, roll, pitch, yaw]``; NaN where an estimate row has a NaN."""
+    estimate, truth = np.asarray(estimate, dtype=float), np.asarray(truth, dtype=float)
+    pos = np.linalg.norm(estimate[:, :3] - truth[:, :3], axis=1)
+    ok = np.all(np.isfinite(estimate), axis=1) & np.all(np.isfinite(truth), axis=1)
+    ang = np.full(len(estimate), np.nan)
+    if ok.any():
+        R_est = Rotation.from_euler(RPY_SEQUENCE, estimate[ok, 3:])
+        R_true = Rotation.from_euler(RPY_SEQUENCE, truth[ok, 3:])
+        ang[ok] = (R_est.inv() * R_true).magnitude()
+    return pos, ang
+
+
 def invert_pose(T: np.ndarray) -> np.ndarray:
     """Inverse of a rigid transform, using the transpose of its rotation."""
     R = T[:3, :3]

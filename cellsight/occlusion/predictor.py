@@ -33,7 +33,7 @@ from cellsight.occlusion.bsp import BSPTree
 from cellsight.occlusion.soup import PolygonSoup
 
 BEHIND, OUTSIDE, SELF = "behind", "outside", "self"
-_INSIDE, _BEHIND, _OUTSIDE = 0, 1, 2  # status codes of project_points
+STATUS_INSIDE, STATUS_BEHIND, STATUS_OUTSIDE = 0, 1, 2  # status codes of project_points
 CULL_MARGIN_PX = 2.0  # safety margin of the image-box overlap test, pixels
 
 
@@ -65,9 +65,9 @@ class CameraVisibility:
         workpiece) or the label of the object hiding it (``R7AX.gripper``, ``table``)."""
         out = []
         for st, occ in zip(self.status, self.occluder, strict=True):
-            if st == _BEHIND:
+            if st == STATUS_BEHIND:
                 out.append(BEHIND)
-            elif st == _OUTSIDE:
+            elif st == STATUS_OUTSIDE:
                 out.append(OUTSIDE)
             elif occ < 0:
                 out.append("")
@@ -163,7 +163,7 @@ class VisibilityPredictor:
         for cam, (px, status) in zip(self.cameras, views, strict=True):
             visible = np.zeros(n, dtype=bool)
             occluder = np.full(n, -1, dtype=np.int32)
-            query = np.flatnonzero(status == _INSIDE)
+            query = np.flatnonzero(status == STATUS_INSIDE)
             if query.size:
                 vis, occ = tree.visibility(points[query], cam.center, self.surface_tolerance)
                 visible[query] = vis

@@ -28,9 +28,8 @@ from matplotlib.colors import ListedColormap
 from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 from matplotlib.patches import Patch
-from scipy.spatial.transform import Rotation
 
-from cellsight.geometry.transforms import RPY_SEQUENCE
+from cellsight.geometry.transforms import pose_errors
 
 PHASE_COLOURS = {
     "waiting": "#bab0ac", "approach": "#4e79a7", "grasp": "#f28e2b", "manipulate": "#59a14f",
@@ -212,25 +211,21 @@ def _use_log(ax, *series: np.ndarray) -> None:
         ax.set_yscale("log")
 
 
+def _pose_rows(run: Run, prefix: str) -> np.ndarray:
+    """(N, 6) ``{prefix}_x .. {prefix}_yaw`` (NaN where missing)."""
+    f = run.frames
+    return np.column_stack([f.num(f"{prefix}_{k}")
+                            for k in ("x", "y", "z", "roll", "pitch", "yaw")])
+
+
 def position_error_mm(run: Run, prefix: str) -> np.ndarray:
     """(N,) distance between ``{prefix}_xyz`` and the true part position, mm (NaN if none)."""
-    f = run.frames
-    diff = [f.num(f"{prefix}_{k}") - f.num(f"true_{k}") for k in "xyz"]
-    return 1000.0 * np.sqrt(np.sum(np.square(diff), axis=0))
+    return 1000.0 * pose_errors(_pose_rows(run, prefix), _pose_rows(run, "true"))[0]
 
 
 def orientation_error_deg(run: Run, prefix: str) -> np.ndarray:
     """(N,) angle of ``R_true^T R_{prefix}``, deg (NaN where the estimate is missing)."""
-    f = run.frames
-    rpy = {p: np.column_stack([f.num(f"{p}_{k}") for k in ("roll", "pitch", "yaw")])
-           for p in (prefix, "true")}
-    ok = np.isfinite(rpy[prefix]).all(axis=1) & np.isfinite(rpy["true"]).all(axis=1)
-    out = np.full(run.frames.n, np.nan)
-    if ok.any():
-        r_true = Rotation.from_euler(RPY_SEQUENCE, rpy["true"][ok])
-        r_est = Rotation.from_euler(RPY_SEQUENCE, rpy[prefix][ok])
-        out[ok] = np.degrees((r_true.inv() * r_est).magnitude())
-    return out
+    return np.degrees(pose_errors(_pose_rows(run, prefix), _pose_rows(run, "true"))[1])
 
 
 def occluder_colours(run: Run) -> dict[str, str]:
