@@ -19,18 +19,18 @@ from rich.progress import Progress
 
 COLUMNS = (
     ("grasp_success", "grasp", "{}"),
+    ("in_view_fraction", "in view", "{:.2f}"),
+    ("lost_in_view_s", "lost s", "{:.2f}"),
     ("position_rmse_mm", "pos. RMSE mm", "{:.2f}"),
-    ("orientation_rmse_deg", "orient. RMSE deg", "{:.2f}"),
     ("max_position_error_mm", "max pos. mm", "{:.2f}"),
+    ("orientation_rmse_deg", "orient. RMSE deg", "{:.2f}"),
     ("pnp_position_rmse_mm", "PnP pos. RMSE mm", "{:.2f}"),
     ("visibility_accuracy", "visibility acc.", "{:.4f}"),
-    ("visibility_accuracy_in_view", "in view", "{:.4f}"),
-    ("false_visible", "false visible", "{}"),
-    ("rejected_measurements", "rejected", "{}"),
     ("wrong_measurements", "wrong", "{}"),
     ("wrong_accepted", "wrong accepted", "{}"),
     ("grasp_position_error_mm", "grasp err. mm", "{:.2f}"),
 )
+PHASE_COLUMNS = ("approach", "grasp", "manipulate", "release")
 
 
 def run_one(args: tuple[int, str, bool, int, Path]) -> dict:
@@ -78,6 +78,17 @@ def main() -> None:
     for (experiment, sensor, prediction, seed, _), metrics in zip(runs, results, strict=True):
         cells = [str(experiment), sensor, "on" if prediction else "**off**", str(seed)]
         cells += [fmt(metrics, key, pattern) for key, _, pattern in COLUMNS]
+        print("| " + " | ".join(cells) + " |")
+    print("\nPosition RMSE / max (mm) per phase:\n")
+    header = ["exp.", "sensor", "occlusion prediction", "seed", *PHASE_COLUMNS]
+    print("| " + " | ".join(header) + " |")
+    print("|" + "---|" * len(header))
+    for (experiment, sensor, prediction, seed, _), metrics in zip(runs, results, strict=True):
+        cells = [str(experiment), sensor, "on" if prediction else "**off**", str(seed)]
+        phases = metrics.get("phases") or {}
+        cells += [f"{fmt(phases.get(p, {}), 'position_rmse_mm', '{:.2f}')} / "
+                  f"{fmt(phases.get(p, {}), 'max_position_error_mm', '{:.2f}')}"
+                  for p in PHASE_COLUMNS]
         print("| " + " | ".join(cells) + " |")
 
 

@@ -139,11 +139,13 @@ class PartRenderer:
 
 @dataclass
 class FakeVisibility:
-    """Per camera: ``visible`` (F,), ``pixels`` (F, 2) (the CameraVisibility fields used)."""
+    """Per camera: ``visible`` (F,), ``pixels`` (F, 2), ``near_occluder`` (F,) (the
+    CameraVisibility fields used)."""
 
     camera: str
     visible: np.ndarray
     pixels: np.ndarray
+    near_occluder: np.ndarray
 
 
 class BackfacePredictor:
@@ -174,7 +176,7 @@ class BackfacePredictor:
             visible[j] &= any(normals[k] @ (cam.center - pts[j]) > 1e-9 for k in faces)
         if camera_index in self.blind:
             visible[:] = False
-        return FakeVisibility(cam.name, visible, pixels)
+        return FakeVisibility(cam.name, visible, pixels, np.zeros(len(visible), dtype=bool))
 
     def predict(self, joints, part_poses):
         return {

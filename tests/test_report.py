@@ -179,13 +179,18 @@ METRICS = {
     "frames": 40, "grasp_success": True, "grasp_position_error_mm": 3.21,
     "position_rmse_mm": 12.3456, "orientation_rmse_deg": 0.789, "max_position_error_mm": 31.5,
     "pnp_position_rmse_mm": 27.25, "pnp_orientation_rmse_deg": 1.5,
-    "metric_window_s": [0.5, 1.4], "visibility_accuracy": 0.9375, "false_visible": 11,
+    "in_view_fraction": 1.0, "lost_in_view_s": 0.0, "visibility_accuracy": 0.9375,
+    "visibility_accuracy_all": 0.95, "false_visible": 11,
     "false_hidden": 9, "pixels_grabbed_fraction": 0.0412, "extraction_error_px_median": 0.41,
     "timing_ms": {"occlusion": 1.5, "selection": 0.2, "windowing": 0.1, "extraction": 2.25,
                   "ekf": 0.3, "total": 4.35},
     "wall_s": 9.5, "cameras": list(CAMERAS), "features": F, "robot": "R7AX",
-    "workpiece": "part", "phases": [["waiting", 0.0, 0.19], ["approach", 0.19, 0.77],
-                                    ["grasp", 0.77, 1.15], ["manipulate", 1.15, 1.54]],
+    "workpiece": "part",
+    "phase_intervals": [["waiting", 0.0, 0.19], ["approach", 0.19, 0.77],
+                        ["grasp", 0.77, 1.15], ["manipulate", 1.15, 1.54]],
+    "phases": {"approach": {"evaluated_frames": 15, "position_rmse_mm": 4.5,
+                            "max_position_error_mm": 9.25, "orientation_rmse_deg": 0.5,
+                            "pnp_position_rmse_mm": 20.5, "lost_in_view_s": 0.0}},
     "interrupted": False,
 }
 
@@ -257,7 +262,9 @@ def test_write_report_full_run(full_run):
     assert len(images) == len(names) + 1  # figures + one key frame
     assert all(base64.b64decode(b)[:8] == b"\x89PNG\r\n\x1a\n" for b in images)
     assert "data:video/mp4;base64," in page
-    for text in ("12.35 mm", "0.9375", "27.25 mm", "[0.5, 1.4] s", "timing_ms.extraction",
+    for text in ("12.35 mm", "0.9375", "27.25 mm", "timing_ms.extraction", "<h3>Phases</h3>",
+                 "<td>approach</td><td class=v>0.19</td><td class=v>0.77</td><td class=v>15</td>"
+                 "<td class=v>4.5</td><td class=v>9.25</td>",
                  "2.25 ms", "0.41 px", "yes", "jaws close on the part", "&lt;manipulate&gt;",
                  "experiment 1 · seed 7 · sensor rendered · occlusion prediction on"):
         assert text in page, text

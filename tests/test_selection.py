@@ -102,9 +102,35 @@ def test_matches_exhaustive_search_with_three_cameras():
     vis = np.ones((3, 5), bool)
     vis[2, 2:] = False  # camera 2 is not eligible (3 points < 4)
     rho = np.array([900.0, 400.0, 800.0])
-    sel = select_features(px, vis, rho, SelectionConfig(max_points=8, min_per_camera=4))
+    strict = SelectionConfig(max_points=8, min_per_camera=4, few_point_cameras=False)
+    sel = select_features(px, vis, rho, strict)
     assert sel.counts[2] == 0
     assert sel.quality == pytest.approx(_exhaustive(px, vis, rho, 8, 4), abs=1e-9)
+
+
+def test_a_camera_with_few_points_gives_all_of_them():
+    """Camera 2 sees 2 points (< 4): both are selected, and the other 8 of the budget of 10 are
+    the exhaustive optimum over cameras 0 and 1."""
+    rng = np.random.default_rng(7)
+    px = rng.uniform(0, 300, (3, 5, 2))
+    vis = np.ones((3, 5), bool)
+    vis[2, 2:] = False
+    rho = np.array([900.0, 400.0, 800.0])
+    sel = select_features(px, vis, rho, SelectionConfig(max_points=10, min_per_camera=4))
+    assert sel.selected[2].tolist() == [True, True, False, False, False]
+    assert sel.counts.sum() == 10 and not sel.fallback
+    others = vis.copy()
+    others[2] = False
+    assert selection_quality(px, others, rho, sel.selected & others, 4) == pytest.approx(
+        _exhaustive(px, others, rho, 8, 4), abs=1e-9)
+
+
+def test_a_count_the_cameras_cannot_split_is_lowered():
+    """5 + 5 visible points cannot give 6 with at least 4 per camera: 5 from one camera."""
+    rng = np.random.default_rng(3)
+    px = rng.uniform(0, 300, (2, 5, 2))
+    sel = select_features(px, np.ones((2, 5), bool), [900.0, 400.0], SelectionConfig(6, 4))
+    assert sorted(sel.counts.tolist()) == [0, 5] and sel.quality > 0
 
 
 @settings(max_examples=40, deadline=None)
@@ -122,12 +148,16 @@ def test_respects_maximum_minimum_and_visibility(seed, max_points, m_min, p_visi
     sel = select_features(px, vis, rng.uniform(100, 1000, C), SelectionConfig(max_points, m_min))
     assert not np.any(sel.selected & ~vis)
     assert sel.counts.sum() <= max_points
-    eligible = vis.sum(axis=1) >= m_min
-    if eligible.any():
+    n_visible = vis.sum(axis=1)
+    eligible = n_visible >= m_min
+    budget = max_points - n_visible[~eligible].sum()
+    if eligible.any() and budget >= m_min:
         assert not sel.fallback
-        assert sel.counts.sum() == min(max_points, vis[eligible].sum())
-        assert np.all((sel.counts == 0) | (sel.counts >= m_min))
-        assert np.all(sel.counts[~eligible] == 0)
+        assert np.all(sel.counts[~eligible] == n_visible[~eligible])  # few-point cameras: all
+        assert np.all((sel.counts[eligible] == 0) | (sel.counts[eligible] >= m_min))
+        assert sel.counts[eligible].sum() >= min(budget, n_visible[eligible].sum()) - m_min + 1
+    elif eligible.any():  # no room for the few-point cameras: as if they saw nothing
+        assert not sel.fallback and np.all(sel.counts[~eligible] == 0)
     else:
         assert sel.fallback and sel.counts.sum() == min(max_points, vis.sum())
 

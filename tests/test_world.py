@@ -205,7 +205,7 @@ def test_rendered_part_corners_lie_on_their_projections(cell, variant):
             assert images[c].shape == (h, w) and images[c].dtype == np.uint8
             errors += _measured_corners(images[c], seen, solid, T, visible[c]).values()
     assert len(errors) >= 24  # at least 4 corners measured per image on average
-    assert max(errors) < 0.5, sorted(errors)[-5:]
+    assert np.median(errors) < 0.2 and max(errors) < 0.6, sorted(errors)[-5:]
 
 
 def test_images_are_grayscale_with_the_part_standing_out(cell):

@@ -67,7 +67,7 @@ class TaskTiming:
     close: float = 1.5  # jaws closing before their state is checked
     hold: float = 6.5  # holding after a successful check, before manipulating
     retreat: float = 1.5  # back up to the approach height after a failed check
-    lift: float = 2.0  # lift the part before returning HOME
+    lift: float = 3.0  # lift the part before returning HOME (gently: the tracker follows it)
     to_home: float = 7.0  # move to HOME (manipulate, and at the end of release)
     to_final: float = 8.0  # move from HOME to FINAL
     open: float = 1.5  # jaws opening at FINAL

@@ -35,6 +35,8 @@ from cellsight.occlusion.soup import PolygonSoup
 BEHIND, OUTSIDE, SELF = "behind", "outside", "self"
 STATUS_INSIDE, STATUS_BEHIND, STATUS_OUTSIDE = 0, 1, 2  # status codes of project_points
 CULL_MARGIN_PX = 2.0  # safety margin of the image-box overlap test, pixels
+NEAR_SAMPLES = 8  # points on the ring around a feature for the near-occluder test
+NEAR_DEPTH = 0.01  # m: a silhouette counts when at least this much nearer than the feature
 
 
 @dataclass
@@ -44,7 +46,9 @@ class CameraVisibility:
     ``visible`` (F,) bool in feature order; ``pixels`` (F, 2) predicted (u, v) (NaN behind
     the camera); ``occluder`` (F,) index in ``cell.objects`` of the nearest hiding object, or
     -1; ``status`` (F,) 0 in the image, 1 behind the camera, 2 outside the image.
-    :attr:`reason` names why each feature is hidden.
+    :attr:`reason` names why each feature is hidden. ``near_occluder`` (F,) bool: visible, but
+    another object's silhouette passes within the predictor's ``near_px`` of its projection
+    (the corner there is cut by that silhouette; the tracker does not select it).
     """
 
     camera: str
@@ -54,6 +58,11 @@ class CameraVisibility:
     status: np.ndarray
     object_labels: list[str]
     part_object: int
+    near_occluder: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        if self.near_occluder is None:
+            self.near_occluder = np.zeros(len(self.visible), dtype=bool)
 
     @property
     def count(self) -> int:
@@ -85,13 +94,19 @@ class VisibilityPredictor:
     ``surface_tolerance`` (m): a feature within this distance of a surface's plane is not hidden
     by it, so that features resting on a support (the part's bottom corners on the conveyor)
     stay visible although the tracker's pose is off by a fraction of a millimetre.
+    ``near_px`` (px): a visible feature whose ring of points this far around it (moved
+    ``NEAR_DEPTH`` towards the camera) is partly hidden by another object is flagged
+    ``near_occluder``: its image corner is a junction with that object's silhouette, a few
+    pixels off (0 disables the test). With culling, a ring point that ends inside another solid
+    can be missed (that solid's back faces are culled): rare, and only ever a missed flag.
     """
 
     def __init__(self, cell: Cell, *, cull: bool = True, cameras: list[int] | None = None,
-                 surface_tolerance: float = 2e-3) -> None:
+                 surface_tolerance: float = 2e-3, near_px: float = 5.0) -> None:
         self.cell = cell
         self.cull = cull
         self.surface_tolerance = float(surface_tolerance)
+        self.near_px = float(near_px)
         self.cameras = [cell.cameras[k] for k in (cameras or range(len(cell.cameras)))]
         verts, offsets, owner, vertex_owner, self.poly_source = [], [0], [], [], []
         for k, obj in enumerate(cell.objects):
@@ -118,6 +133,7 @@ class VisibilityPredictor:
                            self._static_vertices)
         self.part_objects = [cell.object_index(p.name) for p in cell.workpieces]
         self.part_features = [p.feature_points for p in cell.workpieces]
+        self._feature_owner = np.repeat(self.part_objects, [len(f) for f in self.part_features])
         self._dist = {c.name: np.zeros(5) if c.dist is None else c.dist for c in self.cameras}
         self.part_polys = np.isin(self.poly_owner, self.part_objects)
         self.labels = [o.label for o in cell.objects]
@@ -154,27 +170,53 @@ class VisibilityPredictor:
                                   cam.width, cam.height, px, status, box)
             views.append((px, status))
             if self.cull and seen:
+                margin = (CULL_MARGIN_PX + self.near_px) / cam.focal_px
                 cull_polygons(vertices, self.offsets, self.poly_closed, cam.T_cam_base, box,
-                              CULL_MARGIN_PX / cam.focal_px, keep)
+                              margin, keep)
         if not self.cull:
             keep[:] = True
         tree, polys = self._build(vertices, keep)
         result = {part.name: [] for part in cell.workpieces}
         for cam, (px, status) in zip(self.cameras, views, strict=True):
             visible = np.zeros(n, dtype=bool)
+            near = np.zeros(n, dtype=bool)
             occluder = np.full(n, -1, dtype=np.int32)
             query = np.flatnonzero(status == STATUS_INSIDE)
             if query.size:
-                vis, occ = tree.visibility(points[query], cam.center, self.surface_tolerance)
-                visible[query] = vis
-                occluder[query[~vis]] = self.poly_owner[polys[occ[~vis]]]
+                ring = self._ring(cam, points[query])
+                vis, occ = tree.visibility(np.concatenate([points[query], ring.reshape(-1, 3)]),
+                                           cam.center, self.surface_tolerance)
+                owner = np.where(vis, -1, self.poly_owner[polys[np.maximum(occ, 0)]])
+                m = len(query)
+                visible[query] = vis[:m]
+                occluder[query] = owner[:m]
+                by_other = owner[m:].reshape(ring.shape[:2]) >= 0
+                by_other &= owner[m:].reshape(ring.shape[:2]) != self._feature_owner[query, None]
+                near[query] = vis[:m] & by_other.any(axis=1)
             start = 0
             for k, f in zip(self.part_objects, features, strict=True):
                 sl = slice(start, start + len(f))
                 start += len(f)
                 result[cell.objects[k].name].append(CameraVisibility(
-                    cam.name, visible[sl], px[sl], occluder[sl], status[sl], self.labels, k))
+                    cam.name, visible[sl], px[sl], occluder[sl], status[sl], self.labels, k,
+                    near[sl]))
         return result
+
+    def _ring(self, cam, points: np.ndarray) -> np.ndarray:
+        """Per point (N, 3): ``NEAR_SAMPLES`` points (N, K, 3) around it, ``near_px`` pixels
+        away in the image plane at its depth, each moved ``NEAR_DEPTH`` m towards the camera
+        (so that only a silhouette at least that much in front hides one, not the surface the
+        feature rests on)."""
+        if self.near_px <= 0:
+            return np.zeros((len(points), 0, 3))
+        R = cam.T_base_cam[:3, :3]
+        depth = (points - cam.center) @ R[:, 2]
+        angles = np.linspace(0.0, 2 * np.pi, NEAR_SAMPLES, endpoint=False)
+        offsets = np.cos(angles)[:, None] * R[:, 0] + np.sin(angles)[:, None] * R[:, 1]
+        ring = points[:, None, :] + (self.near_px * depth / cam.focal_px)[:, None, None] * offsets
+        towards = cam.center - ring
+        towards /= np.linalg.norm(towards, axis=2, keepdims=True)
+        return ring + NEAR_DEPTH * towards
 
     def _build(self, vertices: np.ndarray, keep: np.ndarray) -> tuple[BSPTree, np.ndarray]:
         """BSP tree of the kept polygons, and their indices in this predictor's list."""

@@ -303,8 +303,8 @@ def plot_visibility(run: Run, camera: int, colours: dict[str, str], path: Path) 
 
 def plot_error(run: Run, path: Path) -> Path:
     """Position error (mm) and orientation error (deg) of the EKF estimate and the per-frame
-    PnP baseline against the true pose over time; the metric window hatched, the RMSEs from
-    ``metrics.json`` in the legend."""
+    PnP baseline against the true pose over the whole run, the RMSEs from ``metrics.json``
+    (every frame in view from the first estimate on) in the legend."""
     m, t = run.metrics, run.t
     fig = _figure(10, 6.5)
     axes = fig.subplots(2, 1, sharex=True)
@@ -318,12 +318,6 @@ def plot_error(run: Run, path: Path) -> Path:
         ax.plot(t, pnp, color="C1", lw=0.8, marker=".", ms=2, alpha=0.8,
                 label=_rmse_label("PnP baseline", m.get(pnp_key), unit))
         ax.plot(t, ekf, color="C3", lw=1.3, label=_rmse_label("EKF", m.get(ekf_key), unit))
-        window = m.get("metric_window_s")
-        if window:
-            ax.axvspan(*window, facecolor="none", edgecolor="0.75", hatch="//", lw=0,
-                       zorder=0, label="metric window")
-            for x in window:
-                ax.axvline(x, color="0.4", lw=0.8, ls=":")
         _use_log(ax, ekf, pnp)
         ax.set_ylabel(label)
         ax.grid(alpha=0.3, which="both")
@@ -463,10 +457,11 @@ def format_value(value) -> str:
 
 def metric_rows(metrics: dict) -> list[tuple[str, str]]:
     """``(key, formatted value with unit)`` for every scalar, list of scalars and dict of
-    scalars (flattened as ``key.sub``) in ``metrics.json``; ``phases`` has its own table."""
+    scalars (flattened as ``key.sub``) in ``metrics.json``; ``phases`` and
+    ``phase_intervals`` have their own table."""
     rows = []
     for key, value in metrics.items():
-        if key == "phases":
+        if key in ("phases", "phase_intervals"):
             continue
         items = value.items() if isinstance(value, dict) else [(None, value)]
         for sub, v in items:
@@ -476,19 +471,29 @@ def metric_rows(metrics: dict) -> list[tuple[str, str]]:
     return rows
 
 
+PHASE_COLUMNS = ("evaluated_frames", "position_rmse_mm", "max_position_error_mm",
+                 "orientation_rmse_deg", "pnp_position_rmse_mm", "lost_in_view_s")
+
+
 def _metrics_html(metrics: dict) -> str:
-    """The metrics table and, if present, the phases table."""
+    """The metrics table and, if present, the per-phase table (time span and errors)."""
     if not metrics:
         return "<p>No metrics.json.</p>"
     rows = "".join(f"<tr><td><code>{html.escape(k)}</code></td><td class=v>{html.escape(v)}"
                    "</td></tr>" for k, v in metric_rows(metrics))
     out = f"<h2>Metrics</h2><table>{rows}</table>"
-    phases = metrics.get("phases") or []
-    if phases:
-        prow = "".join(f"<tr><td>{html.escape(str(p))}</td><td class=v>{format_value(t0)}</td>"
-                       f"<td class=v>{format_value(t1)}</td></tr>" for p, t0, t1 in phases)
-        out += ("<h3>Phases</h3><table><tr><th>phase</th><th>start [s]</th><th>end [s]</th>"
-                f"</tr>{prow}</table>")
+    spans = {str(p): (t0, t1) for p, t0, t1 in metrics.get("phase_intervals") or []}
+    errors = metrics.get("phases") or {}
+    names = list(spans) + [p for p in errors if p not in spans]
+    if names:
+        head = "".join(f"<th>{html.escape(h)}</th>" for h in ("phase", "start [s]", "end [s]")
+                       + tuple(f"{k} [{_unit(k)}]".replace(" []", "") for k in PHASE_COLUMNS))
+        body = "".join(
+            f"<tr><td>{html.escape(p)}</td>"
+            + "".join(f"<td class=v>{format_value(v)}</td>" for v in spans.get(p, (None, None)))
+            + "".join(f"<td class=v>{format_value(errors.get(p, {}).get(k))}</td>"
+                      for k in PHASE_COLUMNS) + "</tr>" for p in names)
+        out += f"<h3>Phases</h3><table><tr>{head}</tr>{body}</table>"
     return out
 
 

@@ -206,7 +206,9 @@ def extract_corner(
     local = np.asarray(predicted, dtype=float) - (u0, v0)
     start = cand[np.argmin(np.sum((cand - local) ** 2, axis=1))]
     h, w = crop.shape
-    half = int(min(cfg.refine_half_px, *(start - 1), *((w - 2, h - 2) - start)))
+    # cornerSubPix needs the crop at least 2 half + 5 px wide and high
+    half = int(min(cfg.refine_half_px, *(start - 1), *((w - 2, h - 2) - start),
+                   (w - 5) // 2, (h - 5) // 2))
     if half < 2:
         return None
     criteria = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_COUNT, 40, 1e-3)

@@ -43,7 +43,9 @@ fixed and ``J`` separates into independent per-camera problems, so:
    (``k - n`` zero or at least ``min_per_camera``), two greedy sets: forward (farthest-point
    seed of ``min_per_camera`` points, then the best addition each time) and backward (from all
    the camera's visible points, the best removal each time); the better gives ``Q_c(n)``;
-2. count vectors (each ``n_c`` 0 or feasible, summing to ``k``) are enumerated exhaustively;
+2. count vectors (each ``n_c`` 0 or feasible, summing to ``k``) are enumerated exhaustively
+   (when none exists, e.g. 5 + 5 visible points, ``k = 6``, at least 4 each, ``k`` is lowered
+   until one does);
 3. exchange: the counts of the best vector are polished: first-improvement single exchanges
    (swap a selected point for an unselected one while ``Q_c`` improves) from both greedy sets,
    then, from the better, double exchanges (two for two), each followed by single ones, while
@@ -54,9 +56,17 @@ fixed and ``J`` separates into independent per-camera problems, so:
 
 Tests compare it with exhaustive search over all subsets on small cases.
 
+Cameras with few visible points (``few_point_cameras``, on by default): a camera that sees 1 to
+``min_per_camera - 1`` points is not eligible, but all its visible points are selected besides
+the eligible cameras' (the budget for those shrinks by as many; when less than
+``min_per_camera`` would be left, the few-point cameras give nothing). The EKF takes any number of
+measurements from any camera, and one or two points seen by a second camera fix the depth that
+a single camera measures poorly (the paper's experiment 3: "only one point remains visible
+... This event does not affect the accuracy of the pose estimation").
+
 When no camera is eligible, every visible point is selected (up to ``max_points``, lowest
-camera and feature indices first) and the selection is flagged ``fallback``: the EKF can still use
-a few points where a per-camera PnP could not.
+camera and feature indices first) and the selection is flagged ``fallback``: the EKF can still
+use a few points where a per-camera PnP could not.
 """
 
 from __future__ import annotations
@@ -72,13 +82,16 @@ class SelectionConfig:
     """``max_points`` selected overall, ``min_per_camera`` per contributing camera,
     ``max_passes`` cycles of the exchange step, ``polish_slack`` the most the exchanges are
     assumed to improve a greedy ``Q_c`` (relative) when deciding which counts to polish,
-    ``max_pair_exchanges`` the largest double-exchange neighbourhood searched (frame-rate cap)."""
+    ``max_pair_exchanges`` the largest double-exchange neighbourhood searched (frame-rate cap),
+    ``few_point_cameras``: a camera with 1 to ``min_per_camera - 1`` visible points gives all
+    of them, out of the ``max_points`` budget (module docstring)."""
 
     max_points: int = 11
     min_per_camera: int = 4
     max_passes: int = 20
     polish_slack: float = 0.25
     max_pair_exchanges: int = 150
+    few_point_cameras: bool = True
 
     def __post_init__(self) -> None:
         if (not 1 <= self.min_per_camera <= self.max_points or self.max_passes < 0
@@ -434,6 +447,18 @@ def _select(pixels, visible, rho, k_max, m_min, passes, slack, max_pairs):
     return selected, best_j, k, weights, eligible, radius
 
 
+def _select_feasible(pixels, visible, rho, k_max, m_min, *args):
+    """:func:`_select` with the largest count ``k <= k_max`` that the eligible cameras can
+    split (each 0 or at least ``m_min``): 5 + 5 visible points cannot give 6 with ``m_min = 4``,
+    so 5 are taken from one camera."""
+    while True:
+        out = _select(pixels, visible, rho, k_max, m_min, *args)
+        quality, k, eligible = out[1], out[2], out[4]
+        if quality >= 0 or not eligible.any() or k <= m_min:
+            return out
+        k_max = k - 1
+
+
 def select_features(
     pixels: np.ndarray,
     visible: np.ndarray,
@@ -455,10 +480,18 @@ def select_features(
             f"select_features: expected pixels (C, F, 2), visible (C, F), resolution (C,); got "
             f"{pixels.shape}, {visible.shape}, {rho.shape}"
         )
-    selected, quality, k, weights, eligible, radius = _select(
-        pixels, visible, rho, cfg.max_points, cfg.min_per_camera, cfg.max_passes,
-        cfg.polish_slack, cfg.max_pair_exchanges,
-    )
+    n_visible = visible.sum(axis=1)
+    few = (n_visible > 0) & (n_visible < cfg.min_per_camera) & cfg.few_point_cameras
+    extra = visible & few[:, None]
+    budget = cfg.max_points - int(extra.sum())
+    args = (cfg.min_per_camera, cfg.max_passes, cfg.polish_slack, cfg.max_pair_exchanges)
+    selected, quality, k, weights, eligible, radius = _select_feasible(
+        pixels, visible & ~few[:, None], rho, max(budget, 0), *args)
+    if eligible.any() and budget >= cfg.min_per_camera:
+        selected |= extra
+    else:  # no room for the few-point cameras, or no eligible one: the plain selection
+        selected, quality, k, weights, eligible, radius = _select_feasible(
+            pixels, visible, rho, cfg.max_points, *args)
     qs, qa = _final_indexes(pixels, selected, radius)
     counts = selected.sum(axis=1)
     targets = k * weights

@@ -43,10 +43,13 @@ STAGES = ("predict", "occlusion", "selection", "windowing", "extraction", "updat
 
 class CameraVisibilityLike(Protocol):
     """What the tracker reads from the occlusion predictor for one part in one camera:
-    ``visible`` (F,) bool, ``pixels`` (F, 2) predicted; optionally ``occluder_edges`` (e, 2, 2)."""
+    ``visible`` (F,) bool, ``pixels`` (F, 2) predicted, ``near_occluder`` (F,) bool: visible
+    but next to another object's silhouette (never selected: its image corner is a junction
+    with that silhouette)."""
 
     visible: np.ndarray
     pixels: np.ndarray
+    near_occluder: np.ndarray
 
 
 class VisibilitySource(Protocol):
@@ -93,6 +96,7 @@ class PartFrame:
     ``status``: 'waiting' (not acquired), 'acquired' (initialised this frame by PnP),
     'tracking' (updated), 'predicting' (no accepted measurement: prediction only) or 'lost'.
     ``visible``/``pixels``: occlusion prediction at the predicted (or guessed) pose;
+    ``near_occluder``: visible but next to another object's silhouette (not selectable);
     ``selected``: features whose windows were planned; ``windows``: one plan per camera;
     ``measured``: extracted pixels (NaN where none); ``innovation`` (px), ``mahalanobis2`` and
     ``rejected`` (gated out); ``state``/``covariance``/``T_base_part`` after the update
@@ -103,6 +107,7 @@ class PartFrame:
     status: str
     visible: np.ndarray
     pixels: np.ndarray
+    near_occluder: np.ndarray
     selected: np.ndarray
     selection: Selection | None
     windows: list[WindowPlan | None]
@@ -287,6 +292,7 @@ class Tracker:
             status=status,
             visible=np.zeros((C, F), dtype=bool),
             pixels=np.full((C, F, 2), np.nan),
+            near_occluder=np.zeros((C, F), dtype=bool),
             selected=np.zeros((C, F), dtype=bool),
             selection=None,
             windows=[None] * C,
@@ -314,10 +320,8 @@ class Tracker:
             others, offsets = all_visible[c]
             start, vis_idx = offsets[rec.name]
             own = start + np.searchsorted(vis_idx, idx)
-            plan = plan_windows(
-                centres, idx, cov_of(c, idx), cam.width, cam.height, others, own,
-                getattr(per_cam[c], "occluder_edges", None), wcfg,
-            )
+            plan = plan_windows(centres, idx, cov_of(c, idx), cam.width, cam.height, others, own,
+                                wcfg)
             rec.windows[c] = plan
             timings["windowing"] += time.perf_counter() - tic
             tic = time.perf_counter()
@@ -337,6 +341,7 @@ class Tracker:
         for c in range(len(self.cameras)):
             rec.visible[c] = np.asarray(per_cam[c].visible, dtype=bool)
             rec.pixels[c] = np.asarray(per_cam[c].pixels, dtype=float)
+            rec.near_occluder[c] = np.asarray(per_cam[c].near_occluder, dtype=bool)
 
     def _track(self, name, track, per_cam, all_visible, images, timings) -> PartFrame:
         ekf = track.ekf
@@ -346,7 +351,8 @@ class Tracker:
         T = ekf.pose
         centroid = track.points.mean(axis=0) @ T[:3, :3].T + T[:3, 3]
         rho = np.array([c.focal_px / max(c.depth(centroid[None])[0], 1e-6) for c in self.cameras])
-        sel = select_features(rec.pixels, rec.visible, rho, self.config.selection)
+        usable = rec.visible & ~rec.near_occluder
+        sel = select_features(rec.pixels, usable, rho, self.config.selection)
         rec.selection, rec.selected = sel, sel.selected
         timings["selection"] += time.perf_counter() - tic
 
@@ -377,7 +383,7 @@ class Tracker:
         self._fill_prediction(rec, per_cam)
         size = self.config.acquisition_window_px
         wcfg = replace(self.config.windows, min_size_px=size, max_size_px=size)
-        rec.selected = rec.visible.copy()
+        rec.selected = rec.visible & ~rec.near_occluder
 
         def cov_of(c, idx):
             return np.zeros((len(idx), 2, 2))

@@ -9,10 +9,10 @@ Per selected feature with predicted projection ``c`` and innovation covariance `
 1. size from the EKF: half-widths ``h_u = k sqrt(S_uu) + s``, ``h_v = k sqrt(S_vv) + s`` (``k`` =
    ``k_sigma``, the 3-sigma box; ``s`` = ``support_px``, the extent a corner needs around it),
    each full width ``2h`` clamped to ``[min_size_px, max_size_px]``;
-2. conflicts: another feature's projection, or a projected edge of an occluder (a segment), that
-   falls in the window (grown by ``margin_px``) is cut away, ``margin_px`` short of it, either by
-   moving one side of the window or by scaling the whole window towards ``c`` (for a diagonal
-   edge); of these five cuts the one keeping the largest area is chosen. A cut must leave the
+2. conflicts: another feature's projection that falls in the window (grown by ``margin_px``) is
+   cut away, ``margin_px`` short of it, either by moving one side of the window or by scaling
+   the whole window towards ``c``; of these five cuts the one keeping the largest area is
+   chosen. A cut must leave the
    ``keep`` box ``c +- support_px``; if none can, the feature is dropped;
 3. clipped to the image; a window that no longer holds the ``keep`` box is dropped;
 4. regions: windows are merged into their bounding box while that is cheaper, the cost of a
@@ -31,7 +31,6 @@ import numpy as np
 
 OK, SHRUNK, DROPPED = 0, 1, 2
 _EMPTY_POINTS = np.zeros((0, 2))
-_EMPTY_EDGES = np.zeros((0, 2, 2))
 
 
 @dataclass(frozen=True)
@@ -135,30 +134,20 @@ def _scale_limit(p0u, p0v, p1u, p1v, cu, cv, b, margin):
 
 
 @numba.njit(cache=True)
-def _windows(centers, half, own, others, segments, width, height, keep, margin):
+def _windows(centers, half, own, others, width, height, keep, margin):
     """Float boxes (n, 4) ``(u_lo, v_lo, u_hi, v_hi)`` and status (OK/SHRUNK/DROPPED)."""
     n = len(centers)
     boxes = np.zeros((n, 4))
     status = np.zeros(n, dtype=np.int64)
-    m = len(others)
-    n_int = m + len(segments)
     for w in range(n):
         cu = centers[w, 0]
         cv = centers[w, 1]
         b = np.array([cu - half[w, 0], cv - half[w, 1], cu + half[w, 0], cv + half[w, 1]])
-        for i in range(n_int):
-            if i < m:
-                if i == own[w]:
-                    continue
-                p0u = others[i, 0]
-                p0v = others[i, 1]
-                p1u = p0u
-                p1v = p0v
-            else:
-                p0u = segments[i - m, 0, 0]
-                p0v = segments[i - m, 0, 1]
-                p1u = segments[i - m, 1, 0]
-                p1v = segments[i - m, 1, 1]
+        for i in range(len(others)):
+            if i == own[w]:
+                continue
+            p0u = p1u = others[i, 0]
+            p0v = p1v = others[i, 1]
             hit, umin, vmin, umax, vmax = _clip_segment(
                 p0u, p0v, p1u, p1v, b[0] - margin, b[1] - margin, b[2] + margin, b[3] + margin
             )
@@ -267,7 +256,7 @@ def _merge(boxes, overhead):
 
 
 @numba.njit(cache=True)
-def _plan(centers, S, own, others, segments, width, height, k_sigma, support, min_size,
+def _plan(centers, S, own, others, width, height, k_sigma, support, min_size,
           max_size, margin, overhead):
     """Steps 1-4 of the module docstring: status of every window, integer boxes of the kept
     ones, regions and the region of each kept window."""
@@ -277,8 +266,7 @@ def _plan(centers, S, own, others, segments, width, height, k_sigma, support, mi
         for a in range(2):
             size = 2.0 * (k_sigma * np.sqrt(max(S[w, a, a], 0.0)) + support)
             half[w, a] = 0.5 * min(max(size, min_size), max_size)
-    boxes, status = _windows(centers, half, own, others, segments, width, height, support,
-                             margin)
+    boxes, status = _windows(centers, half, own, others, width, height, support, margin)
     n_kept = 0
     for w in range(n):
         n_kept += status[w] != DROPPED
@@ -303,7 +291,6 @@ def plan_windows(
     height: int,
     others: np.ndarray | None = None,
     own: np.ndarray | None = None,
-    occluder_edges: np.ndarray | None = None,
     config: WindowConfig | None = None,
 ) -> WindowPlan:
     """Plan the windows of one camera (module docstring).
@@ -311,7 +298,9 @@ def plan_windows(
     ``centers`` (n, 2): predicted pixels of the selected features ``features`` (n,);
     ``innovation_cov`` (n, 2, 2) px^2; ``others`` (m, 2): predicted pixels of every visible
     feature in this camera (any workpiece), ``own`` (n,) the row of ``others`` that is the
-    window's own feature (-1 if none); ``occluder_edges`` (e, 2, 2): projected occluder edges.
+    window's own feature (-1 if none). (Features next to an occluder's silhouette are not
+    selected in the first place: see ``near_occluder`` in
+    :mod:`cellsight.occlusion.predictor`.)
     """
     cfg = config or WindowConfig()
     centers = np.ascontiguousarray(centers, dtype=np.float64).reshape(-1, 2)
@@ -320,13 +309,8 @@ def plan_windows(
     S = np.ascontiguousarray(innovation_cov, dtype=np.float64).reshape(n, 2, 2)
     others = _EMPTY_POINTS if others is None else np.ascontiguousarray(others, dtype=np.float64)
     own = np.full(n, -1, dtype=np.int64) if own is None else np.asarray(own, dtype=np.int64)
-    edges = (
-        _EMPTY_EDGES
-        if occluder_edges is None or len(occluder_edges) == 0
-        else np.ascontiguousarray(occluder_edges, dtype=np.float64).reshape(-1, 2, 2)
-    )
     status, boxes, regions, region_of = _plan(
-        centers, S, own, others, edges, float(width), float(height), cfg.k_sigma,
+        centers, S, own, others, float(width), float(height), cfg.k_sigma,
         cfg.support_px, cfg.min_size_px, cfg.max_size_px, cfg.margin_px,
         float(cfg.region_overhead_px),
     )
