@@ -114,7 +114,8 @@ def cmd_visibility(args: argparse.Namespace) -> int:
 
 
 SUMMARY_KEYS = (
-    "experiment", "seed", "sensor", "occlusion_prediction", "frames", "grasp_success",
+    "experiment", "seed", "sensor", "occlusion_prediction", "kinematic_prior", "frames",
+    "grasp_success",
     "grasp_position_error_mm", "in_view_fraction", "lost_in_view_s", "position_rmse_mm",
     "orientation_rmse_deg", "max_position_error_mm", "pnp_position_rmse_mm",
     "pnp_orientation_rmse_deg", "visibility_accuracy", "visibility_accuracy_all",
@@ -152,7 +153,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     config = RunConfig(
         experiment=args.experiment, out=out, cell=args.cell, seed=args.seed,
         sensor=args.sensor, occlusion_prediction=not args.no_occlusion_prediction,
-        duration=args.duration, progress=not args.quiet,
+        kinematic_prior=args.kinematic_prior, duration=args.duration, progress=not args.quiet,
     )
     metrics = run_experiment(config)
     table = Table(title=f"experiment {args.experiment}: {metrics['description']}")
@@ -229,6 +230,9 @@ def build_parser() -> argparse.ArgumentParser:
                           "projections + Gaussian pixel noise")
     run.add_argument("--no-occlusion-prediction", action="store_true",
                      help="windows on every model point inside the image (no BSP)")
+    run.add_argument("--kinematic-prior", action="store_true",
+                     help="once the jaws hold the part, predict it by the gripper's measured "
+                          "motion (off by default: the paper tracks from images alone)")
     run.add_argument("--duration", type=float,
                      help="simulated seconds (default: until the task is done)")
     run.add_argument("--quiet", action="store_true", help="no progress bar")

@@ -1,10 +1,11 @@
 """Run the paper's three experiments over sensors, seeds and with/without occlusion prediction,
-and print the README's table of their metrics (Markdown).
+and print the README's tables of their metrics (Markdown): the whole task, then per phase.
 
     .venv/bin/python scripts/experiment_table.py [--out out/table] [--seeds 0 1 2] [--jobs 2]
 
-Each run writes its own folder ``<out>/e<N>_<sensor>_<pred|nopred>_s<seed>``; runs already done
-(with a metrics.json that was not interrupted) are reused.
+Without occlusion prediction, and with the kinematic prior (experiment 3 only), the first seed
+only. Each run writes its own folder ``<out>/e<N>_<sensor>_<variant>_s<seed>``; runs already
+done (with a metrics.json that was not interrupted) are reused.
 """
 
 from __future__ import annotations
@@ -33,22 +34,30 @@ COLUMNS = (
 PHASE_COLUMNS = ("approach", "grasp", "manipulate", "release")
 
 
-def run_one(args: tuple[int, str, bool, int, Path]) -> dict:
+def run_one(args: tuple[int, str, bool, bool, int, Path]) -> dict:
     from cellsight.experiments import RunConfig, run_experiment
 
-    experiment, sensor, prediction, seed, folder = args
+    experiment, sensor, prediction, prior, seed, folder = args
     done = folder / "metrics.json"
     if done.is_file():
         metrics = json.loads(done.read_text())
         if not metrics.get("interrupted"):
             return metrics
     return run_experiment(RunConfig(experiment, folder, seed=seed, sensor=sensor,
-                                    occlusion_prediction=prediction, progress=False))
+                                    occlusion_prediction=prediction, kinematic_prior=prior,
+                                    progress=False))
 
 
 def fmt(metrics: dict, key: str, pattern: str) -> str:
     value = metrics.get(key)
     return "–" if value is None else pattern.format(value)
+
+
+def _run_cells(run: tuple) -> list[str]:
+    """The first four cells of a row: experiment, sensor, variant, seed."""
+    experiment, sensor, prediction, prior, seed, _ = run
+    variant = "**off**" if not prediction else ("on + kinematic prior" if prior else "on")
+    return [str(experiment), sensor, variant, str(seed)]
 
 
 def main() -> None:
@@ -60,12 +69,15 @@ def main() -> None:
     parser.add_argument("--jobs", type=int, default=2)
     args = parser.parse_args()
     runs = []
-    for experiment, sensor, prediction, seed in itertools.product(
-            args.experiments, args.sensors, (True, False), args.seeds):
-        if not prediction and seed != args.seeds[0]:
-            continue  # the comparison without prediction: default seed only
-        name = f"e{experiment}_{sensor}_{'pred' if prediction else 'nopred'}_s{seed}"
-        runs.append((experiment, sensor, prediction, seed, args.out / name))
+    variants = (("pred", True, False), ("nopred", False, False), ("prior", True, True))
+    for experiment, sensor, (variant, prediction, prior), seed in itertools.product(
+            args.experiments, args.sensors, variants, args.seeds):
+        if variant != "pred" and seed != args.seeds[0]:
+            continue  # the comparisons: default seed only
+        if prior and experiment != 3:
+            continue  # the kinematic prior matters where one camera sees the held part
+        name = f"e{experiment}_{sensor}_{variant}_s{seed}"
+        runs.append((experiment, sensor, prediction, prior, seed, args.out / name))
     results = []
     with Progress() as progress, ProcessPoolExecutor(args.jobs) as pool:
         bar = progress.add_task("experiments", total=len(runs))
@@ -75,16 +87,15 @@ def main() -> None:
     header = ["exp.", "sensor", "occlusion prediction", "seed"] + [c[1] for c in COLUMNS]
     print("| " + " | ".join(header) + " |")
     print("|" + "---|" * len(header))
-    for (experiment, sensor, prediction, seed, _), metrics in zip(runs, results, strict=True):
-        cells = [str(experiment), sensor, "on" if prediction else "**off**", str(seed)]
-        cells += [fmt(metrics, key, pattern) for key, _, pattern in COLUMNS]
+    for run, metrics in zip(runs, results, strict=True):
+        cells = _run_cells(run) + [fmt(metrics, key, pattern) for key, _, pattern in COLUMNS]
         print("| " + " | ".join(cells) + " |")
     print("\nPosition RMSE / max (mm) per phase:\n")
     header = ["exp.", "sensor", "occlusion prediction", "seed", *PHASE_COLUMNS]
     print("| " + " | ".join(header) + " |")
     print("|" + "---|" * len(header))
-    for (experiment, sensor, prediction, seed, _), metrics in zip(runs, results, strict=True):
-        cells = [str(experiment), sensor, "on" if prediction else "**off**", str(seed)]
+    for run, metrics in zip(runs, results, strict=True):
+        cells = _run_cells(run)
         phases = metrics.get("phases") or {}
         cells += [f"{fmt(phases.get(p, {}), 'position_rmse_mm', '{:.2f}')} / "
                   f"{fmt(phases.get(p, {}), 'max_position_error_mm', '{:.2f}')}"

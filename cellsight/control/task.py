@@ -7,9 +7,10 @@ Phases, in order: ``waiting`` -> ``approach`` -> ``grasp`` -> ``manipulate`` -> 
 - approach: ``over`` (go 5 cm above the part's grasp pose, following it while it moves) until the
   horizontal TCP error has stayed under tolerance for ``timing.stable``; ``descend`` (lower to the
   grasp pose, still following) until the grasp pose is reached.
-- grasp: ``closing`` (close the jaws, keep moving with the part's last estimated velocity,
-  without vision feedback, for ``timing.close``), then check the jaws; closed on the part:
-  ``holding`` for ``timing.hold``; not closed: open the jaws and go back to ``approach``.
+- grasp: ``closing`` (close the jaws, keep moving with the part's last estimated horizontal
+  velocity, without vision feedback, for ``timing.close``), then check the jaws; closed on the
+  part: ``holding`` for ``timing.hold``; not closed: open the jaws and go back to
+  ``approach``.
 - manipulate: ``lift`` by ``lift_height``, then ``home`` (back to the HOME pose carrying the part).
   No vision from here on: the planner uses the joint measurements only.
 - release: ``final`` (go to the FINAL pose), ``opening`` (open the jaws, ``timing.open``), ``home``.
@@ -201,7 +202,9 @@ class GraspTask:
             self._gripper = self.closed_command
             T, twist, _ = self.planner.target(t)
             self._set_stage(t, "closing", "jaws closing, following the part's last velocity")
-            self.planner.move_to(t, PoseGoal(T, t, twist[:3]), 0.0)
+            # horizontally only: a part rides its conveyor level; a vertical velocity is the
+            # estimator's noise, and following it would push the held part into the conveyor
+            self.planner.move_to(t, PoseGoal(T, t, twist[:3] * (1.0, 1.0, 0.0)), 0.0)
 
     def _grasp(self, t: float, T_meas: np.ndarray, jaws_closed: bool) -> None:
         if self.stage == "closing" and t - self._stage_t >= self.timing.close:

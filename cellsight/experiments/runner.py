@@ -55,8 +55,10 @@ class RunConfig:
     """One run. ``duration`` (s of simulated time): None runs until the task is done (plus
     ``tail_s``), at most ``max_duration``. ``ideal_sigma_px``: pixel noise of the ideal
     sensor, per coordinate (0.2 px: the rendered sensor's corners lie a median 0.245 px from
-    the true projection on the built-in cell, i.e. 0.21 px per coordinate). ``video_every``: a
-    frame of ``views.mp4`` every so many vision frames."""
+    the true projection on the built-in cell, i.e. 0.21 px per coordinate).
+    ``kinematic_prior``: while the jaws are closed on the part, the tracker predicts it by the
+    gripper's motion measured from the joints (``holders`` of :meth:`Tracker.step`).
+    ``video_every``: a frame of ``views.mp4`` every so many vision frames."""
 
     experiment: int
     out: Path
@@ -64,6 +66,7 @@ class RunConfig:
     seed: int = 0
     sensor: Sensor = "rendered"
     occlusion_prediction: bool = True
+    kinematic_prior: bool = False
     duration: float | None = None
     max_duration: float = 80.0
     tail_s: float = 1.0
@@ -267,9 +270,10 @@ class ExperimentRun:
         keys = _KeyMoments(self.out)
         wall = time.perf_counter()
         interrupted = True
-        log.info("experiment %d (%s) on %s; seed %d; sensor %s; occlusion prediction %s",
+        log.info("experiment %d (%s) on %s; seed %d; sensor %s; occlusion prediction %s%s",
                  cfg.experiment, self.scenario.description, self.cell.source, cfg.seed,
-                 cfg.sensor, "on" if cfg.occlusion_prediction else "off")
+                 cfg.sensor, "on" if cfg.occlusion_prediction else "off",
+                 "; kinematic prior on" if cfg.kinematic_prior else "")
         try:
             self._loop(frames, video, keys)
             interrupted = False
@@ -317,7 +321,10 @@ class ExperimentRun:
         images = world.render() if self.config.sensor == "rendered" else None
         if self.ideal is not None:
             self.ideal.set_truth(truth[1], truth[2])
-        frame = self.tracker.step(images, joints, t)
+        holders = None
+        if self.config.kinematic_prior and world.jaws_closed_on_part(name):
+            holders = {self.part.name: self.robot.tcp_pose(joints[name])}
+        frame = self.tracker.step(images, joints, t, holders)
         rec = frame.parts[self.part.name]
         pose = rec.T_base_part if rec.status in ESTIMATED else None
         velocity = None if pose is None else rec.state[6:9]
@@ -357,6 +364,7 @@ class ExperimentRun:
             "seed": cfg.seed,
             "sensor": cfg.sensor,
             "occlusion_prediction": cfg.occlusion_prediction,
+            "kinematic_prior": cfg.kinematic_prior,
             "grasp_success": bool(self._held_at_manipulate),
             "grasp_position_error_mm": self._grasp_error_mm,
             "final_phase": str(self.task.phase),

@@ -190,8 +190,8 @@ class VisibilityPredictor:
                 m = len(query)
                 visible[query] = vis[:m]
                 occluder[query] = owner[:m]
-                by_other = owner[m:].reshape(ring.shape[:2]) >= 0
-                by_other &= owner[m:].reshape(ring.shape[:2]) != self._feature_owner[query, None]
+                ring_owner = owner[m:].reshape(ring.shape[:2])
+                by_other = (ring_owner >= 0) & (ring_owner != self._feature_owner[query, None])
                 near[query] = vis[:m] & by_other.any(axis=1)
             start = 0
             for k, f in zip(self.part_objects, features, strict=True):

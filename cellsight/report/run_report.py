@@ -558,7 +558,8 @@ def _header_html(run: Run) -> str:
     occ_text = "?" if occ is None else ("on" if occ else "off")
     sub = (f"experiment {m.get('experiment', '?')} · seed {m.get('seed', '?')} · "
            f"sensor {m.get('sensor', '?')} · occlusion prediction {occ_text} · "
-           f"{run.frames.n} frames")
+           + ("kinematic prior on · " if m.get("kinematic_prior") else "")
+           + f"{run.frames.n} frames")
     out = f"<h1>cellsight run report</h1><p class=sub>{html.escape(sub)}</p>"
     if m.get("interrupted") or not m:
         out += "<p class=warn>Partial run: interrupted or unfinished; results are incomplete.</p>"

@@ -15,6 +15,11 @@ Recursion, per vision frame:
   ``w = w- + K nu`` and the Joseph form ``P = (I - K C) P- (I - K C)^T + K R K^T``;
   roll and yaw are wrapped to ``[-pi, pi)``.
 
+Carried part (optional, beyond the paper: the kinematic prior): while a robot holds the part,
+:meth:`PoseEKF.predict_carried` moves the estimate by the holder's measured motion since the
+last frame instead of the constant-velocity model, and adds a small random-walk noise for slip
+and kinematic error; the images update it as usual.
+
 Adaptive noise (optional, beyond the paper): a scalar pixel variance per camera re-estimated by
 robust covariance matching over a sliding window of the last innovations (:class:`AdaptiveNoise`).
 """
@@ -28,9 +33,9 @@ import numba
 import numpy as np
 from scipy.stats import chi2
 
-from cellsight.geometry.transforms import make_pose
+from cellsight.geometry.transforms import make_pose, xyz_rpy_from_pose
 from cellsight.tracking.measurement import Observation, PinholeMeasurement, rotation_of_state
-from cellsight.tracking.motion import STATE_DIM, ConstantVelocity
+from cellsight.tracking.motion import POSE_DIM, STATE_DIM, ConstantVelocity
 
 
 @dataclass(frozen=True)
@@ -137,6 +142,26 @@ class PoseEKF:
         _, A, Q = self._transition
         self.state = A @ self.state
         self.covariance = A @ self.covariance @ A.T + Q
+        self.t = float(t)
+
+    def predict_carried(self, t: float, motion: np.ndarray, noise: tuple[float, float]) -> None:
+        """Propagate to time ``t`` (s) by a rigid motion of the part: ``motion`` (4x4) maps the
+        base frame to itself (the holder's ``T_base_holder(t) T_base_holder(t_prev)^-1``); the
+        rates become the pose change over the interval. ``noise`` = (m^2/s, rad^2/s): random-walk
+        densities added to the pose's covariance (slip, kinematic error)."""
+        dt = float(t) - self.t
+        if dt < 0:
+            raise ValueError(f"PoseEKF.predict_carried: time goes backwards ({self.t} -> {t})")
+        xyz, rpy = xyz_rpy_from_pose(np.asarray(motion, dtype=float) @ self.pose)
+        old = self.state[:POSE_DIM]
+        turn = (rpy - old[3:] + np.pi) % (2 * np.pi) - np.pi
+        pose = np.concatenate([xyz, old[3:] + turn])
+        if dt > 0:
+            self.state = np.concatenate([pose, (pose - old) / dt])
+        else:
+            self.state = np.concatenate([pose, self.state[POSE_DIM:]])
+        q = np.array([noise[0]] * 3 + [noise[1]] * 3) * dt
+        self.covariance = self.covariance + np.diag(np.concatenate([q, np.zeros(POSE_DIM)]))
         self.t = float(t)
 
     def sigma_px(self, model: PinholeMeasurement, camera_index: int) -> float:

@@ -29,7 +29,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from cellsight.camera import Camera
-from cellsight.geometry.transforms import xyz_rpy_from_pose
+from cellsight.geometry.transforms import invert_pose, xyz_rpy_from_pose
 from cellsight.tracking.ekf import AdaptiveNoise, PoseEKF
 from cellsight.tracking.extraction import CornerExtractor
 from cellsight.tracking.measurement import Observation, PinholeMeasurement, undistort_pixels
@@ -73,6 +73,8 @@ class TrackerConfig:
 
     ``init_velocity_std`` (linear, angular) is the velocity uncertainty at (re)initialisation;
     ``init_pose_inflation`` multiplies the PnP covariance used as the initial pose covariance.
+    ``carried_noise`` (m^2/s, rad^2/s): random-walk densities of a held part's pose relative to
+    its holder, with the kinematic prior (``holders`` in :meth:`Tracker.step`).
     """
 
     motion: ConstantVelocity = ConstantVelocity()
@@ -87,6 +89,7 @@ class TrackerConfig:
     init_pose_inflation: float = 4.0
     lost_after_s: float = 2.0
     coast_s: float = 4.0
+    carried_noise: tuple[float, float] = (1e-6, 1e-5)
 
 
 @dataclass
@@ -139,6 +142,7 @@ class _Track:
     ekf: PoseEKF | None = None
     last_update: float = -np.inf
     lost: bool = False
+    holder: np.ndarray | None = None  # T_base_holder at the last frame, while held
 
 
 class Tracker:
@@ -224,13 +228,18 @@ class Tracker:
         return images[c] if c < len(images) else None
 
     def step(
-        self, images: Any, joints: Mapping[str, np.ndarray] | None, t: float
+        self, images: Any, joints: Mapping[str, np.ndarray] | None, t: float,
+        holders: Mapping[str, np.ndarray] | None = None,
     ) -> TrackerFrame:
         """Process one vision frame at time ``t`` (s).
 
         ``images``: one image per camera (sequence in camera order, or mapping by camera name;
         None for a missing image), passed to the extractor; ``joints``: robot name -> joint
-        vector for the occlusion predictor.
+        vector for the occlusion predictor; ``holders`` (the kinematic prior, optional): part
+        name -> measured pose ``T_base_holder`` of what holds the part rigidly (a gripper's
+        TCP from the joint measurements) this frame; a part held at this frame and the last
+        one is predicted by the holder's motion (:meth:`PoseEKF.predict_carried`) instead of
+        the constant-velocity model.
         """
         timings = dict.fromkeys(STAGES, 0.0)
         t_start = time.perf_counter()
@@ -238,13 +247,18 @@ class Tracker:
         poses = {}
         tic = time.perf_counter()
         for name, track in self.tracks.items():
+            holder = (holders or {}).get(name)
             if track.ekf is not None:
-                if t - track.last_update <= self.config.coast_s:
+                if holder is not None and track.holder is not None:
+                    track.ekf.predict_carried(t, holder @ invert_pose(track.holder),
+                                              self.config.carried_noise)
+                elif t - track.last_update <= self.config.coast_s:
                     track.ekf.predict(t)
                 track.lost = t - track.last_update > self.config.lost_after_s
                 poses[name] = track.ekf.pose
             elif track.guess is not None:
                 poses[name] = track.guess
+            track.holder = None if holder is None else np.asarray(holder, dtype=float)
         timings["predict"] = time.perf_counter() - tic
         tic = time.perf_counter()
         vis = self.predictor.predict(joints, poses) if poses else {}
