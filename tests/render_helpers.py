@@ -159,6 +159,7 @@ class BackfacePredictor:
         self.name = name
         self.solid = solid
         self.blind: set[int] = set()
+        self.near: set[tuple[int, int]] = set()  # (camera, feature) flagged near an occluder
         F = len(solid.feature_points)
         self.faces_of = [
             [k for k, face in enumerate(solid.faces) if v in face] for v in solid.feature_vertices
@@ -176,7 +177,9 @@ class BackfacePredictor:
             visible[j] &= any(normals[k] @ (cam.center - pts[j]) > 1e-9 for k in faces)
         if camera_index in self.blind:
             visible[:] = False
-        return FakeVisibility(cam.name, visible, pixels, np.zeros(len(visible), dtype=bool))
+        near = np.zeros(len(visible), dtype=bool)
+        near[[j for c, j in self.near if c == camera_index]] = True
+        return FakeVisibility(cam.name, visible, pixels, near & visible)
 
     def predict(self, joints, part_poses):
         return {

@@ -29,6 +29,7 @@ from cellsight.tracking import (
     TrackerConfig,
     estimate_pose,
 )
+from cellsight.tracking.selection import SelectionConfig
 from cellsight.tracking.tracker import STAGES
 
 HOLD_OFFSET = pose_from_xyz_rpy([0.0, -0.01, 0.015], [np.pi, 0.0, 0.3])  # T_part_holder
@@ -140,6 +141,23 @@ def test_a_held_part_follows_its_holder_where_one_camera_sees_it():
         assert all(run.frames[k].status == "tracking" for k in range(start, stop))
         rmse[held] = _rmse([run.errors(k)[0] for k in range(start, stop)])
     assert rmse[True] < 0.5 * rmse[False], rmse
+
+
+def test_a_feature_flagged_near_an_occluder_stays_out_for_the_hold_time():
+    """Flagged for one frame only, a feature is not selected for ``near_occluder_hold_s``
+    (a flag flickering at the ring's edge keeps it out), then comes back."""
+    config = TrackerConfig(selection=SelectionConfig(max_points=32),  # every usable point
+                           near_occluder_hold_s=0.5)
+    run = Run(seed=6, config=config)
+    hold = int(np.ceil(config.near_occluder_hold_s / VISION_PERIOD))
+    k0 = 40
+    for k in range(k0 + 2 * hold):
+        run.predictor.near = {(0, 9)} if k == k0 else set()
+        run.step(k)
+    selected = np.array([run.frames[k].selected[0, 9] for k in range(len(run.frames))])
+    assert all(run.frames[k].visible[0, 9] for k in range(k0 - 5, k0 + 2 * hold))
+    assert selected[k0 - 5:k0].all() and not selected[k0:k0 + hold].any()
+    assert selected[k0 + hold + 1:].all()
 
 
 @pytest.mark.parametrize(("blackout_s", "sway"), [(1.2, 1.0), (2.6, 0.0)])

@@ -16,6 +16,10 @@ frames without measurements only predict. The prediction coasts at most ``coast_
 after the last accepted measurement, then stops (the last velocity would carry the pose away
 for ever): a part that left the views is looked for where it was last predicted.
 
+Selection and acquisition skip the features that the predictor flags ``near_occluder`` (next
+to another object's silhouette, where the image corner is a junction a few pixels off), and
+keep them out for ``near_occluder_hold_s`` after the last flag.
+
 Measured pixels are as in the image (distorted); they are undistorted before the update.
 """
 
@@ -75,6 +79,8 @@ class TrackerConfig:
     ``init_pose_inflation`` multiplies the PnP covariance used as the initial pose covariance.
     ``carried_noise`` (m^2/s, rad^2/s): random-walk densities of a held part's pose relative to
     its holder, with the kinematic prior (``holders`` in :meth:`Tracker.step`).
+    ``near_occluder_hold_s`` (s): how long a feature stays unselectable after it was last
+    flagged ``near_occluder``.
     """
 
     motion: ConstantVelocity = ConstantVelocity()
@@ -90,6 +96,7 @@ class TrackerConfig:
     lost_after_s: float = 2.0
     coast_s: float = 4.0
     carried_noise: tuple[float, float] = (1e-6, 1e-5)
+    near_occluder_hold_s: float = 0.5
 
 
 @dataclass
@@ -143,6 +150,7 @@ class _Track:
     last_update: float = -np.inf
     lost: bool = False
     holder: np.ndarray | None = None  # T_base_holder at the last frame, while held
+    near_at: np.ndarray | None = None  # (C, F) time (s) each feature was last near an occluder
 
 
 class Tracker:
@@ -357,6 +365,15 @@ class Tracker:
             rec.pixels[c] = np.asarray(per_cam[c].pixels, dtype=float)
             rec.near_occluder[c] = np.asarray(per_cam[c].near_occluder, dtype=bool)
 
+    def _usable(self, track: _Track, rec: PartFrame, t: float) -> np.ndarray:
+        """Visible features not flagged near an occluder's silhouette within the last
+        ``near_occluder_hold_s`` seconds (a flag that flickers at the ring's edge keeps the
+        feature out)."""
+        if track.near_at is None:
+            track.near_at = np.full(rec.visible.shape, -np.inf)
+        track.near_at[rec.near_occluder] = t
+        return rec.visible & (t - track.near_at > self.config.near_occluder_hold_s)
+
     def _track(self, name, track, per_cam, all_visible, images, timings) -> PartFrame:
         ekf = track.ekf
         rec = self._empty(name, track, "predicting")
@@ -365,7 +382,7 @@ class Tracker:
         T = ekf.pose
         centroid = track.points.mean(axis=0) @ T[:3, :3].T + T[:3, 3]
         rho = np.array([c.focal_px / max(c.depth(centroid[None])[0], 1e-6) for c in self.cameras])
-        usable = rec.visible & ~rec.near_occluder
+        usable = self._usable(track, rec, ekf.t)
         sel = select_features(rec.pixels, usable, rho, self.config.selection)
         rec.selection, rec.selected = sel, sel.selected
         timings["selection"] += time.perf_counter() - tic
@@ -397,7 +414,7 @@ class Tracker:
         self._fill_prediction(rec, per_cam)
         size = self.config.acquisition_window_px
         wcfg = replace(self.config.windows, min_size_px=size, max_size_px=size)
-        rec.selected = rec.visible & ~rec.near_occluder
+        rec.selected = self._usable(track, rec, t)
 
         def cov_of(c, idx):
             return np.zeros((len(idx), 2, 2))
