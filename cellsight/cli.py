@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 from pathlib import Path
 
@@ -17,39 +18,83 @@ import numpy as np
 from cellsight.errors import CellsightError
 
 
+def _short(value, limit: int = 60) -> str:
+    """``repr`` of a value, cut to ``limit`` characters for an error message."""
+    text = repr(value)
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
 def _json_arg(text: str | None, what: str):
-    """Parse a JSON command-line value, or read it from a file when it names one."""
+    """Parse a JSON command-line value, or read it from a file when it names one (a value that
+    starts with ``{`` or ``[`` is always JSON)."""
     if text is None:
         return None
-    source = Path(text).read_text() if Path(text).is_file() else text
+    source = text
+    if text.lstrip()[:1] not in ("{", "["):
+        path = Path(text)
+        try:
+            is_file = path.is_file()
+        except OSError:  # not a usable path (too long, ...): take it as JSON text
+            is_file = False
+        if is_file:
+            try:
+                source = path.read_bytes().decode("utf-8")
+            except UnicodeDecodeError as exc:
+                raise CellsightError(f"--{what}: {path}: not UTF-8 text") from exc
     try:
         return json.loads(source)
     except json.JSONDecodeError as exc:
         raise CellsightError(f"--{what}: not valid JSON ({exc.msg} at column {exc.colno})") from exc
 
 
+def _numbers(value, what: str, shape: tuple[int, ...] | None = None) -> np.ndarray:
+    """``value`` as a float array of finite numbers (of ``shape`` if given), else a clear error."""
+    try:
+        array = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        array = None
+    if (array is None or array.ndim == 0 or (shape is not None and array.shape != shape)
+            or not np.all(np.isfinite(array))):
+        expected = "finite numbers" if shape is None else f"finite numbers of shape {shape}"
+        raise CellsightError(f"{what}: expected {expected}, got {_short(value)}")
+    return array
+
+
 def _joints(text: str | None) -> dict[str, np.ndarray]:
     """``{"R7AX": [...], ...}`` -> robot name -> joint vector."""
     data = _json_arg(text, "joints") or {}
     if not isinstance(data, dict):
-        raise CellsightError(f"--joints: expected an object robot -> list of numbers, got {data!r}")
-    return {name: np.asarray(q, dtype=float) for name, q in data.items()}
+        raise CellsightError(f"--joints: expected an object robot -> list of numbers, got "
+                             f"{_short(data)}")
+    return {name: _numbers(q, f"--joints: robot {name!r}") for name, q in data.items()}
 
 
 def _part_poses(text: str | None) -> dict[str, np.ndarray]:
-    """``{"part": {"xyz": [...], "rpy": [...]}}`` or a 4x4 matrix per workpiece."""
+    """``{"part": {"xyz": [...], "rpy": [...]}}`` or a 4x4 rigid transform per workpiece."""
     from cellsight.geometry.transforms import pose_from_xyz_rpy
 
     data = _json_arg(text, "part-pose") or {}
     if not isinstance(data, dict):
-        raise CellsightError(f"--part-pose: expected an object name -> pose, got {data!r}")
+        raise CellsightError(f"--part-pose: expected an object name -> pose, got {_short(data)}")
     poses = {}
     for name, value in data.items():
+        what = f"--part-pose: {name!r}"
         if isinstance(value, dict):
-            xyz, rpy = value.get("xyz", [0, 0, 0]), value.get("rpy", [0, 0, 0])
+            unknown = sorted(set(value) - {"xyz", "rpy"})
+            if unknown:
+                raise CellsightError(f"{what}: unknown keys {unknown}; expected xyz and rpy")
+            xyz = _numbers(value.get("xyz", [0, 0, 0]), f"{what}.xyz", (3,))
+            rpy = _numbers(value.get("rpy", [0, 0, 0]), f"{what}.rpy", (3,))
             poses[name] = pose_from_xyz_rpy(xyz, rpy)
         else:
-            poses[name] = np.asarray(value, dtype=float)
+            T = _numbers(value, what, (4, 4))
+            R = T[:3, :3]
+            rigid = (np.allclose(R.T @ R, np.eye(3), atol=1e-6) and np.linalg.det(R) > 0
+                     and np.allclose(T[3], [0, 0, 0, 1]))
+            if not rigid:
+                raise CellsightError(f"{what}: expected a rigid transform (rotation with det +1, "
+                                     f"last row 0 0 0 1), got {_short(value)}")
+            poses[name] = T
     return poses
 
 
@@ -146,9 +191,11 @@ def cmd_run(args: argparse.Namespace) -> int:
     from cellsight.experiments import RunConfig, run_experiment
     from cellsight.report.run_report import format_value
 
-    if args.duration is not None and not args.duration > 0:
-        raise CellsightError(f"--duration: expected a positive number of seconds, got "
+    if args.duration is not None and not (args.duration > 0 and math.isfinite(args.duration)):
+        raise CellsightError(f"--duration: expected a positive, finite number of seconds, got "
                              f"{args.duration}")
+    if args.seed < 0:
+        raise CellsightError(f"--seed: expected a whole number >= 0, got {args.seed}")
     out = Path(args.out or f"out/experiment{args.experiment}")
     config = RunConfig(
         experiment=args.experiment, out=out, cell=args.cell, seed=args.seed,
