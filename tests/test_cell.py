@@ -125,6 +125,24 @@ def test_yaml_syntax_error_names_the_line(tmp_path) -> None:
         load_cell(path)
 
 
+def test_a_repeated_key_is_an_error_not_the_last_one_wins(tmp_path) -> None:
+    text = builtin_cell_path().read_text().replace(
+        "    width: 768\n", "    width: 768\n    width: 640\n", 1)
+    path = _write(tmp_path, text)
+    with pytest.raises(CellFileError, match=r"cell.yaml: field 'line \d+': got \"duplicate key "
+                                            r"'width'\"; expected valid YAML"):
+        load_cell(path)
+
+
+def test_camera_names_must_be_unique(tmp_path) -> None:
+    raw = yaml.safe_load(builtin_cell_path().read_text())
+    raw["cameras"][1]["name"] = raw["cameras"][0]["name"]
+    path = _write(tmp_path, yaml.safe_dump(raw))
+    with pytest.raises(CellFileError, match=r"field 'cameras\[\]\.name': got \['cam1'\]; "
+                                            r"expected unique camera names"):
+        load_cell(path)
+
+
 def test_missing_file_is_named(tmp_path) -> None:
     with pytest.raises(CellFileError, match="nope.yaml"):
         load_cell(tmp_path / "nope.yaml")

@@ -320,6 +320,10 @@ def build_cell(spec: CellSpec, file: str, folder: Path) -> Cell:
     dup = {n for n in names if names.count(n) > 1}
     if dup:
         raise CellFileError(file, "name", sorted(dup), "unique names of robots, workpieces, static")
+    cam_names = [c.name for c in cameras]
+    dup = {n for n in cam_names if cam_names.count(n) > 1}
+    if dup:
+        raise CellFileError(file, "cameras[].name", sorted(dup), "unique camera names")
     setup = _experiments(spec.experiments, robots, parts, file)
     try:
         return Cell(spec.name, robots, parts, static, cameras, source=file, experiments=setup)
@@ -369,10 +373,34 @@ def builtin_cell_path() -> Path:
     return Path(__file__).resolve().parent.parent / "data" / "dual_arm_cell.yaml"
 
 
+class _UniqueKeyLoader(yaml.SafeLoader):
+    """PyYAML's safe loader, refusing a mapping that repeats a key (PyYAML keeps the last)."""
+
+
+def _unique_mapping(loader: _UniqueKeyLoader, node: yaml.MappingNode, deep: bool = False):
+    seen = set()
+    for key_node, _ in node.value:
+        key = loader.construct_object(key_node, deep=deep)
+        try:
+            repeated = key in seen
+            seen.add(key)
+        except TypeError:  # an unhashable key: construct_mapping names the problem
+            repeated = False
+        if repeated:
+            raise yaml.constructor.ConstructorError(
+                "while reading a mapping", node.start_mark, f"duplicate key {key!r}",
+                key_node.start_mark)
+    return loader.construct_mapping(node, deep=deep)
+
+
+_UniqueKeyLoader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, _unique_mapping)
+
+
 def parse_cell_text(text: str, file: str, folder: Path) -> tuple[CellSpec, dict]:
-    """Parse and validate YAML text; returns the spec and the raw mapping."""
+    """Parse and validate YAML text (a repeated key is an error); returns the spec and the raw
+    mapping."""
     try:
-        raw = yaml.safe_load(text)
+        raw = yaml.load(text, Loader=_UniqueKeyLoader)  # a SafeLoader
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f"line {mark.line + 1}" if mark else "<yaml>"
