@@ -7,6 +7,7 @@ import pytest
 from oracle import segment_oracle
 
 from cellsight import load_cell
+from cellsight.errors import CellsightError
 from cellsight.geometry.transforms import pose_from_xyz_rpy, transform_points
 from cellsight.occlusion.predictor import VisibilityPredictor
 from cellsight.occlusion.scenarios import random_snapshots
@@ -140,3 +141,20 @@ def test_near_occluder_flags_match_the_oracle_on_the_ring(cell) -> None:
                     mismatches.append((s, cam.name, i, want))
     assert not mismatches, mismatches[:10]
     assert checked > 500 and flagged >= 3 and culled_misses <= 0.005 * checked
+
+
+@pytest.mark.parametrize("cameras", [[], [5], [-1], [0, 2]])
+def test_camera_indices_are_checked(cell, cameras) -> None:
+    """``cameras=[]`` used to mean all cameras, ``[-1]`` the last, ``[5]`` a traceback."""
+    with pytest.raises(CellsightError, match=r"cameras must be indices 0\.\.1 of cell\.cameras"):
+        VisibilityPredictor(cell, cameras=cameras)
+    assert [c.name for c in VisibilityPredictor(cell, cameras=[1]).cameras] == ["cam2"]
+
+
+def test_unknown_names_list_the_valid_ones(cell) -> None:
+    with pytest.raises(KeyError, match=r"no robot 'R8AX'; its robots: \['R6AX', 'R7AX'\]"):
+        cell.robot("R8AX")
+    with pytest.raises(KeyError, match=r"no camera 'cam3'; its cameras: \['cam1', 'cam2'\]"):
+        cell.camera("cam3")
+    with pytest.raises(KeyError, match=r"no workpiece 'box'; its workpieces: \['part'\]"):
+        cell.workpiece("box")

@@ -178,20 +178,23 @@ class Cell:
         try:
             return self._robot[name]
         except KeyError:
-            raise KeyError(f"cell {self.name} has no robot {name!r}") from None
+            raise KeyError(f"cell {self.name} has no robot {name!r}; its robots: "
+                           f"{sorted(self._robot)}") from None
 
     def workpiece(self, name: str) -> Workpiece:
         try:
             return self._part[name]
         except KeyError:
-            raise KeyError(f"cell {self.name} has no workpiece {name!r}") from None
+            raise KeyError(f"cell {self.name} has no workpiece {name!r}; its workpieces: "
+                           f"{sorted(self._part)}") from None
 
     def camera(self, camera: int | str) -> Camera:
         if isinstance(camera, str):
             for cam in self.cameras:
                 if cam.name == camera:
                     return cam
-            raise KeyError(f"cell {self.name} has no camera {camera!r}")
+            raise KeyError(f"cell {self.name} has no camera {camera!r}; its cameras: "
+                           f"{[c.name for c in self.cameras]}")
         return self.cameras[camera]
 
     def home_joints(self) -> dict[str, np.ndarray]:

@@ -27,6 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from cellsight.errors import CellsightError
 from cellsight.model.cell import Cell, Snapshot
 from cellsight.occlusion._cull_kernel import cull_polygons, project_points, transform_vertices
 from cellsight.occlusion.bsp import BSPTree
@@ -90,7 +91,8 @@ class VisibilityPredictor:
 
     Offline (constructor): flat arrays of every surface in its object's frame, static surfaces
     in the base frame. Per frame (:meth:`predict`): transform, cull, build, visit. ``cameras``
-    restricts the prediction to some cameras (indices into ``cell.cameras``; default all).
+    restricts the prediction to some cameras (a non-empty list of indices into
+    ``cell.cameras``; None: all).
     ``surface_tolerance`` (m): a feature within this distance of a surface's plane is not hidden
     by it, so that features resting on a support (the part's bottom corners on the conveyor)
     stay visible although the tracker's pose is off by a fraction of a millimetre.
@@ -107,7 +109,12 @@ class VisibilityPredictor:
         self.cull = cull
         self.surface_tolerance = float(surface_tolerance)
         self.near_px = float(near_px)
-        self.cameras = [cell.cameras[k] for k in (cameras or range(len(cell.cameras)))]
+        n_cam = len(cell.cameras)
+        if cameras is not None and (not len(cameras) or not all(
+                isinstance(k, int | np.integer) and 0 <= k < n_cam for k in cameras)):
+            raise CellsightError(f"VisibilityPredictor: cameras must be indices 0..{n_cam - 1} "
+                                 f"of cell.cameras (None: all), got {cameras!r}")
+        self.cameras = [cell.cameras[k] for k in (range(n_cam) if cameras is None else cameras)]
         verts, offsets, owner, vertex_owner, self.poly_source = [], [0], [], [], []
         for k, obj in enumerate(cell.objects):
             for f, face in enumerate(obj.solid.faces):
