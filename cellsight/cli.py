@@ -161,12 +161,11 @@ def cmd_visibility(args: argparse.Namespace) -> int:
 SUMMARY_KEYS = (
     "experiment", "seed", "sensor", "occlusion_prediction", "kinematic_prior", "frames",
     "grasp_success", "grasp_position_error_mm", "in_view_fraction", "lost_in_view_s",
-    "position_rmse_mm",
-    "orientation_rmse_deg", "max_position_error_mm", "pnp_position_rmse_mm",
+    "position_rmse_mm", "orientation_rmse_deg", "max_position_error_mm", "pnp_position_rmse_mm",
     "pnp_orientation_rmse_deg", "visibility_accuracy", "visibility_accuracy_all",
-    "false_visible", "false_hidden",
-    "measurements", "rejected_measurements", "wrong_measurements", "wrong_accepted",
-    "pixels_grabbed_fraction", "extraction_error_px_median", "wall_s",
+    "false_visible", "false_hidden", "measurements", "rejected_measurements",
+    "wrong_measurements", "wrong_accepted", "pixels_grabbed_fraction",
+    "extraction_error_px_median", "wall_s",
 )
 
 

@@ -264,6 +264,11 @@ def _check_len(file: str, where: str, values, n: int, what: str) -> np.ndarray:
     return np.array(values, dtype=float)
 
 
+def _repeated(names: list[str]) -> list[str]:
+    """The names that occur more than once, sorted."""
+    return sorted({n for n in names if names.count(n) > 1})
+
+
 def build_cell(spec: CellSpec, file: str, folder: Path) -> Cell:
     """Turn a validated :class:`CellSpec` into a :class:`Cell`."""
     robots = []
@@ -317,13 +322,10 @@ def build_cell(spec: CellSpec, file: str, folder: Path) -> Cell:
             raise CellFileError(file, f"cameras[{c}]", cs.model_dump(exclude_none=True),
                                 str(exc)) from exc
     names = [r.name for r in robots] + [w.name for w in parts] + [s.name for s in static]
-    dup = {n for n in names if names.count(n) > 1}
-    if dup:
-        raise CellFileError(file, "name", sorted(dup), "unique names of robots, workpieces, static")
-    cam_names = [c.name for c in cameras]
-    dup = {n for n in cam_names if cam_names.count(n) > 1}
-    if dup:
-        raise CellFileError(file, "cameras[].name", sorted(dup), "unique camera names")
+    if dup := _repeated(names):
+        raise CellFileError(file, "name", dup, "unique names of robots, workpieces, static")
+    if dup := _repeated([c.name for c in cameras]):
+        raise CellFileError(file, "cameras[].name", dup, "unique camera names")
     setup = _experiments(spec.experiments, robots, parts, file)
     try:
         return Cell(spec.name, robots, parts, static, cameras, source=file, experiments=setup)

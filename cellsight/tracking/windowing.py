@@ -12,8 +12,8 @@ Per selected feature with predicted projection ``c`` and innovation covariance `
 2. conflicts: another feature's projection that falls in the window (grown by ``margin_px``) is
    cut away, ``margin_px`` short of it, either by moving one side of the window or by scaling
    the whole window towards ``c``; of these five cuts the one keeping the largest area is
-   chosen. A cut must leave the
-   ``keep`` box ``c +- support_px``; if none can, the feature is dropped;
+   chosen. A cut must leave the ``keep`` box ``c +- support_px``; if none can, the feature is
+   dropped;
 3. clipped to the image; a window that no longer holds the ``keep`` box is dropped;
 4. regions: windows are merged into their bounding box while that is cheaper, the cost of a
    region being its pixel count plus ``region_overhead_px`` (the fixed cost of one grab).
