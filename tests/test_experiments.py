@@ -17,9 +17,10 @@ from cellsight.errors import CellFileError
 from cellsight.experiments import RunConfig, scenario
 from cellsight.experiments.framelog import columns, read_frames
 from cellsight.experiments.runner import ExperimentRun
-from cellsight.experiments.sensors import IdealExtractor, ProjectionOnly
+from cellsight.experiments.sensors import IdealExtractor
 from cellsight.model.loader import builtin_cell_path
 from cellsight.occlusion.predictor import VisibilityPredictor
+from cellsight.occlusion.projection import ProjectionOnly
 from cellsight.tracking.windowing import plan_windows
 
 DURATION = 4.0

@@ -32,11 +32,12 @@ from cellsight.control import GraspTask, Phase
 from cellsight.experiments.framelog import STAGES, WRONG_PX, FrameLog, bits, read_frames
 from cellsight.experiments.metrics import frame_metrics
 from cellsight.experiments.scenario import Scenario, scenario
-from cellsight.experiments.sensors import FramePredictor, IdealExtractor, ProjectionOnly
+from cellsight.experiments.sensors import FramePredictor, IdealExtractor
 from cellsight.geometry.transforms import xyz_rpy_from_pose
 from cellsight.model.cell import Cell
 from cellsight.model.loader import load_cell
 from cellsight.occlusion.predictor import VisibilityPredictor
+from cellsight.occlusion.projection import ProjectionOnly
 from cellsight.report.overlay import compose_views, draw_camera_overlay
 from cellsight.report.run_report import write_report
 from cellsight.report.video import VideoWriter

@@ -2,8 +2,6 @@
 
 - :class:`FramePredictor`: the visibility source the tracker calls, with this frame's jaw
   openings, keeping its last answer (for the log's occluder labels).
-- :class:`ProjectionOnly`: the ``--no-occlusion-prediction`` baseline: every feature point in
-  front of a camera that projects inside its image counts as visible (no BSP, no occlusion).
 - :class:`IdealExtractor`: the ``--sensor ideal`` extractor: the true projection of a truly
   visible feature whose window contains it, plus Gaussian pixel noise; nothing otherwise.
 """
@@ -14,14 +12,8 @@ from collections.abc import Mapping
 
 import numpy as np
 
-from cellsight.model.cell import Cell
-from cellsight.occlusion.predictor import (
-    STATUS_BEHIND,
-    STATUS_INSIDE,
-    STATUS_OUTSIDE,
-    CameraVisibility,
-)
 from cellsight.tracking.windowing import WindowPlan
+from cellsight.visibility import CameraVisibility
 
 
 class FramePredictor:
@@ -36,33 +28,6 @@ class FramePredictor:
     def predict(self, joints, part_poses) -> dict[str, list[CameraVisibility]]:
         self.last = self.source.predict(joints, part_poses, self.openings)
         return self.last
-
-
-class ProjectionOnly:
-    """Visibility without occlusion prediction: in front of the camera and inside the image."""
-
-    def __init__(self, cell: Cell) -> None:
-        self.cell = cell
-        self.labels = [o.label for o in cell.objects]
-
-    def predict(self, joints=None, part_poses=None, openings=None):
-        """Workpiece name -> one :class:`CameraVisibility` per camera (``joints`` and
-        ``openings`` are ignored: robots hide nothing here)."""
-        out = {}
-        for part in self.cell.workpieces:
-            T = (part_poses or {}).get(part.name, part.T_base_part)
-            points = part.feature_points @ T[:3, :3].T + T[:3, 3]
-            out[part.name] = []
-            for cam in self.cell.cameras:
-                front = cam.in_front(points)
-                pixels = cam.project(points)
-                inside = front & cam.in_image(np.nan_to_num(pixels, nan=-1e9))
-                status = np.where(~front, STATUS_BEHIND,
-                                  np.where(inside, STATUS_INSIDE, STATUS_OUTSIDE))
-                out[part.name].append(CameraVisibility(
-                    cam.name, inside, pixels, np.full(len(points), -1, dtype=np.int32),
-                    status.astype(np.int8), self.labels, self.cell.object_index(part.name)))
-        return out
 
 
 class IdealExtractor:

@@ -23,8 +23,6 @@ plus every workpiece surface.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
 from cellsight.errors import CellsightError
@@ -32,58 +30,11 @@ from cellsight.model.cell import Cell, Snapshot
 from cellsight.occlusion._cull_kernel import cull_polygons, project_points, transform_vertices
 from cellsight.occlusion.bsp import BSPTree
 from cellsight.occlusion.soup import PolygonSoup
+from cellsight.visibility import STATUS_INSIDE, CameraVisibility, Views
 
-BEHIND, OUTSIDE, SELF = "behind", "outside", "self"
-STATUS_INSIDE, STATUS_BEHIND, STATUS_OUTSIDE = 0, 1, 2  # status codes of project_points
 CULL_MARGIN_PX = 2.0  # safety margin of the image-box overlap test, pixels
 NEAR_SAMPLES = 8  # points on the ring around a feature for the near-occluder test
 NEAR_DEPTH = 0.01  # m: a silhouette counts when at least this much nearer than the feature
-
-
-@dataclass
-class CameraVisibility:
-    """One workpiece seen by one camera at one sampling time.
-
-    ``visible`` (F,) bool in feature order; ``pixels`` (F, 2) predicted (u, v) (NaN behind
-    the camera); ``occluder`` (F,) index in ``cell.objects`` of the nearest hiding object, or
-    -1; ``status`` (F,) 0 in the image, 1 behind the camera, 2 outside the image.
-    :attr:`reason` names why each feature is hidden. ``near_occluder`` (F,) bool: visible, but
-    another object's silhouette passes within the predictor's ``near_px`` of its projection
-    (the corner there is cut by that silhouette; the tracker does not select it).
-    """
-
-    camera: str
-    visible: np.ndarray
-    pixels: np.ndarray
-    occluder: np.ndarray
-    status: np.ndarray
-    object_labels: list[str]
-    part_object: int
-    near_occluder: np.ndarray | None = None
-
-    def __post_init__(self) -> None:
-        if self.near_occluder is None:
-            self.near_occluder = np.zeros(len(self.visible), dtype=bool)
-
-    @property
-    def count(self) -> int:
-        return int(self.visible.sum())
-
-    @property
-    def reason(self) -> list[str]:
-        """Per feature: '' when visible, else 'behind', 'outside', 'self' (hidden by its own
-        workpiece) or the label of the object hiding it (``R7AX.gripper``, ``table``)."""
-        out = []
-        for st, occ in zip(self.status, self.occluder, strict=True):
-            if st == STATUS_BEHIND:
-                out.append(BEHIND)
-            elif st == STATUS_OUTSIDE:
-                out.append(OUTSIDE)
-            elif occ < 0:
-                out.append("")
-            else:
-                out.append(SELF if occ == self.part_object else self.object_labels[occ])
-        return out
 
 
 class VisibilityPredictor:
@@ -152,13 +103,11 @@ class VisibilityPredictor:
                            out)
         return out
 
-    def predict(
-        self, joints=None, part_poses=None, openings=None
-    ) -> dict[str, list[CameraVisibility]]:
+    def predict(self, joints=None, part_poses=None, openings=None) -> Views:
         """Visibility of every workpiece feature in every camera; see :meth:`predict_snapshot`."""
         return self.predict_snapshot(self.cell.snapshot(joints, part_poses, openings))
 
-    def predict_snapshot(self, snapshot: Snapshot) -> dict[str, list[CameraVisibility]]:
+    def predict_snapshot(self, snapshot: Snapshot) -> Views:
         """Workpiece name -> one :class:`CameraVisibility` per camera (``cell.cameras`` order,
         or the predictor's ``cameras``)."""
         cell = self.cell

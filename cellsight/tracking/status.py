@@ -1,0 +1,25 @@
+"""The state of a workpiece's track at one frame."""
+
+from __future__ import annotations
+
+from enum import StrEnum
+
+
+class TrackStatus(StrEnum):
+    """What the tracker did with a workpiece this frame (values are the ``frames.csv`` text).
+
+    ``WAITING``: not acquired yet; ``ACQUIRED``: its filter started this frame from a PnP fix;
+    ``TRACKING``: updated by accepted measurements; ``PREDICTING``: no accepted measurement,
+    prediction only; ``LOST``: no accepted measurement for ``lost_after_s``, being re-acquired.
+    """
+
+    WAITING = "waiting"
+    ACQUIRED = "acquired"
+    TRACKING = "tracking"
+    PREDICTING = "predicting"
+    LOST = "lost"
+
+    @property
+    def has_estimate(self) -> bool:
+        """The track has a pose estimate worth using (acquired, tracking or predicting)."""
+        return self in (TrackStatus.ACQUIRED, TrackStatus.TRACKING, TrackStatus.PREDICTING)
