@@ -118,14 +118,21 @@ class DHChain:
         chain base frame: rows 0-2 linear velocity (m/s), rows 3-5 angular velocity (rad/s)."""
         T = self.fkine(q)
         p_end = T[-1][:3, 3] if T_last_tool is None else (T[-1] @ T_last_tool)[:3, 3]
-        J = np.zeros((6, self.n))
-        for i in range(self.n):
-            z = T[i][:3, 2]
-            if self._prismatic[i]:
-                J[:3, i] = z
-            else:
-                J[:3, i] = np.cross(z, p_end - T[i][:3, 3])
-                J[3:, i] = z
+        return self.jacobian_at(T, p_end)
+
+    def jacobian_at(self, frames: np.ndarray, p_end: np.ndarray) -> np.ndarray:
+        """Geometric Jacobian (6, n) of the point ``p_end`` (chain base frame, m) moving with
+        the last frame, from the frames (n+1, 4, 4) of :meth:`fkine` (so that a caller that
+        needs both pays for one forward kinematics)."""
+        z = frames[:-1, :3, 2].T  # joint axes, (3, n)
+        r = p_end[:, None] - frames[:-1, :3, 3].T  # joint origin -> point, (3, n)
+        J = np.empty((6, self.n))
+        J[0] = z[1] * r[2] - z[2] * r[1]  # z x r, written out: np.cross costs ten times more
+        J[1] = z[2] * r[0] - z[0] * r[2]
+        J[2] = z[0] * r[1] - z[1] * r[0]
+        J[3:] = z
+        J[:3, self._prismatic] = z[:, self._prismatic]
+        J[3:, self._prismatic] = 0.0
         return J
 
     def random_q(self, rng: np.random.Generator) -> np.ndarray:

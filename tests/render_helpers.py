@@ -27,6 +27,7 @@ from scipy.spatial.transform import Rotation  # noqa: E402
 
 from cellsight.camera import Camera  # noqa: E402
 from cellsight.geometry.transforms import pose_from_xyz_rpy  # noqa: E402
+from cellsight.visibility import STATUS_INSIDE, STATUS_OUTSIDE, CameraVisibility  # noqa: E402
 
 VISION_PERIOD = 1.0 / 26.0
 
@@ -137,17 +138,6 @@ class PartRenderer:
         self.renderers.clear()
 
 
-@dataclass
-class FakeVisibility:
-    """Per camera: ``visible`` (F,), ``pixels`` (F, 2), ``near_occluder`` (F,) (the
-    CameraVisibility fields used)."""
-
-    camera: str
-    visible: np.ndarray
-    pixels: np.ndarray
-    near_occluder: np.ndarray
-
-
 class BackfacePredictor:
     """TEST-ONLY occlusion predictor: a feature is visible when it projects in the image and one
     of the faces through it faces the camera (back-face culling of the part alone; no mutual
@@ -166,7 +156,7 @@ class BackfacePredictor:
         ]
         assert len(self.faces_of) == F
 
-    def visibility(self, camera_index: int, T_base_part: np.ndarray) -> FakeVisibility:
+    def visibility(self, camera_index: int, T_base_part: np.ndarray) -> CameraVisibility:
         cam = self.cameras[camera_index]
         R, o = T_base_part[:3, :3], T_base_part[:3, 3]
         pts = self.solid.feature_points @ R.T + o
@@ -179,9 +169,13 @@ class BackfacePredictor:
             visible[:] = False
         near = np.zeros(len(visible), dtype=bool)
         near[[j for c, j in self.near if c == camera_index]] = True
-        return FakeVisibility(cam.name, visible, pixels, near & visible)
+        inside = cam.sees(pts)
+        status = np.where(inside, STATUS_INSIDE, STATUS_OUTSIDE).astype(np.int8)
+        occluder = np.where(visible | ~inside, -1, 0).astype(np.int32)  # hidden: by itself
+        return CameraVisibility(cam.name, visible, pixels, occluder, status, [self.name], 0,
+                                near & visible)
 
-    def predict(self, joints, part_poses):
+    def predict(self, joints, part_poses, openings=None):
         return {
             name: [self.visibility(c, T) for c in range(len(self.cameras))]
             for name, T in part_poses.items()

@@ -19,10 +19,12 @@ from cellsight.tracking import (
     estimate_pose_robust,
     solve_pnp_camera,
 )
-from cellsight.tracking.measurement import rotation_of_state, undistort_pixels
+from cellsight.tracking.gate import ChiSquareGate
+from cellsight.tracking.measurement import rotation_of_state
 
 K = np.array([[1200.0, 0.0, 380.0], [0.0, 1180.0, 290.0], [0.0, 0.0, 1.0]])
 TARGET = np.array([0.6, 0.0, 0.6])
+GATE = ChiSquareGate(0.999)
 
 
 def _cameras() -> list[Camera]:
@@ -104,7 +106,7 @@ def test_update_matches_information_form_and_stays_symmetric():
     obs = _observe(cams, pts, truth, 0.5, rng)
     x0 = truth + np.concatenate([[0.002, -0.001, 0.001, 0.01, -0.01, 0.02], np.zeros(6)])
     P0 = np.diag([1e-4] * 3 + [1e-3] * 3 + [0.04] * 3 + [0.25] * 3)
-    ekf = PoseEKF(ConstantVelocity(), x0, P0, 0.0, gate_probability=None)
+    ekf = PoseEKF(ConstantVelocity(), x0, P0, 0.0)
     H = np.concatenate([o.model.evaluate(x0, o.points_model)[1] for o in obs])
     R = 0.25 * np.eye(len(H))
     P_info = np.linalg.inv(np.linalg.inv(P0) + H.T @ np.linalg.inv(R) @ H)
@@ -141,7 +143,7 @@ def test_static_pose_converges_within_its_covariance():
     ekf = PoseEKF(ConstantVelocity(), x0, P0, 0.0)
     for k in range(1, 60):
         ekf.predict(k / 26)
-        ekf.update(_observe(cams, pts, truth, 0.5, rng))
+        ekf.update(_observe(cams, pts, truth, 0.5, rng), GATE)
     err = ekf.state[:6] - truth[:6]
     assert np.linalg.norm(err[:3]) < 1e-3 and np.linalg.norm(err[3:]) < 5e-3
     nees = err @ np.linalg.solve(ekf.covariance[:6, :6], err)
@@ -162,15 +164,15 @@ def test_gating_rejects_an_outlier_and_records_it():
                                  obs[1].points_model[keep], bad[keep])]
     ekf_a = PoseEKF(ConstantVelocity(), truth, P0, 0.0)
     ekf_b = PoseEKF(ConstantVelocity(), truth, P0, 0.0)
-    report = ekf_a.update(obs_bad)
-    ekf_b.update(clean)
+    report = ekf_a.update(obs_bad, GATE)
+    ekf_b.update(clean, GATE)
     rejected = ~report.accepted
     assert rejected.sum() == 1
     assert report.camera_index[rejected][0] == 1 and report.feature_ids[rejected][0] == 4
-    assert report.mahalanobis2[rejected][0] > 3 * ekf_a.gate
+    assert report.mahalanobis2[rejected][0] > 3 * GATE.threshold
     np.testing.assert_allclose(ekf_a.state, ekf_b.state, atol=1e-12)
-    ekf_c = PoseEKF(ConstantVelocity(), truth, P0, 0.0, gate_probability=None)
-    ekf_c.update(obs_bad)
+    ekf_c = PoseEKF(ConstantVelocity(), truth, P0, 0.0)
+    ekf_c.update(obs_bad)  # no gate
     err_gated = np.linalg.norm(ekf_a.state[:3] - truth[:3])
     assert np.linalg.norm(ekf_c.state[:3] - truth[:3]) > 5 * err_gated
 
@@ -185,7 +187,7 @@ def test_adaptive_noise_finds_the_true_pixel_noise():
                   adaptive=AdaptiveNoise(window=400))
     for k in range(1, 80):
         ekf.predict(k / 26)
-        ekf.update(_observe(cams, pts, truth, 1.5, rng))
+        ekf.update(_observe(cams, pts, truth, 1.5, rng), GATE)
     for c, cam in enumerate(cams):
         assert ekf.sigma_px(PinholeMeasurement(cam, 0.5), c) == pytest.approx(1.5, rel=0.15)
 
@@ -210,15 +212,6 @@ def test_pnp_single_and_fused_recover_the_pose():
     assert np.mean(errs_fused) < 0.5 * np.mean(errs_single)
     assert estimate_pose([exact[0].__class__(exact[0].model, 0, np.arange(3), pts[:3],
                                              exact[0].pixels[:3])]) is None
-
-
-def test_undistort_pixels_inverts_the_camera_distortion():
-    cam = Camera(K, 768, 576, look_at([0.2, 1.2, 1.7], TARGET), dist=[-0.2, 0.05, 0.001, -0.001])
-    ideal = Camera(K, 768, 576, cam.T_base_cam)
-    pts = TARGET + _prism()
-    np.testing.assert_allclose(
-        undistort_pixels(cam, cam.project(pts)), ideal.project(pts), atol=1e-3
-    )
 
 
 def test_state_rotation_follows_the_transforms_convention():

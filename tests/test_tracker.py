@@ -29,8 +29,9 @@ from cellsight.tracking import (
     TrackerConfig,
     estimate_pose,
 )
+from cellsight.tracking.loss import LossRule
 from cellsight.tracking.selection import SelectionConfig
-from cellsight.tracking.tracker import STAGES
+from cellsight.tracking.timing import STAGES
 
 HOLD_OFFSET = pose_from_xyz_rpy([0.0, -0.01, 0.015], [np.pi, 0.0, 0.3])  # T_part_holder
 
@@ -65,7 +66,7 @@ class Run:
             for c, cam in enumerate(self.cams)
         ]
         holders = {self.part.name: T @ HOLD_OFFSET} if self.held else None
-        frame = self.tracker.step(views, None, t, holders)
+        frame = self.tracker.step(views, None, t, holders=holders)
         self.frames.append(frame.parts[self.part.name])
         self.truth.append(T)
         return frame
@@ -181,7 +182,7 @@ def test_both_cameras_occluded_predicts_then_reacquires(blackout_s, sway):
         assert err @ np.linalg.solve(rec.covariance[:3, :3], err) < 16.27  # chi2(3) 0.999
     after = [run.frames[k].status for k in range(stop, stop + 5)]
     assert "tracking" in after or "acquired" in after
-    if blackout_s > TrackerConfig().lost_after_s:
+    if blackout_s > TrackerConfig().loss.lost_after_s:
         assert "lost" in during and "acquired" in after
     else:
         assert "lost" not in during
@@ -234,9 +235,8 @@ def test_frame_record_holds_what_a_user_plots():
             assert box[0] <= u < box[2] and box[1] <= v < box[3]
     assert rec.covariance.shape == (12, 12) and rec.state.shape == (12,)
     assert set(frame.timings) == set(STAGES) and all(v >= 0 for v in frame.timings.values())
-    assert frame.timings["total"] >= frame.timings["selection"] + frame.timings["update"]
+    assert frame.timings["total"] >= frame.timings["selection"] + frame.timings["ekf"]
     assert np.all((frame.grabbed_fraction > 0) & (frame.grabbed_fraction < 0.05))
-    assert len(run.tracker.history) == 40
 
 
 def test_closed_loop_on_rendered_images():
@@ -270,7 +270,7 @@ def test_closed_loop_on_rendered_images():
 def test_a_part_gone_for_good_stops_coasting():
     """Both cameras blind for good: the prediction coasts on the last velocity for ``coast_s``
     seconds after the last measurement, then stays put (it would otherwise drift for ever)."""
-    config = TrackerConfig(coast_s=1.0)
+    config = TrackerConfig(loss=LossRule(coast_s=1.0))
     run = Run(seed=2, config=config, sway=0.0)
     start = int(2.0 / VISION_PERIOD)
     for k in range(start + int(3.0 / VISION_PERIOD)):

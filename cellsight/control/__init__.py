@@ -6,8 +6,10 @@
   pose set-points.
 - :class:`Clik` (500 Hz): damped-least-squares closed-loop inverse kinematics with a null-space
   term keeping the joints away from their limits; joint position and velocity limits enforced.
+- :class:`ServoLoop`: the three blocks above wired as in Fig. 7.
 - :class:`GraspTask`: the phases approach, grasp, manipulate, release (:class:`Phase`) driving
-  the three blocks above.
+  the servo loop. A new task (other phases) is a new class beside it; nothing outside this
+  package knows the phases but by their names.
 
 The loop, as the experiment runner drives it (``dt`` = 2 ms, a vision frame every 1/26 s)::
 
@@ -29,7 +31,7 @@ from cellsight.control.planner import (
     grasp_pose_in_part,
     min_jerk,
 )
-from cellsight.control.task import GraspTask, Phase, TaskTiming, TaskTolerances
+from cellsight.control.task import GraspTask, Phase, ServoLoop, TaskTiming, TaskTolerances
 
 __all__ = [
     "Clik",
@@ -39,6 +41,7 @@ __all__ = [
     "PartMotion",
     "Phase",
     "PoseGoal",
+    "ServoLoop",
     "TaskTiming",
     "TaskTolerances",
     "TrajectoryPlanner",

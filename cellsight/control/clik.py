@@ -34,6 +34,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from cellsight.model.robot import Robot
+from cellsight.rates import CONTROL_HZ
 
 Redundancy = Literal["joint_limits", "none"]
 
@@ -94,7 +95,6 @@ class Clik:
         self.null_gain = float(null_gain)
         self.qlim = chain.qlim.copy()
         self._band = limit_margin * (self.qlim[:, 1] - self.qlim[:, 0])
-        self._prismatic = np.array([lk.is_prismatic for lk in chain.links])
         self._R_base_robot = robot.T_base_robot[:3, :3]
         self._T_flange_tcp = robot.tool.T_flange_tool @ robot.tool.T_tool_tcp
         self._damp2 = self.damping**2 * np.eye(6)
@@ -102,17 +102,10 @@ class Clik:
     def tcp_pose_and_jacobian(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """TCP pose in the cell base frame (4x4) and its geometric Jacobian (6, n) in the base
         frame, from one forward-kinematics evaluation."""
-        frames = self.robot.chain.fkine(q)
+        chain = self.robot.chain
+        frames = chain.fkine(q)
         T_robot_tcp = frames[-1] @ self._T_flange_tcp
-        z = frames[:-1, :3, 2].T  # joint axes, (3, n)
-        r = T_robot_tcp[:3, 3, None] - frames[:-1, :3, 3].T  # joint origin -> TCP, (3, n)
-        J = np.empty((6, z.shape[1]))
-        J[0] = z[1] * r[2] - z[2] * r[1]  # z x r, written out: np.cross costs ten times more
-        J[1] = z[2] * r[0] - z[0] * r[2]
-        J[2] = z[0] * r[1] - z[1] * r[0]
-        J[3:] = z
-        J[:3, self._prismatic] = z[:, self._prismatic]
-        J[3:, self._prismatic] = 0.0
+        J = chain.jacobian_at(frames, T_robot_tcp[:3, 3])
         J[:3] = self._R_base_robot @ J[:3]
         J[3:] = self._R_base_robot @ J[3:]
         return self.robot.T_base_robot @ T_robot_tcp, J
@@ -130,7 +123,7 @@ class Clik:
         q: np.ndarray,
         T_target: np.ndarray,
         v_target: np.ndarray | None = None,
-        dt: float = 1 / 500,
+        dt: float = 1 / CONTROL_HZ,
     ) -> np.ndarray:
         """Next joint set-point for the TCP pose ``T_target`` (base frame) moving with the twist
         ``v_target`` = (linear m/s, angular rad/s) in the base frame; ``dt`` in seconds."""

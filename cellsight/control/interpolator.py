@@ -23,6 +23,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from cellsight.control.clik import rotation_error
+from cellsight.rates import CONTROL_HZ
 
 
 class InterpolatingFilter:
@@ -34,7 +35,7 @@ class InterpolatingFilter:
     """
 
     def __init__(self, natural_frequency: float = 10.0, damping: float = 1.0,
-                 dt: float = 1 / 500) -> None:
+                 dt: float = 1 / CONTROL_HZ) -> None:
         if natural_frequency <= 0 or damping <= 0 or dt <= 0:
             raise ValueError(
                 f"InterpolatingFilter: natural_frequency, damping and dt must be positive, got "

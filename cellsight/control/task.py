@@ -90,6 +90,42 @@ class TaskTolerances:
     angle: float = 0.035
 
 
+class ServoLoop:
+    """The servo loop of the paper's Fig. 7 for one robot: the trajectory planner's target at
+    the vision rate, the interpolating filter and the CLIK at the control rate (the
+    interpolator's ``dt``, s). The CLIK integrates its own joint set-point, started from the
+    first measured joints."""
+
+    def __init__(self, robot: Robot, planner: TrajectoryPlanner, clik: Clik,
+                 interpolator: InterpolatingFilter) -> None:
+        self.robot = robot
+        self.planner = planner
+        self.clik = clik
+        self.interpolator = interpolator
+        self.t0 = 0.0
+        self._q: np.ndarray | None = None
+
+    def start(self, t: float, q: np.ndarray) -> None:
+        """At the first call only: start from the measured joints ``q`` at time ``t`` (s)."""
+        if self._q is not None:
+            return
+        self._q = self.robot.chain.check_q(q).copy()
+        self.t0 = float(t)
+        T = self.robot.tcp_pose(self._q)
+        self.planner.reset(t, T)
+        self.interpolator.reset(T)
+
+    def new_target(self, t: float) -> None:
+        """Vision rate: the planner's target at time ``t`` (s) to the interpolating filter."""
+        self.interpolator.set_target(*self.planner.target(t))
+
+    def step(self) -> np.ndarray:
+        """Control rate: the next joint set-point (one filter step, one CLIK step)."""
+        T, twist = self.interpolator.step()
+        self._q = self.clik.step(self._q, T, twist, self.interpolator.dt)
+        return self._q.copy()
+
+
 class GraspTask:
     """Phase machine + servo loop for one robot grasping one workpiece (paper, Section V).
 
@@ -122,10 +158,9 @@ class GraspTask:
         self.approach_height = float(approach_height)
         self.lift_height = float(lift_height)
         self.max_attempts = int(max_attempts)
-        self.planner = planner or TrajectoryPlanner(grasp_pose_in_part(part))
-        self.clik = clik or Clik(robot)
-        self.interpolator = interpolator or InterpolatingFilter()
-        self.dt = self.interpolator.dt
+        self.servo = ServoLoop(robot, planner or TrajectoryPlanner(grasp_pose_in_part(part)),
+                               clik or Clik(robot), interpolator or InterpolatingFilter())
+        self.planner = self.servo.planner
         self.T_home = robot.tcp_pose(robot.home)
         self.T_final = robot.tcp_pose(robot.final)
         self.open_command = robot.tool.max_opening
@@ -135,8 +170,6 @@ class GraspTask:
         self.attempts = 0
         self.transitions: list[tuple[float, Phase, Phase, str]] = []
         self.events: list[tuple[float, Phase, str, str]] = []
-        self._q: np.ndarray | None = None
-        self._t0 = 0.0
         self._gripper = self.open_command
         self._stage_t = 0.0
         self._stable_since: float | None = None
@@ -153,24 +186,22 @@ class GraspTask:
         """Vision-rate update at time ``t``: ``part_pose`` is the estimated ``T_base_part``
         (None when not localised), ``part_velocity`` its optional linear velocity (m/s),
         ``joints_measured`` the robot's joints, ``jaws_closed`` the gripper's jaw sensor."""
-        self._start(t, joints_measured)
+        self.servo.start(t, joints_measured)
         if self.phase in (Phase.WAITING, Phase.APPROACH, Phase.GRASP):
             self.planner.part.update(t, part_pose, part_velocity)
         T_meas = self.robot.tcp_pose(joints_measured)
         self._handlers[self.phase](t, T_meas, bool(jaws_closed))
-        self.interpolator.set_target(*self.planner.target(t))
+        self.servo.new_target(t)
 
     def step_control(self, t: float, q_measured: np.ndarray) -> tuple[np.ndarray, float]:
         """Control-rate step at time ``t``: next joint set-point and gripper opening (m)."""
-        self._start(t, q_measured)
-        T, twist = self.interpolator.step()
-        self._q = self.clik.step(self._q, T, twist, self.dt)
-        return self._q.copy(), self._gripper
+        self.servo.start(t, q_measured)
+        return self.servo.step(), self._gripper
 
     def phase_intervals(self, t_end: float) -> list[tuple[Phase, float, float]]:
         """``(phase, start, end)`` of every phase entered so far, the last one ending at
         ``t_end``."""
-        starts = [(Phase.WAITING, self._t0)] + [(to, t) for t, _, to, _ in self.transitions]
+        starts = [(Phase.WAITING, self.servo.t0)] + [(to, t) for t, _, to, _ in self.transitions]
         ends = [t for _, t in starts[1:]] + [t_end]
         return [(phase, t0, t1) for (phase, t0), t1 in zip(starts, ends, strict=True)]
 
@@ -258,15 +289,6 @@ class GraspTask:
             self._set_stage(t, "hold", f"HOME {note}; task failed")
 
     # ---- helpers -----------------------------------------------------------------------------
-
-    def _start(self, t: float, q: np.ndarray) -> None:
-        if self._q is not None:
-            return
-        self._q = self.robot.chain.check_q(q).copy()
-        self._t0 = float(t)
-        T = self.robot.tcp_pose(self._q)
-        self.planner.reset(t, T)
-        self.interpolator.reset(T)
 
     def _over(self, t: float, duration: float) -> None:
         self._stable_since = None

@@ -43,14 +43,14 @@ class PolygonSoup:
     """Planar polygons in flat arrays, with their planes and bounds.
 
     Attributes: ``vertices`` (V, 3) float64, ``offsets`` (P+1,) int64, ``normals`` (P, 3) unit,
-    ``d`` (P,), ``owners`` (P,) int32 (the caller's object id of each polygon), ``planes``
+    ``d`` (P,), ``planes``
     (P, 4) = ``[normals | d]``, ``boxes`` (P, 6) axis-aligned bounds ``(min xyz, max xyz)``,
     ``spheres`` (P, 4) bounding spheres (vertex mean, radius), ``areas`` (P,), ``deviations``
     (P,) largest vertex distance from the plane, and ``eps``, the plane thickness (module doc).
     Build with :meth:`from_polygons` (checked) or :meth:`from_arrays` (hot path).
     """
 
-    def __init__(self, vertices: np.ndarray, offsets: np.ndarray, owners: np.ndarray) -> None:
+    def __init__(self, vertices: np.ndarray, offsets: np.ndarray) -> None:
         planes, boxes, spheres, areas, deviations, scale, status, where = polygon_planes(
             vertices, offsets
         )
@@ -58,7 +58,6 @@ class PolygonSoup:
             raise GeometryError(_status_message(status, where, vertices, offsets))
         self.vertices = vertices
         self.offsets = offsets
-        self.owners = owners
         self.planes = planes
         self.normals = planes[:, :3]
         self.d = planes[:, 3]
@@ -73,14 +72,12 @@ class PolygonSoup:
         return self.offsets.shape[0] - 1
 
     @classmethod
-    def from_arrays(
-        cls, vertices: np.ndarray, offsets: np.ndarray, owners: np.ndarray | None = None
-    ) -> PolygonSoup:
+    def from_arrays(cls, vertices: np.ndarray, offsets: np.ndarray) -> PolygonSoup:
         """Soup from flat arrays, without geometric validation (the per-frame hot path).
 
         Planes come from one compiled pass. Only what would corrupt the tree is rejected
         (inconsistent offsets, fewer than 3 vertices, non-finite or zero-area polygons), with
-        a :class:`GeometryError` naming the polygon. ``owners`` defaults to ``arange(P)``.
+        a :class:`GeometryError` naming the polygon.
         """
         vertices = np.ascontiguousarray(vertices, dtype=np.float64)
         offsets = np.ascontiguousarray(offsets, dtype=np.int64)
@@ -89,13 +86,12 @@ class PolygonSoup:
                 f"expected vertices (V, 3) and offsets (P+1,), got shapes {vertices.shape} "
                 f"and {offsets.shape}"
             )
-        return cls(vertices, offsets, _owners(owners, offsets.size - 1))
+        return cls(vertices, offsets)
 
     @classmethod
     def from_polygons(
         cls,
         polygons: Sequence[np.ndarray],
-        owners: Sequence[int] | np.ndarray | None = None,
         validate: bool = True,
     ) -> PolygonSoup:
         """Soup from a sequence of (k_i, 3) vertex arrays, checked when ``validate``.
@@ -110,7 +106,7 @@ class PolygonSoup:
         offsets = np.zeros(len(arrays) + 1, dtype=np.int64)
         np.cumsum(counts, out=offsets[1:])
         vertices = np.concatenate(arrays) if arrays else np.zeros((0, 3))
-        soup = cls(vertices, offsets, _owners(owners, len(arrays)))
+        soup = cls(vertices, offsets)
         if validate:
             soup._validate()
         return soup
@@ -151,16 +147,6 @@ def _polygon_array(i: int, polygon: np.ndarray) -> np.ndarray:
         raise GeometryError(f"polygon {i}: expected a (k, 3) vertex array, got shape {array.shape}")
     if array.shape[0] < 3:
         raise GeometryError(f"polygon {i} has {array.shape[0]} vertices; at least 3 are needed")
-    return array
-
-
-def _owners(owners: Sequence[int] | np.ndarray | None, n_poly: int) -> np.ndarray:
-    """Owner ids as int32 (P,), ``arange(P)`` by default."""
-    if owners is None:
-        return np.arange(n_poly, dtype=np.int32)
-    array = np.asarray(owners, dtype=np.int32)
-    if array.shape != (n_poly,):
-        raise GeometryError(f"owners: expected shape ({n_poly},), got {array.shape}")
     return array
 
 

@@ -1,14 +1,20 @@
 """Visual tracking of the workpieces (paper, Section IV and Fig. 5).
 
-EKF per workpiece (:mod:`.motion`, :mod:`.measurement`, :mod:`.ekf`), PnP initialisation and
-baseline (:mod:`.pnp`), optimal feature selection (:mod:`.selection`), image windows
-(:mod:`.windowing`), sub-pixel corner extraction (:mod:`.extraction`) and the closed loop with
-the occlusion predictor (:mod:`.tracker`).
+EKF per workpiece (:mod:`.motion`, :mod:`.measurement`, :mod:`.ekf`) with its gate
+(:mod:`.gate`), PnP (:mod:`.pnp`) for acquisition (:mod:`.acquisition`) and as a baseline,
+loss and coasting (:mod:`.loss`), usable features (:mod:`.eligibility`), optimal feature
+selection (:mod:`.selection`), image windows (:mod:`.windowing`), sub-pixel corner extraction
+(:mod:`.extraction`); the tracker (:mod:`.tracker`) only wires them, with the occlusion
+predictor, into the paper's loop; it reports :mod:`.records` with a :mod:`.status` and
+:mod:`.timing` per stage.
 """
 
+from cellsight.tracking.acquisition import PnPAcquisition
 from cellsight.tracking.ekf import AdaptiveNoise, PoseEKF, UpdateReport
 from cellsight.tracking.extraction import CornerExtractor, ExtractionConfig, extract_corner
-from cellsight.tracking.measurement import Observation, PinholeMeasurement, undistort_pixels
+from cellsight.tracking.gate import ChiSquareGate
+from cellsight.tracking.loss import LossRule
+from cellsight.tracking.measurement import Observation, PinholeMeasurement
 from cellsight.tracking.motion import ConstantVelocity
 from cellsight.tracking.pnp import (
     PoseFix,
@@ -17,23 +23,30 @@ from cellsight.tracking.pnp import (
     refine_pose,
     solve_pnp_camera,
 )
+from cellsight.tracking.records import PartFrame, TrackerFrame
 from cellsight.tracking.selection import (
     Selection,
     SelectionConfig,
     select_features,
     selection_quality,
 )
-from cellsight.tracking.tracker import PartFrame, Tracker, TrackerConfig, TrackerFrame
+from cellsight.tracking.status import TrackStatus
+from cellsight.tracking.timing import STAGES
+from cellsight.tracking.tracker import Tracker, TrackerConfig
 from cellsight.tracking.windowing import WindowConfig, WindowPlan, plan_windows
 
 __all__ = [
+    "STAGES",
     "AdaptiveNoise",
+    "ChiSquareGate",
     "ConstantVelocity",
     "CornerExtractor",
     "ExtractionConfig",
+    "LossRule",
     "Observation",
     "PartFrame",
     "PinholeMeasurement",
+    "PnPAcquisition",
     "PoseEKF",
     "PoseFix",
     "Selection",
@@ -41,6 +54,7 @@ __all__ = [
     "Tracker",
     "TrackerConfig",
     "TrackerFrame",
+    "TrackStatus",
     "UpdateReport",
     "WindowConfig",
     "WindowPlan",
@@ -52,5 +66,4 @@ __all__ = [
     "select_features",
     "selection_quality",
     "solve_pnp_camera",
-    "undistort_pixels",
 ]

@@ -8,9 +8,8 @@ Recursion, per vision frame:
 * predict: ``w- = A w``, ``P- = A P A^T + Q`` (a frame without measurement stops here);
 * innovation of feature ``j`` in camera ``c``: ``nu_j = z_j - h_j(w-)`` (2,), with covariance
   ``S_j = C_j P- C_j^T + sigma_c^2 I`` (2x2);
-* gating (beyond the paper): ``d_j^2 = nu_j^T S_j^-1 nu_j``; a feature with ``d_j^2`` above the
-  chi-square quantile with 2 degrees of freedom at ``gate_probability`` is rejected (an outlier:
-  a wrong corner, an unpredicted occlusion) and reported;
+* gating (beyond the paper, :mod:`cellsight.tracking.gate`): ``d_j^2 = nu_j^T S_j^-1 nu_j``;
+  a feature the gate rejects (a wrong corner, an unpredicted occlusion) is reported, not used;
 * update with the accepted features stacked: ``S = C P- C^T + R``, ``K = P- C^T S^-1``,
   ``w = w- + K nu`` and the Joseph form ``P = (I - K C) P- (I - K C)^T + K R K^T``;
   roll and yaw are wrapped to ``[-pi, pi)``.
@@ -31,9 +30,9 @@ from dataclasses import dataclass, field
 
 import numba
 import numpy as np
-from scipy.stats import chi2
 
 from cellsight.geometry.transforms import make_pose, xyz_rpy_from_pose
+from cellsight.tracking.gate import ChiSquareGate, mahalanobis2
 from cellsight.tracking.measurement import Observation, PinholeMeasurement, rotation_of_state
 from cellsight.tracking.motion import POSE_DIM, STATE_DIM, ConstantVelocity
 
@@ -96,9 +95,8 @@ class AdaptiveNoise:
 class PoseEKF:
     """EKF of one workpiece: constant-velocity motion, stacked pinhole measurements.
 
-    ``state`` (12,) and ``covariance`` (12x12) at time ``t`` (s). ``gate_probability`` sets the
-    per-feature chi-square gate (None disables gating). ``adaptive`` enables the per-camera noise
-    estimate.
+    ``state`` (12,) and ``covariance`` (12x12) at time ``t`` (s). ``adaptive`` enables the
+    per-camera noise estimate. The gate is the caller's (:meth:`update`).
     """
 
     def __init__(
@@ -107,7 +105,6 @@ class PoseEKF:
         state: np.ndarray,
         covariance: np.ndarray,
         t: float,
-        gate_probability: float | None = 0.999,
         adaptive: AdaptiveNoise | None = None,
     ) -> None:
         state = np.asarray(state, dtype=float)
@@ -117,13 +114,10 @@ class PoseEKF:
                 f"PoseEKF: state must be (12,) and covariance (12, 12), got {state.shape} and "
                 f"{covariance.shape}"
             )
-        if gate_probability is not None and not 0 < gate_probability < 1:
-            raise ValueError(f"PoseEKF: gate_probability must be in (0, 1), got {gate_probability}")
         self.motion = motion
         self.state = state.copy()
         self.covariance = covariance.copy()
         self.t = float(t)
-        self.gate = np.inf if gate_probability is None else float(chi2.ppf(gate_probability, 2))
         self.adaptive = adaptive
         self._transition: tuple[float, np.ndarray, np.ndarray] | None = None
 
@@ -179,8 +173,11 @@ class PoseEKF:
         sigma2 = np.full(len(pixels), self.sigma_px(model, camera_index) ** 2)
         return pixels, _blocks(H, self.covariance, sigma2)
 
-    def update(self, observations: list[Observation]) -> UpdateReport:
-        """Gate and fuse the observations of all cameras in one Joseph-form update.
+    def update(
+        self, observations: list[Observation], gate: ChiSquareGate | None = None
+    ) -> UpdateReport:
+        """Gate the observations of all cameras, then fuse the accepted features in one
+        Joseph-form update. ``gate`` None accepts every feature.
 
         An empty list (or one where every feature is gated out) leaves the prediction unchanged.
         """
@@ -201,17 +198,18 @@ class PoseEKF:
         if not nus:
             empty = np.zeros(0, dtype=int)
             return UpdateReport(empty, empty, np.zeros((0, 2)), np.zeros(0), np.zeros(0, bool), {})
-        cam = np.concatenate(cams)
-        nu = np.concatenate(nus)
-        state, P_new, d2, accepted, trace = _gated_update(
-            self.state, self.covariance, np.concatenate(Hs), nu, np.concatenate(s2), self.gate
-        )
+        cam, nu, H, sigma2 = (np.concatenate(x) for x in (cams, nus, Hs, s2))
+        S = _blocks(H, self.covariance, sigma2)
+        d2 = mahalanobis2(nu, S)
+        accepted = np.ones(len(d2), dtype=bool) if gate is None else gate.accepts(d2)
         report = UpdateReport(cam, np.concatenate(ids), nu, d2, accepted, sig)
         if self.adaptive is not None:
+            trace = S[:, 0, 0] + S[:, 1, 1] - 2 * sigma2  # tr(C_j P C_j^T)
             for c in np.unique(cam):
                 rows = cam == c
                 self.adaptive.add(int(c), nu[rows], trace[rows])
         if accepted.any():
+            state, P_new = _joseph_update(self.state, self.covariance, H, nu, sigma2, accepted)
             for i in (3, 5):  # roll and yaw to [-pi, pi)
                 state[i] = (state[i] + np.pi) % (2 * np.pi) - np.pi
             self.state, self.covariance = state, P_new
@@ -234,30 +232,15 @@ def _blocks(H, P, sigma2):
 
 
 @numba.njit(cache=True)
-def _gated_update(x, P, H, nu, sigma2, gate):
-    """Gate each feature on ``d^2 = nu^T S_j^-1 nu`` and update with the accepted ones (Joseph
-    form). Returns the new state and covariance, ``d^2``, the accepted mask and the traces of
-    ``C_j P C_j^T``."""
-    m = len(nu)
-    S = _blocks(H, P, sigma2)
-    d2 = np.empty(m)
-    trace = np.empty(m)
-    accepted = np.zeros(m, dtype=np.bool_)
-    n_acc = 0
-    for j in range(m):
-        a, b, c = S[j, 0, 0], S[j, 0, 1], S[j, 1, 1]
-        det = a * c - b * b
-        d2[j] = (c * nu[j, 0] ** 2 - 2 * b * nu[j, 0] * nu[j, 1] + a * nu[j, 1] ** 2) / det
-        trace[j] = a + c - 2 * sigma2[j]
-        accepted[j] = d2[j] <= gate
-        n_acc += accepted[j]
-    if n_acc == 0:
-        return x.copy(), P.copy(), d2, accepted, trace
+def _joseph_update(x, P, H, nu, sigma2, accepted):
+    """State and covariance updated with the accepted features' rows of ``H`` (2m, 12),
+    innovations ``nu`` (m, 2) and pixel variances ``sigma2`` (m,): Joseph form."""
+    n_acc = int(accepted.sum())
     rows = np.empty(2 * n_acc, dtype=np.int64)
     r = np.empty(2 * n_acc)
     z = np.empty(2 * n_acc)
     i = 0
-    for j in range(m):
+    for j in range(len(nu)):
         if accepted[j]:
             for a in range(2):
                 rows[i] = 2 * j + a
@@ -273,4 +256,4 @@ def _gated_update(x, P, H, nu, sigma2, gate):
     x_new = x + K @ z
     IKH = np.eye(len(x)) - K @ Ha
     P_new = IKH @ P @ IKH.T + (K * r) @ K.T
-    return x_new, 0.5 * (P_new + P_new.T), d2, accepted, trace
+    return x_new, 0.5 * (P_new + P_new.T)

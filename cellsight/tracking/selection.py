@@ -153,9 +153,26 @@ def _indexes(px, members, n):
 
 
 @numba.njit(cache=True)
+def _spread_index(spread, radius):
+    """``Q_s = min(1, spread / r_c)`` (0 for a camera without spread to normalise by)."""
+    return min(1.0, spread / radius) if radius > 0 else 0.0
+
+
+@numba.njit(cache=True)
+def _balance(counts, weights, eligible, k):
+    """``Q_b = 1 - sum_{eligible c} |n_c - k w_c| / (2 k)`` (0 when ``k`` is 0)."""
+    dev = 0.0
+    for c in range(len(counts)):
+        if eligible[c]:
+            dev += abs(counts[c] - k * weights[c])
+    return 1.0 - dev / (2.0 * k) if k else 0.0
+
+
+@numba.njit(cache=True)
 def _quality(px, members, n, radius):
+    """``Q_c = Q_s Q_a`` of the points ``px[members[:n]]``."""
     spread, qa = _indexes(px, members, n)
-    return min(1.0, spread / radius) * qa if radius > 0 else 0.0
+    return _spread_index(spread, radius) * qa
 
 
 @numba.njit(cache=True)
@@ -315,15 +332,13 @@ def _best_counts(est, done, weights, eligible, k, m_min, slack):
     while True:  # odometer
         total = 0
         num = 0.0
-        dev = 0.0
         for c in range(C):
             total += counts[c]
             if eligible[c]:
                 e = est[c, counts[c]]
                 num += weights[c] * (e if done[c, counts[c]] else min(1.0, e * (1.0 + slack)))
-                dev += abs(counts[c] - k * weights[c])
         if total == k:
-            J = num * (1.0 - dev / (2.0 * k))
+            J = num * _balance(counts, weights, eligible, k)
             if J > best_j:
                 best_j = J
                 best_counts[:] = counts
@@ -385,7 +400,7 @@ def _final_indexes(pixels, selected, radius):
                 members[n] = f
                 n += 1
         spread, qa[c] = _indexes(pixels[c], members, n)
-        qs[c] = min(1.0, spread / radius[c]) if radius[c] > 0 else 0.0
+        qs[c] = _spread_index(spread, radius[c])
     return qs, qa
 
 
@@ -494,10 +509,9 @@ def select_features(
             pixels, visible, rho, cfg.max_points, *args)
     qs, qa = _final_indexes(pixels, selected, radius)
     counts = selected.sum(axis=1)
-    targets = k * weights
-    balance = 1.0 - float(np.abs(counts - targets)[eligible].sum()) / (2.0 * k) if k else 0.0
+    balance = _balance(counts, weights, eligible, k)
     return Selection(
-        selected, float(quality), qs, qa, balance, counts, targets, not bool(eligible.any())
+        selected, float(quality), qs, qa, balance, counts, k * weights, not bool(eligible.any())
     )
 
 
@@ -522,5 +536,4 @@ def selection_quality(
     if k == 0 or np.any(selected & ~visible) or bad_count.any():
         return -np.inf
     qs, qa = _final_indexes(pixels, selected, radius)
-    balance = 1.0 - float(np.abs(counts - k * weights)[eligible].sum()) / (2.0 * k)
-    return float(np.sum(weights * qs * qa) * balance)
+    return float(np.sum(weights * qs * qa) * _balance(counts, weights, eligible, k))

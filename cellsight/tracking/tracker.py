@@ -1,165 +1,103 @@
 """The closed visual tracking loop of the paper's Fig. 5, one :meth:`Tracker.step` per frame.
 
-Per vision frame and workpiece: EKF prediction -> occlusion prediction at the predicted pose
-(BSP, :class:`VisibilitySource`) -> optimal selection -> windows -> feature extraction in the
-windows (:class:`Extractor`) -> EKF update. The predicted pose of every tracked workpiece goes
-to the occlusion predictor, so parts can hide each other.
+The tracker only wires its parts, each in its own module:
 
-Acquisition (a part not tracked yet, or lost): the occlusion predictor runs at a guess of the
-pose (the cell's nominal pose of the part, or the last prediction of a lost part); every
-predicted-visible feature gets a fixed-size window (``acquisition_window_px``); the corners
-found there give a fused multi-camera PnP that drops up to three wrong corners
-(:func:`~cellsight.tracking.pnp.estimate_pose_robust`); the filter starts from it when its RMS
-reprojection error is below ``acquisition_max_rms_px``.
-A part is *lost* after ``lost_after_s`` seconds without an accepted measurement; until then
-frames without measurements only predict. The prediction coasts at most ``coast_s`` seconds
-after the last accepted measurement, then stops (the last velocity would carry the pose away
-for ever): a part that left the views is looked for where it was last predicted.
+1. motion model (:mod:`.motion`; or the holder's measured motion with the kinematic prior)
+   predicts every tracked part (:class:`~cellsight.tracking.ekf.PoseEKF`), within the
+   :class:`~cellsight.tracking.loss.LossRule`'s coasting time;
+2. the visibility source (:class:`cellsight.visibility.VisibilitySource`: the BSP predictor)
+   predicts, at the predicted poses, which features each camera sees; every tracked part is
+   passed, so parts can hide each other;
+3. per part: a part not tracked yet, or lost, is acquired (:mod:`.acquisition`); otherwise
+   the usable features (:mod:`.eligibility`) are selected (:mod:`.selection`), windows are
+   planned around them (:mod:`.windowing`), the extractor finds them in the images
+   (:mod:`.extraction`), the gate (:mod:`.gate`) screens the innovations and the EKF updates
+   with the accepted ones (:mod:`.measurement`, :mod:`.ekf`).
 
-Selection and acquisition skip the features that the predictor flags ``near_occluder`` (next
-to another object's silhouette, where the image corner is a junction a few pixels off), and
-keep them out for ``near_occluder_hold_s`` after the last flag.
-
-Measured pixels are as in the image (distorted); they are undistorted before the update.
+Measured pixels are as in the image (distorted); the camera undistorts them before the update.
+Stage times: :mod:`.timing`; statuses: :mod:`.status`; records: :mod:`.records`.
 """
 
 from __future__ import annotations
 
-import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, replace
-from typing import Any, Protocol
+from typing import Any
 
 import numpy as np
 
 from cellsight.camera import Camera
 from cellsight.geometry.transforms import invert_pose, xyz_rpy_from_pose
+from cellsight.tracking.acquisition import PnPAcquisition
 from cellsight.tracking.ekf import AdaptiveNoise, PoseEKF
+from cellsight.tracking.eligibility import NearOccluderHold
 from cellsight.tracking.extraction import CornerExtractor
-from cellsight.tracking.measurement import Observation, PinholeMeasurement, undistort_pixels
-from cellsight.tracking.motion import POSE_DIM, STATE_DIM, ConstantVelocity
-from cellsight.tracking.pnp import estimate_pose_robust
-from cellsight.tracking.selection import Selection, SelectionConfig, select_features
-from cellsight.tracking.windowing import WindowConfig, WindowPlan, plan_windows
-
-STAGES = ("predict", "occlusion", "selection", "windowing", "extraction", "update", "total")
-
-
-class CameraVisibilityLike(Protocol):
-    """What the tracker reads from the occlusion predictor for one part in one camera:
-    ``visible`` (F,) bool, ``pixels`` (F, 2) predicted, ``near_occluder`` (F,) bool: visible
-    but next to another object's silhouette (never selected: its image corner is a junction
-    with that silhouette)."""
-
-    visible: np.ndarray
-    pixels: np.ndarray
-    near_occluder: np.ndarray
-
-
-class VisibilitySource(Protocol):
-    """The occlusion predictor (e.g. :class:`cellsight.occlusion.predictor.VisibilityPredictor`):
-    workpiece name -> one visibility per camera, in the tracker's camera order."""
-
-    def predict(
-        self, joints: Mapping[str, np.ndarray] | None, part_poses: Mapping[str, np.ndarray]
-    ) -> Mapping[str, Sequence[CameraVisibilityLike]]: ...
-
-
-class Extractor(Protocol):
-    """Finds the features in one camera's image windows: feature index -> pixel (2,)."""
-
-    def extract(self, camera_index: int, image: Any, plan: WindowPlan) -> dict[int, np.ndarray]: ...
+from cellsight.tracking.gate import ChiSquareGate
+from cellsight.tracking.interfaces import Extractor, MeasurementModel
+from cellsight.tracking.loss import LossRule
+from cellsight.tracking.measurement import Observation, PinholeMeasurement
+from cellsight.tracking.motion import POSE_DIM, ConstantVelocity
+from cellsight.tracking.records import PartFrame, TrackerFrame
+from cellsight.tracking.selection import SelectionConfig, select_features
+from cellsight.tracking.status import TrackStatus
+from cellsight.tracking.timing import StageTimer
+from cellsight.tracking.windowing import WindowConfig, plan_windows
+from cellsight.visibility import CameraVisibility, Views, VisibilitySource
 
 
 @dataclass(frozen=True)
 class TrackerConfig:
-    """Tracking parameters. Units: s, px, m/s, rad/s.
+    """The tracker's parts and parameters. Units: s, px, m^2/s, rad^2/s.
 
-    ``init_velocity_std`` (linear, angular) is the velocity uncertainty at (re)initialisation;
-    ``init_pose_inflation`` multiplies the PnP covariance used as the initial pose covariance.
-    ``carried_noise`` (m^2/s, rad^2/s): random-walk densities of a held part's pose relative to
-    its holder, with the kinematic prior (``holders`` in :meth:`Tracker.step`).
-    ``near_occluder_hold_s`` (s): how long a feature stays unselectable after it was last
-    flagged ``near_occluder``.
+    ``sigma_px``: pixel noise of the measurement model; ``gate``: None accepts every
+    measurement; ``carried_noise``: random-walk densities of a held part's pose relative to its
+    holder, with the kinematic prior (``holders`` in :meth:`Tracker.step`);
+    ``near_occluder_hold_s``: how long a feature stays unusable after it was last flagged
+    ``near_occluder``; ``measurement``: builds a camera's measurement model from the camera and
+    ``sigma_px``.
     """
 
     motion: ConstantVelocity = ConstantVelocity()
     sigma_px: float = 0.5
-    gate_probability: float | None = 0.999
     adaptive_noise: bool = False
+    gate: ChiSquareGate | None = ChiSquareGate(0.999)
     selection: SelectionConfig = SelectionConfig()
     windows: WindowConfig = WindowConfig()
-    acquisition_window_px: float = 64.0
-    acquisition_max_rms_px: float = 2.0
-    init_velocity_std: tuple[float, float] = (0.2, 0.5)
-    init_pose_inflation: float = 4.0
-    lost_after_s: float = 2.0
-    coast_s: float = 4.0
+    acquisition: PnPAcquisition = PnPAcquisition()
+    loss: LossRule = LossRule()
     carried_noise: tuple[float, float] = (1e-6, 1e-5)
     near_occluder_hold_s: float = 0.5
-
-
-@dataclass
-class PartFrame:
-    """What happened to one workpiece in one frame (C cameras, F features).
-
-    ``status``: 'waiting' (not acquired), 'acquired' (initialised this frame by PnP),
-    'tracking' (updated), 'predicting' (no accepted measurement: prediction only) or 'lost'.
-    ``visible``/``pixels``: occlusion prediction at the predicted (or guessed) pose;
-    ``near_occluder``: visible but next to another object's silhouette (not selectable);
-    ``selected``: features whose windows were planned; ``windows``: one plan per camera;
-    ``measured``: extracted pixels (NaN where none); ``innovation`` (px), ``mahalanobis2`` and
-    ``rejected`` (gated out); ``state``/``covariance``/``T_base_part`` after the update
-    (None while waiting); ``predicted_state`` before it.
-    """
-
-    name: str
-    status: str
-    visible: np.ndarray
-    pixels: np.ndarray
-    near_occluder: np.ndarray
-    selected: np.ndarray
-    selection: Selection | None
-    windows: list[WindowPlan | None]
-    measured: np.ndarray
-    innovation: np.ndarray
-    mahalanobis2: np.ndarray
-    rejected: np.ndarray
-    predicted_state: np.ndarray | None
-    state: np.ndarray | None
-    covariance: np.ndarray | None
-    T_base_part: np.ndarray | None
-
-
-@dataclass
-class TrackerFrame:
-    """One :meth:`Tracker.step`: time (s), per-part records, stage times (s) and the fraction
-    of each camera's pixels grabbed."""
-
-    t: float
-    parts: dict[str, PartFrame]
-    timings: dict[str, float]
-    grabbed_fraction: np.ndarray
+    measurement: Callable[[Camera, float], MeasurementModel] = PinholeMeasurement
 
 
 @dataclass
 class _Track:
+    """One workpiece's track: feature points (F, 3) in the part frame, the acquisition guess,
+    the filter, the last accepted measurement's time (s) and the holder's pose last frame."""
+
     points: np.ndarray
     guess: np.ndarray | None
+    hold: NearOccluderHold
     ekf: PoseEKF | None = None
     last_update: float = -np.inf
     lost: bool = False
-    holder: np.ndarray | None = None  # T_base_holder at the last frame, while held
-    near_at: np.ndarray | None = None  # (C, F) time (s) each feature was last near an occluder
+    holder: np.ndarray | None = None
+
+    def empty_record(self, name: str, status: TrackStatus, n_cameras: int) -> PartFrame:
+        ekf = self.ekf
+        return PartFrame.empty(name, status, n_cameras, len(self.points),
+                               None if ekf is None else ekf.state,
+                               None if ekf is None else ekf.covariance,
+                               None if ekf is None else ekf.pose)
 
 
 class Tracker:
     """Occlusion-aware multi-camera tracker of one or more workpieces (module docstring).
 
-    ``cameras`` in the order the predictor reports them; ``parts``: workpiece name -> feature
-    points (F, 3) in the part frame (m); ``initial_poses``: name -> guessed ``T_base_part`` for
-    acquisition (a part without one waits for :meth:`initialise`). ``extractor`` defaults to
-    :class:`~cellsight.tracking.extraction.CornerExtractor`.
+    ``cameras`` in the order the visibility source reports them; ``parts``: workpiece name ->
+    feature points (F, 3) in the part frame (m); ``initial_poses``: name -> guessed
+    ``T_base_part`` for acquisition (a part without one waits for :meth:`initialise`).
+    ``extractor`` defaults to :class:`~cellsight.tracking.extraction.CornerExtractor`.
     """
 
     def __init__(
@@ -173,15 +111,15 @@ class Tracker:
     ) -> None:
         self.config = config or TrackerConfig()
         self.cameras = list(cameras)
-        self.models = [PinholeMeasurement(c, self.config.sigma_px) for c in self.cameras]
         self.predictor = predictor
         self.extractor = extractor or CornerExtractor()
+        self._models = [self.config.measurement(c, self.config.sigma_px) for c in self.cameras]
         guesses = dict(initial_poses or {})
         self.tracks = {
-            name: _Track(np.asarray(pts, dtype=float).reshape(-1, 3), guesses.get(name))
+            name: _Track(np.asarray(pts, dtype=float).reshape(-1, 3), guesses.get(name),
+                         NearOccluderHold(self.config.near_occluder_hold_s))
             for name, pts in parts.items()
         }
-        self.history: list[TrackerFrame] = []
 
     @classmethod
     def from_cell(
@@ -207,196 +145,107 @@ class Tracker:
     ) -> None:
         """Start (or restart) the filter of a part at a known pose, zero velocity.
 
-        ``covariance`` (12x12) defaults to 5 mm / 0.05 rad on the pose and the configured
+        ``covariance`` (12x12) defaults to 5 mm / 0.05 rad on the pose and the acquisition's
         velocity uncertainty.
         """
         if covariance is None:
-            covariance = self._initial_covariance(np.diag([0.005**2] * 3 + [0.05**2] * 3))
+            covariance = self.config.acquisition.covariance(
+                np.diag([0.005**2] * 3 + [0.05**2] * 3))
         track = self.tracks[name]
         xyz, rpy = xyz_rpy_from_pose(np.asarray(T_base_part, dtype=float))
         state = np.concatenate([xyz, rpy, np.zeros(POSE_DIM)])
-        cfg = self.config
-        adaptive = AdaptiveNoise() if cfg.adaptive_noise else None
-        track.ekf = PoseEKF(cfg.motion, state, covariance, t, cfg.gate_probability, adaptive)
+        adaptive = AdaptiveNoise() if self.config.adaptive_noise else None
+        track.ekf = PoseEKF(self.config.motion, state, covariance, t, adaptive)
         track.last_update = float(t)
         track.lost = False
 
-    def _initial_covariance(self, pose_cov: np.ndarray) -> np.ndarray:
-        P = np.zeros((STATE_DIM, STATE_DIM))
-        P[:POSE_DIM, :POSE_DIM] = pose_cov
-        lin, ang = self.config.init_velocity_std
-        P[POSE_DIM:, POSE_DIM:] = np.diag([lin**2] * 3 + [ang**2] * 3)
-        return P
-
-    def _image(self, images: Any, c: int) -> Any:
-        if images is None:
-            return None
-        if isinstance(images, Mapping):
-            return images.get(self.cameras[c].name)
-        return images[c] if c < len(images) else None
-
     def step(
-        self, images: Any, joints: Mapping[str, np.ndarray] | None, t: float,
+        self,
+        images: Any,
+        joints: Mapping[str, np.ndarray] | None,
+        t: float,
+        openings: Mapping[str, float] | None = None,
         holders: Mapping[str, np.ndarray] | None = None,
     ) -> TrackerFrame:
-        """Process one vision frame at time ``t`` (s).
+        """Process one vision frame at time ``t`` (s): the paper's Fig. 5 (module docstring).
 
         ``images``: one image per camera (sequence in camera order, or mapping by camera name;
         None for a missing image), passed to the extractor; ``joints``: robot name -> joint
-        vector for the occlusion predictor; ``holders`` (the kinematic prior, optional): part
-        name -> measured pose ``T_base_holder`` of what holds the part rigidly (a gripper's
-        TCP from the joint measurements) this frame; a part held at this frame and the last
-        one is predicted by the holder's motion (:meth:`PoseEKF.predict_carried`) instead of
-        the constant-velocity model.
+        vector (m, rad) and ``openings``: robot name -> jaw opening (m), for the visibility
+        source; ``holders`` (the kinematic prior, optional): part name -> measured pose
+        ``T_base_holder`` of what holds the part rigidly this frame (a gripper's TCP from the
+        joint measurements); a part held at this frame and the last one is predicted by the
+        holder's motion (:meth:`PoseEKF.predict_carried`) instead of its motion model.
         """
-        timings = dict.fromkeys(STAGES, 0.0)
-        t_start = time.perf_counter()
-        C = len(self.cameras)
+        timer = StageTimer()
+        with timer("total"):
+            with timer("ekf"):
+                poses = self._predict(t, holders or {})
+            with timer("occlusion"):
+                views = self.predictor.predict(joints, poses, openings) if poses else {}
+            crowd = _visible_pixels(views, len(self.cameras))
+            records = {name: self._part(name, track, views.get(name), crowd, images, t, timer)
+                       for name, track in self.tracks.items()}
+        grabbed = np.zeros(len(self.cameras))
+        for rec in records.values():
+            for c, plan in enumerate(rec.windows):
+                if plan is not None:
+                    grabbed[c] += plan.fraction
+        return TrackerFrame(float(t), records, timer.seconds, grabbed)
+
+    def _predict(self, t: float, holders: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
+        """Predict every tracked part to time ``t``; the pose each is looked for at (the
+        prediction, or the acquisition guess of a part never acquired)."""
         poses = {}
-        tic = time.perf_counter()
+        loss = self.config.loss
         for name, track in self.tracks.items():
-            holder = (holders or {}).get(name)
+            holder = holders.get(name)
             if track.ekf is not None:
                 if holder is not None and track.holder is not None:
                     track.ekf.predict_carried(t, holder @ invert_pose(track.holder),
                                               self.config.carried_noise)
-                elif t - track.last_update <= self.config.coast_s:
+                elif loss.coasts(t, track.last_update):
                     track.ekf.predict(t)
-                track.lost = t - track.last_update > self.config.lost_after_s
+                track.lost = loss.lost(t, track.last_update)
                 poses[name] = track.ekf.pose
             elif track.guess is not None:
                 poses[name] = track.guess
             track.holder = None if holder is None else np.asarray(holder, dtype=float)
-        timings["predict"] = time.perf_counter() - tic
-        tic = time.perf_counter()
-        vis = self.predictor.predict(joints, poses) if poses else {}
-        timings["occlusion"] = time.perf_counter() - tic
-        all_visible = self._visible_pixels(vis)
-        grabbed = np.zeros(C)
-        records = {}
-        for name, track in self.tracks.items():
-            if name not in vis:
-                records[name] = self._empty(name, track, "waiting")
-                continue
-            if track.ekf is None or track.lost:
-                rec = self._acquire(name, track, vis[name], all_visible, images, t, timings)
-            else:
-                rec = self._track(name, track, vis[name], all_visible, images, timings)
-            for c, plan in enumerate(rec.windows):
-                if plan is not None:
-                    grabbed[c] += plan.fraction
-            records[name] = rec
-        timings["total"] = time.perf_counter() - t_start
-        frame = TrackerFrame(float(t), records, timings, grabbed)
-        self.history.append(frame)
-        return frame
+        return poses
 
-    def _visible_pixels(self, vis: Mapping[str, Sequence[CameraVisibilityLike]]):
-        """Per camera: (M, 2) predicted pixels of every visible feature of every part, and the
-        row offset of each part."""
-        out = []
-        for c in range(len(self.cameras)):
-            rows, offsets, start = [], {}, 0
-            for name, per_cam in vis.items():
-                v = per_cam[c]
-                idx = np.flatnonzero(v.visible)
-                offsets[name] = (start, idx)
-                rows.append(np.asarray(v.pixels, dtype=float)[idx])
-                start += len(idx)
-            out.append((np.concatenate(rows) if rows else np.zeros((0, 2)), offsets))
-        return out
+    def _part(self, name: str, track: _Track, views: list[CameraVisibility] | None,
+              crowd, images: Any, t: float, timer: StageTimer) -> PartFrame:
+        """One part's record this frame: waiting, acquired/lost, or tracked."""
+        C = len(self.cameras)
+        if views is None:
+            return track.empty_record(name, TrackStatus.WAITING, C)
+        if track.ekf is None or track.lost:
+            status = TrackStatus.LOST if track.ekf is not None else TrackStatus.WAITING
+            rec = track.empty_record(name, status, C)
+            rec.set_views(views)
+            self._acquire(rec, track, crowd, images, t, timer)
+        else:
+            rec = track.empty_record(name, TrackStatus.PREDICTING, C)
+            rec.set_views(views)
+            self._track(rec, track, crowd, images, timer)
+        return rec
 
-    def _empty(self, name: str, track: _Track, status: str) -> PartFrame:
-        C, F = len(self.cameras), len(track.points)
+    def _track(self, rec: PartFrame, track: _Track, crowd, images: Any,
+               timer: StageTimer) -> None:
+        """Select, window, extract, gate and update (the paper's loop)."""
         ekf = track.ekf
-        return PartFrame(
-            name=name,
-            status=status,
-            visible=np.zeros((C, F), dtype=bool),
-            pixels=np.full((C, F, 2), np.nan),
-            near_occluder=np.zeros((C, F), dtype=bool),
-            selected=np.zeros((C, F), dtype=bool),
-            selection=None,
-            windows=[None] * C,
-            measured=np.full((C, F, 2), np.nan),
-            innovation=np.full((C, F, 2), np.nan),
-            mahalanobis2=np.full((C, F), np.nan),
-            rejected=np.zeros((C, F), dtype=bool),
-            predicted_state=None if ekf is None else ekf.state.copy(),
-            state=None if ekf is None else ekf.state.copy(),
-            covariance=None if ekf is None else ekf.covariance.copy(),
-            T_base_part=None if ekf is None else ekf.pose,
-        )
+        with timer("selection"):
+            usable = track.hold.usable(rec.visible, rec.near_occluder, ekf.t)
+            sel = select_features(rec.pixels, usable, self._resolution(track),
+                                  self.config.selection)
+            rec.selection, rec.selected = sel, sel.selected
 
-    def _windows_and_measure(
-        self, rec, track, per_cam, all_visible, images, timings, selected, cov_of, wcfg
-    ) -> list[Observation]:
-        """Plan the windows of the selected features, extract, build the observations."""
-        observations = []
-        for c, cam in enumerate(self.cameras):
-            idx = np.flatnonzero(selected[c])
-            if len(idx) == 0:
-                continue
-            tic = time.perf_counter()
-            centres = np.asarray(per_cam[c].pixels, dtype=float)[idx]
-            others, offsets = all_visible[c]
-            start, vis_idx = offsets[rec.name]
-            own = start + np.searchsorted(vis_idx, idx)
-            plan = plan_windows(centres, idx, cov_of(c, idx), cam.width, cam.height, others, own,
-                                wcfg)
-            rec.windows[c] = plan
-            timings["windowing"] += time.perf_counter() - tic
-            tic = time.perf_counter()
-            found = self.extractor.extract(c, self._image(images, c), plan)
-            timings["extraction"] += time.perf_counter() - tic
-            if not found:
-                continue
-            ids = np.array(sorted(found), dtype=np.int64)
-            px = np.array([found[i] for i in ids], dtype=float).reshape(-1, 2)
-            rec.measured[c, ids] = px
-            observations.append(
-                Observation(self.models[c], c, ids, track.points[ids], undistort_pixels(cam, px))
-            )
-        return observations
+        def covariance(c: int, idx: np.ndarray) -> np.ndarray:
+            return ekf.innovation_covariance(self._models[c], c, track.points[idx])[1]
 
-    def _fill_prediction(self, rec: PartFrame, per_cam: Sequence[CameraVisibilityLike]) -> None:
-        for c in range(len(self.cameras)):
-            rec.visible[c] = np.asarray(per_cam[c].visible, dtype=bool)
-            rec.pixels[c] = np.asarray(per_cam[c].pixels, dtype=float)
-            rec.near_occluder[c] = np.asarray(per_cam[c].near_occluder, dtype=bool)
-
-    def _usable(self, track: _Track, rec: PartFrame, t: float) -> np.ndarray:
-        """Visible features not flagged near an occluder's silhouette within the last
-        ``near_occluder_hold_s`` seconds (a flag that flickers at the ring's edge keeps the
-        feature out)."""
-        if track.near_at is None:
-            track.near_at = np.full(rec.visible.shape, -np.inf)
-        track.near_at[rec.near_occluder] = t
-        return rec.visible & (t - track.near_at > self.config.near_occluder_hold_s)
-
-    def _track(self, name, track, per_cam, all_visible, images, timings) -> PartFrame:
-        ekf = track.ekf
-        rec = self._empty(name, track, "predicting")
-        self._fill_prediction(rec, per_cam)
-        tic = time.perf_counter()
-        T = ekf.pose
-        centroid = track.points.mean(axis=0) @ T[:3, :3].T + T[:3, 3]
-        rho = np.array([c.focal_px / max(c.depth(centroid[None])[0], 1e-6) for c in self.cameras])
-        usable = self._usable(track, rec, ekf.t)
-        sel = select_features(rec.pixels, usable, rho, self.config.selection)
-        rec.selection, rec.selected = sel, sel.selected
-        timings["selection"] += time.perf_counter() - tic
-
-        def cov_of(c, idx):
-            return ekf.innovation_covariance(self.models[c], c, track.points[idx])[1]
-
-        obs = self._windows_and_measure(
-            rec, track, per_cam, all_visible, images, timings, sel.selected, cov_of,
-            self.config.windows,
-        )
-        tic = time.perf_counter()
-        report = ekf.update(obs)
-        timings["update"] += time.perf_counter() - tic
+        obs = self._measure(rec, track, crowd, images, timer, covariance, self.config.windows)
+        with timer("ekf"):
+            report = ekf.update(obs, self.config.gate)
         if len(report.accepted):
             c, f = report.camera_index, report.feature_ids
             rec.innovation[c, f] = report.innovation
@@ -404,33 +253,87 @@ class Tracker:
             rec.rejected[c, f] = ~report.accepted
         if report.n_accepted:
             track.last_update = ekf.t
-            rec.status = "tracking"
+            rec.status = TrackStatus.TRACKING
         rec.state, rec.covariance = ekf.state.copy(), ekf.covariance.copy()
         rec.T_base_part = ekf.pose
-        return rec
 
-    def _acquire(self, name, track, per_cam, all_visible, images, t, timings) -> PartFrame:
-        rec = self._empty(name, track, "lost" if track.ekf is not None else "waiting")
-        self._fill_prediction(rec, per_cam)
-        size = self.config.acquisition_window_px
-        wcfg = replace(self.config.windows, min_size_px=size, max_size_px=size)
-        rec.selected = self._usable(track, rec, t)
+    def _resolution(self, track: _Track) -> np.ndarray:
+        """Per camera: pixels per metre at the estimated part's centroid (focal / depth), the
+        selection's weight of each camera."""
+        T = track.ekf.pose
+        centroid = track.points.mean(axis=0) @ T[:3, :3].T + T[:3, 3]
+        return np.array([c.focal_px / max(c.depth(centroid[None])[0], 1e-6)
+                         for c in self.cameras])
 
-        def cov_of(c, idx):
+    def _acquire(self, rec: PartFrame, track: _Track, crowd, images: Any, t: float,
+                 timer: StageTimer) -> None:
+        """Windows of a fixed size on every usable feature, then PnP (:mod:`.acquisition`)."""
+        acquisition = self.config.acquisition
+        size = acquisition.window_px
+        windows = replace(self.config.windows, min_size_px=size, max_size_px=size)
+        rec.selected = track.hold.usable(rec.visible, rec.near_occluder, t)
+
+        def covariance(c: int, idx: np.ndarray) -> np.ndarray:
             return np.zeros((len(idx), 2, 2))
 
-        obs = self._windows_and_measure(
-            rec, track, per_cam, all_visible, images, timings, rec.selected, cov_of, wcfg
-        )
-        tic = time.perf_counter()
-        fix = estimate_pose_robust(obs, self.config.acquisition_max_rms_px,
-                                   sigma_px=self.config.sigma_px)
-        if fix is not None and fix.rms_px <= self.config.acquisition_max_rms_px:
-            P = self._initial_covariance(self.config.init_pose_inflation * fix.covariance)
-            self.initialise(name, fix.T_base_part, t, P)
-            rec.status = "acquired"
-            ekf = track.ekf
-            rec.state, rec.covariance = ekf.state.copy(), ekf.covariance.copy()
-            rec.T_base_part = ekf.pose
-        timings["update"] += time.perf_counter() - tic
-        return rec
+        obs = self._measure(rec, track, crowd, images, timer, covariance, windows)
+        with timer("ekf"):
+            fix = acquisition.fix(obs, self.config.sigma_px)
+            if fix is not None:
+                self.initialise(rec.name, fix.T_base_part, t, acquisition.start(fix))
+                rec.status = TrackStatus.ACQUIRED
+                ekf = track.ekf
+                rec.state, rec.covariance = ekf.state.copy(), ekf.covariance.copy()
+                rec.T_base_part = ekf.pose
+
+    def _measure(self, rec: PartFrame, track: _Track, crowd, images: Any, timer: StageTimer,
+                 covariance: Callable[[int, np.ndarray], np.ndarray],
+                 windows: WindowConfig) -> list[Observation]:
+        """Plan the windows of the selected features, extract, build the observations."""
+        observations = []
+        for c, cam in enumerate(self.cameras):
+            idx = np.flatnonzero(rec.selected[c])
+            if len(idx) == 0:
+                continue
+            with timer("windowing"):
+                others, offsets = crowd[c]
+                start, vis_idx = offsets[rec.name]
+                own = start + np.searchsorted(vis_idx, idx)
+                plan = plan_windows(rec.pixels[c, idx], idx, covariance(c, idx), cam.width,
+                                    cam.height, others, own, windows)
+                rec.windows[c] = plan
+            with timer("extraction"):
+                found = self.extractor.extract(c, _image(images, self.cameras, c), plan)
+            if not found:
+                continue
+            ids = np.array(sorted(found), dtype=np.int64)
+            px = np.array([found[i] for i in ids], dtype=float).reshape(-1, 2)
+            rec.measured[c, ids] = px
+            observations.append(
+                Observation(self._models[c], c, ids, track.points[ids], cam.undistort(px)))
+        return observations
+
+
+def _image(images: Any, cameras: Sequence[Camera], c: int) -> Any:
+    """Camera ``c``'s image from a sequence in camera order or a mapping by camera name."""
+    if images is None:
+        return None
+    if isinstance(images, Mapping):
+        return images.get(cameras[c].name)
+    return images[c] if c < len(images) else None
+
+
+def _visible_pixels(views: Views, n_cameras: int) -> list[tuple[np.ndarray, dict]]:
+    """Per camera: (M, 2) predicted pixels of every visible feature of every part (the
+    crowd the windows must avoid), and each part's (row offset, visible feature indices)."""
+    out = []
+    for c in range(n_cameras):
+        rows, offsets, start = [], {}, 0
+        for name, per_cam in views.items():
+            v = per_cam[c]
+            idx = np.flatnonzero(v.visible)
+            offsets[name] = (start, idx)
+            rows.append(np.asarray(v.pixels, dtype=float)[idx])
+            start += len(idx)
+        out.append((np.concatenate(rows) if rows else np.zeros((0, 2)), offsets))
+    return out

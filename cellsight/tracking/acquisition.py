@@ -1,0 +1,47 @@
+"""Acquisition of a workpiece not tracked yet, or lost (beyond the paper's Fig. 5).
+
+The occlusion predictor runs at a guess of the pose (the cell's nominal pose of the part, or
+the last prediction of a lost part); every usable predicted-visible feature gets a square
+window of ``window_px``; the corners found there give a fused multi-camera PnP that drops up to
+three wrong corners (:func:`~cellsight.tracking.pnp.estimate_pose_robust`). The filter starts
+from it when its RMS reprojection error is at most ``max_rms_px``, with the PnP covariance
+inflated by ``pose_inflation`` and a velocity uncertainty ``velocity_std`` (m/s, rad/s).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from cellsight.tracking.measurement import Observation
+from cellsight.tracking.motion import POSE_DIM, STATE_DIM
+from cellsight.tracking.pnp import PoseFix, estimate_pose_robust
+
+
+@dataclass(frozen=True)
+class PnPAcquisition:
+    """Acquisition by robust multi-camera PnP (module docstring). Units: px, m/s, rad/s."""
+
+    window_px: float = 64.0
+    max_rms_px: float = 2.0
+    velocity_std: tuple[float, float] = (0.2, 0.5)
+    pose_inflation: float = 4.0
+
+    def fix(self, observations: list[Observation], sigma_px: float) -> PoseFix | None:
+        """The pose to start from, or None when the corners found do not give one."""
+        fix = estimate_pose_robust(observations, self.max_rms_px, sigma_px=sigma_px)
+        return fix if fix is not None and fix.rms_px <= self.max_rms_px else None
+
+    def covariance(self, pose_covariance: np.ndarray) -> np.ndarray:
+        """Initial 12x12 state covariance: ``pose_covariance`` (6x6, xyz + rpy) and the
+        velocity uncertainty; the caller inflates a PnP covariance first (:meth:`start`)."""
+        P = np.zeros((STATE_DIM, STATE_DIM))
+        P[:POSE_DIM, :POSE_DIM] = pose_covariance
+        lin, ang = self.velocity_std
+        P[POSE_DIM:, POSE_DIM:] = np.diag([lin**2] * 3 + [ang**2] * 3)
+        return P
+
+    def start(self, fix: PoseFix) -> np.ndarray:
+        """Initial state covariance from a PnP fix (its covariance inflated)."""
+        return self.covariance(self.pose_inflation * fix.covariance)

@@ -1,0 +1,95 @@
+"""What one :meth:`~cellsight.tracking.Tracker.step` reports, per workpiece and per frame."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from cellsight.tracking.selection import Selection
+from cellsight.tracking.status import TrackStatus
+from cellsight.tracking.windowing import WindowPlan
+from cellsight.visibility import CameraVisibility
+
+
+@dataclass
+class PartFrame:
+    """What happened to one workpiece in one frame (C cameras, F features).
+
+    ``status``: see :class:`TrackStatus`. ``views``: the visibility source's answer for this
+    part, one per camera (empty when nothing was predicted); ``visible``/``pixels``: its
+    prediction at the predicted (or guessed) pose; ``near_occluder``: visible but next to
+    another object's silhouette (not selectable); ``selected``: features whose windows were
+    planned; ``windows``: one plan per camera; ``measured``: extracted pixels (NaN where none);
+    ``innovation`` (px), ``mahalanobis2`` and ``rejected`` (gated out); ``state``/``covariance``/
+    ``T_base_part`` after the update (None while waiting); ``predicted_state`` before it.
+    """
+
+    name: str
+    status: TrackStatus
+    visible: np.ndarray
+    pixels: np.ndarray
+    near_occluder: np.ndarray
+    selected: np.ndarray
+    selection: Selection | None
+    windows: list[WindowPlan | None]
+    measured: np.ndarray
+    innovation: np.ndarray
+    mahalanobis2: np.ndarray
+    rejected: np.ndarray
+    predicted_state: np.ndarray | None
+    state: np.ndarray | None
+    covariance: np.ndarray | None
+    T_base_part: np.ndarray | None
+    views: list[CameraVisibility] = field(default_factory=list)
+
+    @classmethod
+    def empty(cls, name: str, status: TrackStatus, n_cameras: int, n_features: int,
+              state: np.ndarray | None, covariance: np.ndarray | None,
+              T_base_part: np.ndarray | None) -> PartFrame:
+        """A record with nothing predicted, selected or measured; the filter's ``state``,
+        ``covariance`` and pose (None while there is no filter) as both before and after."""
+        C, F = n_cameras, n_features
+        return cls(
+            name=name,
+            status=status,
+            visible=np.zeros((C, F), dtype=bool),
+            pixels=np.full((C, F, 2), np.nan),
+            near_occluder=np.zeros((C, F), dtype=bool),
+            selected=np.zeros((C, F), dtype=bool),
+            selection=None,
+            windows=[None] * C,
+            measured=np.full((C, F, 2), np.nan),
+            innovation=np.full((C, F, 2), np.nan),
+            mahalanobis2=np.full((C, F), np.nan),
+            rejected=np.zeros((C, F), dtype=bool),
+            predicted_state=None if state is None else state.copy(),
+            state=None if state is None else state.copy(),
+            covariance=None if covariance is None else covariance.copy(),
+            T_base_part=T_base_part,
+        )
+
+    def set_views(self, views: list[CameraVisibility]) -> None:
+        """Record the visibility source's answer for this part (one view per camera)."""
+        self.views = list(views)
+        for c, view in enumerate(views):
+            self.visible[c] = np.asarray(view.visible, dtype=bool)
+            self.pixels[c] = np.asarray(view.pixels, dtype=float)
+            self.near_occluder[c] = np.asarray(view.near_occluder, dtype=bool)
+
+    @property
+    def reasons(self) -> list[list[str]]:
+        """Per camera, per feature: '' when predicted visible, else why it is hidden
+        (:attr:`CameraVisibility.reason`); empty when nothing was predicted."""
+        return [view.reason for view in self.views]
+
+
+@dataclass
+class TrackerFrame:
+    """One step: time (s), per-part records, stage times (s, keyed by
+    :data:`cellsight.tracking.timing.STAGES`) and the fraction of each camera's pixels grabbed."""
+
+    t: float
+    parts: dict[str, PartFrame]
+    timings: dict[str, float]
+    grabbed_fraction: np.ndarray
