@@ -26,7 +26,9 @@ import numpy as np
 from cellsight import load_cell
 from cellsight.geometry.transforms import pose_from_xyz_rpy, xyz_rpy_from_pose
 from cellsight.occlusion.predictor import VisibilityPredictor
+from cellsight.rates import VISION_HZ
 from cellsight.tracking import (
+    ChiSquareGate,
     ConstantVelocity,
     Observation,
     PinholeMeasurement,
@@ -37,7 +39,7 @@ from cellsight.tracking import (
 
 FRAMES = 260
 WARMUP = 20
-PERIOD = 1.0 / 26.0
+PERIOD = 1.0 / VISION_HZ
 BUDGET_S = 0.5e-3
 STAGES = ("predict", "selection", "windowing", "update")
 
@@ -94,7 +96,7 @@ def _scenario(all_visible: bool, seed: int = 0) -> dict[str, list[float]]:
         t5 = time.perf_counter()
         obs = [Observation(models[c], c, p.features, pts[p.features], measured[c])
                for c, p in enumerate(plans) if len(p.features)]
-        ekf.update(obs)
+        ekf.update(obs, ChiSquareGate())
         t6 = time.perf_counter()
         if k <= WARMUP:
             continue
