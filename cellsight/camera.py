@@ -4,21 +4,72 @@ Camera frame: x right, y down, z forward (optical axis). Pixel ``(u, v)`` = (col
 centre of the top-left pixel at (0, 0). ``K = [[fx, 0, cx], [0, fy, cy], [0, 0, 1]]`` in pixels;
 distortion ``(k1, k2, p1, p2, k3)`` is OpenCV's radial-tangential model. ``T_base_cam`` is the
 camera's pose in the cell base frame (maps camera coordinates to base coordinates).
+
+This module is the one home of the camera model: intrinsics (:func:`intrinsics`,
+:meth:`Camera.from_intrinsics`, :meth:`Camera.scaled_K`), projection with distortion, the
+pinhole projection Jacobian, undistortion of pixels and the renderer's distortion maps. Its
+numba twin for compiled kernels is :mod:`cellsight._camera_kernel`; a new lens model changes
+these two modules only.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
+import cv2
 import numpy as np
 
+from cellsight._camera_kernel import pinhole_jacobians
 from cellsight.errors import CameraError
 from cellsight.geometry.transforms import invert_pose, transform_points
+
+UNDISTORT_TOL_PX = 1e-6  # px: convergence of the fixed-point undistortion of the pixel maps
+UNDISTORT_MAX_ITER = 200
+
+
+def intrinsics(fx: float, fy: float, cx: float, cy: float, skew: float = 0.0) -> np.ndarray:
+    """Camera matrix ``K = [[fx, skew, cx], [0, fy, cy], [0, 0, 1]]`` (all in px)."""
+    return np.array([[fx, skew, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
+
+
+def _distort(dist: np.ndarray, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """OpenCV's radial-tangential distortion of normalised coordinates (x/z, y/z)."""
+    k1, k2, p1, p2, k3 = dist
+    r2 = x * x + y * y
+    radial = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
+    xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
+    yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
+    return xd, yd
+
+
+def _undistort_normalized(
+    dist: np.ndarray, xd: np.ndarray, yd: np.ndarray, fx: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Inverse of :func:`_distort` by fixed-point iteration, until a step moves no point more
+    than ``UNDISTORT_TOL_PX`` pixels of focal length ``fx`` (px)."""
+    k1, k2, p1, p2, k3 = dist
+    x, y = xd.copy(), yd.copy()
+    for _ in range(UNDISTORT_MAX_ITER):
+        r2 = x * x + y * y
+        radial = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
+        x_new = (xd - 2 * p1 * x * y - p2 * (r2 + 2 * x * x)) / radial
+        y_new = (yd - p1 * (r2 + 2 * y * y) - 2 * p2 * x * y) / radial
+        step = max(np.abs(x_new - x).max(), np.abs(y_new - y).max())
+        x, y = x_new, y_new
+        if step * fx < UNDISTORT_TOL_PX:
+            break
+    return x, y
 
 
 @dataclass(frozen=True)
 class Camera:
-    """A calibrated camera: intrinsics ``K`` (3x3, px), image size (px), pose ``T_base_cam``."""
+    """A calibrated camera: intrinsics ``K`` (3x3, px), image size (px), pose ``T_base_cam``,
+    distortion ``dist`` (k1, k2, p1, p2, k3) or None.
+
+    Derived at construction: ``T_cam_base`` (the inverse pose), ``dist5`` (the distortion as a
+    float64 5-vector, zeros when there is none: the form :mod:`cellsight._camera_kernel`
+    takes) and ``focal_px`` (the mean focal length ``(fx + fy) / 2``, px).
+    """
 
     K: np.ndarray
     width: int
@@ -27,6 +78,8 @@ class Camera:
     dist: np.ndarray | None = None
     name: str = "camera"
     T_cam_base: np.ndarray = field(init=False, repr=False)
+    dist5: np.ndarray = field(init=False, repr=False)
+    focal_px: float = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
         K = np.asarray(self.K, dtype=float)
@@ -65,16 +118,58 @@ class Camera:
         object.__setattr__(self, "width", int(self.width))
         object.__setattr__(self, "height", int(self.height))
         object.__setattr__(self, "T_cam_base", invert_pose(T))
+        object.__setattr__(self, "dist5", np.zeros(5) if dist is None else dist)
+        object.__setattr__(self, "focal_px", 0.5 * (K[0, 0] + K[1, 1]))
+
+    @classmethod
+    def from_intrinsics(
+        cls,
+        width: int,
+        height: int,
+        T_base_cam: np.ndarray,
+        *,
+        fx: float | None = None,
+        fy: float | None = None,
+        lens_mm: float | None = None,
+        pixel_mm: float | None = None,
+        cx: float | None = None,
+        cy: float | None = None,
+        skew: float = 0.0,
+        dist: np.ndarray | None = None,
+        name: str = "camera",
+    ) -> Camera:
+        """A camera from its focal length, either ``fx`` (and ``fy``, default ``fx``) in px or a
+        lens ``lens_mm`` with square pixels of pitch ``pixel_mm`` (fx = fy = lens / pitch); the
+        principal point ``(cx, cy)`` (px) defaults to the image centre ``((W - 1) / 2,
+        (H - 1) / 2)`` (pixel centres at integers)."""
+        if (fx is None) == (lens_mm is None) or (lens_mm is not None and pixel_mm is None):
+            raise CameraError(f"camera {name}: give either fx (px) or lens_mm with pixel_mm")
+        fx = fx if fx is not None else lens_mm / pixel_mm
+        fy = fy if fy is not None else fx
+        cx = cx if cx is not None else (width - 1) / 2
+        cy = cy if cy is not None else (height - 1) / 2
+        return cls(intrinsics(fx, fy, cx, cy, skew), width, height, T_base_cam, dist, name)
+
+    def ideal(self) -> Camera:
+        """The same camera without lens distortion (the pinhole model of undistorted pixels);
+        the camera itself when it has none."""
+        return self if self.dist is None else replace(self, dist=None)
+
+    def scaled_K(self, size: tuple[int, int]) -> np.ndarray:
+        """The camera matrix for images of ``size`` = (width, height) px showing the same field
+        of view (pixel centres at integer coordinates, as in OpenCV)."""
+        sx, sy = size[0] / self.width, size[1] / self.height
+        K = self.K.copy()
+        K[0, :2] *= sx
+        K[1, 1] *= sy
+        K[0, 2] = (self.K[0, 2] + 0.5) * sx - 0.5
+        K[1, 2] = (self.K[1, 2] + 0.5) * sy - 0.5
+        return K
 
     @property
     def center(self) -> np.ndarray:
         """Optical centre in the base frame (m)."""
         return self.T_base_cam[:3, 3].copy()
-
-    @property
-    def focal_px(self) -> float:
-        """Mean focal length in pixels, ``(fx + fy) / 2``."""
-        return 0.5 * (self.K[0, 0] + self.K[1, 1])
 
     def to_camera(self, points_base: np.ndarray) -> np.ndarray:
         """Points from the base frame to the camera frame, shape (N, 3)."""
@@ -91,16 +186,53 @@ class Camera:
             x = np.where(z > 0, p[:, 0] / z, np.nan)
             y = np.where(z > 0, p[:, 1] / z, np.nan)
         if self.dist is not None:
-            k1, k2, p1, p2, k3 = self.dist
-            r2 = x * x + y * y
-            radial = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
-            xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
-            yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
-            x, y = xd, yd
+            x, y = _distort(self.dist, x, y)
         K = self.K
         u = K[0, 0] * x + K[0, 1] * y + K[0, 2]
         v = K[1, 1] * y + K[1, 2]
         return np.column_stack([u, v])
+
+    def pinhole_jacobian(self, points_cam: np.ndarray) -> np.ndarray:
+        """Jacobian ``d(u, v)/d(x, y, z)`` (N, 2, 3), px/m, of the ideal pinhole projection
+        (no distortion) at camera-frame points (N, 3) with z > 0::
+
+            J = (1/z) [[fx, s, -(fx x + s y)/z], [0, fy, -fy y/z]]    (x = X/z, y = Y/z)
+        """
+        p = np.ascontiguousarray(np.atleast_2d(points_cam), dtype=np.float64)
+        pixels, jac = np.empty((len(p), 2)), np.empty((len(p), 2, 3))
+        pinhole_jacobians(self.K, p, pixels, jac)
+        return jac
+
+    def undistort(self, pixels: np.ndarray) -> np.ndarray:
+        """Measured (distorted) pixels (N, 2) -> ideal pinhole pixels with the same ``K``: the
+        inverse of :meth:`project_camera`'s distortion (OpenCV's ``undistortPoints``). A copy
+        for a camera without distortion."""
+        px = np.asarray(pixels, dtype=float).reshape(-1, 2)
+        if self.dist is None or len(px) == 0:
+            return px.copy()
+        out = cv2.undistortPoints(px.reshape(-1, 1, 2), self.K, self.dist, P=self.K)
+        return out.reshape(-1, 2)
+
+    def distortion_maps(
+        self, size: tuple[int, int] | None = None
+    ) -> tuple[np.ndarray, np.ndarray] | None:
+        """``cv2.remap`` maps (float32, (H, W) each) that turn an ideal pinhole image of
+        ``size`` = (width, height) px (default: the camera's; intrinsics :meth:`scaled_K`)
+        into the camera's distorted image, or None for a camera without distortion.
+
+        Each output pixel is undistorted by fixed-point iteration of the distortion model to
+        ``UNDISTORT_TOL_PX``, then mapped through the ideal camera matrix."""
+        if self.dist is None:
+            return None
+        w, h = size if size is not None else (self.width, self.height)
+        K = self.scaled_K((w, h))
+        u, v = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
+        yd = (v - K[1, 2]) / K[1, 1]
+        xd = (u - K[0, 2] - K[0, 1] * yd) / K[0, 0]
+        x, y = _undistort_normalized(self.dist, xd, yd, K[0, 0])
+        map_u = K[0, 0] * x + K[0, 1] * y + K[0, 2]
+        map_v = K[1, 1] * y + K[1, 2]
+        return map_u.astype(np.float32), map_v.astype(np.float32)
 
     def project(self, points_base: np.ndarray) -> np.ndarray:
         """Project base-frame points to pixels ``(u, v)``, shape (N, 2); NaN behind the camera."""

@@ -20,9 +20,10 @@ from cellsight.geometry.transforms import (
     transform_points,
 )
 from cellsight.model import Cell, StaticObject
+from cellsight.visibility import STATUS_BEHIND, STATUS_INSIDE, STATUS_OUTSIDE
 from cellsight.world import ConveyorPath, Waypoint, World
 from cellsight.world.grasp import JawPads, PartSection
-from cellsight.world.mjcf import mjcf_camera, scaled_K
+from cellsight.world.mjcf import mjcf_camera
 
 
 @pytest.fixture(scope="module")
@@ -75,7 +76,7 @@ def test_body_poses_agree_with_fkine_at_random_configurations(cell):
             np.testing.assert_array_equal(joints[name], q[name])
         snap = cell.snapshot(joints, world.true_part_poses(), world.jaw_openings())
         np.testing.assert_allclose(world.true_part_poses()["part"], part, atol=1e-12)
-        worst = max(worst, float(np.abs(world.object_poses() - snap.poses).max()))
+        worst = max(worst, float(np.abs(world.truth.object_poses() - snap.poses).max()))
     assert worst < 1e-6
     # the jaws really moved during the run, so the jaw bodies were checked at many openings
     assert 0.0 < world.jaw_openings()["R7AX"] < cell.robot("R7AX").tool.max_opening
@@ -111,7 +112,7 @@ def test_mjcf_camera_frustum_reproduces_the_intrinsics(cell, size):
         )
         gl = mujoco.mjv_averageCamera(scene.camera[0], scene.camera[1])  # the mono camera
         w, h = size or (cam.width, cam.height)
-        K, n = scaled_K(cam, (w, h)), gl.frustum_near
+        K, n = cam.scaled_K((w, h)), gl.frustum_near
         # OpenGL window x in [0, w] is OpenCV u + 0.5; window y from the bottom is h - v - 0.5
         left, right = -n * (K[0, 2] + 0.5) / K[0, 0], n * (w - 0.5 - K[0, 2]) / K[0, 0]
         bottom, top = -n * (h - 0.5 - K[1, 2]) / K[1, 1], n * (K[1, 2] + 0.5) / K[1, 1]
@@ -198,10 +199,11 @@ def test_rendered_part_corners_lie_on_their_projections(cell, variant):
                     [0.65, -0.05, 0.70, 0.3, -0.2, 1.2]):
         T = pose_from_xyz_rpy(xyz_rpy[:3], xyz_rpy[3:])
         world.place_part("part", T)
-        images, visible = world.render(), world.true_visibility()["part"]
+        images = world.render()
+        visible = [view.visible for view in world.true_views()["part"]]
         for c, cam in enumerate(world_cell.cameras):
             w, h = size or (cam.width, cam.height)
-            seen = Camera(scaled_K(cam, (w, h)), w, h, cam.T_base_cam, cam.dist, cam.name)
+            seen = Camera(cam.scaled_K((w, h)), w, h, cam.T_base_cam, cam.dist, cam.name)
             assert images[c].shape == (h, w) and images[c].dtype == np.uint8
             errors += _measured_corners(images[c], seen, solid, T, visible[c]).values()
     assert len(errors) >= 24  # at least 4 corners measured per image on average
@@ -250,8 +252,8 @@ def test_ray_truth_matches_an_independent_check_with_a_blocking_box(cell):
     blocked_cell = Cell(cell.name, cell.robots, cell.workpieces, [*cell.static, blocker],
                         cell.cameras)
     world = World(blocked_cell)
-    visible = world.true_visibility()["part"][0]
-    occluders = world.true_occluders()["part"][0]
+    view = world.true_views()["part"][0]
+    visible, occluders = view.visible, view.reason
 
     mesh = trimesh.Trimesh(transform_points(part.T_base_part, part.solid.vertices),
                            part.solid.triangles(), process=False)
@@ -270,11 +272,11 @@ def test_ray_truth_matches_an_independent_check_with_a_blocking_box(cell):
     assert by_box.sum() >= 2 and (~by_box & ~by_self).sum() >= 4 and by_self.sum() >= 1
     np.testing.assert_array_equal(visible, expected)
     for j in range(len(P)):
-        want = "blocker" if by_box[j] else "part" if by_self[j] else ""
+        want = "blocker" if by_box[j] else "self" if by_self[j] else ""
         assert occluders[j] == want, (j, occluders[j], want)
     # the second camera does not look through the box
-    np.testing.assert_array_equal(world.true_visibility()["part"][1],
-                                  World(cell).true_visibility()["part"][1])
+    np.testing.assert_array_equal(world.true_views()["part"][1].visible,
+                                  World(cell).true_views()["part"][1].visible)
 
 
 def test_features_outside_the_image_or_behind_are_marked(cell):
@@ -282,11 +284,66 @@ def test_features_outside_the_image_or_behind_are_marked(cell):
     cam = cell.cameras[0]
     behind = cam.T_base_cam @ make_pose(None, (0.0, 0.0, -1.0))
     world.place_part("part", behind)
-    assert set(world.true_occluders()["part"][0]) == {"behind"}
+    view = world.true_views()["part"][0]
+    assert set(view.reason) == {"behind"} and set(view.status) == {STATUS_BEHIND}
+    assert np.isnan(view.pixels).all()
     aside = cam.T_base_cam @ make_pose(None, (3.0, 0.0, 2.0))
     world.place_part("part", aside)
-    assert set(world.true_occluders()["part"][0]) == {"outside"}
-    assert not world.true_visibility()["part"][0].any()
+    view = world.true_views()["part"][0]
+    assert set(view.reason) == {"outside"} and set(view.status) == {STATUS_OUTSIDE}
+    assert not view.visible.any() and (view.occluder == -1).all()
+
+
+def _first_hits(world: World, cam: Camera, points: np.ndarray) -> list[str]:
+    """The name of the geom each ray from the camera to a point hits first before it (more
+    than 2 mm short of it), '' if none: the old ``true_occluders`` answer, cast here."""
+    import mujoco
+
+    model, data = world.scene.model, world.scene.data
+    world.scene.sync()
+    names = []
+    for p in points:
+        vec = p - cam.center
+        length = float(np.linalg.norm(vec))
+        geom = np.array([-1], dtype=np.int32)
+        d = mujoco.mj_ray(model, data, cam.center, vec / length, None, 1, -1, geom)
+        names.append(model.geom(int(geom[0])).name if 0 <= d < length - 2e-3 else "")
+    return names
+
+
+def test_true_views_answer_as_the_predictors_do(cell):
+    """The truth is a CameraVisibility per camera: pixels are the camera's projection, the
+    occluder indexes ``object_labels`` (the cell objects' labels, then 'floor'), and each
+    feature's reason is the label of the object whose geom the ray hits first ('self' for the
+    part), as the world's old ``true_visibility``/``true_occluders`` answered. Cases: the part
+    turned on the conveyor, held in R7AX's jaws at HOME, and (a cell without static objects)
+    under the floor, seen through it by camera 1."""
+    part = cell.workpiece("part")
+    bare = World(Cell(cell.name, cell.robots, cell.workpieces, [], cell.cameras))
+    cases = [(World(cell), part.T_base_part @ make_pose(_rot_z(a))) for a in (0.0, 1.0, 2.5)]
+    held = World(cell)
+    away = part.T_base_part[:3, 3] - cell.cameras[0].center  # along camera 1's line of sight
+    below = make_pose(None, away * (part.T_base_part[2, 3] + 0.05) / -away[2]) @ part.T_base_part
+    cases += [(held, _part_in_gripper(held, cell, np.eye(4))), (bare, below)]
+    labels = {o.name: o.label for o in cell.objects}
+    seen: set[str] = set()
+    for world, T in cases:
+        world.place_part("part", T)
+        P = transform_points(T, part.feature_points)
+        for cam, view in zip(cell.cameras, world.true_views()["part"], strict=True):
+            assert view.camera == cam.name and view.object_labels[-1] == "floor"
+            assert view.part_object == cell.object_index("part")
+            np.testing.assert_allclose(view.pixels, cam.project(P))
+            inside = cam.sees(P)
+            np.testing.assert_array_equal(view.status == STATUS_INSIDE, inside)
+            hits = _first_hits(world, cam, P)
+            want = ["self" if h == "part" else labels.get(h, h) if i else ""
+                    for h, i in zip(hits, inside, strict=True)]
+            got = [r if i else "" for r, i in zip(view.reason, inside, strict=True)]
+            assert got == want, (cam.name, got, want)
+            np.testing.assert_array_equal(view.visible, inside & (np.array(hits) == ""))
+            seen.update(got)
+    assert {"self", "floor", "R7AX.gripper", ""} <= seen, seen
 
 
 # --- conveyor ----------------------------------------------------------------------------------

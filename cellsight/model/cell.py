@@ -22,6 +22,11 @@ from cellsight.model.robot import Robot
 ObjectKind = Literal["link", "tool", "workpiece", "static"]
 
 
+def _suffix(j: int, solids) -> str:
+    """Name suffix of the j-th of an object's solids: none for a single solid, else ``.<j+1>``."""
+    return "" if len(solids) == 1 else f".{j + 1}"
+
+
 @dataclass(frozen=True)
 class Workpiece:
     """A workpiece: a closed polyhedron with named feature points, its nominal pose and,
@@ -86,6 +91,24 @@ class CellObject:
     workpiece: int | None = None
 
 
+FrameKind = Literal["link", "palm", "jaw", "part", "static"]
+
+
+@dataclass(frozen=True)
+class ObjectFrame:
+    """The frame that carries a cell object (the object's frame is that frame).
+
+    ``kind``: ``link`` (DH frame ``index`` of robot ``owner``, 0 = the robot base), ``palm``
+    (the tool frame of robot ``owner``), ``jaw`` (jaw ``index``, 0 or 1, of robot ``owner``'s
+    gripper), ``part`` (workpiece ``owner``) or ``static`` (static object ``owner``, at
+    ``index`` in ``cell.static``).
+    """
+
+    kind: FrameKind
+    owner: str
+    index: int | None = None
+
+
 @dataclass
 class Snapshot:
     """Poses of every cell object at one sampling time.
@@ -112,7 +135,13 @@ class Snapshot:
 
 class Cell:
     """A robot cell: robots with tools, workpieces, static objects and calibrated cameras,
-    and the cell file's optional set-up of the paper's experiments (``experiments``)."""
+    and the cell file's optional set-up of the paper's experiments (``experiments``).
+
+    ``objects`` lists every solid once, in a fixed order: each robot's links (DH frame order),
+    gripper palm and two jaws; the workpieces; the static objects' solids. ``frames[i]`` says
+    what carries ``objects[i]`` (:class:`ObjectFrame`); :meth:`snapshot` and the MuJoCo model
+    both follow it.
+    """
 
     def __init__(
         self,
@@ -132,41 +161,42 @@ class Cell:
         self.cameras = list(cameras)
         self.source = source
         self.objects: list[CellObject] = []
-        self._slots: list[tuple] = []  # how to compute each object's pose, see snapshot()
+        self.frames: list[ObjectFrame] = []  # per object, what carries it; see snapshot()
         for robot in self.robots:
-            for i, solids in enumerate(robot.link_solids):
-                for j, solid in enumerate(solids):
-                    suffix = "" if len(solids) == 1 else f".{j + 1}"
-                    label = f"{robot.name}.link{i}"
-                    self._add(CellObject(label + suffix, "link", solid, label, robot.name))
-                    self._slots.append(("link", robot.name, i, solid))
-            if robot.tool is not None:
-                for j, solid in enumerate(robot.tool.palm):
-                    suffix = "" if len(robot.tool.palm) == 1 else f".{j + 1}"
-                    label = f"{robot.name}.gripper"
-                    self._add(CellObject(label + suffix, "tool", solid, label, robot.name))
-                    self._slots.append(("palm", robot.name, None, solid))
-                for jaw in (0, 1):
-                    name = f"{robot.name}.gripper.jaw{jaw + 1}"
-                    self._add(CellObject(name, "tool", robot.tool.jaw, f"{robot.name}.gripper",
-                                         robot.name))
-                    self._slots.append(("jaw", robot.name, jaw, robot.tool.jaw))
+            self._add_robot(robot)
         for k, part in enumerate(self.workpieces):
-            self._add(CellObject(part.name, "workpiece", part.solid, part.name, workpiece=k))
-            self._slots.append(("part", part.name, None, part.solid))
-        for obj in self.static:
+            self._add(CellObject(part.name, "workpiece", part.solid, part.name, workpiece=k),
+                      ObjectFrame("part", part.name))
+        for k, obj in enumerate(self.static):
             for j, solid in enumerate(obj.solids):
-                suffix = "" if len(obj.solids) == 1 else f".{j + 1}"
-                self._add(CellObject(f"{obj.name}{suffix}", "static", solid, obj.name))
-                self._slots.append(("static", obj.name, None, obj.T_base_obj))
+                self._add(CellObject(obj.name + _suffix(j, obj.solids), "static", solid, obj.name),
+                          ObjectFrame("static", obj.name, k))
         self._index = {o.name: i for i, o in enumerate(self.objects)}
         self._robot = {r.name: r for r in self.robots}
         self._part = {p.name: p for p in self.workpieces}
 
-    def _add(self, obj: CellObject) -> None:
+    def _add_robot(self, robot: Robot) -> None:
+        """The robot's link solids (DH frame order), then its gripper's palm and two jaws."""
+        for i, solids in enumerate(robot.link_solids):
+            label = f"{robot.name}.link{i}"
+            for j, solid in enumerate(solids):
+                self._add(CellObject(label + _suffix(j, solids), "link", solid, label, robot.name),
+                          ObjectFrame("link", robot.name, i))
+        if robot.tool is None:
+            return
+        label = f"{robot.name}.gripper"
+        for j, solid in enumerate(robot.tool.palm):
+            self._add(CellObject(label + _suffix(j, robot.tool.palm), "tool", solid, label,
+                                 robot.name), ObjectFrame("palm", robot.name))
+        for jaw in (0, 1):
+            self._add(CellObject(f"{label}.jaw{jaw + 1}", "tool", robot.tool.jaw, label,
+                                 robot.name), ObjectFrame("jaw", robot.name, jaw))
+
+    def _add(self, obj: CellObject, frame: ObjectFrame) -> None:
         if any(o.name == obj.name for o in self.objects):
             raise CellsightError(f"cell {self.name}: two objects are named {obj.name!r}")
         self.objects.append(obj)
+        self.frames.append(frame)
 
     def object_index(self, name: str) -> int:
         try:
@@ -197,10 +227,6 @@ class Cell:
                            f"{[c.name for c in self.cameras]}")
         return self.cameras[camera]
 
-    def home_joints(self) -> dict[str, np.ndarray]:
-        """Every robot's HOME joint vector."""
-        return {r.name: r.home.copy() for r in self.robots}
-
     def snapshot(
         self,
         joints: Mapping[str, np.ndarray] | None = None,
@@ -220,35 +246,45 @@ class Cell:
             self.robot(name)
         for name in part_poses:
             self.workpiece(name)
-        link_poses, tool_poses, jaw_poses, used_q, used_open = {}, {}, {}, {}, {}
+        used_q, used_open, robot_frames = self._robot_frames(joints, openings)
+        used_parts = self._part_poses(part_poses)
+        poses = np.empty((len(self.objects), 4, 4))
+        for k, frame in enumerate(self.frames):
+            if frame.kind == "part":
+                poses[k] = used_parts[frame.owner]
+            elif frame.kind == "static":
+                poses[k] = self.static[frame.index].T_base_obj
+            else:
+                poses[k] = robot_frames[frame.owner][frame.kind, frame.index]
+        return Snapshot(self, poses, used_q, used_open, used_parts)
+
+    def _robot_frames(self, joints: dict, openings: dict) -> tuple[dict, dict, dict]:
+        """Per robot: the joint vector and jaw opening used, and ``T_base_frame`` of its frames
+        keyed by ``(kind, index)`` of :class:`ObjectFrame` (links, palm, jaws)."""
+        used_q, used_open, frames = {}, {}, {}
         for robot in self.robots:
             q = robot.chain.check_q(joints.get(robot.name, robot.home), check_limits=True)
             used_q[robot.name] = q
-            link_poses[robot.name] = robot.link_poses(q)
+            links = robot.link_poses(q)
+            poses = {("link", i): T for i, T in enumerate(links)}
             if robot.tool is not None:
-                tool = link_poses[robot.name][-1] @ robot.tool.T_flange_tool
+                tool = links[-1] @ robot.tool.T_flange_tool
                 opening = float(openings.get(robot.name, robot.tool.max_opening))
                 if not np.isfinite(opening):
                     raise CellsightError(f"robot {robot.name}: jaw opening is {opening}")
                 used_open[robot.name] = opening
-                tool_poses[robot.name] = tool
-                jaw_poses[robot.name] = [tool @ T for T in robot.tool.jaw_poses(opening)]
+                poses["palm", None] = tool
+                for jaw, T in enumerate(robot.tool.jaw_poses(opening)):
+                    poses["jaw", jaw] = tool @ T
+            frames[robot.name] = poses
+        return used_q, used_open, frames
+
+    def _part_poses(self, part_poses: dict) -> dict[str, np.ndarray]:
+        """``T_base_part`` of every workpiece: given, else its nominal pose; checked."""
         used_parts = {}
         for part in self.workpieces:
             T = np.asarray(part_poses.get(part.name, part.T_base_part), dtype=float)
             if T.shape != (4, 4) or not np.all(np.isfinite(T)):
                 raise CellsightError(f"workpiece {part.name}: pose must be a finite 4x4 matrix")
             used_parts[part.name] = T
-        poses = np.empty((len(self.objects), 4, 4))
-        for k, (kind, owner, index, extra) in enumerate(self._slots):
-            if kind == "link":
-                poses[k] = link_poses[owner][index]
-            elif kind == "palm":
-                poses[k] = tool_poses[owner]
-            elif kind == "jaw":
-                poses[k] = jaw_poses[owner][index]
-            elif kind == "part":
-                poses[k] = used_parts[owner]
-            else:
-                poses[k] = extra
-        return Snapshot(self, poses, used_q, used_open, used_parts)
+        return used_parts

@@ -181,13 +181,6 @@ class CameraSpec(_Strict):
             raise ValueError("give exactly one of pose or look_at")
         return self
 
-    def K(self) -> np.ndarray:
-        fx = self.fx if self.fx is not None else self.lens_mm / self.pixel_mm
-        fy = self.fy if self.fy is not None else fx
-        cx = self.cx if self.cx is not None else (self.width - 1) / 2
-        cy = self.cy if self.cy is not None else (self.height - 1) / 2
-        return np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
-
 
 class ConveyorSpec(_Strict):
     """The conveyor's path of the part in experiments 2 and 3: x, y points (m), speed (m/s)."""
@@ -269,58 +262,97 @@ def _repeated(names: list[str]) -> list[str]:
     return sorted({n for n in names if names.count(n) > 1})
 
 
-def build_cell(spec: CellSpec, file: str, folder: Path) -> Cell:
-    """Turn a validated :class:`CellSpec` into a :class:`Cell`."""
-    robots = []
-    for r, rs in enumerate(spec.robots):
-        at = f"robots[{r}]"
-        chain = DHChain(
-            [DHLink(lk.a, lk.alpha, lk.d, lk.theta, lk.kind, tuple(lk.qlim)) for lk in rs.links],
-            name=rs.name,
-        )
-        solids = [tuple(_solid(s, f"{rs.name}.link0", f"{at}.base_solids[{j}]", file, folder)
-                        for j, s in enumerate(rs.base_solids))]
-        for i, lk in enumerate(rs.links):
-            solids.append(tuple(
-                _solid(s, f"{rs.name}.link{i + 1}", f"{at}.links[{i}].solids[{j}]", file, folder)
-                for j, s in enumerate(lk.solids)
-            ))
-        tool = None
-        if rs.tool:
-            t = rs.tool
-            palm = tuple(_solid(s, f"{rs.name}.gripper", f"{at}.tool.palm[{j}]", file, folder)
-                         for j, s in enumerate(t.palm))
-            jaw = _solid(t.jaw, f"{rs.name}.gripper.jaw", f"{at}.tool.jaw", file, folder)
-            tool = ParallelGripper(palm, jaw, t.mount.matrix(), t.max_opening, np.array(t.tcp))
-        home = _check_len(file, f"{at}.home", rs.home, chain.n, "one per joint")
-        final = None if rs.final is None else _check_len(
-            file, f"{at}.final", rs.final, chain.n, "one per joint")
-        for field, q in (("home", home), ("final", final)):
-            if q is not None:
-                try:
-                    chain.check_q(q, check_limits=True)
-                except CellsightError as exc:
-                    raise CellFileError(file, f"{at}.{field}", list(q), str(exc)) from exc
-        robots.append(Robot(rs.name, rs.base.matrix(), chain, tuple(solids), tool, home, final))
-    parts = [
+def _link_solids(rs: RobotSpec, at: str, file: str, folder: Path) -> list[tuple[Polyhedron, ...]]:
+    """Solids of each DH frame of a robot: its base (frame 0), then one tuple per link."""
+    solids = [tuple(_solid(s, f"{rs.name}.link0", f"{at}.base_solids[{j}]", file, folder)
+                    for j, s in enumerate(rs.base_solids))]
+    for i, lk in enumerate(rs.links):
+        solids.append(tuple(
+            _solid(s, f"{rs.name}.link{i + 1}", f"{at}.links[{i}].solids[{j}]", file, folder)
+            for j, s in enumerate(lk.solids)
+        ))
+    return solids
+
+
+def _gripper(rs: RobotSpec, at: str, file: str, folder: Path) -> ParallelGripper | None:
+    """A robot's parallel gripper, or None when it has no tool."""
+    if rs.tool is None:
+        return None
+    t = rs.tool
+    palm = tuple(_solid(s, f"{rs.name}.gripper", f"{at}.tool.palm[{j}]", file, folder)
+                 for j, s in enumerate(t.palm))
+    jaw = _solid(t.jaw, f"{rs.name}.gripper.jaw", f"{at}.tool.jaw", file, folder)
+    return ParallelGripper(palm, jaw, t.mount.matrix(), t.max_opening, np.array(t.tcp))
+
+
+def _joint_vectors(rs: RobotSpec, chain: DHChain, at: str,
+                   file: str) -> tuple[np.ndarray, np.ndarray | None]:
+    """A robot's HOME and optional FINAL joint vectors, checked for length and limits."""
+    home = _check_len(file, f"{at}.home", rs.home, chain.n, "one per joint")
+    final = None if rs.final is None else _check_len(
+        file, f"{at}.final", rs.final, chain.n, "one per joint")
+    for field, q in (("home", home), ("final", final)):
+        if q is not None:
+            try:
+                chain.check_q(q, check_limits=True)
+            except CellsightError as exc:
+                raise CellFileError(file, f"{at}.{field}", list(q), str(exc)) from exc
+    return home, final
+
+
+def _robot(rs: RobotSpec, at: str, file: str, folder: Path) -> Robot:
+    """One robot: DH chain, solids, gripper and joint vectors (``at``: its field path)."""
+    chain = DHChain(
+        [DHLink(lk.a, lk.alpha, lk.d, lk.theta, lk.kind, tuple(lk.qlim)) for lk in rs.links],
+        name=rs.name,
+    )
+    solids = _link_solids(rs, at, file, folder)
+    tool = _gripper(rs, at, file, folder)
+    home, final = _joint_vectors(rs, chain, at, file)
+    return Robot(rs.name, rs.base.matrix(), chain, tuple(solids), tool, home, final)
+
+
+def _workpieces(spec: CellSpec, file: str, folder: Path) -> list[Workpiece]:
+    return [
         Workpiece(w.name, _solid(w.solid, w.name, f"workpieces[{k}].solid", file, folder),
                   w.pose.matrix(), None if w.grasp is None else w.grasp.matrix())
         for k, w in enumerate(spec.workpieces)
     ]
-    static = [
+
+
+def _static_objects(spec: CellSpec, file: str, folder: Path) -> list[StaticObject]:
+    return [
         StaticObject(s.name, tuple(_solid(x, s.name, f"static[{k}].solids[{j}]", file, folder)
                                    for j, x in enumerate(s.solids)), s.pose.matrix())
         for k, s in enumerate(spec.static)
     ]
+
+
+def _camera(cs: CameraSpec) -> Camera:
+    """The camera of a validated spec (intrinsics through :meth:`Camera.from_intrinsics`)."""
+    T = cs.pose.matrix() if cs.pose else look_at(cs.look_at.eye, cs.look_at.target, cs.look_at.up)
+    return Camera.from_intrinsics(
+        cs.width, cs.height, T, fx=cs.fx, fy=cs.fy, lens_mm=cs.lens_mm, pixel_mm=cs.pixel_mm,
+        cx=cs.cx, cy=cs.cy, dist=cs.dist, name=cs.name)
+
+
+def _cameras(spec: CellSpec, file: str) -> list[Camera]:
     cameras = []
     for c, cs in enumerate(spec.cameras):
         try:
-            T = cs.pose.matrix() if cs.pose else look_at(cs.look_at.eye, cs.look_at.target,
-                                                         cs.look_at.up)
-            cameras.append(Camera(cs.K(), cs.width, cs.height, T, cs.dist, cs.name))
+            cameras.append(_camera(cs))
         except (CellsightError, ValueError) as exc:
             raise CellFileError(file, f"cameras[{c}]", cs.model_dump(exclude_none=True),
                                 str(exc)) from exc
+    return cameras
+
+
+def build_cell(spec: CellSpec, file: str, folder: Path) -> Cell:
+    """Turn a validated :class:`CellSpec` into a :class:`Cell`."""
+    robots = [_robot(rs, f"robots[{r}]", file, folder) for r, rs in enumerate(spec.robots)]
+    parts = _workpieces(spec, file, folder)
+    static = _static_objects(spec, file, folder)
+    cameras = _cameras(spec, file)
     names = [r.name for r in robots] + [w.name for w in parts] + [s.name for s in static]
     if dup := _repeated(names):
         raise CellFileError(file, "name", dup, "unique names of robots, workpieces, static")

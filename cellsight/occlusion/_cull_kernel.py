@@ -7,6 +7,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from cellsight._camera_kernel import project_point, to_camera
+
 
 @njit(cache=True)
 def transform_vertices(local, vertex_owner, moving, poses, out):  # pragma: no cover - jit
@@ -16,16 +18,6 @@ def transform_vertices(local, vertex_owner, moving, poses, out):  # pragma: no c
         x, y, z = local[i, 0], local[i, 1], local[i, 2]
         for r in range(3):
             out[i, r] = T[r, 0] * x + T[r, 1] * y + T[r, 2] * z + T[r, 3]
-
-
-@njit(cache=True, inline="always")
-def _to_camera(R, t, v):  # pragma: no cover - jit
-    """Camera coordinates of the base-frame point ``v``."""
-    return (
-        R[0, 0] * v[0] + R[0, 1] * v[1] + R[0, 2] * v[2] + t[0],
-        R[1, 0] * v[0] + R[1, 1] * v[1] + R[1, 2] * v[2] + t[1],
-        R[2, 0] * v[0] + R[2, 1] * v[1] + R[2, 2] * v[2] + t[2],
-    )
 
 
 @njit(cache=True)
@@ -49,8 +41,8 @@ def cull_polygons(vertices, offsets, closed, T_cam_base, box, margin, keep):  # 
         cx0 = cy0 = cz0 = 0.0
         for j in range(s, e):
             jn = j + 1 if j + 1 < e else s
-            ax, ay, az = _to_camera(R, t, vertices[j])
-            bx, by, bz = _to_camera(R, t, vertices[jn])
+            ax, ay, az = to_camera(R, t, vertices[j])
+            bx, by, bz = to_camera(R, t, vertices[jn])
             nx += (ay - by) * (az + bz)
             ny += (az - bz) * (ax + bx)
             nz += (ax - bx) * (ay + by)
@@ -73,32 +65,27 @@ def cull_polygons(vertices, offsets, closed, T_cam_base, box, margin, keep):  # 
 
 @njit(cache=True)
 def project_points(points, T_cam_base, K, dist, width, height, px, status, box):  # pragma: no cover
-    """Project base-frame ``points`` (N, 3) into a camera, OpenCV model with ``dist`` =
-    (k1, k2, p1, p2, k3). Fills ``px`` (N, 2) (NaN behind the camera), ``status`` (N,)
-    (0 inside the image, 1 behind the camera, 2 outside the image) and ``box`` = (xmin, xmax,
-    ymin, ymax, zmax) of the inside points in normalised coordinates; returns their count."""
+    """Project base-frame ``points`` (N, 3) into a camera (the model of
+    :mod:`cellsight._camera_kernel`, ``dist`` = ``Camera.dist5``). Fills ``px`` (N, 2) (NaN
+    behind the camera), ``status`` (N,) (0 inside the image, 1 behind the camera, 2 outside the
+    image) and ``box`` = (xmin, xmax, ymin, ymax, zmax) of the inside points in normalised
+    coordinates; returns their count."""
     R = T_cam_base[:3, :3]
     t = T_cam_base[:3, 3]
-    k1, k2, p1, p2, k3 = dist[0], dist[1], dist[2], dist[3], dist[4]
     box[0] = box[2] = np.inf
     box[1] = box[3] = box[4] = -np.inf
     count = 0
     for i in range(points.shape[0]):
-        x, y, z = _to_camera(R, t, points[i])
+        x, y, z = to_camera(R, t, points[i])
         if z <= 1e-9:
             px[i, 0] = px[i, 1] = np.nan
             status[i] = 1
             continue
-        xn, yn = x / z, y / z
-        r2 = xn * xn + yn * yn
-        radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
-        xd = xn * radial + 2.0 * p1 * xn * yn + p2 * (r2 + 2.0 * xn * xn)
-        yd = yn * radial + p1 * (r2 + 2.0 * yn * yn) + 2.0 * p2 * xn * yn
-        u = K[0, 0] * xd + K[0, 1] * yd + K[0, 2]
-        v = K[1, 1] * yd + K[1, 2]
+        u, v = project_point(K, dist, x, y, z)
         px[i, 0], px[i, 1] = u, v
         if -0.5 <= u <= width - 0.5 and -0.5 <= v <= height - 0.5:
             status[i] = 0
+            xn, yn = x / z, y / z
             count += 1
             box[0], box[1] = min(box[0], xn), max(box[1], xn)
             box[2], box[3] = min(box[2], yn), max(box[3], yn)

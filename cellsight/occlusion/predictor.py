@@ -92,7 +92,6 @@ class VisibilityPredictor:
         self.part_objects = [cell.object_index(p.name) for p in cell.workpieces]
         self.part_features = [p.feature_points for p in cell.workpieces]
         self._feature_owner = np.repeat(self.part_objects, [len(f) for f in self.part_features])
-        self._dist = {c.name: np.zeros(5) if c.dist is None else c.dist for c in self.cameras}
         self.part_polys = np.isin(self.poly_owner, self.part_objects)
         self.labels = [o.label for o in cell.objects]
 
@@ -122,7 +121,7 @@ class VisibilityPredictor:
         keep = self.part_polys.copy()
         for cam in self.cameras:
             px, status, box = np.empty((n, 2)), np.empty(n, dtype=np.int8), np.empty(5)
-            seen = project_points(points, cam.T_cam_base, cam.K, self._dist[cam.name],
+            seen = project_points(points, cam.T_cam_base, cam.K, cam.dist5,
                                   cam.width, cam.height, px, status, box)
             views.append((px, status))
             if self.cull and seen:

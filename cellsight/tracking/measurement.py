@@ -8,7 +8,9 @@ For camera ``c`` (pose ``T_base_cam``, intrinsics ``K``) and a feature with mode
 
 where ``[R_cb | t_cb] = T_cam_base``, ``o`` is the part position and ``R`` its rotation in the base
 frame (state layout in :mod:`cellsight.tracking.motion`). Lens distortion is removed from the
-measured pixels (:func:`undistort_pixels`) rather than modelled here.
+measured pixels (:meth:`Camera.undistort <cellsight.camera.Camera.undistort>`) rather than
+modelled here; the pinhole projection and its Jacobian are the camera module's
+(:func:`cellsight._camera_kernel.pinhole_jacobian`).
 
 Analytic Jacobian of one point (2x12; the velocity columns are zero)::
 
@@ -30,10 +32,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import cv2
 import numba
 import numpy as np
 
+from cellsight._camera_kernel import pinhole_jacobian
 from cellsight.camera import Camera
 
 
@@ -113,7 +115,6 @@ def _evaluate(pts, R, o, T_cam_base, K, E):
     n = len(pts)
     pix = np.empty((n, 2))
     J = np.zeros((2 * n, 12))
-    fx, s, cx, fy, cy = K[0, 0], K[0, 1], K[0, 2], K[1, 1], K[1, 2]
     Rcb = T_cam_base[:3, :3]
     q = np.empty(3)
     pc = np.empty(3)
@@ -124,12 +125,7 @@ def _evaluate(pts, R, o, T_cam_base, K, E):
             pc[a] = T_cam_base[a, 3]
             for b in range(3):
                 pc[a] += Rcb[a, b] * (o[b] + q[b])
-        iz = 1.0 / pc[2]
-        x = pc[0] * iz
-        y = pc[1] * iz
-        pix[j, 0] = fx * x + s * y + cx
-        pix[j, 1] = fy * y + cy
-        d = ((fx * iz, s * iz, -(fx * x + s * y) * iz), (0.0, fy * iz, -fy * y * iz))
+        pix[j, 0], pix[j, 1], d = pinhole_jacobian(K, pc[0], pc[1], pc[2])
         for r in range(2):
             row = 2 * j + r
             g0 = d[r][0] * Rcb[0, 0] + d[r][1] * Rcb[1, 0] + d[r][2] * Rcb[2, 0]
@@ -161,14 +157,3 @@ class Observation:
     points_model: np.ndarray
     pixels: np.ndarray
 
-
-def undistort_pixels(camera: Camera, pixels: np.ndarray) -> np.ndarray:
-    """Map measured (distorted) pixels (n, 2) to ideal pinhole pixels with the same ``K``.
-
-    Identity for a camera without distortion.
-    """
-    px = np.asarray(pixels, dtype=float).reshape(-1, 2)
-    if camera.dist is None or len(px) == 0:
-        return px.copy()
-    out = cv2.undistortPoints(px.reshape(-1, 1, 2), camera.K, camera.dist, P=camera.K)
-    return out.reshape(-1, 2)

@@ -46,18 +46,20 @@ def solve_pnp_camera(observation: Observation) -> np.ndarray | None:
     img = np.ascontiguousarray(observation.pixels, dtype=np.float64).reshape(-1, 1, 2)
     if len(obj) < 4:
         return None
-    K = observation.model.camera.K
+    # the pixels are undistorted (Camera.undistort): the camera's ideal pinhole model fits them
+    camera = observation.model.camera.ideal()
+    K, dist = camera.K, camera.dist
     try:
-        ok, rvec, tvec = cv2.solvePnP(obj, img, K, None, flags=cv2.SOLVEPNP_SQPNP)
+        ok, rvec, tvec = cv2.solvePnP(obj, img, K, dist, flags=cv2.SOLVEPNP_SQPNP)
     except cv2.error:  # degenerate configurations trip SQPnP's internal assertions
         return None
     if not ok:
         return None
-    rvec, tvec = cv2.solvePnPRefineLM(obj, img, K, None, rvec, tvec)
+    rvec, tvec = cv2.solvePnPRefineLM(obj, img, K, dist, rvec, tvec)
     T_cam_part = np.eye(4)
     T_cam_part[:3, :3] = cv2.Rodrigues(rvec)[0]
     T_cam_part[:3, 3] = tvec.ravel()
-    return observation.model.camera.T_base_cam @ T_cam_part
+    return camera.T_base_cam @ T_cam_part
 
 
 def _residuals(observations: list[Observation], params: np.ndarray):

@@ -29,6 +29,8 @@ import numpy as np
 from cellsight.camera import Camera
 from cellsight.geometry.polyhedron import Polyhedron
 from cellsight.model import Cell, CellObject
+from cellsight.model.cell import ObjectFrame
+from cellsight.model.robot import Robot
 
 GROUP_STATIC, GROUP_ROBOT, GROUP_PART = 0, 1, 2
 _FLIP_YZ = np.diag([1.0, -1.0, -1.0])  # OpenCV camera axes <-> MuJoCo camera axes
@@ -68,18 +70,6 @@ def tcp_site_name(robot: str) -> str:
     return f"{robot}/tcp"
 
 
-def scaled_K(camera: Camera, size: tuple[int, int]) -> np.ndarray:
-    """The camera matrix for images of ``size`` = (width, height) showing the same field of view
-    (pixel centres at integer coordinates, as in OpenCV)."""
-    sx, sy = size[0] / camera.width, size[1] / camera.height
-    K = camera.K.copy()
-    K[0, :2] *= sx
-    K[1, 1] *= sy
-    K[0, 2] = (camera.K[0, 2] + 0.5) * sx - 0.5
-    K[1, 2] = (camera.K[1, 2] + 0.5) * sy - 0.5
-    return K
-
-
 def mjcf_camera(camera: Camera, size: tuple[int, int] | None = None) -> str:
     """MJCF ``<camera>`` element reproducing an OpenCV pinhole camera (undistorted part).
 
@@ -96,10 +86,11 @@ def mjcf_camera(camera: Camera, size: tuple[int, int] | None = None) -> str:
     0 so that the stereo eyes coincide with the camera.
 
     ``size`` = (width, height) renders at another resolution with the intrinsics scaled to it
-    (same field of view); default: the camera's own size.
+    (:meth:`Camera.scaled_K <cellsight.camera.Camera.scaled_K>`, same field of view); default:
+    the camera's own size.
     """
     w, h = size if size is not None else (camera.width, camera.height)
-    K = scaled_K(camera, (w, h))
+    K = camera.scaled_K((w, h))
     fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
     R = camera.T_base_cam[:3, :3] @ _FLIP_YZ
     return (
@@ -125,81 +116,94 @@ def _geom(obj: CellObject, group: int) -> str:
     )
 
 
+def _frame_body(frame: ObjectFrame) -> str:
+    """Name of the body of a cell object's frame (module docstring)."""
+    if frame.kind == "link":
+        return body_name(frame.owner, frame.index)
+    if frame.kind == "palm":
+        return body_name(frame.owner, "tool")
+    if frame.kind == "jaw":
+        return body_name(frame.owner, f"jaw{frame.index + 1}")
+    return frame.owner  # a workpiece's or static object's body is named like it
+
+
 def object_bodies(cell: Cell) -> tuple[str, ...]:
     """Name of the body that carries each cell object (the object's frame is the body's frame),
-    in ``cell.objects`` order: the order in which
-    :class:`~cellsight.model.Cell` lists its objects (robots' links, palm, jaws; workpieces;
-    static objects)."""
-    names: list[str] = []
-    for robot in cell.robots:
-        for i, solids in enumerate(robot.link_solids):
-            names += [body_name(robot.name, i)] * len(solids)
-        if robot.tool is not None:
-            names += [body_name(robot.name, "tool")] * len(robot.tool.palm)
-            names += [body_name(robot.name, "jaw1"), body_name(robot.name, "jaw2")]
-    names += [part.name for part in cell.workpieces]
-    for obj in cell.static:
-        names += [obj.name] * len(obj.solids)
-    if len(names) != len(cell.objects):
-        raise AssertionError("cellsight.world: cell object order changed; update object_bodies")
-    return tuple(names)
+    in ``cell.objects`` order (from ``cell.frames``)."""
+    return tuple(_frame_body(frame) for frame in cell.frames)
 
 
-def cell_mjcf(cell: Cell, render_size: tuple[int, int] | None = None) -> str:
-    """MJCF text of the cell (see the module docstring for names and frames).
+_INERTIAL = '<inertial pos="0 0 0" mass="1" diaginertia="0.01 0.01 0.01"/>'
+_GROUPS = {"link": GROUP_ROBOT, "tool": GROUP_ROBOT, "workpiece": GROUP_PART}
 
-    ``render_size`` = (width, height) of the rendered images (default: each camera's own).
-    """
-    bodies = object_bodies(cell)
+
+def _geoms_and_assets(cell: Cell) -> tuple[dict[str, list[str]], list[str]]:
+    """Every object's geom, grouped by the name of its body, and its mesh asset."""
     geoms: dict[str, list[str]] = {}
     assets = []
-    for obj, body in zip(cell.objects, bodies, strict=True):
-        group = {"link": GROUP_ROBOT, "tool": GROUP_ROBOT, "workpiece": GROUP_PART}.get(
-            obj.kind, GROUP_STATIC
-        )
-        geoms.setdefault(body, []).append(_geom(obj, group))
+    for obj, body in zip(cell.objects, object_bodies(cell), strict=True):
+        geoms.setdefault(body, []).append(_geom(obj, _GROUPS.get(obj.kind, GROUP_STATIC)))
         assets.append(_mesh_asset(obj.name, obj.solid))
+    return geoms, assets
 
-    inertial = '<inertial pos="0 0 0" mass="1" diaginertia="0.01 0.01 0.01"/>'
-    world = []
-    for robot in cell.robots:
-        base = body_name(robot.name, 0)
-        xml = [f"<body name={quoteattr(base)} {_pose_attrs(robot.T_base_robot)}>"]
-        xml += geoms.get(base, [])
-        A0 = robot.chain.link_transforms(np.zeros(robot.n_joints))
-        for i, (A, link) in enumerate(zip(A0, robot.chain.links, strict=True), start=1):
-            # The joint acts about/along z of frame i-1, written in frame i (the child body).
-            R, t = A[:3, :3], A[:3, 3]
-            kind = "slide" if link.is_prismatic else "hinge"
-            xml.append(f"<body name={quoteattr(body_name(robot.name, i))} {_pose_attrs(A)}>")
-            xml.append(inertial)
-            xml.append(
-                f"<joint name={quoteattr(joint_name(robot.name, i))} type=\"{kind}\" "
-                f'pos="{_num(-R.T @ t)}" axis="{_num(R.T[:, 2])}" range="{_num(link.qlim)}"/>'
-            )
-            xml += geoms.get(body_name(robot.name, i), [])
-        closes = robot.n_joints
-        if robot.tool is not None:
-            tool = robot.tool
-            xml.append(
-                f"<body name={quoteattr(body_name(robot.name, 'tool'))} "
-                f"{_pose_attrs(tool.T_flange_tool)}>"
-            )
-            xml += geoms[body_name(robot.name, "tool")]
-            site = quoteattr(tcp_site_name(robot.name))
-            xml.append(f'<site name={site} pos="{_num(tool.tcp)}"/>')
-            for jaw, quat in (("jaw1", "1 0 0 0"), ("jaw2", "0 0 0 1")):
-                name = body_name(robot.name, jaw)
-                xml.append(f"<body name={quoteattr(name)} quat=\"{quat}\">{inertial}")
-                xml.append(
-                    f'<joint name={quoteattr(name)} type="slide" axis="0 1 0" '
-                    f'range="0 {tool.max_opening / 2:.17g}"/>'
-                )
-                xml += geoms[name]
-                xml.append("</body>")
-            xml.append("</body>")
-        xml.append("</body>" * (closes + 1))
-        world.append("\n".join(xml))
+
+def _link_bodies(robot: Robot, geoms: dict[str, list[str]]) -> list[str]:
+    """Opening tags, joints and geoms of the DH frame bodies ``R/1`` .. ``R/n``, nested (the
+    caller closes them)."""
+    xml = []
+    A0 = robot.chain.link_transforms(np.zeros(robot.n_joints))
+    for i, (A, link) in enumerate(zip(A0, robot.chain.links, strict=True), start=1):
+        # The joint acts about/along z of frame i-1, written in frame i (the child body).
+        R, t = A[:3, :3], A[:3, 3]
+        kind = "slide" if link.is_prismatic else "hinge"
+        xml.append(f"<body name={quoteattr(body_name(robot.name, i))} {_pose_attrs(A)}>")
+        xml.append(_INERTIAL)
+        xml.append(
+            f"<joint name={quoteattr(joint_name(robot.name, i))} type=\"{kind}\" "
+            f'pos="{_num(-R.T @ t)}" axis="{_num(R.T[:, 2])}" range="{_num(link.qlim)}"/>'
+        )
+        xml += geoms.get(body_name(robot.name, i), [])
+    return xml
+
+
+def _tool_body(robot: Robot, geoms: dict[str, list[str]]) -> list[str]:
+    """The tool body ``R/tool`` (palm geoms, TCP site) with its two sliding jaw bodies."""
+    tool = robot.tool
+    xml = [
+        f"<body name={quoteattr(body_name(robot.name, 'tool'))} "
+        f"{_pose_attrs(tool.T_flange_tool)}>"
+    ]
+    xml += geoms[body_name(robot.name, "tool")]
+    site = quoteattr(tcp_site_name(robot.name))
+    xml.append(f'<site name={site} pos="{_num(tool.tcp)}"/>')
+    for jaw, quat in (("jaw1", "1 0 0 0"), ("jaw2", "0 0 0 1")):
+        name = body_name(robot.name, jaw)
+        xml.append(f"<body name={quoteattr(name)} quat=\"{quat}\">{_INERTIAL}")
+        xml.append(
+            f'<joint name={quoteattr(name)} type="slide" axis="0 1 0" '
+            f'range="0 {tool.max_opening / 2:.17g}"/>'
+        )
+        xml += geoms[name]
+        xml.append("</body>")
+    xml.append("</body>")
+    return xml
+
+
+def _robot_body(robot: Robot, geoms: dict[str, list[str]]) -> str:
+    """The robot's body tree: base ``R/0``, DH frame bodies, tool and jaws."""
+    base = body_name(robot.name, 0)
+    xml = [f"<body name={quoteattr(base)} {_pose_attrs(robot.T_base_robot)}>"]
+    xml += geoms.get(base, [])
+    xml += _link_bodies(robot, geoms)
+    if robot.tool is not None:
+        xml += _tool_body(robot, geoms)
+    xml.append("</body>" * (robot.n_joints + 1))
+    return "\n".join(xml)
+
+
+def _world_bodies(cell: Cell, geoms: dict[str, list[str]]) -> list[str]:
+    """Robots' body trees, workpieces' mocap bodies and static objects' fixed bodies."""
+    world = [_robot_body(robot, geoms) for robot in cell.robots]
     for part in cell.workpieces:
         world.append(
             f'<body name={quoteattr(part.name)} mocap="true" {_pose_attrs(part.T_base_part)}>'
@@ -212,7 +216,16 @@ def cell_mjcf(cell: Cell, render_size: tuple[int, int] | None = None) -> str:
             + "".join(geoms[obj.name])
             + "</body>"
         )
+    return world
 
+
+def cell_mjcf(cell: Cell, render_size: tuple[int, int] | None = None) -> str:
+    """MJCF text of the cell (see the module docstring for names and frames).
+
+    ``render_size`` = (width, height) of the rendered images (default: each camera's own).
+    """
+    geoms, assets = _geoms_and_assets(cell)
+    world = _world_bodies(cell, geoms)
     sizes = [render_size or (c.width, c.height) for c in cell.cameras] or [(640, 480)]
     offw, offh = max(s[0] for s in sizes), max(s[1] for s in sizes)
     cameras = [mjcf_camera(c, render_size) for c in cell.cameras]
