@@ -3,6 +3,7 @@ the metrics agree with the log when recomputed here independently."""
 
 from __future__ import annotations
 
+import csv
 import json
 from pathlib import Path
 
@@ -15,13 +16,16 @@ from cellsight import load_cell
 from cellsight.cli import main
 from cellsight.errors import CellFileError
 from cellsight.experiments import RunConfig, scenario
-from cellsight.experiments.framelog import columns, read_frames
+from cellsight.experiments.plant import SimulatedCell
 from cellsight.experiments.runner import ExperimentRun
 from cellsight.experiments.sensors import IdealExtractor
+from cellsight.framelog import columns
 from cellsight.model.loader import builtin_cell_path
 from cellsight.occlusion.predictor import VisibilityPredictor
 from cellsight.occlusion.projection import ProjectionOnly
+from cellsight.rates import CONTROL_HZ, VISION_HZ
 from cellsight.tracking.windowing import plan_windows
+from cellsight.world import World
 
 DURATION = 4.0
 REQUIRED_METRICS = {
@@ -43,18 +47,25 @@ def short_run(tmp_path_factory) -> Path:
     return out
 
 
+def read_frames(path: Path) -> list[dict[str, str]]:
+    """The rows of a frames.csv as dicts of strings, read here with the csv module alone."""
+    with path.open(newline="") as f:
+        return list(csv.DictReader(f))
+
+
 def _mask(text: str) -> np.ndarray:
     return np.array([ch == "1" for ch in text])
 
 
 def test_short_run_writes_every_log_column_and_metric(short_run: Path) -> None:
-    rows = list(read_frames(short_run / "frames.csv"))
+    rows = read_frames(short_run / "frames.csv")
     assert list(rows[0]) == columns(2)
-    assert len(rows) == int(DURATION * 26) + 1
+    assert len(rows) == int(DURATION * VISION_HZ) + 1
     t = np.array([float(r["t"]) for r in rows])
-    # 26 Hz vision frames, each on the 500 Hz control grid (within one control period)
-    assert np.allclose(np.diff(t), 1 / 26, atol=2.001e-3) and t[-1] == pytest.approx(DURATION)
-    assert np.allclose(np.round(t * 500), t * 500, atol=1e-6)
+    # vision frames, each on the control grid (within one control period)
+    assert np.allclose(np.diff(t), 1 / VISION_HZ, atol=1.001 / CONTROL_HZ)
+    assert t[-1] == pytest.approx(DURATION)
+    assert np.allclose(np.round(t * CONTROL_HZ), t * CONTROL_HZ, atol=1e-6)
     for r in rows:
         for c in (1, 2):
             for name in ("vis_pred", "vis_true", "sel", "meas", "rej", "wrong"):
@@ -77,7 +88,7 @@ def test_short_run_writes_every_log_column_and_metric(short_run: Path) -> None:
 
 def test_metrics_agree_with_the_log(short_run: Path) -> None:
     """Recompute the metrics from frames.csv here, without the package's metric code."""
-    rows = list(read_frames(short_run / "frames.csv"))
+    rows = read_frames(short_run / "frames.csv")
     metrics = json.loads((short_run / "metrics.json").read_text())
     labels = np.array([[_mask(r[f"vis_pred_c{c}"]) for c in (1, 2)] for r in rows])
     truth = np.array([[_mask(r[f"vis_true_c{c}"]) for c in (1, 2)] for r in rows])
@@ -109,7 +120,7 @@ def test_metrics_agree_with_the_log(short_run: Path) -> None:
     assert metrics["orientation_rmse_deg"] == pytest.approx(
         np.degrees(np.sqrt(np.mean(ang**2))), abs=1e-6)
     lost = sum(1 for r in window if r["est_x"] == "")
-    assert metrics["lost_in_view_s"] == pytest.approx(lost / 26, abs=1e-3)
+    assert metrics["lost_in_view_s"] == pytest.approx(lost / VISION_HZ, abs=1e-3)
     for phase, figures in metrics["phases"].items():
         in_phase = [r for r in window if r["phase"] == phase]
         assert figures["evaluated_frames"] == len(in_phase)
@@ -138,8 +149,8 @@ def test_metrics_agree_with_the_log(short_run: Path) -> None:
 def test_same_seed_same_run(short_run: Path, tmp_path: Path) -> None:
     main(["run", "3", "--sensor", "ideal", "--duration", str(DURATION), "--out", str(tmp_path),
           "--quiet", "--seed", "5"])
-    first = list(read_frames(short_run / "frames.csv"))
-    again = list(read_frames(tmp_path / "frames.csv"))
+    first = read_frames(short_run / "frames.csv")
+    again = read_frames(tmp_path / "frames.csv")
     strip = [{k: v for k, v in r.items() if k not in TIMING_COLUMNS} for r in first]
     assert strip == [{k: v for k, v in r.items() if k not in TIMING_COLUMNS} for r in again]
 
@@ -158,7 +169,7 @@ def test_an_interrupted_run_keeps_what_it_wrote(tmp_path: Path, monkeypatch) -> 
 
     def step_then_stop(*args, **kwargs):
         calls[0] += 1
-        if calls[0] > 500:  # one second of simulated time
+        if calls[0] > CONTROL_HZ:  # one second of simulated time
             raise KeyboardInterrupt
         step(*args, **kwargs)
 
@@ -166,9 +177,34 @@ def test_an_interrupted_run_keeps_what_it_wrote(tmp_path: Path, monkeypatch) -> 
     with pytest.raises(KeyboardInterrupt):
         run.run()
     metrics = json.loads((tmp_path / "metrics.json").read_text())
-    rows = list(read_frames(tmp_path / "frames.csv"))
+    rows = read_frames(tmp_path / "frames.csv")
     assert metrics["interrupted"] and metrics["frames"] == len(rows) == 27
     assert (tmp_path / "report.html").stat().st_size > 0
+
+
+class _OnlyThePlant:
+    """A World seen only through the run loop's interface (SimulatedCell): anything else the
+    loop asked for would be an AttributeError."""
+
+    def __init__(self, world: World) -> None:
+        self._world = world
+        self.calls: set[str] = set()
+
+    def __getattr__(self, name: str):
+        if name.startswith("_") or not hasattr(SimulatedCell, name):
+            raise AttributeError(f"the run loop used World.{name}, not in SimulatedCell")
+        self.calls.add(name)
+        return getattr(self._world, name)
+
+
+def test_the_loop_needs_only_its_world_interface(tmp_path: Path) -> None:
+    config = RunConfig(3, tmp_path, sensor="ideal", duration=1.0, progress=False, seed=2)
+    sc = scenario(load_cell(), 3)
+    world = _OnlyThePlant(World(load_cell(), seed=2, conveyor=sc.conveyor, tasks=sc.tasks))
+    metrics = ExperimentRun(config, world=world).run()
+    assert metrics["frames"] == len(read_frames(tmp_path / "frames.csv")) == 27
+    assert not metrics["interrupted"] and metrics["position_rmse_mm"] < 1.0
+    assert {"time", "step", "measured_joints", "true_views", "close"} <= world.calls
 
 
 def test_experiments_need_their_section_of_the_cell_file(tmp_path: Path) -> None:
@@ -230,13 +266,13 @@ def test_the_whole_task_is_tracked_within_the_targets(whole_task: Path) -> None:
     the frames after the first estimate, never lost while in view, RMSE <= 1 mm, max <= 5 mm,
     orientation RMSE <= 0.5 deg, in-view visibility accuracy >= 0.99, the grasp done."""
     metrics = json.loads((whole_task / "metrics.json").read_text())
-    rows = list(read_frames(whole_task / "frames.csv"))
+    rows = read_frames(whole_task / "frames.csv")
     assert metrics["grasp_success"] and metrics["final_phase"] == "done"
     assert metrics["in_view_fraction"] >= 0.9 and metrics["lost_in_view_s"] == 0
     assert metrics["position_rmse_mm"] <= 1.0 and metrics["max_position_error_mm"] <= 5.0
     assert metrics["orientation_rmse_deg"] <= 0.5 and metrics["visibility_accuracy"] >= 0.99
     for phase in ("approach", "grasp", "manipulate", "release"):  # every phase observed
-        assert metrics["phases"][phase]["evaluated_frames"] > 26
+        assert metrics["phases"][phase]["evaluated_frames"] > VISION_HZ  # over a second
         assert metrics["phases"][phase]["lost_in_view_s"] == 0
     last = rows[-1]
     assert last["phase"] == "done" and last["est_x"] != "" and last["grasped"] == "0"
@@ -246,7 +282,7 @@ def test_the_whole_task_shows_the_papers_occlusion_events(whole_task: Path) -> N
     """From the truth columns of the log: self-occlusion at the start; R7AX's gripper hiding
     points in both cameras; R6AX leaving camera 2 at most two points between Approach and
     Grasp; R6AX hiding the part completely from camera 1 during Manipulate."""
-    rows = list(read_frames(whole_task / "frames.csv"))
+    rows = read_frames(whole_task / "frames.csv")
 
     def hidden(row, c, label):
         return sum(1 for x in row[f"occ_true_c{c}"].split(";") if x.startswith(label))

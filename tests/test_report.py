@@ -14,10 +14,11 @@ import imageio_ffmpeg
 import numpy as np
 import pytest
 
+from cellsight.framelog import POSE, FrameLog
+from cellsight.rates import VISION_HZ
 from cellsight.report import overlay
 from cellsight.report.overlay import compose_views, draw_camera_overlay
 from cellsight.report.run_report import (
-    Frames,
     Run,
     load_run,
     orientation_error_deg,
@@ -26,11 +27,10 @@ from cellsight.report.run_report import (
     write_report,
 )
 from cellsight.report.video import VideoWriter
+from cellsight.tracking.timing import STAGES
 
 F = 16
 CAMERAS = ("cam1", "cam2")
-POSE = ("x", "y", "z", "roll", "pitch", "yaw")
-STAGES = ("occlusion", "selection", "windowing", "extraction", "ekf", "total")
 
 
 def _overlay_inputs() -> dict:
@@ -122,7 +122,7 @@ def _frame_rows(n: int, rng: np.random.Generator) -> list[dict]:
     phases = ["waiting"] * 5 + ["approach"] * 15 + ["grasp"] * 10 + ["manipulate"] * (n - 30)
     rows = []
     for k in range(n):
-        t = k / 26.0
+        t = k / VISION_HZ
         true = np.array([0.6 + 0.05 * t, -0.2 + 0.02 * t, 0.9, 0.0, 0.0, 0.3 + 0.1 * t])
         row = {"t": t, "phase": phases[k], "stage": "s", "status":
                "waiting" if k < 3 else "tracking"}
@@ -215,7 +215,7 @@ def full_run(tmp_path) -> Path:
     (run_dir / "metrics.json").write_text(json.dumps(METRICS))
     (run_dir / "run.log").write_text("0.00 s phase waiting\n1.15 s phase <manipulate>\n")
     _write_keyframe(run_dir)
-    with VideoWriter(run_dir / "views.mp4", fps=26) as vw:
+    with VideoWriter(run_dir / "views.mp4", fps=VISION_HZ) as vw:
         for k in range(3):
             vw.add(np.full((32, 48, 3), 60 * k, dtype=np.uint8))
     return run_dir
@@ -227,13 +227,13 @@ def test_frames_keep_flag_strings_and_missing_values(full_run):
     vis = run.frames.bits("vis_pred_c1", F)
     assert vis.shape == (40, F) and not vis[:, 0].any() and vis[3:].any()
     assert not run.frames.present("vis_pred_c1")[:3].any()
-    assert np.isnan(run.frames.num("est_x")[:3]).all()
+    assert np.isnan(run.frames.floats("est_x")[:3]).all()
     labels = run.frames.labels("occ_pred_c2", F)
     assert set(labels[3:, 0]) <= {"self", "R7AX.gripper", "table", "R6AX.link4"}
 
 
 def test_pose_errors():
-    frames = Frames({"t": ["0", "1"], **{f"true_{p}": ["0", "0"] for p in POSE},
+    frames = FrameLog({"t": ["0", "1"], **{f"true_{p}": ["0", "0"] for p in POSE},
                      "est_x": ["0.003", ""], "est_y": ["0.004", ""], "est_z": ["0", ""],
                      "est_roll": ["0", ""], "est_pitch": ["0", ""],
                      "est_yaw": [str(np.radians(10.0)), ""]}, 2)

@@ -8,6 +8,7 @@ from scipy.spatial.transform import Rotation
 
 from cellsight import load_cell
 from cellsight.occlusion.predictor import VisibilityPredictor
+from cellsight.rates import VISION_HZ
 from cellsight.tracking import Tracker
 from cellsight.world import ConveyorPath, World
 
@@ -23,16 +24,17 @@ def test_tracker_follows_a_moving_part_in_rendered_images() -> None:
     errors, agreement = [], []
     try:
         for k in range(60):
-            t = k / 26.0
+            t = k / VISION_HZ
             while world.time < t - 1e-9:
                 world.step({}, {})
             joints = world.measured_joints()
             frame = tracker.step(world.render(), joints, t)
             rec = frame.parts[part.name]
             T_true = world.true_part_poses()[part.name]
-            truth = world.true_visibility()[part.name]
+            truth = world.true_views()[part.name]
             predicted = predictor.predict(joints, {part.name: T_true})[part.name]
-            agreement += [np.mean(p.visible == v) for p, v in zip(predicted, truth, strict=True)]
+            agreement += [np.mean(p.visible == v.visible)
+                          for p, v in zip(predicted, truth, strict=True)]
             if k >= 20:
                 dR = Rotation.from_matrix(rec.T_base_part[:3, :3].T @ T_true[:3, :3])
                 errors.append((np.linalg.norm(rec.T_base_part[:3, 3] - T_true[:3, 3]),

@@ -1,4 +1,5 @@
-"""Metrics of a run, computed from its ``frames.csv`` rows alone (so they can be recomputed).
+"""Metrics of a run, computed from its ``frames.csv`` alone (so they can be recomputed from any
+run folder, old ones included): :func:`frame_metrics`.
 
 Which frames count:
 
@@ -25,44 +26,46 @@ label of every frame (out-of-view labels are trivially right). ``false_visible``
 predicted visible but truly hidden, ``false_hidden`` the reverse, over every label.
 
 Measurements, over all frames: ``measurements`` (features measured), ``rejected_measurements``
-(of those, rejected by the EKF's gate), ``wrong_measurements`` (measured more than ``WRONG_PX``
-from the true projection: another image point, such as an occluder's corner),
-``wrong_accepted`` (wrong and not rejected). ``pixels_grabbed_fraction``: mean over frames and
-cameras of the fraction of pixels grabbed. ``extraction_error_px_median``: median over frames
-and cameras of each frame's median extraction error (px); None when no frame has one (ideal
-sensor). ``timing_ms``: median per stage (ms) over the frames.
+(of those, rejected by the EKF's gate), ``wrong_measurements`` (measured more than
+:data:`~cellsight.framelog.WRONG_PX` from the true projection: another image point, such as an
+occluder's corner), ``wrong_accepted`` (wrong and not rejected). ``pixels_grabbed_fraction``:
+mean over frames and cameras of the fraction of pixels grabbed. ``extraction_error_px_median``:
+median over frames and cameras of each frame's median extraction error (px); None when no frame
+has one (ideal sensor). ``timing_ms``: median per stage (ms) over the frames.
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-
 import numpy as np
 
-from cellsight.experiments.framelog import POSE, STAGES
+from cellsight.framelog import FrameLog, camera_column, timing_column
 from cellsight.geometry.transforms import pose_errors
+from cellsight.tracking.timing import STAGES
+from cellsight.visibility import BEHIND, OUTSIDE
 
 PHASES = ("approach", "grasp", "manipulate", "release")
-OUT_OF_VIEW = ("outside", "behind")  # true occluder labels of a feature not in the image
+OUT_OF_VIEW = (OUTSIDE, BEHIND)  # true occluder labels of a feature not in the image
 
 
-def _pose_columns(rows: Sequence[dict[str, str]], prefix: str) -> np.ndarray:
-    """(n, 6) poses, NaN rows where missing."""
-    out = np.full((len(rows), 6), np.nan)
-    for i, row in enumerate(rows):
-        if row[f"{prefix}_x"] != "":
-            out[i] = [float(row[f"{prefix}_{a}"]) for a in POSE]
-    return out
+def _per_camera(log: FrameLog, name: str, decode: str) -> np.ndarray:
+    """(N, C, F) of a per-camera column, ``decode`` 'bits' (bool) or 'labels' (str)."""
+    read = log.bits if decode == "bits" else log.labels
+    F = log.n_features
+    out = [read(camera_column(name, c), F) for c in range(1, log.n_cameras + 1)]
+    return np.stack(out, axis=1) if out else np.zeros((log.n, 0, F), dtype=bool)
 
 
-def _bits(text: str) -> np.ndarray:
-    """A '0'/'1' string as a boolean mask."""
-    return np.frombuffer(text.encode(), dtype=np.uint8) == ord("1")
+def in_image(log: FrameLog) -> np.ndarray:
+    """(N, C, F) bool: the feature truly projects inside that camera's image."""
+    return ~np.isin(_per_camera(log, "occ_true", "labels"), OUT_OF_VIEW)
 
 
-def _in_image(row: dict[str, str], c: int) -> np.ndarray:
-    """Per feature: truly projects inside camera ``c``'s image (1-based)."""
-    return np.array([r not in OUT_OF_VIEW for r in row[f"occ_true_c{c}"].split(";")])
+def evaluated_frames(log: FrameLog) -> np.ndarray:
+    """(N,) bool: in view and at or after the first estimate (module docstring)."""
+    has_estimate = log.present("est_x")
+    start = int(np.argmax(has_estimate)) if has_estimate.any() else log.n
+    in_view = in_image(log).any(axis=(1, 2))
+    return in_view & (np.arange(log.n) >= start)
 
 
 def _rmse(x: np.ndarray) -> float | None:
@@ -74,18 +77,10 @@ def _scaled(x: float | None, factor: float) -> float | None:
     return None if x is None else x * factor
 
 
-def evaluated_frames(rows: Sequence[dict[str, str]], n_cameras: int) -> np.ndarray:
-    """Boolean mask over rows: in view and at or after the first estimate (module docstring)."""
-    start = next((i for i, r in enumerate(rows) if r["est_x"] != ""), len(rows))
-    in_view = np.array([any(_in_image(r, c).any() for c in range(1, n_cameras + 1))
-                        for r in rows], dtype=bool)
-    after = np.arange(len(rows)) >= start
-    return in_view & after
-
-
 def _errors(est: np.ndarray, pnp: np.ndarray, truth: np.ndarray, mask: np.ndarray,
             period: float) -> dict:
-    """The estimation figures over the rows in ``mask``."""
+    """The estimation figures over the rows in ``mask`` (poses (N, 6), NaN where missing;
+    ``period``: one frame's duration, s)."""
     est_pos, est_ang = pose_errors(est[mask], truth[mask])
     pnp_pos, pnp_ang = pose_errors(pnp[mask], truth[mask])
     finite = est_pos[np.isfinite(est_pos)]
@@ -100,56 +95,77 @@ def _errors(est: np.ndarray, pnp: np.ndarray, truth: np.ndarray, mask: np.ndarra
     }
 
 
-def frame_metrics(rows: Sequence[dict[str, str]], n_cameras: int) -> dict:
-    """The metrics of the module docstring from ``frames.csv`` rows (dicts of strings)."""
-    truth = _pose_columns(rows, "true")
-    est, pnp = _pose_columns(rows, "est"), _pose_columns(rows, "pnp")
-    t = np.array([float(r["t"]) for r in rows])
+def _estimation(log: FrameLog) -> dict:
+    """First estimate, in-view fraction and the estimation errors, whole run and per phase."""
+    truth, est, pnp = log.poses("true"), log.poses("est"), log.poses("pnp")
+    t = log.floats("t")
     period = float(np.median(np.diff(t))) if len(t) > 1 else 0.0
-    evaluated = evaluated_frames(rows, n_cameras)
-    first = int(np.argmax(np.isfinite(est[:, 0]))) if np.isfinite(est[:, 0]).any() else None
-    phase = np.array([r["phase"] for r in rows])
-    agree = total = false_visible = false_hidden = agree_in_view = in_view = 0
-    counts = dict.fromkeys(("measurements", "rejected_measurements", "wrong_measurements",
-                            "wrong_accepted"), 0)
-    grabbed, px_errors = [], []
-    for row in rows:
-        for c in range(1, n_cameras + 1):
-            pred, true = _bits(row[f"vis_pred_c{c}"]), _bits(row[f"vis_true_c{c}"])
-            inside = _in_image(row, c)
-            agree += int(np.sum(pred == true))
-            total += len(pred)
-            agree_in_view += int(np.sum((pred == true) & inside))
-            in_view += int(inside.sum())
-            false_visible += int(np.sum(pred & ~true))
-            false_hidden += int(np.sum(~pred & true))
-            meas, rej, wrong = (_bits(row[f"{k}_c{c}"]) for k in ("meas", "rej", "wrong"))
-            counts["measurements"] += int(meas.sum())
-            counts["rejected_measurements"] += int(rej.sum())
-            counts["wrong_measurements"] += int(wrong.sum())
-            counts["wrong_accepted"] += int(np.sum(wrong & ~rej))
-            grabbed.append(float(row[f"grab_c{c}"]))
-            if row[f"err_px_c{c}"] != "":
-                px_errors.append(float(row[f"err_px_c{c}"]))
-    timing = {
-        s: float(np.median([float(r[f"t_{s}_ms"]) for r in rows])) if rows else None
-        for s in STAGES
-    }
-    after_first = np.arange(len(rows)) >= (first if first is not None else len(rows))
+    evaluated = evaluated_frames(log)
+    has_estimate = np.isfinite(est[:, 0])
+    first = int(np.argmax(has_estimate)) if has_estimate.any() else None
+    after_first = np.arange(log.n) >= (first if first is not None else log.n)
+    phase = np.array(log.text("phase"))
     return {
-        "frames": len(rows),
         "first_estimate_s": None if first is None else float(t[first]),
         "in_view_fraction": (float(evaluated.sum() / after_first.sum())
                              if after_first.any() else None),
         **_errors(est, pnp, truth, evaluated, period),
         "phases": {p: _errors(est, pnp, truth, evaluated & (phase == p), period)
                    for p in PHASES},
-        "visibility_accuracy": agree_in_view / in_view if in_view else None,
-        "visibility_accuracy_all": agree / total if total else None,
-        "false_visible": false_visible,
-        "false_hidden": false_hidden,
-        **counts,
-        "pixels_grabbed_fraction": float(np.mean(grabbed)) if grabbed else None,
-        "extraction_error_px_median": float(np.median(px_errors)) if px_errors else None,
-        "timing_ms": timing,
+    }
+
+
+def _visibility(log: FrameLog) -> dict:
+    """Predicted against true visibility labels (module docstring)."""
+    pred, true = _per_camera(log, "vis_pred", "bits"), _per_camera(log, "vis_true", "bits")
+    inside = in_image(log)
+    agree = pred == true
+    return {
+        "visibility_accuracy": (int(np.sum(agree & inside)) / int(inside.sum())
+                                if inside.any() else None),
+        "visibility_accuracy_all": int(agree.sum()) / agree.size if agree.size else None,
+        "false_visible": int(np.sum(pred & ~true)),
+        "false_hidden": int(np.sum(~pred & true)),
+    }
+
+
+def _measurements(log: FrameLog) -> dict:
+    """Measurement counts, pixels grabbed and extraction error (module docstring)."""
+    meas, rej, wrong = (_per_camera(log, k, "bits") for k in ("meas", "rej", "wrong"))
+    grabbed, px = (_row_major(log, name) for name in ("grab", "err_px"))
+    px = px[np.isfinite(px)]
+    return {
+        "measurements": int(meas.sum()),
+        "rejected_measurements": int(rej.sum()),
+        "wrong_measurements": int(wrong.sum()),
+        "wrong_accepted": int(np.sum(wrong & ~rej)),
+        "pixels_grabbed_fraction": float(np.mean(grabbed)) if grabbed.size else None,
+        "extraction_error_px_median": float(np.median(px)) if px.size else None,
+    }
+
+
+def _row_major(log: FrameLog, name: str) -> np.ndarray:
+    """A per-camera float column of every camera, frame by frame (N * C,)."""
+    values = [log.floats(camera_column(name, c)) for c in range(1, log.n_cameras + 1)]
+    return np.column_stack(values).ravel() if values else np.zeros(0)
+
+
+def _timing(log: FrameLog) -> dict[str, float | None]:
+    """Median time per tracker stage (ms) over the frames that have it."""
+    out: dict[str, float | None] = {}
+    for s in STAGES:
+        ms = log.floats(timing_column(s))
+        ms = ms[np.isfinite(ms)]
+        out[s] = float(np.median(ms)) if ms.size else None
+    return out
+
+
+def frame_metrics(log: FrameLog) -> dict:
+    """The metrics of the module docstring from a run's frame log."""
+    return {
+        "frames": log.n,
+        **_estimation(log),
+        **_visibility(log),
+        **_measurements(log),
+        "timing_ms": _timing(log),
     }

@@ -1,16 +1,20 @@
 """Run one of the paper's experiments end to end: world, tracker, task, control.
 
-Per vision frame (26 Hz): the world's images (or, for the ideal sensor, the true projections)
-and joint measurements -> :class:`~cellsight.tracking.Tracker` (BSP occlusion prediction at
-the predicted pose, selection, windows, extraction, EKF) -> the grasping task's trajectory
-planner; between frames, the 500 Hz control loop (interpolating filter + CLIK) drives the
-world. Everything is written into the output directory as the run goes:
+The loop only wires them. Per vision frame (``VISION_HZ``): the world's images (or, for the
+ideal sensor, the true projections), joint measurements and jaw openings ->
+:class:`~cellsight.tracking.Tracker` (BSP occlusion prediction at the predicted pose, selection,
+windows, extraction, EKF) -> the grasping task's trajectory planner; between frames, the
+``CONTROL_HZ`` control loop (interpolating filter + CLIK) drives the world. The world is seen
+through :class:`~cellsight.experiments.plant.SimulatedCell` (the simulated
+:class:`~cellsight.world.World` by default).
 
-- ``frames.csv`` (:mod:`cellsight.experiments.framelog`), ``run.log`` (phase transitions,
-  occlusion events, summary), ``keyframes.json`` + ``keyframes/*.png`` (camera views with
-  overlays at the key moments), ``views.mp4`` (rendered sensor);
-- at the end (also when interrupted): ``metrics.json``
-  (:mod:`cellsight.experiments.metrics` plus the run's facts) and ``report.html``.
+Written into the output directory as the run goes: ``frames.csv`` (:mod:`cellsight.framelog`,
+rows from :mod:`.rows`, with the PnP baseline of :mod:`.baseline`), ``run.log`` (phase
+transitions, occlusion events and the grasp: :mod:`.monitors`; the summary), ``keyframes.json``
++ ``keyframes/*.png`` (:mod:`.keyframes`), ``views.mp4`` (rendered sensor). After the loop (also
+when interrupted or failed), two steps that read the log: ``metrics.json``
+(:mod:`cellsight.experiments.metrics` plus the run's facts) and ``report.html``
+(:mod:`cellsight.report.run_report`).
 """
 
 from __future__ import annotations
@@ -18,37 +22,37 @@ from __future__ import annotations
 import json
 import logging
 import time
-from collections import Counter
-from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
 
-import cv2
 import numpy as np
 from rich.progress import BarColumn, Progress, TextColumn
 
 from cellsight.control import GraspTask, Phase
-from cellsight.experiments.framelog import STAGES, WRONG_PX, FrameLog, bits, read_frames
+from cellsight.experiments.baseline import PnPBaseline
+from cellsight.experiments.keyframes import KeyFrames, draw_frame
 from cellsight.experiments.metrics import frame_metrics
+from cellsight.experiments.monitors import GraspMonitor, OcclusionEvents
+from cellsight.experiments.plant import SimulatedCell
+from cellsight.experiments.rows import FrameRows, PartTruth
 from cellsight.experiments.scenario import Scenario, scenario
-from cellsight.experiments.sensors import FramePredictor, IdealExtractor
-from cellsight.geometry.transforms import xyz_rpy_from_pose
+from cellsight.experiments.sensors import IdealExtractor
+from cellsight.framelog import FrameLog, FrameWriter
 from cellsight.model.cell import Cell
 from cellsight.model.loader import load_cell
 from cellsight.occlusion.predictor import VisibilityPredictor
 from cellsight.occlusion.projection import ProjectionOnly
-from cellsight.report.overlay import compose_views, draw_camera_overlay
+from cellsight.rates import VISION_HZ
 from cellsight.report.run_report import write_report
 from cellsight.report.video import VideoWriter
-from cellsight.tracking import Observation, PartFrame, Tracker, estimate_pose, undistort_pixels
+from cellsight.tracking import Tracker, TrackerConfig
+from cellsight.tracking.records import PartFrame
 from cellsight.world import World
-from cellsight.world.grasp import grasp_error
 
 log = logging.getLogger(__name__)
 
 Sensor = Literal["rendered", "ideal"]
-ESTIMATED = ("acquired", "tracking", "predicting")  # tracker states with a usable estimate
 
 
 @dataclass(frozen=True)
@@ -76,32 +80,11 @@ class RunConfig:
     progress: bool = True
 
 
-class _KeyMoments:
-    """The frames worth a picture: each key has a score per frame; the best frame so far is
-    drawn and saved (``keyframes/<key>.png``, listed in ``keyframes.json``)."""
-
-    def __init__(self, out: Path) -> None:
-        self.out = out
-        self.folder = out / "keyframes"
-        self.folder.mkdir(parents=True, exist_ok=True)
-        self.best: dict[str, dict] = {}
-
-    def offer(self, key: str, score: float, t: float, caption: str,
-              draw: Callable[[str], np.ndarray]) -> None:
-        """Keep this frame for ``key`` if it beats the best so far (``score`` > 0)."""
-        if score <= 0 or score <= self.best.get(key, {}).get("score", 0):
-            return
-        cv2.imwrite(str(self.folder / f"{key}.png"), cv2.cvtColor(draw(caption), cv2.COLOR_RGB2BGR))
-        self.best[key] = {"name": key, "t": round(t, 3), "caption": caption,
-                          "file": f"keyframes/{key}.png", "score": score}
-        ordered = sorted(self.best.values(), key=lambda k: k["t"])
-        (self.out / "keyframes.json").write_text(json.dumps(ordered, indent=1))
-
-
 class ExperimentRun:
-    """One experiment run (module docstring); :meth:`run` does it and returns the metrics."""
+    """One experiment run (module docstring); :meth:`run` does it and returns the metrics.
+    ``world``: the cell to run on (default: the simulated world of the scenario)."""
 
-    def __init__(self, config: RunConfig) -> None:
+    def __init__(self, config: RunConfig, world: SimulatedCell | None = None) -> None:
         self.config = config
         self.cell: Cell = load_cell(config.cell)
         self.scenario: Scenario = scenario(self.cell, config.experiment)
@@ -109,255 +92,130 @@ class ExperimentRun:
         self.out.mkdir(parents=True, exist_ok=True)
         sc, cell = self.scenario, self.cell
         self.robot, self.part = sc.robot, sc.workpiece
-        self.world = World(cell, seed=config.seed, conveyor=sc.conveyor, tasks=sc.tasks)
-        source = VisibilityPredictor(cell) if config.occlusion_prediction else ProjectionOnly(cell)
-        self.predictor = FramePredictor(source)
+        self.world: SimulatedCell = (
+            world if world is not None
+            else World(cell, seed=config.seed, conveyor=sc.conveyor, tasks=sc.tasks))
+        predictor = (VisibilityPredictor(cell) if config.occlusion_prediction
+                     else ProjectionOnly(cell))
         self.ideal = (IdealExtractor(config.ideal_sigma_px, config.seed)
                       if config.sensor == "ideal" else None)
-        self.tracker = Tracker.from_cell(cell, self.predictor, self.ideal)
+        tracking = TrackerConfig()
+        self.tracker = Tracker.from_cell(cell, predictor, self.ideal, tracking)
         self.task = GraspTask(self.robot, self.part)
-        self.cameras = cell.cameras
-        self.labels = {o.name: o.label for o in cell.objects}
+        self.baseline = PnPBaseline(cell.cameras, self.part.feature_points, tracking.sigma_px,
+                                    tracking.loss.lost_after_s)
+        self.grasp = GraspMonitor(self.world, self.robot.name)
+        self.events = OcclusionEvents([c.name for c in cell.cameras])
+        self.rows = FrameRows(self.robot, len(cell.cameras), config.sensor == "rendered")
         self.crossing = next(iter(sc.tasks), None)
-        self._pnp: tuple[float, np.ndarray] | None = None  # (t, T_base_part) of the last fix
-        self._events: dict[int, tuple] = {}
-        self._grasp_error_mm: float | None = None
-        self._held_at_manipulate = False
-
-    # --- per frame ------------------------------------------------------------------------------
-
-    def _truth(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[list[str]]]:
-        """True part pose, pixels (C, F, 2), visibility (C, F) and occluder labels."""
-        T = self.world.true_part_poses()[self.part.name]
-        points = self.part.feature_points @ T[:3, :3].T + T[:3, 3]
-        pixels = np.stack([cam.project(points) for cam in self.cameras])
-        visible = np.array(self.world.true_visibility()[self.part.name])
-        occluders = [
-            ["self" if o == self.part.name else self.labels.get(o, o) for o in per_cam]
-            for per_cam in self.world.true_occluders()[self.part.name]
-        ]
-        return T, pixels, visible, occluders
-
-    def _pnp_baseline(self, t: float, rec: PartFrame) -> np.ndarray | None:
-        """Per-frame multi-camera PnP on this frame's measurements; a frame with too few holds
-        the last fix for at most the tracker's ``lost_after_s``."""
-        obs = []
-        for c, cam in enumerate(self.cameras):
-            ids = np.flatnonzero(np.all(np.isfinite(rec.measured[c]), axis=1))
-            if len(ids):
-                obs.append(Observation(self.tracker.models[c], c, ids,
-                                       self.part.feature_points[ids],
-                                       undistort_pixels(cam, rec.measured[c, ids])))
-        fix = estimate_pose(obs, sigma_px=self.tracker.config.sigma_px) if obs else None
-        if fix is not None:
-            self._pnp = (t, fix.T_base_part)
-        if self._pnp is None or t - self._pnp[0] > self.tracker.config.lost_after_s:
-            return None
-        return self._pnp[1]
-
-    def _log_occlusions(self, t: float, reasons: list[list[str]]) -> None:
-        """A line in the log (predicted visibility) whenever the set of what hides the part
-        from a camera changes, or the count of visible points crosses 3 or 1."""
-        for c, per_feature in enumerate(reasons):
-            hidden = Counter(r for r in per_feature if r)
-            n_visible = sum(1 for r in per_feature if not r)
-            state = (frozenset(hidden), min(n_visible, 3), n_visible == 0)
-            if self._events.get(c) == state:
-                continue
-            self._events[c] = state
-            text = ", ".join(f"{label} {n}" for label, n in sorted(hidden.items()))
-            log.info("t=%6.2f s %-10s %s: %d/%d visible%s", t, self.task.phase,
-                     self.cameras[c].name, n_visible, len(per_feature),
-                     f"; hidden: {text}" if text else "")
-
-    def _row(self, t: float, frame, rec: PartFrame, truth, pnp, reasons) -> dict:
-        T_true, pixels, visible, occluders = truth
-        row: dict[str, object] = {"t": round(t, 5), "phase": str(self.task.phase),
-                                  "stage": self.task.stage, "status": rec.status}
-        estimate = rec.T_base_part if rec.status in ESTIMATED else None
-        for prefix, T in (("true", T_true), ("est", estimate), ("pnp", pnp)):
-            if T is not None:
-                xyz, rpy = xyz_rpy_from_pose(T)
-                row.update(zip([f"{prefix}_{a}" for a in ("x", "y", "z")], xyz, strict=True))
-                row.update(zip([f"{prefix}_{a}" for a in ("roll", "pitch", "yaw")], rpy,
-                               strict=True))
-        name = self.robot.name
-        tcp = self.robot.tcp_pose(self.world.true_joints()[name])[:3, 3]
-        row.update(gripper_x=tcp[0], gripper_y=tcp[1], gripper_z=tcp[2],
-                   jaw_opening=self.world.jaw_openings()[name],
-                   jaws_closed=int(self.world.jaws_closed_on_part(name)),
-                   grasped=int(self.world.grasped(name)))
-        for c in range(len(self.cameras)):
-            k = c + 1
-            measured = np.all(np.isfinite(rec.measured[c]), axis=1)
-            err = np.linalg.norm(rec.measured[c, measured] - pixels[c, measured], axis=1)
-            wrong = np.zeros_like(measured)
-            wrong[measured] = ~(err <= WRONG_PX)
-            plan = rec.windows[c]
-            row.update({
-                f"vis_pred_c{k}": bits(rec.visible[c]), f"vis_true_c{k}": bits(visible[c]),
-                f"sel_c{k}": bits(rec.selected[c]), f"meas_c{k}": bits(measured),
-                f"rej_c{k}": bits(rec.rejected[c]), f"wrong_c{k}": bits(wrong),
-                f"occ_pred_c{k}": ";".join(reasons[c]),
-                f"occ_true_c{k}": ";".join(occluders[c]),
-                f"grab_c{k}": 0.0 if plan is None else plan.fraction,
-                f"err_px_c{k}": (float(np.median(err))
-                                 if len(err) and self.ideal is None else None),
-            })
-        times = frame.timings
-        ms = {s: 1e3 * times.get(s, 0.0) for s in STAGES}
-        ms["ekf"] = 1e3 * (times["predict"] + times["update"])
-        row.update({f"t_{s}_ms": round(v, 4) for s, v in ms.items()})
-        return row
-
-    def _draw(self, images, rec: PartFrame, visible_true: np.ndarray, caption: str,
-              scale: float) -> np.ndarray:
-        if images is None:
-            images = self.world.render()
-        views = []
-        for c, cam in enumerate(self.cameras):
-            plan = rec.windows[c]
-            views.append(draw_camera_overlay(
-                images[c], pixels=rec.pixels[c], visible=rec.visible[c],
-                selected=rec.selected[c], measured=rec.measured[c], rejected=rec.rejected[c],
-                boxes=np.zeros((0, 4), int) if plan is None else plan.boxes, title=cam.name,
-                truth_visible=visible_true[c]))
-        return compose_views(views, scale=scale, caption=caption)
-
-    def _offer_key_moments(self, keys: _KeyMoments, t: float, images, rec: PartFrame,
-                           reasons: list[list[str]], visible_true: np.ndarray) -> None:
-        if rec.status not in ESTIMATED:
-            return
-        phase = str(self.task.phase)
-
-        def draw(caption: str) -> np.ndarray:
-            return self._draw(images, rec, visible_true, caption, 1.0)
-
-        def counts(prefix: str) -> list[int]:
-            return [sum(r.startswith(prefix) for r in per_cam) for per_cam in reasons]
-
-        head = f"t = {t:.2f} s, {phase}"
-        self_hidden = counts("self")
-        if "start" not in keys.best:
-            keys.offer("start", 1, t, f"{head}: first estimate; self-occluded points: "
-                       + ", ".join(f"{cam.name} {n}" for cam, n in
-                                   zip(self.cameras, self_hidden, strict=True)), draw)
-        gripper = counts(f"{self.robot.name}.gripper")
-        if phase == Phase.GRASP:
-            keys.offer("gripper", sum(gripper), t, f"{head}: the gripper hides "
-                       + ", ".join(f"{n} points from {cam.name}" for cam, n in
-                                   zip(self.cameras, gripper, strict=True)), draw)
-        if self.crossing is not None:
-            for c, n in enumerate(counts(f"{self.crossing}.")):
-                left = sum(1 for r in reasons[c] if not r)
-                keys.offer(f"crossing_{self.cameras[c].name}", n, t,
-                           f"{head}: {self.crossing} hides {n} points from "
-                           f"{self.cameras[c].name}, {left} visible", draw)
-
-    # --- the run ----------------------------------------------------------------------------
 
     def run(self) -> dict:
-        """Run the experiment; write everything; return the metrics (also on Ctrl-C)."""
+        """Run the experiment; write everything; return the metrics (``metrics.json`` and
+        ``report.html`` are written also on Ctrl-C or an error, which then propagates)."""
+        handler = _log_to(self.out / "run.log")
+        try:
+            metrics = self._run_logged()
+        finally:
+            _stop_logging_to(handler)
+            write_report(self.out)
+        return metrics
+
+    def _run_logged(self) -> dict:
         cfg = self.config
-        handler = logging.FileHandler(self.out / "run.log", mode="w")
-        handler.setFormatter(logging.Formatter("%(message)s"))
-        root = logging.getLogger("cellsight")
-        root.addHandler(handler)
-        root.setLevel(logging.INFO)
-        frames = FrameLog(self.out / "frames.csv", len(self.cameras))
-        video = None
-        if cfg.sensor == "rendered" and cfg.video_every > 0:
-            video = VideoWriter(self.out / "views.mp4", fps=26.0 / cfg.video_every)
-        keys = _KeyMoments(self.out)
-        wall = time.perf_counter()
-        interrupted = True
         log.info("experiment %d (%s) on %s; seed %d; sensor %s; occlusion prediction %s%s",
                  cfg.experiment, self.scenario.description, self.cell.source, cfg.seed,
                  cfg.sensor, "on" if cfg.occlusion_prediction else "off",
                  "; kinematic prior on" if cfg.kinematic_prior else "")
+        writer = FrameWriter(self.out / "frames.csv", len(self.cell.cameras))
+        video = None
+        if cfg.sensor == "rendered" and cfg.video_every > 0:
+            video = VideoWriter(self.out / "views.mp4", fps=VISION_HZ / cfg.video_every)
+        keys = KeyFrames(self.out, [c.name for c in self.cell.cameras], self.robot.name,
+                         self.crossing)
+        wall = time.perf_counter()
+        interrupted = True
         try:
-            self._loop(frames, video, keys)
+            self._loop(writer, video, keys)
             interrupted = False
         finally:
-            frames.close()
+            writer.close()
             if video is not None:
                 video.close()
             self.world.close()
-            metrics = self._metrics(time.perf_counter() - wall, interrupted)
-            root.removeHandler(handler)
-            handler.close()
-            write_report(self.out)
+            metrics = self._write_metrics(time.perf_counter() - wall, interrupted)
         return metrics
 
-    def _loop(self, frames: FrameLog, video: VideoWriter | None, keys: _KeyMoments) -> None:
-        cfg, world, task, name = self.config, self.world, self.task, self.robot.name
+    def _loop(self, writer: FrameWriter, video: VideoWriter | None, keys: KeyFrames) -> None:
+        """Vision frames at ``VISION_HZ`` (on the control grid), control steps between them,
+        until ``duration`` (or ``max_duration``), or ``tail_s`` after the task ends."""
+        cfg, task = self.config, self.task
         end = cfg.duration if cfg.duration is not None else cfg.max_duration
         done_at = None
         k = 0
-        with Progress(TextColumn("[bold]{task.description}"), BarColumn(),
-                      TextColumn("t = {task.completed:5.1f} / {task.total:.0f} s"),
-                      TextColumn("{task.fields[phase]:>10}"),
-                      disable=not cfg.progress, transient=False) as progress:
+        with _progress_bar(cfg.progress) as progress:
             bar = progress.add_task(f"experiment {cfg.experiment}", total=end, phase="")
             while True:
-                t = world.time
+                t = self.world.time
                 if t > end + 1e-9 or (done_at is not None and t >= done_at + cfg.tail_s):
                     break
-                self._vision_frame(k, t, frames, video, keys)
+                self._vision_frame(k, t, writer, video, keys)
                 k += 1
                 if done_at is None and task.phase in (Phase.DONE, Phase.FAILED):
                     done_at = t
                 progress.update(bar, completed=min(t, end), phase=str(task.phase))
-                next_frame = k / 26.0
-                while world.time < next_frame - 1e-9:
-                    q, opening = task.step_control(world.time, world.measured_joints()[name])
-                    world.step({name: q}, {name: opening})
-                    self._watch_grasp()
+                self._control_until(k / VISION_HZ)
 
-    def _vision_frame(self, k: int, t: float, frames: FrameLog, video, keys) -> None:
+    def _control_until(self, t_next: float) -> None:
+        """Control steps until the world's time reaches ``t_next`` (s)."""
+        world, name = self.world, self.robot.name
+        while world.time < t_next - 1e-9:
+            q, opening = self.task.step_control(world.time, world.measured_joints()[name])
+            world.step({name: q}, {name: opening})
+            self.grasp.after_control_step(world.time)
+
+    def _vision_frame(self, k: int, t: float, writer: FrameWriter, video: VideoWriter | None,
+                      keys: KeyFrames) -> None:
+        """Frame ``k`` at time ``t`` (s): track, plan, log, picture."""
         world, name = self.world, self.robot.name
         joints = world.measured_joints()
-        self.predictor.openings = world.jaw_openings()
-        truth = self._truth()
+        openings = world.jaw_openings()
+        truth = PartTruth.of(world, self.part.name)
         images = world.render() if self.config.sensor == "rendered" else None
         if self.ideal is not None:
-            self.ideal.set_truth(truth[1], truth[2])
+            self.ideal.set_truth(truth.pixels, truth.visible)
         holders = None
         if self.config.kinematic_prior and world.jaws_closed_on_part(name):
             holders = {self.part.name: self.robot.tcp_pose(joints[name])}
-        frame = self.tracker.step(images, joints, t, holders)
+        frame = self.tracker.step(images, joints, t, openings, holders)
         rec = frame.parts[self.part.name]
-        pose = rec.T_base_part if rec.status in ESTIMATED else None
+        self._plan(t, rec, joints[name])
+        phase = str(self.task.phase)
+        self.events.update(t, phase, rec.reasons)
+        pnp = self.baseline.update(t, rec.measured)
+        writer.write(self.rows.row(t, self.task, frame, rec, truth, pnp, world))
+
+        def draw(caption: str, scale: float = 1.0) -> np.ndarray:
+            shown = images if images is not None else world.render()
+            return draw_frame(shown, rec, truth.visible, self.cell.cameras, caption, scale)
+
+        keys.offer_frame(t, phase, rec, draw)
+        if video is not None and k % self.config.video_every == 0:
+            video.add(draw(f"t = {t:5.2f} s   {phase}   tracker: {rec.status}", 0.5))
+
+    def _plan(self, t: float, rec: PartFrame, joints: np.ndarray) -> None:
+        """The task's vision update with the tracker's estimate (pose and linear velocity)."""
+        pose = rec.T_base_part if rec.status.has_estimate else None
         velocity = None if pose is None else rec.state[6:9]
         before = self.task.phase
-        self.task.update_vision(t, pose, joints[name], world.jaws_closed_on_part(name), velocity)
-        if before == Phase.GRASP and self.task.phase == Phase.MANIPULATE:
-            self._held_at_manipulate = world.grasped(name)
-        reasons = [v.reason for v in self.predictor.last[self.part.name]]
-        self._log_occlusions(t, reasons)
-        pnp = self._pnp_baseline(t, rec)
-        frames.write(self._row(t, frame, rec, truth, pnp, reasons))
-        self._offer_key_moments(keys, t, images, rec, reasons, truth[2])
-        if video is not None and k % self.config.video_every == 0:
-            caption = f"t = {t:5.2f} s   {self.task.phase}   tracker: {rec.status}"
-            video.add(self._draw(images, rec, truth[2], caption, 0.5))
+        self.task.update_vision(t, pose, joints, self.world.jaws_closed_on_part(self.robot.name),
+                                velocity)
+        self.grasp.after_vision(before, self.task.phase)
 
-    def _watch_grasp(self) -> None:
-        """Record the TCP's error from the part's grasp pose when the grasp engages."""
-        name = self.robot.name
-        if self._grasp_error_mm is None and self.world.grasped(name):
-            T_tcp = self.robot.tcp_pose(self.world.true_joints()[name])
-            T_grasp = (self.world.true_part_poses()[self.part.name]
-                       @ self.world.grasp_pose(self.part.name))
-            position, angle = grasp_error(T_tcp, T_grasp)
-            self._grasp_error_mm = 1e3 * position
-            log.info("t=%6.2f s grasp engaged: TCP %.1f mm, %.1f deg from the grasp pose",
-                     self.world.time, self._grasp_error_mm, np.degrees(angle))
-
-    def _metrics(self, wall_s: float, interrupted: bool) -> dict:
+    def _write_metrics(self, wall_s: float, interrupted: bool) -> dict:
+        """``metrics.json``: the run's facts and :func:`frame_metrics` of its log."""
         cfg = self.config
-        rows = list(read_frames(self.out / "frames.csv"))
-        t_end = float(rows[-1]["t"]) if rows else 0.0
+        frames = FrameLog.read(self.out / "frames.csv")
+        t_end = float(frames.floats("t")[-1]) if frames.n else 0.0
         metrics = {
             "experiment": cfg.experiment,
             "description": self.scenario.description,
@@ -366,25 +224,48 @@ class ExperimentRun:
             "sensor": cfg.sensor,
             "occlusion_prediction": cfg.occlusion_prediction,
             "kinematic_prior": cfg.kinematic_prior,
-            "grasp_success": bool(self._held_at_manipulate),
-            "grasp_position_error_mm": self._grasp_error_mm,
+            "grasp_success": bool(self.grasp.held_at_manipulate),
+            "grasp_position_error_mm": self.grasp.error_mm,
             "final_phase": str(self.task.phase),
             "failed_grasp_checks": self.task.attempts,
-            **frame_metrics(rows, len(self.cameras)),
+            **frame_metrics(frames),
             "wall_s": round(wall_s, 2),
             "interrupted": interrupted,
-            "cameras": [c.name for c in self.cameras],
+            "cameras": [c.name for c in self.cell.cameras],
             "features": len(self.part.feature_points),
             "robot": self.robot.name,
             "workpiece": self.part.name,
             "crossing_robot": self.crossing,
             "phase_intervals": [[str(p), round(a, 3), round(b, 3)]
-                       for p, a, b in self.task.phase_intervals(t_end)],
+                                for p, a, b in self.task.phase_intervals(t_end)],
         }
         (self.out / "metrics.json").write_text(json.dumps(metrics, indent=1))
         log.info("metrics: %s", json.dumps({k: v for k, v in metrics.items()
                                             if not isinstance(v, list | dict)}))
         return metrics
+
+
+def _log_to(path: Path) -> logging.Handler:
+    """Send the package's log (INFO and up) to ``path`` as it goes, one message per line."""
+    handler = logging.FileHandler(path, mode="w")
+    handler.setFormatter(logging.Formatter("%(message)s"))
+    root = logging.getLogger("cellsight")
+    root.addHandler(handler)
+    root.setLevel(logging.INFO)
+    return handler
+
+
+def _stop_logging_to(handler: logging.Handler) -> None:
+    logging.getLogger("cellsight").removeHandler(handler)
+    handler.close()
+
+
+def _progress_bar(enabled: bool) -> Progress:
+    """The terminal's progress bar: simulated time and task phase (nothing when disabled)."""
+    return Progress(TextColumn("[bold]{task.description}"), BarColumn(),
+                    TextColumn("t = {task.completed:5.1f} / {task.total:.0f} s"),
+                    TextColumn("{task.fields[phase]:>10}"),
+                    disable=not enabled, transient=False)
 
 
 def run_experiment(config: RunConfig) -> dict:

@@ -1,38 +1,18 @@
-"""What the experiment runner plugs into the tracker besides the real parts.
-
-- :class:`FramePredictor`: the visibility source the tracker calls, with this frame's jaw
-  openings, keeping its last answer (for the log's occluder labels).
-- :class:`IdealExtractor`: the ``--sensor ideal`` extractor: the true projection of a truly
-  visible feature whose window contains it, plus Gaussian pixel noise; nothing otherwise.
-"""
+"""The ``--sensor ideal`` extractor the experiment runner plugs into the tracker instead of the
+corner extractor: the true projection of a truly visible feature whose window contains it,
+plus Gaussian pixel noise; nothing otherwise."""
 
 from __future__ import annotations
-
-from collections.abc import Mapping
 
 import numpy as np
 
 from cellsight.tracking.windowing import WindowPlan
-from cellsight.visibility import CameraVisibility
-
-
-class FramePredictor:
-    """Wraps a predictor with ``predict(joints, part_poses, openings)``: the runner sets
-    ``openings`` (robot -> jaw opening, m) each frame; ``last`` holds the latest answer."""
-
-    def __init__(self, source) -> None:
-        self.source = source
-        self.openings: Mapping[str, float] | None = None
-        self.last: dict[str, list[CameraVisibility]] = {}
-
-    def predict(self, joints, part_poses) -> dict[str, list[CameraVisibility]]:
-        self.last = self.source.predict(joints, part_poses, self.openings)
-        return self.last
 
 
 class IdealExtractor:
-    """Extractor of the ideal sensor (module docstring). ``sigma_px``: noise per coordinate;
-    call :meth:`set_truth` with the frame's true pixels and visibility before each step."""
+    """Extractor of the ideal sensor (module docstring). ``sigma_px``: noise per coordinate
+    (px); ``seed`` seeds the noise; call :meth:`set_truth` with the frame's true pixels and
+    visibility before each step."""
 
     def __init__(self, sigma_px: float, seed: int) -> None:
         self.sigma_px = float(sigma_px)
@@ -45,6 +25,8 @@ class IdealExtractor:
         self._pixels, self._visible = pixels, visible
 
     def extract(self, camera_index: int, image, plan: WindowPlan) -> dict[int, np.ndarray]:
+        """Feature index -> measured pixel (2,) for camera ``camera_index``'s windows; the
+        image is ignored."""
         out: dict[int, np.ndarray] = {}
         for f, box in zip(plan.features, plan.boxes, strict=True):
             if not self._visible[camera_index, f]:

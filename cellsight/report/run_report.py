@@ -1,11 +1,12 @@
 """Figures and a self-contained HTML report built from a run directory.
 
 A run directory (written by ``cellsight run``) holds ``frames.csv`` (one row per vision frame,
-strings quoted, empty field = missing value), ``metrics.json`` and optionally ``keyframes.json``
-with ``keyframes/*.png``, ``run.log`` and ``views.mp4``. :func:`write_report` writes the PNG
-figures next to them and ``report.html`` with every figure, key frame and (if small enough) the
-video embedded as base64 data URIs, so the page can be moved or mailed on its own. It also
-works on a partial run (an interrupted one: few frames, a short ``metrics.json``).
+read with :class:`cellsight.framelog.FrameLog`, whose module lists the columns),
+``metrics.json`` and optionally ``keyframes.json`` with ``keyframes/*.png``, ``run.log`` and
+``views.mp4``. :func:`write_report` writes the PNG figures next to them and ``report.html``
+with every figure, key frame and (if small enough) the video embedded as base64 data URIs, so
+the page can be moved or mailed on its own. It also works on a partial run (an interrupted
+one: few frames, a short ``metrics.json``).
 
 Conventions: time in s, positions in the base frame in m (errors in mm), roll-pitch-yaw in rad
 with ``R = Rz(yaw) Ry(pitch) Rx(roll)`` (:mod:`cellsight.geometry.transforms`); frame ``k``
@@ -15,7 +16,6 @@ is drawn as covering ``[t_k, t_{k+1})``, the last one a median frame period long
 from __future__ import annotations
 
 import base64
-import csv
 import html
 import json
 from dataclasses import dataclass
@@ -29,13 +29,15 @@ from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 from matplotlib.patches import Patch
 
+from cellsight.framelog import FrameLog, camera_column, timing_column
 from cellsight.geometry.transforms import pose_errors
+from cellsight.rates import VISION_HZ
+from cellsight.tracking.timing import STAGES
 
 PHASE_COLOURS = {
     "waiting": "#bab0ac", "approach": "#4e79a7", "grasp": "#f28e2b", "manipulate": "#59a14f",
     "release": "#b07aa1", "done": "#76b7b2", "failed": "#e15759",
 }
-STAGES = ("occlusion", "selection", "windowing", "extraction", "ekf")
 VISIBLE_COLOUR = "#2e7d32"
 SELECTED_COLOUR = "#4e79a7"
 MEASURED_COLOUR = "#1b2f4a"
@@ -43,60 +45,8 @@ FIXED_OCCLUDER_COLOURS = {"self": "#9e9e9e", "behind": "#5d6d7e", "outside": "#d
 OBJECT_PALETTE = ("#e15759", "#f28e2b", "#b07aa1", "#edc948", "#9c755f", "#ff9da7",
                   "#76b7b2", "#8c564b", "#bcbd22", "#17becf")
 VIDEO_EMBED_LIMIT = 25 * 1024 * 1024  # bytes; larger videos are linked, not embedded
-DEFAULT_FRAME_PERIOD = 1.0 / 26.0  # s, used when a run has a single frame
+DEFAULT_FRAME_PERIOD = 1.0 / VISION_HZ  # s, used when a run has a single frame
 UNITS = ("mm", "deg", "px", "ms", "s")  # unit tokens in metric keys, e.g. error_px_median
-
-
-@dataclass
-class Frames:
-    """``frames.csv`` as columns of strings; an empty string is a missing value."""
-
-    columns: dict[str, list[str]]
-    n: int
-
-    @classmethod
-    def read(cls, path: Path) -> Frames:
-        """Read a frames file; rows with the wrong field count (a truncated last line) are
-        dropped. Every value stays a string, so '0101' flags keep their leading zeros."""
-        with open(path, newline="") as f:
-            reader = csv.reader(f)
-            header = next(reader, [])
-            rows = [r for r in reader if header and len(r) == len(header)]
-        return cls({name: [r[i] for r in rows] for i, name in enumerate(header)}, len(rows))
-
-    def text(self, name: str) -> list[str]:
-        """A column's strings; all empty when the column is absent."""
-        return self.columns.get(name, [""] * self.n)
-
-    def num(self, name: str) -> np.ndarray:
-        """A column as float (N,), NaN where empty or absent."""
-        return np.array([float(v) if v else np.nan for v in self.text(name)], dtype=float)
-
-    def present(self, name: str) -> np.ndarray:
-        """(N,) bool: rows where the column has a value."""
-        return np.array([bool(v) for v in self.text(name)], dtype=bool)
-
-    def bits(self, name: str, n_features: int) -> np.ndarray:
-        """A per-feature '0'/'1' flag column as (N, F) bool; missing rows are all False."""
-        out = np.zeros((self.n, n_features), dtype=bool)
-        for i, s in enumerate(self.text(name)):
-            if s:
-                if len(s) != n_features:
-                    raise ValueError(f"{name} row {i}: {len(s)} flags, expected {n_features}")
-                out[i] = np.frombuffer(s.encode(), dtype=np.uint8) == ord("1")
-        return out
-
-    def labels(self, name: str, n_features: int) -> np.ndarray:
-        """A per-feature ';'-joined label column as (N, F) str objects ('' = none/missing)."""
-        out = np.full((self.n, n_features), "", dtype=object)
-        for i, s in enumerate(self.text(name)):
-            if s:
-                parts = s.split(";")
-                if len(parts) != n_features:
-                    raise ValueError(f"{name} row {i}: {len(parts)} labels, "
-                                     f"expected {n_features}")
-                out[i] = parts
-        return out
 
 
 @dataclass
@@ -104,7 +54,7 @@ class Run:
     """A loaded run directory."""
 
     dir: Path
-    frames: Frames
+    frames: FrameLog
     metrics: dict
     cameras: list[str]
     n_features: int
@@ -112,7 +62,7 @@ class Run:
     @cached_property
     def t(self) -> np.ndarray:
         """(N,) frame times, s."""
-        return self.frames.num("t")
+        return self.frames.floats("t")
 
     @cached_property
     def edges(self) -> np.ndarray:
@@ -122,26 +72,15 @@ class Run:
         return np.append(t, t[-1] + dt) if len(t) else t
 
 
-def _count_cameras(frames: Frames) -> int:
-    """Number of cameras c = 1, 2, ... that have a ``vis_pred_c{c}`` column."""
-    c = 0
-    while f"vis_pred_c{c + 1}" in frames.columns:
-        c += 1
-    return c
-
-
 def load_run(run_dir: Path) -> Run:
     """Read ``frames.csv`` and ``metrics.json`` (either may be absent in a partial run)."""
     run_dir = Path(run_dir)
     frames_path, metrics_path = run_dir / "frames.csv", run_dir / "metrics.json"
-    frames = Frames.read(frames_path) if frames_path.exists() else Frames({}, 0)
+    frames = FrameLog.read(frames_path)
     metrics = json.loads(metrics_path.read_text()) if metrics_path.exists() else {}
     cameras = list(metrics.get("cameras") or
-                   [f"cam{c}" for c in range(1, _count_cameras(frames) + 1)])
-    n_features = metrics.get("features")
-    if not n_features:
-        flags = [s for s in frames.text("vis_pred_c1") if s]
-        n_features = len(flags[0]) if flags else 0
+                   [f"cam{c}" for c in range(1, frames.n_cameras + 1)])
+    n_features = metrics.get("features") or frames.n_features
     return Run(run_dir, frames, metrics, cameras, int(n_features))
 
 
@@ -211,21 +150,14 @@ def _use_log(ax, *series: np.ndarray) -> None:
         ax.set_yscale("log")
 
 
-def _pose_rows(run: Run, prefix: str) -> np.ndarray:
-    """(N, 6) ``{prefix}_x .. {prefix}_yaw`` (NaN where missing)."""
-    f = run.frames
-    return np.column_stack([f.num(f"{prefix}_{k}")
-                            for k in ("x", "y", "z", "roll", "pitch", "yaw")])
-
-
 def position_error_mm(run: Run, prefix: str) -> np.ndarray:
     """(N,) distance between ``{prefix}_xyz`` and the true part position, mm (NaN if none)."""
-    return 1000.0 * pose_errors(_pose_rows(run, prefix), _pose_rows(run, "true"))[0]
+    return 1000.0 * pose_errors(run.frames.poses(prefix), run.frames.poses("true"))[0]
 
 
 def orientation_error_deg(run: Run, prefix: str) -> np.ndarray:
     """(N,) angle of ``R_true^T R_{prefix}``, deg (NaN where the estimate is missing)."""
-    return np.degrees(pose_errors(_pose_rows(run, prefix), _pose_rows(run, "true"))[1])
+    return np.degrees(pose_errors(run.frames.poses(prefix), run.frames.poses("true"))[1])
 
 
 def occluder_colours(run: Run) -> dict[str, str]:
@@ -233,8 +165,7 @@ def occluder_colours(run: Run) -> dict[str, str]:
     'outside' fixed, object labels from a palette in sorted order (same across cameras)."""
     labels: set[str] = set()
     for c in range(1, len(run.cameras) + 1):
-        for s in run.frames.text(f"occ_pred_c{c}"):
-            labels.update(s.split(";"))
+        labels.update(run.frames.labels(camera_column("occ_pred", c), run.n_features).ravel())
     objects = sorted(labels - set(FIXED_OCCLUDER_COLOURS) - {""})
     colours = {k: v for k, v in FIXED_OCCLUDER_COLOURS.items() if k in labels}
     colours.update({o: OBJECT_PALETTE[i % len(OBJECT_PALETTE)] for i, o in enumerate(objects)})
@@ -252,9 +183,9 @@ def plot_trajectory(run: Run, path: Path) -> Path:
     axes = fig.subplots(3, 1, sharex=True)
     for ax, k in zip(axes, "xyz", strict=True):
         _time_axis(ax, run)
-        ax.plot(t, f.num(f"true_{k}"), color="0.5", lw=0.8, label="part (true)")
-        ax.plot(t, f.num(f"gripper_{k}"), color="C0", lw=1.6, label="gripper")
-        ax.plot(t, f.num(f"est_{k}"), color="C3", lw=1.4, ls="--", label="part (estimated)")
+        ax.plot(t, f.floats(f"true_{k}"), color="0.5", lw=0.8, label="part (true)")
+        ax.plot(t, f.floats(f"gripper_{k}"), color="C0", lw=1.6, label="gripper")
+        ax.plot(t, f.floats(f"est_{k}"), color="C3", lw=1.4, ls="--", label="part (estimated)")
         ax.set_ylabel(f"{k} [m]")
         ax.grid(alpha=0.3)
     axes[0].legend(loc="upper right", fontsize=8)
@@ -269,11 +200,11 @@ def plot_visibility(run: Run, camera: int, colours: dict[str, str], path: Path) 
     it is not, and a top lane that is blue where selected for a window, with a dark line where
     a corner was measured and black crosses where the measurement was rejected."""
     f, edges, n_f = run.frames, run.edges, run.n_features
-    vis = f.bits(f"vis_pred_c{camera}", n_f)
-    occ = f.labels(f"occ_pred_c{camera}", n_f)
-    sel = f.bits(f"sel_c{camera}", n_f)
-    meas = f.bits(f"meas_c{camera}", n_f)
-    rej = f.bits(f"rej_c{camera}", n_f)
+    vis = f.bits(camera_column("vis_pred", camera), n_f)
+    occ = f.labels(camera_column("occ_pred", camera), n_f)
+    sel = f.bits(camera_column("sel", camera), n_f)
+    meas = f.bits(camera_column("meas", camera), n_f)
+    rej = f.bits(camera_column("rej", camera), n_f)
     fig = _figure(11, 1.6 + 0.36 * n_f)
     ax = fig.subplots()
     _time_axis(ax, run)
@@ -342,9 +273,9 @@ def plot_visibility_agreement(run: Run, path: Path) -> Path:
                         gridspec_kw={"height_ratios": [1.0, 1.2] * n_c})[:, 0]
     cmap = ListedColormap(["white", "#d62728", "#1f77b4", "#d9d9d9"])
     for c in range(1, n_c + 1):
-        pred = f.bits(f"vis_pred_c{c}", n_f)
-        true = f.bits(f"vis_true_c{c}", n_f)
-        has_pred = f.present(f"vis_pred_c{c}")
+        pred = f.bits(camera_column("vis_pred", c), n_f)
+        true = f.bits(camera_column("vis_true", c), n_f)
+        has_pred = f.present(camera_column("vis_pred", c))
         code = np.where(pred & ~true, 1, np.where(~pred & true, 2, 0))
         code[~has_pred] = 3
         top, bottom = axes[2 * c - 2], axes[2 * c - 1]
@@ -376,7 +307,7 @@ def plot_timing(run: Run, path: Path) -> Path:
     f, t = run.frames, run.t
     fig = _figure(12, 4.5)
     left, right = fig.subplots(1, 2, gridspec_kw={"width_ratios": [1, 2]})
-    data = {s: f.num(f"t_{s}_ms") for s in STAGES}
+    data = {s: f.floats(timing_column(s)) for s in STAGES if s != "total"}  # total: right
     data = {s: v[np.isfinite(v)] for s, v in data.items() if np.isfinite(v).any()}
     if data:
         left.boxplot(list(data.values()), tick_labels=list(data), flierprops={"ms": 2})
@@ -384,7 +315,7 @@ def plot_timing(run: Run, path: Path) -> Path:
     left.set(ylabel="time per frame [ms]", title="per stage")
     left.tick_params(axis="x", labelrotation=25)
     left.grid(alpha=0.3, axis="y", which="both")
-    total = f.num("t_total_ms")
+    total = f.floats(timing_column("total"))
     _time_axis(right, run)
     right.plot(t, total, color="k", lw=0.8, label="total")
     if np.isfinite(total).any():

@@ -1,9 +1,14 @@
 """The simulated cell (the ground truth): a MuJoCo world generated from the cell model.
 
-Robots follow joint set-points at 500 Hz, a conveyor carries the workpiece, pneumatic
-parallel grippers grasp it, a second robot may run its own timed task, the fixed cameras are
-rendered offscreen as grayscale images, and the truth (part poses, joints, feature visibility
-by ray casts) is read from MuJoCo. The system under test never imports this package.
+Robots follow joint set-points at the control rate (:data:`cellsight.rates.CONTROL_HZ`), a
+conveyor carries the workpiece, pneumatic parallel grippers grasp it, a second robot may run
+its own timed task, the fixed cameras are rendered offscreen as grayscale images, and the truth
+(part poses, joints, what each camera sees by ray casts, as
+:class:`~cellsight.visibility.CameraVisibility`) is read from MuJoCo. Modules: :mod:`.world`
+(the :class:`World` and its robots), :mod:`.grasp` (grippers), :mod:`.paths` (conveyor, robot
+tasks, workpiece motion), :mod:`.truth` (ray casts), :mod:`.scene` (the shared MuJoCo state),
+:mod:`.mjcf` (the model), :mod:`.render` (images). The system under test never imports this
+package.
 """
 
 from cellsight.world.gl import choose_gl_backend

@@ -1,4 +1,4 @@
-"""Parallel-jaw grasping geometry: where the jaws meet a part, and when a grasp may engage.
+"""Parallel-jaw grippers: where the jaws meet a part, when a grasp engages (:class:`Grippers`).
 
 Tool frame (see :class:`~cellsight.model.ParallelGripper`): z is the approach direction, the
 jaws close along y; jaw 1's gripping face is the plane y = +opening/2 (its body beyond it),
@@ -8,6 +8,7 @@ frame; the jaw touches the part where the part's material inside that rectangle 
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
@@ -15,7 +16,10 @@ from scipy.spatial.transform import Rotation
 
 from cellsight.geometry.polyhedron import Polyhedron
 from cellsight.geometry.transforms import invert_pose, make_pose, transform_points
-from cellsight.model import ParallelGripper
+from cellsight.model import Cell, ParallelGripper
+from cellsight.world.mjcf import body_name, tcp_site_name
+from cellsight.world.paths import PartMotion
+from cellsight.world.scene import Scene
 
 _HALF_TURN_Z = np.diag([-1.0, -1.0, 1.0])
 
@@ -102,3 +106,178 @@ class PartSection:
             found.append((A[:, 1] + u * (B[:, 1] - A[:, 1]) + v * (C[:, 1] - A[:, 1]))[hit])
         y = np.concatenate(found)
         return (float(y.min()), float(y.max())) if y.size else None
+
+
+def grasp_poses(cell: Cell, overrides: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """``T_part_tcp`` of each workpiece's grasp: ``overrides`` (workpiece name -> pose), else
+    the cell file's ``grasp``, else :func:`default_grasp_pose` for the first robot's gripper (a
+    cell without grippers has none). An override naming no workpiece is a KeyError."""
+    overrides = dict(overrides)
+    gripper = next((r.tool for r in cell.robots if r.tool is not None), None)
+    out = {}
+    for part in cell.workpieces:
+        if part.name in overrides:
+            out[part.name] = np.asarray(overrides.pop(part.name), dtype=float)
+        elif part.T_part_grasp is not None:
+            out[part.name] = part.T_part_grasp.copy()
+        elif gripper is not None:
+            out[part.name] = default_grasp_pose(part.solid, gripper)
+    if overrides:
+        raise KeyError(f"grasp_poses: no workpiece named {sorted(overrides)}")
+    return out
+
+
+@dataclass
+class _Jaws:
+    """One gripper: ``opening`` and ``command`` (m); the workpiece the jaws are closed on
+    (``clamped``), the one welded to the TCP (``holding``) and that grasp's error
+    (``error``: m, rad)."""
+
+    opening: float
+    command: float
+    clamped: str | None = None
+    holding: str | None = None
+    error: tuple[float, float] | None = None
+
+
+class Grippers:
+    """The pneumatic parallel grippers of every robot with a tool.
+
+    The jaw opening moves towards the commanded opening at ``jaw_speed`` (m/s) and stops when
+    both jaws touch a part lying between them (a jaw that touches first pushes the part
+    sideways along the jaws' axis, in the horizontal plane, until the other one touches,
+    centring it as a real parallel gripper does). The grasp engages only when the jaws are
+    closed on the part *and* the TCP is within ``tolerance`` (m, rad) of the part's grasp pose
+    (:func:`grasp_error`); from then on the part is welded to the TCP at its relative pose of
+    that instant. It is released as soon as the jaws open. ``dt``: the control period (s).
+    """
+
+    def __init__(self, scene: Scene, cell: Cell, parts: PartMotion,
+                 grasps: Mapping[str, np.ndarray], tolerance: tuple[float, float],
+                 jaw_speed: float, dt: float) -> None:
+        self.scene, self.parts = scene, parts
+        self.tolerance = (float(tolerance[0]), float(tolerance[1]))
+        self.jaw_speed, self.dt = float(jaw_speed), float(dt)
+        self._grasp = grasp_poses(cell, grasps)
+        self._sections = {p.name: PartSection(p.solid) for p in cell.workpieces}
+        self._tools = {r.name: r.tool for r in cell.robots if r.tool is not None}
+        self._jaws = {name: _Jaws(t.max_opening, t.max_opening) for name, t in self._tools.items()}
+        self._pads = {name: JawPads.of(t) for name, t in self._tools.items()}
+        m = scene.model
+        self._jaw_adr = {
+            name: [m.jnt_qposadr[m.joint(body_name(name, j)).id] for j in ("jaw1", "jaw2")]
+            for name in self._tools
+        }
+        self._tool_body = {name: m.body(body_name(name, "tool")).id for name in self._tools}
+        self._tcp_site = {name: m.site(tcp_site_name(name)).id for name in self._tools}
+        for name in self._tools:
+            self._write(name)
+
+    def command(self, openings: Mapping[str, float]) -> None:
+        """Command jaw openings (robot name -> m, clipped to the gripper's range); a command
+        stays in force until the next one."""
+        for name, opening in openings.items():
+            self._jaws[name].command = float(np.clip(opening, 0.0, self._tools[name].max_opening))
+
+    def step(self) -> None:
+        """One control period: move every gripper's jaws, then the held parts with the TCPs."""
+        for robot, jaws in self._jaws.items():
+            if jaws.command > jaws.opening:
+                self._open(robot)
+            elif jaws.holding is None and (jaws.command != jaws.opening
+                                           or jaws.clamped is not None):
+                self._close(robot)
+        for robot, jaws in self._jaws.items():
+            if jaws.holding is not None:
+                self.parts.carry(jaws.holding, self.tcp_pose(robot))
+
+    def openings(self) -> dict[str, float]:
+        """Jaw opening (m) of every robot with a gripper, read from MuJoCo."""
+        qpos = self.scene.data.qpos
+        return {name: float(qpos[adr].sum()) for name, adr in self._jaw_adr.items()}
+
+    def clamped(self, robot: str) -> str | None:
+        """The workpiece the robot's jaws are closed on (both jaws touch it), or None."""
+        return self._jaws[robot].clamped
+
+    def holding(self, robot: str) -> str | None:
+        """The workpiece the robot holds (grasp engaged), or None."""
+        return self._jaws[robot].holding
+
+    def grasp_error(self, robot: str) -> tuple[float, float] | None:
+        """Position (m) and rotation (rad) error of the TCP from the held part's grasp pose
+        when the grasp engaged (:func:`grasp_error`); None while the robot holds nothing."""
+        jaws = self._jaws[robot]
+        return None if jaws.holding is None else jaws.error
+
+    def grasp_pose(self, name: str) -> np.ndarray:
+        """``T_part_tcp`` of the grasp that engages for this workpiece."""
+        return self._grasp[name].copy()
+
+    def let_go(self, name: str) -> None:
+        """No gripper holds this workpiece any more (it was moved by hand)."""
+        for jaws in self._jaws.values():
+            if jaws.holding == name:
+                jaws.holding = None
+
+    def tcp_pose(self, robot: str) -> np.ndarray:
+        """``T_base_tcp`` of the robot's gripper, read from MuJoCo."""
+        return self.scene.site_pose(self._tcp_site[robot])
+
+    def _open(self, robot: str) -> None:
+        """Opening: let go of everything."""
+        jaws = self._jaws[robot]
+        jaws.opening = min(jaws.command, jaws.opening + self.jaw_speed * self.dt)
+        if jaws.holding is not None:
+            self.parts.release(jaws.holding)
+            jaws.holding = None
+        jaws.clamped = None
+        self._write(robot)
+
+    def _close(self, robot: str) -> None:
+        """Closing (or holding still, clamped): stop at the first part both jaws touch."""
+        jaws = self._jaws[robot]
+        T_base_tool = self.scene.body_pose(self._tool_body[robot])
+        old = jaws.opening
+        new = max(jaws.command, old - self.jaw_speed * self.dt)
+        jaws.clamped = None
+        for name in self.parts.free():
+            new = self._squeeze(robot, name, T_base_tool, old, new)
+        jaws.opening = new
+        self._write(robot)
+
+    def _squeeze(self, robot: str, name: str, T_base_tool: np.ndarray, old: float,
+                 new: float) -> float:
+        """The opening the jaws reach closing from ``old`` towards ``new`` (m) on workpiece
+        ``name``: they push it to centre it, clamp it, and engage the grasp when the TCP is
+        within tolerance of its grasp pose."""
+        section, pads = self._sections[name], self._pads[robot]
+        T_tool_part = invert_pose(T_base_tool) @ self.parts.pose(name)
+        y_all = transform_points(T_tool_part, section.vertices)[:, 1]
+        if y_all.max() <= 0.5 * new and y_all.min() >= -0.5 * new:
+            return new  # the jaws cannot reach it yet (or it lies beyond their ends)
+        r1 = section.y_range(T_tool_part, pads.jaw1)
+        r2 = r1 if pads.jaw2 == pads.jaw1 else section.y_range(T_tool_part, pads.jaw2)
+        if r1 is None or r2 is None:
+            return new
+        hi, lo = r1[1], r2[0]
+        if hi > 0.5 * old + 1e-3 or lo < -0.5 * old - 1e-3:
+            return new  # material beyond a jaw's face: the part is not between the jaws
+        new = max(new, hi - lo)
+        push = min(0.5 * new - hi, 0.0) + max(-0.5 * new - lo, 0.0)
+        if push:
+            shift = push * T_base_tool[:3, 1]
+            shift[2] = 0.0
+            self.parts.push(name, shift)
+        if new <= hi - lo + 1e-9:
+            jaws = self._jaws[robot]
+            jaws.clamped = name
+            T_base_grasp = self.parts.pose(name) @ self._grasp[name]
+            error = grasp_error(T_base_tool @ self._tools[robot].T_tool_tcp, T_base_grasp)
+            if error[0] <= self.tolerance[0] and error[1] <= self.tolerance[1]:
+                self.parts.hold(name, self.tcp_pose(robot))
+                jaws.holding, jaws.error = name, error
+        return new
+
+    def _write(self, robot: str) -> None:
+        self.scene.set_qpos(self._jaw_adr[robot], 0.5 * self._jaws[robot].opening)

@@ -1,4 +1,6 @@
-"""Timed motions the world plays back: the conveyor's path and a robot's own joint-space task."""
+"""How things move in the world: the conveyor's path, a robot's own joint-space task, and the
+workpieces' motion (:class:`PartMotion`: carried by the conveyor, resting, falling when
+released, held by a gripper)."""
 
 from __future__ import annotations
 
@@ -6,7 +8,15 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
+import mujoco
 import numpy as np
+
+from cellsight.geometry.transforms import invert_pose, transform_points
+from cellsight.model import Cell
+from cellsight.world.mjcf import GROUP_PART, GROUP_STATIC
+from cellsight.world.scene import Scene
+
+GRAVITY = 9.81  # m/s^2
 
 
 @dataclass(frozen=True)
@@ -112,3 +122,130 @@ class JointTask:
         if self._smooth[k]:
             tau = tau**3 * (10.0 - 15.0 * tau + 6.0 * tau**2)
         return self._q[k - 1] + tau * (self._q[k] - self._q[k - 1])
+
+
+@dataclass
+class _Part:
+    """One workpiece's motion state: ``mode`` "conveyor", "resting" or "held"; ``pose``
+    ``T_base_part``; ``offset`` (m): the jaws' pushes while on the conveyor; ``T_tcp_part``
+    while held; ``fall_left`` (m) and ``fall_speed`` (m/s) while falling."""
+
+    mode: str
+    pose: np.ndarray
+    offset: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    T_tcp_part: np.ndarray | None = None
+    fall_left: float = 0.0
+    fall_speed: float = 0.0
+
+
+class PartMotion:
+    """The workpieces' poses, written into MuJoCo's mocap bodies as they move.
+
+    A workpiece rests at its nominal pose, except the one the ``conveyor`` carries (until it
+    is first grasped). One that is held follows its holder's TCP at the relative pose of the
+    grasp. One that is released falls straight down (gravity, no rotation) onto whatever lies
+    below it (static objects, other workpieces: ray casts) and rests there.
+    """
+
+    def __init__(self, scene: Scene, cell: Cell, conveyor: ConveyorPath) -> None:
+        self.scene = scene
+        self.cell = cell
+        self.conveyor = conveyor
+        model = scene.model
+        self._body = {p.name: model.body(p.name).id for p in cell.workpieces}
+        self._mocap = {name: model.body_mocapid[b] for name, b in self._body.items()}
+        self._parts = {p.name: _Part("resting", p.T_base_part.copy()) for p in cell.workpieces}
+        self._carried: str | None = None
+        if cell.workpieces and not conveyor.is_still:
+            self._carried = cell.workpiece(conveyor.workpiece or cell.workpieces[0].name).name
+            self._parts[self._carried].mode = "conveyor"
+            self._parts[self._carried].pose = self._conveyor_pose(0.0)
+        for name in self._parts:
+            self._write(name)
+
+    def step(self, t: float, dt: float) -> None:
+        """Move the conveyor's workpiece to its place at time ``t`` (s) and let the falling
+        ones fall for ``dt`` (s)."""
+        for name, part in self._parts.items():
+            if part.mode == "conveyor":
+                part.pose = self._conveyor_pose(t)
+                part.pose[:3, 3] += part.offset
+                self._write(name)
+            elif part.fall_left > 0:
+                part.fall_speed += GRAVITY * dt
+                drop = min(part.fall_speed * dt, part.fall_left)
+                part.fall_left -= drop
+                part.pose[2, 3] -= drop
+                self._write(name)
+
+    def free(self) -> list[str]:
+        """The workpieces no gripper holds."""
+        return [name for name, part in self._parts.items() if part.mode != "held"]
+
+    def pose(self, name: str) -> np.ndarray:
+        """``T_base_part`` of a workpiece as last written (a copy)."""
+        return self._parts[name].pose.copy()
+
+    def push(self, name: str, shift: np.ndarray) -> None:
+        """Shift a workpiece by ``shift`` (3,) m (a jaw pushing it); the conveyor keeps the
+        shift."""
+        part = self._parts[name]
+        part.pose[:3, 3] += shift
+        part.offset += shift
+        self._write(name)
+
+    def hold(self, name: str, T_base_tcp: np.ndarray) -> None:
+        """Weld a workpiece to a TCP at its current relative pose (the grasp engages)."""
+        part = self._parts[name]
+        part.mode = "held"
+        part.T_tcp_part = invert_pose(T_base_tcp) @ part.pose
+        part.fall_left = part.fall_speed = 0.0
+
+    def carry(self, name: str, T_base_tcp: np.ndarray) -> None:
+        """Move a held workpiece with its holder's TCP."""
+        part = self._parts[name]
+        part.pose = T_base_tcp @ part.T_tcp_part
+        self._write(name)
+
+    def release(self, name: str) -> None:
+        """Let go of a held workpiece: it starts falling (it rests where it is if nothing lies
+        below it or it already touches a support)."""
+        part = self._parts[name]
+        part.mode, part.T_tcp_part = "resting", None
+        self.scene.sync()
+        part.fall_left, part.fall_speed = self._drop_height(name), 0.0
+
+    def place(self, name: str, T_base_part: np.ndarray) -> None:
+        """Put a workpiece at a pose, resting there (off the conveyor, out of any gripper)."""
+        part = self._parts[name]
+        part.mode, part.T_tcp_part = "resting", None
+        part.pose = np.array(T_base_part, dtype=float)
+        part.fall_left = part.fall_speed = 0.0
+        self._write(name)
+
+    def true_poses(self) -> dict[str, np.ndarray]:
+        """``T_base_part`` of every workpiece, read from MuJoCo."""
+        return {name: self.scene.body_pose(b) for name, b in self._body.items()}
+
+    def _drop_height(self, name: str) -> float:
+        """How far the part can fall straight down before it rests on a static object or
+        another workpiece (m): the shortest downward ray cast from its vertices."""
+        groups = np.zeros(6, dtype=np.uint8)
+        groups[[GROUP_STATIC, GROUP_PART]] = 1
+        lift, down = 1e-4, np.array([0.0, 0.0, -1.0])  # start just above a touching support
+        drops = []
+        solid = self.cell.workpiece(name).solid
+        for v in transform_points(self._parts[name].pose, solid.vertices):
+            d = mujoco.mj_ray(self.scene.model, self.scene.data, v + [0.0, 0.0, lift], down,
+                              groups, True, self._body[name], None)
+            if d >= 0:
+                drops.append(d - lift)
+        return max(min(drops), 0.0) if drops else 0.0
+
+    def _conveyor_pose(self, t: float) -> np.ndarray:
+        T = self.cell.workpiece(self._carried).T_base_part.copy()
+        T[:2, 3] = self.conveyor.position(t)
+        return T
+
+    def _write(self, name: str) -> None:
+        self.scene.set_mocap(self._mocap[name], self._parts[name].pose)

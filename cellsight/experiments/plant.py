@@ -1,0 +1,82 @@
+"""The run loop's view of the cell: a :class:`typing.Protocol` of the few methods it calls, so
+that the simulated world (:class:`cellsight.world.World`), a log replay or a real cell can
+stand in.
+
+:class:`Plant` is what a real cell offers the controller and the tracker (a clock, joint and
+gripper commands, joint measurements, the jaws' opening and closed signal, camera images);
+:class:`GroundTruth` is what only a simulator knows, which the run logs next to the estimates
+(true poses, true visibility, whether the part is really held). Units: s, m, rad.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Protocol
+
+import numpy as np
+
+from cellsight.visibility import Views
+
+
+class Plant(Protocol):
+    """The cell as the controller and the tracker see it."""
+
+    @property
+    def time(self) -> float:
+        """Time (s) since the start of the run."""
+        ...
+
+    def step(self, setpoints: Mapping[str, np.ndarray] | None = None,
+             gripper: Mapping[str, float] | None = None) -> None:
+        """One control period: robot name -> joint set-point, and -> jaw opening command (m)."""
+        ...
+
+    def measured_joints(self) -> dict[str, np.ndarray]:
+        """Robot name -> measured joint vector (rad, m)."""
+        ...
+
+    def jaw_openings(self) -> dict[str, float]:
+        """Robot name -> measured jaw opening (m)."""
+        ...
+
+    def jaws_closed_on_part(self, robot: str) -> bool:
+        """The gripper's signal: its jaws closed on a part."""
+        ...
+
+    def render(self) -> list[np.ndarray]:
+        """One image per camera, in the cell's camera order."""
+        ...
+
+    def close(self) -> None:
+        """Release what the plant holds (renderer, devices)."""
+        ...
+
+
+class GroundTruth(Protocol):
+    """What a simulator knows that the tracker must estimate."""
+
+    def true_joints(self) -> dict[str, np.ndarray]:
+        """Robot name -> true joint vector (rad, m)."""
+        ...
+
+    def true_part_poses(self) -> dict[str, np.ndarray]:
+        """Workpiece name -> true ``T_base_part``."""
+        ...
+
+    def true_views(self) -> Views:
+        """Workpiece name -> what each camera truly sees of it (one view per camera)."""
+        ...
+
+    def grasped(self, robot: str) -> bool:
+        """The robot really holds a workpiece."""
+        ...
+
+    def grasp_error(self, robot: str) -> tuple[float, float] | None:
+        """Position (m) and rotation (rad) error of the TCP from the held workpiece's grasp
+        pose when the grasp engaged; None while the robot holds nothing."""
+        ...
+
+
+class SimulatedCell(Plant, GroundTruth, Protocol):
+    """A plant that also knows the truth: what :class:`~cellsight.experiments.ExperimentRun`
+    drives and logs."""

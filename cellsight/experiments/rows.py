@@ -1,0 +1,101 @@
+"""Each vision frame's row of ``frames.csv`` (columns: :mod:`cellsight.framelog`), from what
+the run loop has at hand: the tracker's record, the simulator's truth, the PnP baseline, the
+task and the gripper."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from cellsight.control import GraspTask
+from cellsight.experiments.plant import GroundTruth, SimulatedCell
+from cellsight.framelog import (
+    WRONG_PX,
+    camera_column,
+    encode_bits,
+    encode_labels,
+    pose_fields,
+    timing_fields,
+)
+from cellsight.model.robot import Robot
+from cellsight.tracking.records import PartFrame, TrackerFrame
+from cellsight.visibility import CameraVisibility
+
+
+@dataclass(frozen=True)
+class PartTruth:
+    """The simulator's truth about one workpiece at one frame: ``T_base_part`` and what each
+    camera sees of it (``views``, one per camera)."""
+
+    T_base_part: np.ndarray
+    views: list[CameraVisibility]
+
+    @classmethod
+    def of(cls, world: GroundTruth, part: str) -> PartTruth:
+        return cls(world.true_part_poses()[part], world.true_views()[part])
+
+    @property
+    def pixels(self) -> np.ndarray:
+        """(C, F, 2) true projections (px, distorted; NaN behind a camera)."""
+        return np.stack([v.pixels for v in self.views])
+
+    @property
+    def visible(self) -> np.ndarray:
+        """(C, F) truly visible."""
+        return np.stack([v.visible for v in self.views])
+
+
+class FrameRows:
+    """Builds the rows for one workpiece grasped by ``robot``. ``pixel_errors``: log the
+    extraction error (``err_px_c*``; meaningless for the ideal sensor, which draws its
+    measurements around the truth)."""
+
+    def __init__(self, robot: Robot, n_cameras: int, pixel_errors: bool) -> None:
+        self.robot = robot
+        self.n_cameras = n_cameras
+        self.pixel_errors = pixel_errors
+
+    def row(self, t: float, task: GraspTask, frame: TrackerFrame, rec: PartFrame,
+            truth: PartTruth, pnp: np.ndarray | None, world: SimulatedCell) -> dict:
+        """The row of the frame at time ``t`` (s)."""
+        row: dict[str, object] = {"t": round(t, 5), "phase": str(task.phase),
+                                  "stage": task.stage, "status": str(rec.status)}
+        estimate = rec.T_base_part if rec.status.has_estimate else None
+        for prefix, T in (("true", truth.T_base_part), ("est", estimate), ("pnp", pnp)):
+            row.update(pose_fields(prefix, T))
+        row.update(self._gripper(world))
+        reasons = rec.reasons
+        for c in range(self.n_cameras):
+            row.update(self._camera(c, rec, truth, reasons[c] if reasons else None))
+        row.update(timing_fields(frame.timings))
+        return row
+
+    def _gripper(self, world: SimulatedCell) -> dict:
+        name = self.robot.name
+        tcp = self.robot.tcp_pose(world.true_joints()[name])[:3, 3]
+        return {"gripper_x": tcp[0], "gripper_y": tcp[1], "gripper_z": tcp[2],
+                "jaw_opening": world.jaw_openings()[name],
+                "jaws_closed": int(world.jaws_closed_on_part(name)),
+                "grasped": int(world.grasped(name))}
+
+    def _camera(self, c: int, rec: PartFrame, truth: PartTruth,
+                reasons: list[str] | None) -> dict:
+        """Camera ``c``'s columns (0-based; columns are numbered from 1); ``reasons``: the
+        prediction's, None when nothing was predicted."""
+        view = truth.views[c]
+        measured = np.all(np.isfinite(rec.measured[c]), axis=1)
+        err = np.linalg.norm(rec.measured[c, measured] - view.pixels[measured], axis=1)
+        wrong = np.zeros_like(measured)
+        wrong[measured] = ~(err <= WRONG_PX)
+        plan = rec.windows[c]
+        values = {
+            "vis_pred": encode_bits(rec.visible[c]), "vis_true": encode_bits(view.visible),
+            "sel": encode_bits(rec.selected[c]), "meas": encode_bits(measured),
+            "rej": encode_bits(rec.rejected[c]), "wrong": encode_bits(wrong),
+            "occ_pred": None if reasons is None else encode_labels(reasons),
+            "occ_true": encode_labels(view.reason),
+            "grab": 0.0 if plan is None else plan.fraction,
+            "err_px": float(np.median(err)) if len(err) and self.pixel_errors else None,
+        }
+        return {camera_column(name, c + 1): v for name, v in values.items()}

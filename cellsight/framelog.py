@@ -1,0 +1,221 @@
+"""``frames.csv``, the per-frame log of an experiment run: its columns, its writer and reader.
+
+One row per vision frame, written and flushed as the run goes. Columns (C cameras numbered
+c = 1..C, F features; an empty field is a missing value):
+
+- ``t`` (s), ``phase`` and ``stage`` of the grasping task, ``status`` of the tracker
+  (:class:`~cellsight.tracking.status.TrackStatus`);
+- ``true_x, true_y, true_z, true_roll, true_pitch, true_yaw``: the part's true pose (m, rad,
+  base frame, roll-pitch-yaw as in :func:`~cellsight.geometry.transforms.xyz_rpy_from_pose`);
+  ``est_*`` the EKF's estimate after this frame's update (empty while the part is not acquired
+  yet or lost); ``pnp_*`` the per-frame multi-camera PnP baseline on the same measurements (a
+  frame with too few holds the last fix, for at most the tracker's ``lost_after_s``);
+- ``gripper_x, gripper_y, gripper_z`` (m): the grasping robot's true TCP; ``jaw_opening`` (m);
+  ``jaws_closed`` (jaws closed on the part, 0/1); ``grasped`` (part held, 0/1);
+- per camera: ``vis_pred_c{c}`` (predicted visible at the tracker's predicted pose),
+  ``vis_true_c{c}`` (visible by the simulator's ray casts at the true pose), ``sel_c{c}``
+  (selected: a window was planned), ``meas_c{c}`` (a feature was measured in it), ``rej_c{c}``
+  (measured, rejected by the EKF's gate), ``wrong_c{c}`` (measured more than :data:`WRONG_PX`
+  from the feature's true projection): strings of F characters ``0``/``1`` in feature order
+  (:func:`encode_bits`); ``occ_pred_c{c}``, ``occ_true_c{c}``: F labels joined by ``;`` (empty
+  when visible, ``self``, ``behind``, ``outside`` or the hiding object's label, as
+  :attr:`cellsight.visibility.CameraVisibility.reason`); ``grab_c{c}``: fraction of the
+  image's pixels grabbed; ``err_px_c{c}``: median distance (px) of this frame's measurements
+  from the true projections (rendered sensor);
+- ``t_{stage}_ms`` for each stage of :data:`cellsight.tracking.timing.STAGES` (occlusion,
+  selection, windowing, extraction, ekf = prediction + update, total): the tracker's stage
+  times (ms).
+
+Strings are quoted (``csv.QUOTE_NONNUMERIC``); read the 0/1 columns as strings (pandas:
+``dtype=str``) or their leading zeros are lost. :class:`FrameWriter` writes the file,
+:class:`FrameLog` reads it back with typed accessors; run folders written before this module
+existed have the same format and load the same way.
+"""
+
+from __future__ import annotations
+
+import csv
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from types import TracebackType
+from typing import TextIO
+
+import numpy as np
+
+from cellsight.geometry.transforms import xyz_rpy_from_pose
+from cellsight.tracking.timing import STAGES
+
+POSE = ("x", "y", "z", "roll", "pitch", "yaw")
+"""The six pose columns after a prefix: position (m), roll-pitch-yaw (rad)."""
+POSE_PREFIXES = ("true", "est", "pnp")
+GRIPPER = ("gripper_x", "gripper_y", "gripper_z", "jaw_opening", "jaws_closed", "grasped")
+PER_CAMERA = ("vis_pred", "vis_true", "sel", "meas", "rej", "wrong", "occ_pred", "occ_true",
+              "grab", "err_px")
+WRONG_PX = 3.0  # a measurement this far (px) from the true projection is another image point
+LABEL_SEPARATOR = ";"
+
+
+def camera_column(name: str, c: int) -> str:
+    """The column of per-camera quantity ``name`` (one of :data:`PER_CAMERA`) for camera
+    ``c`` (1-based)."""
+    return f"{name}_c{c}"
+
+
+def timing_column(stage: str) -> str:
+    """The column of a tracker stage's time (ms)."""
+    return f"t_{stage}_ms"
+
+
+def columns(n_cameras: int) -> list[str]:
+    """The header of ``frames.csv`` for ``n_cameras`` cameras."""
+    cols = ["t", "phase", "stage", "status"]
+    for prefix in POSE_PREFIXES:
+        cols += [f"{prefix}_{a}" for a in POSE]
+    cols += list(GRIPPER)
+    for c in range(1, n_cameras + 1):
+        cols += [camera_column(name, c) for name in PER_CAMERA]
+    cols += [timing_column(s) for s in STAGES]
+    return cols
+
+
+def encode_bits(mask: Sequence[bool] | np.ndarray) -> str:
+    """A boolean mask (F,) as a string of F characters '0'/'1'."""
+    return "".join("1" if m else "0" for m in mask)
+
+
+def decode_bits(text: str) -> np.ndarray:
+    """A '0'/'1' string as a boolean mask (the inverse of :func:`encode_bits`)."""
+    return np.frombuffer(text.encode(), dtype=np.uint8) == ord("1")
+
+
+def encode_labels(labels: Sequence[str]) -> str:
+    """Per-feature labels ('' for none) as one field."""
+    return LABEL_SEPARATOR.join(labels)
+
+
+def pose_fields(prefix: str, T: np.ndarray | None) -> dict[str, float]:
+    """The six ``{prefix}_*`` columns of a pose ``T`` (4x4); none when ``T`` is None (the
+    fields stay empty)."""
+    if T is None:
+        return {}
+    xyz, rpy = xyz_rpy_from_pose(T)
+    return dict(zip([f"{prefix}_{a}" for a in POSE], [*xyz, *rpy], strict=True))
+
+
+def timing_fields(seconds: Mapping[str, float]) -> dict[str, float]:
+    """The ``t_{stage}_ms`` columns from stage times in seconds (a missing stage is 0), in ms
+    rounded to 0.1 us."""
+    return {timing_column(s): round(1e3 * seconds.get(s, 0.0), 4) for s in STAGES}
+
+
+class FrameWriter:
+    """Writes ``frames.csv`` row by row, flushing each row (an interrupted run keeps them).
+    Use as a context manager or call :meth:`close`."""
+
+    def __init__(self, path: Path, n_cameras: int) -> None:
+        self.path = Path(path)
+        self.columns = columns(n_cameras)
+        self._file: TextIO = self.path.open("w", newline="")
+        self._writer = csv.DictWriter(self._file, self.columns, quoting=csv.QUOTE_NONNUMERIC)
+        self._writer.writeheader()
+        self._file.flush()
+
+    def write(self, row: Mapping[str, object]) -> None:
+        """Write one row (column -> value); missing columns and None values become empty
+        fields; an unknown column is an error."""
+        unknown = set(row) - set(self.columns)
+        if unknown:
+            raise KeyError(f"frames.csv has no columns {sorted(unknown)}")
+        self._writer.writerow({k: ("" if v is None else v) for k, v in row.items()})
+        self._file.flush()
+
+    def close(self) -> None:
+        self._file.close()
+
+    def __enter__(self) -> FrameWriter:
+        return self
+
+    def __exit__(self, kind: type[BaseException] | None, error: BaseException | None,
+                 trace: TracebackType | None) -> None:
+        self.close()
+
+
+@dataclass
+class FrameLog:
+    """``frames.csv`` read back: ``columns`` name -> one string per row ('' = missing), ``n``
+    rows. The accessors type the columns; an absent column reads as missing in every row."""
+
+    columns: dict[str, list[str]]
+    n: int
+
+    @classmethod
+    def read(cls, path: Path) -> FrameLog:
+        """Read a frames file; rows with the wrong field count (a line cut off mid-write) are
+        dropped. An absent file reads as no rows."""
+        path = Path(path)
+        if not path.exists():
+            return cls({}, 0)
+        with path.open(newline="") as f:
+            reader = csv.reader(f)
+            header = next(reader, [])
+            rows = [r for r in reader if header and len(r) == len(header)]
+        return cls({name: [r[i] for r in rows] for i, name in enumerate(header)}, len(rows))
+
+    def text(self, name: str) -> list[str]:
+        """A column's strings."""
+        return self.columns.get(name, [""] * self.n)
+
+    def floats(self, name: str) -> np.ndarray:
+        """A column as float (N,), NaN where missing."""
+        return np.array([float(v) if v else np.nan for v in self.text(name)], dtype=float)
+
+    def present(self, name: str) -> np.ndarray:
+        """(N,) bool: rows where the column has a value."""
+        return np.array([bool(v) for v in self.text(name)], dtype=bool)
+
+    def bits(self, name: str, n_features: int | None = None) -> np.ndarray:
+        """A 0/1 column as (N, F) bool; missing rows are all False. ``n_features`` defaults to
+        :attr:`n_features`; a row of another length is an error."""
+        F = self.n_features if n_features is None else n_features
+        out = np.zeros((self.n, F), dtype=bool)
+        for i, s in enumerate(self.text(name)):
+            if s:
+                if len(s) != F:
+                    raise ValueError(f"{name} row {i}: {len(s)} flags, expected {F}")
+                out[i] = decode_bits(s)
+        return out
+
+    def labels(self, name: str, n_features: int | None = None) -> np.ndarray:
+        """A label column as (N, F) str objects ('' = none, or a missing row); ``n_features``
+        as in :meth:`bits`."""
+        F = self.n_features if n_features is None else n_features
+        out = np.full((self.n, F), "", dtype=object)
+        for i, s in enumerate(self.text(name)):
+            if s:
+                parts = s.split(LABEL_SEPARATOR)
+                if len(parts) != F:
+                    raise ValueError(f"{name} row {i}: {len(parts)} labels, expected {F}")
+                out[i] = parts
+        return out
+
+    def poses(self, prefix: str) -> np.ndarray:
+        """(N, 6) ``{prefix}_x .. {prefix}_yaw`` (m, rad), NaN rows where missing."""
+        return np.column_stack([self.floats(f"{prefix}_{a}") for a in POSE]).reshape(-1, 6)
+
+    @property
+    def n_cameras(self) -> int:
+        """Number of cameras c = 1, 2, ... that have a ``vis_pred_c{c}`` column."""
+        c = 0
+        while camera_column("vis_pred", c + 1) in self.columns:
+            c += 1
+        return c
+
+    @property
+    def n_features(self) -> int:
+        """Number of features: the length of the first 0/1 field of camera 1 (0 if none)."""
+        for name in ("vis_true", "vis_pred"):
+            flags = [s for s in self.text(camera_column(name, 1)) if s]
+            if flags:
+                return len(flags[0])
+        return 0

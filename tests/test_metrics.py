@@ -1,0 +1,81 @@
+"""Run metrics from a frame log (cellsight.experiments.metrics) on a small hand-made log whose
+figures are worked out here by hand."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from cellsight.experiments.metrics import evaluated_frames, frame_metrics
+from cellsight.framelog import FrameLog, FrameWriter, pose_fields, timing_fields
+from cellsight.geometry.transforms import pose_from_xyz_rpy
+from cellsight.tracking.timing import STAGES
+
+PERIOD = 0.04  # s
+
+# frame: phase, est offset (mm along x; None = no estimate), pnp offset (mm), occ_true labels,
+# vis_pred, vis_true, meas, rej, wrong, grab, err_px
+FRAMES = [
+    ("waiting", None, None, "outside;outside;outside", "000", "000", "000", "000", "000", 0.0,
+     None),
+    ("approach", 1.0, 3.0, ";self;", "101", "101", "101", "000", "000", 0.1, 0.2),
+    ("approach", 2.0, None, ";;outside", "110", "100", "100", "000", "000", 0.2, 0.4),
+    ("grasp", None, 4.0, ";R7AX.gripper;", "111", "101", "111", "010", "011", 0.3, None),
+    ("grasp", 5.0, 1.0, "behind;behind;behind", "000", "000", "000", "000", "000", 0.4, None),
+]
+
+
+@pytest.fixture
+def log(tmp_path: Path) -> FrameLog:
+    T_true = pose_from_xyz_rpy([0.5, 0.1, 0.6], [0.0, 0.0, 0.3])
+    with FrameWriter(tmp_path / "frames.csv", 1) as writer:
+        for k, (phase, est, pnp, occ, vis_pred, vis_true, meas, rej, wrong, grab, px) in \
+                enumerate(FRAMES):
+            row = {"t": k * PERIOD, "phase": phase, **pose_fields("true", T_true),
+                   "vis_pred_c1": vis_pred, "vis_true_c1": vis_true, "occ_true_c1": occ,
+                   "meas_c1": meas, "rej_c1": rej, "wrong_c1": wrong, "grab_c1": grab,
+                   "err_px_c1": px, **timing_fields(dict.fromkeys(STAGES, k * 1e-3))}
+            for prefix, mm in (("est", est), ("pnp", pnp)):
+                if mm is not None:
+                    T = T_true.copy()
+                    T[0, 3] += mm * 1e-3
+                    row.update(pose_fields(prefix, T))
+            writer.write(row)
+    return FrameLog.read(tmp_path / "frames.csv")
+
+
+def test_metrics_of_a_hand_made_log(log: FrameLog):
+    m = frame_metrics(log)
+    # evaluated: in view (some feature neither outside nor behind) from the first estimate on
+    assert evaluated_frames(log).tolist() == [False, True, True, True, False]
+    assert m["frames"] == 5 and m["first_estimate_s"] == pytest.approx(PERIOD)
+    assert m["in_view_fraction"] == pytest.approx(3 / 4)
+    assert m["evaluated_frames"] == 3
+    assert m["position_rmse_mm"] == pytest.approx(np.sqrt((1 + 4) / 2))
+    assert m["max_position_error_mm"] == pytest.approx(2.0)
+    assert m["orientation_rmse_deg"] == pytest.approx(0.0, abs=1e-6)
+    assert m["pnp_position_rmse_mm"] == pytest.approx(np.sqrt((9 + 16) / 2))
+    assert m["lost_in_view_s"] == pytest.approx(PERIOD)  # frame 3 has no estimate
+    assert m["phases"]["approach"]["evaluated_frames"] == 2
+    assert m["phases"]["grasp"]["position_rmse_mm"] is None
+    assert m["phases"]["grasp"]["lost_in_view_s"] == pytest.approx(PERIOD)
+    assert m["phases"]["release"]["evaluated_frames"] == 0
+    # labels in view: frame 1: 3, frame 2: 2 (one agrees wrongly), frame 3: 3 (one wrong)
+    assert m["visibility_accuracy"] == pytest.approx(6 / 8)
+    assert m["visibility_accuracy_all"] == pytest.approx(13 / 15)
+    assert m["false_visible"] == 2 and m["false_hidden"] == 0
+    assert (m["measurements"], m["rejected_measurements"], m["wrong_measurements"],
+            m["wrong_accepted"]) == (6, 1, 2, 1)
+    assert m["pixels_grabbed_fraction"] == pytest.approx(0.2)
+    assert m["extraction_error_px_median"] == pytest.approx(0.3)
+    assert m["timing_ms"] == {s: pytest.approx(2.0) for s in STAGES}
+
+
+def test_metrics_of_an_empty_log(tmp_path: Path):
+    FrameWriter(tmp_path / "frames.csv", 2).close()  # interrupted before the first frame
+    m = frame_metrics(FrameLog.read(tmp_path / "frames.csv"))
+    assert m["frames"] == 0 and m["position_rmse_mm"] is None
+    assert m["visibility_accuracy"] is None and m["pixels_grabbed_fraction"] is None
+    assert m["timing_ms"] == dict.fromkeys(STAGES)
