@@ -55,6 +55,12 @@ class Phase(str, Enum):
     def __str__(self) -> str:
         return self.value
 
+    @classmethod
+    def working(cls) -> tuple[Phase, ...]:
+        """The phases in which the robot works on the part, in task order (not ``waiting``,
+        ``done`` or ``failed``): the ones the metrics break the errors down by."""
+        return tuple(p for p in cls if p not in (cls.WAITING, cls.DONE, cls.FAILED))
+
 
 @dataclass(frozen=True)
 class TaskTiming:

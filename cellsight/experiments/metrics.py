@@ -38,12 +38,13 @@ from __future__ import annotations
 
 import numpy as np
 
+from cellsight.control import Phase
 from cellsight.framelog import FrameLog, camera_column, timing_column
 from cellsight.geometry.transforms import pose_errors
 from cellsight.tracking.timing import STAGES
 from cellsight.visibility import BEHIND, OUTSIDE
 
-PHASES = ("approach", "grasp", "manipulate", "release")
+PHASES = tuple(str(p) for p in Phase.working())  # the task's phases, in order
 OUT_OF_VIEW = (OUTSIDE, BEHIND)  # true occluder labels of a feature not in the image
 
 

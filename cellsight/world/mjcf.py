@@ -31,6 +31,7 @@ from cellsight.geometry.polyhedron import Polyhedron
 from cellsight.model import Cell, CellObject
 from cellsight.model.cell import ObjectFrame
 from cellsight.model.robot import Robot
+from cellsight.rates import CONTROL_HZ
 
 GROUP_STATIC, GROUP_ROBOT, GROUP_PART = 0, 1, 2
 _FLIP_YZ = np.diag([1.0, -1.0, -1.0])  # OpenCV camera axes <-> MuJoCo camera axes
@@ -231,7 +232,7 @@ def cell_mjcf(cell: Cell, render_size: tuple[int, int] | None = None) -> str:
     cameras = [mjcf_camera(c, render_size) for c in cell.cameras]
     return f"""<mujoco model={quoteattr(cell.name)}>
 <compiler angle="radian" inertiafromgeom="false" autolimits="true"/>
-<option timestep="0.002"/>
+<option timestep="{1.0 / CONTROL_HZ:g}"/>
 <visual>
   <global offwidth="{offw}" offheight="{offh}"/>
   <quality offsamples="4" shadowsize="0"/>
