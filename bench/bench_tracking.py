@@ -41,6 +41,7 @@ FRAMES = 260
 WARMUP = 20
 PERIOD = 1.0 / VISION_HZ
 BUDGET_S = 0.5e-3
+GATE = ChiSquareGate()  # the tracker's default gate
 STAGES = ("predict", "selection", "windowing", "update")
 
 
@@ -96,7 +97,7 @@ def _scenario(all_visible: bool, seed: int = 0) -> dict[str, list[float]]:
         t5 = time.perf_counter()
         obs = [Observation(models[c], c, p.features, pts[p.features], measured[c])
                for c, p in enumerate(plans) if len(p.features)]
-        ekf.update(obs, ChiSquareGate())
+        ekf.update(obs, GATE)
         t6 = time.perf_counter()
         if k <= WARMUP:
             continue

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+import numba
 import numpy as np
 from scipy.stats import chi2
 
@@ -34,8 +35,12 @@ class ChiSquareGate:
         return np.asarray(mahalanobis2) <= self.threshold
 
 
+@numba.njit(cache=True)
 def mahalanobis2(innovation: np.ndarray, S: np.ndarray) -> np.ndarray:
     """``d_j^2 = nu_j^T S_j^-1 nu_j`` (m,) for innovations (m, 2) and covariances (m, 2, 2)."""
-    a, b, c = S[:, 0, 0], S[:, 0, 1], S[:, 1, 1]
-    nu0, nu1 = innovation[:, 0], innovation[:, 1]
-    return (c * nu0**2 - 2 * b * nu0 * nu1 + a * nu1**2) / (a * c - b * b)
+    d2 = np.empty(len(innovation))
+    for j in range(len(innovation)):
+        a, b, c = S[j, 0, 0], S[j, 0, 1], S[j, 1, 1]
+        nu0, nu1 = innovation[j, 0], innovation[j, 1]
+        d2[j] = (c * nu0**2 - 2 * b * nu0 * nu1 + a * nu1**2) / (a * c - b * b)
+    return d2
