@@ -4,7 +4,7 @@ STAMP   := .venv/.installed
 DEV     := .venv/.installed-dev
 export MUJOCO_GL ?= egl
 
-.PHONY: venv dev test demo experiments bench lint clean
+.PHONY: venv dev test demo experiments bench fuzz lint clean
 
 # `venv`: what cellsight needs to run; `dev`: plus the test tools and the benchmark peers.
 venv: $(STAMP)
@@ -28,11 +28,15 @@ test: dev lint
 
 # The main job: the paper's third experiment on the built-in cell (report in out/experiment3).
 demo: venv
-	.venv/bin/cellsight run 3 --out out/experiment3
+	.venv/bin/cellsight run 3 --out out/experiment3 --overwrite
 
 # The README's table: experiments 1-3 x sensors x seeds, with and without occlusion prediction.
 experiments: venv
 	$(PY) scripts/experiment_table.py --out out/table
+
+# Hostile and random input, 10^5 cases (a few thousand run in `make test`); tests/fuzzing.py.
+fuzz: dev
+	$(PY) scripts/fuzz.py --out out/fuzz
 
 # Open3D (a benchmark peer) needs libusb; install it from Debian when missing.
 bench: dev

@@ -2,7 +2,9 @@
 
 Commands: ``show`` (pictures of the cell and each camera's view), ``visibility`` (which feature
 points each camera sees, and why not), ``run`` (the paper's experiments), ``compare`` (two runs'
-metrics side by side). Every error on bad input is printed as one line naming its source.
+metrics side by side). Every error on bad input is printed as one line naming its source (exit
+status 2); a crash as one line too (exit status 1; ``CELLSIGHT_DEBUG=1`` shows the traceback); a
+run ended by SIGINT or SIGTERM exits with 130 or 143 after writing its partial results.
 """
 
 from __future__ import annotations
@@ -10,12 +12,25 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
+import signal
 import sys
 from pathlib import Path
 
 import numpy as np
 
 from cellsight.errors import CellsightError
+
+
+def _debug() -> bool:
+    """``CELLSIGHT_DEBUG`` is set (and not 0): crashes show their traceback."""
+    return os.environ.get("CELLSIGHT_DEBUG", "0") not in ("", "0")
+
+
+def _one_line(text: str, limit: int = 300) -> str:
+    """``text`` on one line (whitespace runs collapsed), cut to ``limit`` characters."""
+    text = " ".join(str(text).split())
+    return text if len(text) <= limit else text[: limit - 3] + "..."
 
 
 def _short(value, limit: int = 60) -> str:
@@ -183,12 +198,10 @@ def _metric_rows(metrics: dict) -> dict[str, object]:
     return rows
 
 
-def cmd_run(args: argparse.Namespace) -> int:
-    from rich.console import Console
-    from rich.table import Table
-
-    from cellsight.experiments import RunConfig, run_experiment
-    from cellsight.report.run_report import format_value
+def _check_run_args(args: argparse.Namespace) -> Path:
+    """Every check of ``cellsight run``'s arguments, before anything is written; returns the
+    output folder."""
+    from cellsight.experiments.runner import check_out_folder
 
     if args.duration is not None and not (args.duration > 0 and math.isfinite(args.duration)):
         raise CellsightError(f"--duration: expected a positive, finite number of seconds, got "
@@ -196,12 +209,49 @@ def cmd_run(args: argparse.Namespace) -> int:
     if args.seed < 0:
         raise CellsightError(f"--seed: expected a whole number >= 0, got {args.seed}")
     out = Path(args.out or f"out/experiment{args.experiment}")
+    check_out_folder(out, args.overwrite, "--out", "--overwrite")
+    return out
+
+
+def _run_failed(exc: Exception, out: Path) -> int:
+    """A run that crashed after starting (it wrote ``metrics.json`` with the error): one line,
+    exit status 1; a failure before the run started is re-raised (:func:`main` words it)."""
+    metrics_path = out / "metrics.json"
+    if _debug() or not metrics_path.is_file():
+        raise exc
+    try:
+        t = float(json.loads(metrics_path.read_text()).get("t_end_s"))
+    except (ValueError, TypeError, AttributeError):
+        t = math.nan
+    print(f"cellsight: error: the run failed at t = {t:.1f} s: "
+          f"{_one_line(f'{type(exc).__name__}: {exc}')}; partial results in {out} "
+          f"(CELLSIGHT_DEBUG=1 shows the traceback)", file=sys.stderr)
+    return 1
+
+
+def cmd_run(args: argparse.Namespace) -> int:
+    from rich.console import Console
+    from rich.table import Table
+
+    from cellsight.experiments import RunConfig, run_experiment
+    from cellsight.report.run_report import format_value
+
+    out = _check_run_args(args)
     config = RunConfig(
         experiment=args.experiment, out=out, cell=args.cell, seed=args.seed,
         sensor=args.sensor, occlusion_prediction=not args.no_occlusion_prediction,
         kinematic_prior=args.kinematic_prior, duration=args.duration, progress=not args.quiet,
+        overwrite=args.overwrite,
     )
-    metrics = run_experiment(config)
+    try:
+        metrics = run_experiment(config)
+    except Exception as exc:
+        return _run_failed(exc, out)
+    if metrics.get("signal"):
+        name = metrics["signal"]
+        print(f"cellsight: interrupted by {name} at t = {metrics.get('t_end_s', math.nan):.1f} s; "
+              f"partial results in {out}", file=sys.stderr)
+        return 128 + signal.Signals[name].value
     table = Table(title=f"experiment {args.experiment}: {metrics['description']}")
     table.add_column("metric")
     table.add_column("value", justify="right")
@@ -214,33 +264,69 @@ def cmd_run(args: argparse.Namespace) -> int:
 
 
 def _load_metrics(folder: str) -> dict:
+    """``<folder>/metrics.json`` as a dict, else one clear line naming the file: missing, not
+    UTF-8, not JSON, not an object, or with ``phases`` / ``timing_ms`` not objects."""
     path = Path(folder) / "metrics.json"
-    if not path.is_file():
-        raise CellsightError(f"{path}: no metrics.json here (is {folder} a run's output folder?)")
     try:
-        return json.loads(path.read_text())
+        data = path.read_bytes()
+    except (FileNotFoundError, NotADirectoryError) as exc:
+        raise CellsightError(f"{path}: no metrics.json here (is {folder} a run's output "
+                             f"folder?)") from exc
+    except (OSError, ValueError) as exc:  # a folder, unreadable, a NUL in the name
+        reason = getattr(exc, "strerror", None) or str(exc)
+        raise CellsightError(f"{path}: cannot read it ({reason})") from exc
+    try:
+        metrics = json.loads(data.decode("utf-8"))
+    except UnicodeDecodeError as exc:
+        raise CellsightError(f"{path}: not UTF-8 text") from exc
     except json.JSONDecodeError as exc:
         raise CellsightError(f"{path}: not valid JSON ({exc.msg}, line {exc.lineno})") from exc
+    except (ValueError, RecursionError) as exc:  # a number too long, nested too deeply
+        raise CellsightError(f"{path}: not usable JSON ({_one_line(exc, 80)})") from exc
+    if not isinstance(metrics, dict):
+        raise CellsightError(f"{path}: expected a JSON object of metrics, got "
+                             f"{type(metrics).__name__} {_short(metrics)}")
+    phases = metrics.get("phases")
+    for key, value in [("phases", phases), ("timing_ms", metrics.get("timing_ms"))] + [
+            (f"phases.{k}", v) for k, v in (phases.items() if isinstance(phases, dict) else [])]:
+        if value is not None and not isinstance(value, dict):
+            raise CellsightError(f"{path}: field {key!r}: expected an object, got "
+                                 f"{_short(value)}")
+    return metrics
+
+
+def _ratio(a, b) -> str:
+    """``b / a`` to 3 digits for two numbers (not bools), else empty."""
+    numeric = all(isinstance(v, int | float) and not isinstance(v, bool) for v in (a, b))
+    try:
+        return f"{b / a:.3g}" if numeric and a else ""
+    except (OverflowError, ZeroDivisionError):
+        return ""
 
 
 def cmd_compare(args: argparse.Namespace) -> int:
     from rich.console import Console
+    from rich.markup import escape
     from rich.table import Table
 
     from cellsight.report.run_report import format_value
+
+    def cell(value) -> str:  # a metric as text, its brackets shown, not read as rich markup
+        try:
+            return escape(_one_line(format_value(value), 80))
+        except ValueError:  # an integer too long to print
+            return "?"
 
     a, b = _load_metrics(args.run_a), _load_metrics(args.run_b)
     rows_a, rows_b = _metric_rows(a), _metric_rows(b)
     table = Table(title="cellsight compare")
     table.add_column("metric")
-    table.add_column(args.run_a, justify="right")
-    table.add_column(args.run_b, justify="right")
+    table.add_column(escape(args.run_a), justify="right")
+    table.add_column(escape(args.run_b), justify="right")
     table.add_column("B / A", justify="right")
     for key in list(rows_a) + [k for k in rows_b if k not in rows_a]:
         va, vb = rows_a.get(key), rows_b.get(key)
-        numeric = all(isinstance(v, int | float) and not isinstance(v, bool) for v in (va, vb))
-        ratio = f"{vb / va:.3g}" if numeric and va else ""
-        table.add_row(key, format_value(va), format_value(vb), ratio)
+        table.add_row(escape(_one_line(key, 80)), cell(va), cell(vb), _ratio(va, vb))
     Console().print(table)
     return 0
 
@@ -282,6 +368,9 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--duration", type=float,
                      help="simulated seconds (default: until the task is done)")
     run.add_argument("--quiet", action="store_true", help="no progress bar")
+    run.add_argument("--overwrite", action="store_true",
+                     help="clear --out first if it holds an earlier run (only a run's outputs; "
+                          "a non-empty --out is refused without it)")
     run.set_defaults(func=cmd_run)
 
     compare = sub.add_parser("compare", help="two runs' metrics side by side")
@@ -296,8 +385,17 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return args.func(args)
     except (CellsightError, KeyError) as exc:
-        print(f"cellsight: error: {exc}", file=sys.stderr)
+        print(f"cellsight: error: {_one_line(exc, 500)}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:
+        print("cellsight: interrupted (SIGINT)", file=sys.stderr)
+        return 130
+    except Exception as exc:
+        if _debug():
+            raise
+        print(f"cellsight: error: {_one_line(f'{type(exc).__name__}: {exc}')} "
+              f"(CELLSIGHT_DEBUG=1 shows the traceback)", file=sys.stderr)
+        return 1
 
 
 if __name__ == "__main__":

@@ -5,7 +5,9 @@ and print the README's tables of their metrics (Markdown): the whole task, then 
 
 Without occlusion prediction, and with the kinematic prior (experiment 3 only), the first seed
 only. Each run writes its own folder ``<out>/e<N>_<sensor>_<variant>_s<seed>``; runs already
-done (with a metrics.json that was not interrupted) are reused.
+done (a readable metrics.json, neither interrupted nor failed) are reused, the others run again
+into their folder (``overwrite``: cleared first when it holds only a run's outputs). Ctrl-C
+stops every run at its next frame; run again to go on.
 """
 
 from __future__ import annotations
@@ -13,6 +15,7 @@ from __future__ import annotations
 import argparse
 import itertools
 import json
+import sys
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
@@ -39,13 +42,15 @@ def run_one(args: tuple[int, str, bool, bool, int, Path]) -> dict:
 
     experiment, sensor, prediction, prior, seed, folder = args
     done = folder / "metrics.json"
-    if done.is_file():
+    try:
         metrics = json.loads(done.read_text())
-        if not metrics.get("interrupted"):
-            return metrics
+    except (OSError, ValueError):  # not run yet, or cut short while writing
+        metrics = None
+    if isinstance(metrics, dict) and not metrics.get("interrupted") and not metrics.get("error"):
+        return metrics
     return run_experiment(RunConfig(experiment, folder, seed=seed, sensor=sensor,
                                     occlusion_prediction=prediction, kinematic_prior=prior,
-                                    progress=False))
+                                    progress=False, overwrite=True))
 
 
 def fmt(metrics: dict, key: str, pattern: str) -> str:
@@ -58,6 +63,25 @@ def _run_cells(run: tuple) -> list[str]:
     experiment, sensor, prediction, prior, seed, _ = run
     variant = "**off**" if not prediction else ("on + kinematic prior" if prior else "on")
     return [str(experiment), sensor, variant, str(seed)]
+
+
+def run_all(runs: list[tuple], jobs: int, out: Path) -> list[dict]:
+    """The metrics of every run, ``jobs`` at a time. On Ctrl-C (which each worker's run takes
+    as the end of its loop) the runs not started are dropped, and the script exits 130."""
+    results = []
+    pool = ProcessPoolExecutor(jobs)
+    try:
+        with Progress() as progress:
+            bar = progress.add_task("experiments", total=len(runs))
+            for metrics in pool.map(run_one, runs):
+                results.append(metrics)
+                progress.advance(bar)
+    except KeyboardInterrupt:
+        pool.shutdown(cancel_futures=True)
+        print(f"interrupted; finished runs in {out} are reused next time", file=sys.stderr)
+        sys.exit(130)
+    pool.shutdown()
+    return results
 
 
 def main() -> None:
@@ -78,12 +102,7 @@ def main() -> None:
             continue  # the kinematic prior matters where one camera sees the held part
         name = f"e{experiment}_{sensor}_{variant}_s{seed}"
         runs.append((experiment, sensor, prediction, prior, seed, args.out / name))
-    results = []
-    with Progress() as progress, ProcessPoolExecutor(args.jobs) as pool:
-        bar = progress.add_task("experiments", total=len(runs))
-        for metrics in pool.map(run_one, runs):
-            results.append(metrics)
-            progress.advance(bar)
+    results = run_all(runs, args.jobs, args.out)
     header = ["exp.", "sensor", "occlusion prediction", "seed"] + [c[1] for c in COLUMNS]
     print("| " + " | ".join(header) + " |")
     print("|" + "---|" * len(header))

@@ -59,3 +59,90 @@ def test_bad_run_options_are_refused_before_any_output(option, value, message, t
     assert main(["run", "1", "--out", str(out), "--quiet", option, value]) == 2
     assert message in capsys.readouterr().err
     assert not out.exists()
+
+
+def _one_error_line(capsys) -> str:
+    err = capsys.readouterr().err
+    assert err.startswith("cellsight: error: ") and "Traceback" not in err
+    assert len(err.strip().splitlines()) == 1
+    return err
+
+
+def test_a_non_empty_out_is_refused_untouched(tmp_path: Path, capsys) -> None:
+    """An older run's views.mp4 would end up in a new ideal-sensor report: refused."""
+    (tmp_path / "views.mp4").write_bytes(b"older run")
+    assert main(["run", "1", "--out", str(tmp_path), "--quiet", "--sensor", "ideal"]) == 2
+    err = _one_error_line(capsys)
+    assert f"--out: '{tmp_path}' is not empty" in err and "pass --overwrite" in err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["views.mp4"]
+
+
+def test_overwrite_refuses_a_folder_holding_more_than_a_run(tmp_path: Path, capsys) -> None:
+    (tmp_path / "frames.csv").write_text("older run")
+    (tmp_path / "keyframes").mkdir()
+    (tmp_path / "keyframes" / "notes.txt").write_text("mine")
+    (tmp_path / "thesis.tex").write_text("mine")
+    assert main(["run", "1", "--out", str(tmp_path), "--quiet", "--overwrite"]) == 2
+    err = _one_error_line(capsys)
+    assert "holds 'keyframes', not a run's output" in err  # the first in name order
+    assert {p.name for p in tmp_path.iterdir()} == {"frames.csv", "keyframes", "thesis.tex"}
+    assert (tmp_path / "keyframes" / "notes.txt").is_file()
+
+
+@pytest.mark.parametrize("where", ["at", "under"])
+def test_out_at_or_under_a_file_is_one_line(where: str, tmp_path: Path, capsys) -> None:
+    file = tmp_path / "file.txt"
+    file.write_text("x")
+    out = file if where == "at" else file / "run"
+    assert main(["run", "1", "--out", str(out), "--quiet", "--overwrite"]) == 2
+    err = _one_error_line(capsys)
+    expected = "is not a folder" if where == "at" else f"is under '{file}', a file"
+    assert f"--out: '{out}' {expected}; expected a folder" in err
+    assert file.read_text() == "x"
+
+
+def test_argument_checks_come_before_the_folder_check(tmp_path: Path, capsys) -> None:
+    (tmp_path / "frames.csv").write_text("older run")
+    assert main(["run", "1", "--out", str(tmp_path), "--seed", "-1"]) == 2
+    assert "--seed: expected a whole number >= 0, got -1" in _one_error_line(capsys)
+
+
+@pytest.mark.parametrize(("content", "message"), [
+    (b'{"seed": "\xff"}', "not UTF-8 text"),
+    (b'{"seed": 1', "not valid JSON"),
+    (b"[1, 2]", "expected a JSON object of metrics, got list [1, 2]"),
+    (b"3.5", "expected a JSON object of metrics, got float 3.5"),
+    (b'{"phases": [1]}', "field 'phases': expected an object, got [1]"),
+    (b'{"phases": {"grasp": 2}}', "field 'phases.grasp': expected an object, got 2"),
+    (b'{"timing_ms": "fast"}', "field 'timing_ms': expected an object"),
+    (b"[" * 100_000, "not"),
+    (b'{"seed": ' + b"9" * 5000 + b"}", "not usable JSON"),
+])
+def test_compare_names_a_bad_metrics_file(content: bytes, message: str, tmp_path: Path,
+                                          capsys) -> None:
+    good, bad = tmp_path / "good", tmp_path / "bad"
+    good.mkdir()
+    bad.mkdir()
+    (good / "metrics.json").write_text('{"seed": 1}')
+    (bad / "metrics.json").write_bytes(content)
+    assert main(["compare", str(good), str(bad)]) == 2
+    err = _one_error_line(capsys)
+    assert f"{bad / 'metrics.json'}: " in err and message in err
+
+
+def test_compare_names_a_missing_folder_or_file(tmp_path: Path, capsys) -> None:
+    assert main(["compare", str(tmp_path / "nowhere"), str(tmp_path)]) == 2
+    assert "no metrics.json here" in _one_error_line(capsys)
+    (tmp_path / "metrics.json").mkdir()
+    assert main(["compare", str(tmp_path), str(tmp_path)]) == 2
+    assert "cannot read it" in _one_error_line(capsys)
+
+
+def test_compare_shows_brackets_as_text(tmp_path: Path, capsys, monkeypatch) -> None:
+    """Values and folder names are not read as rich markup ("[/red]" would raise)."""
+    monkeypatch.chdir(tmp_path)
+    Path("[red]").mkdir()
+    Path("[red]/metrics.json").write_text('{"sensor": "[/red]", "seed": 3}')
+    assert main(["compare", "[red]", "[red]"]) == 0
+    out = capsys.readouterr().out
+    assert "[/red]" in out and "[red]" in out.replace("[/red]", "")

@@ -179,6 +179,7 @@ def test_an_interrupted_run_keeps_what_it_wrote(tmp_path: Path, monkeypatch) -> 
     metrics = json.loads((tmp_path / "metrics.json").read_text())
     rows = read_frames(tmp_path / "frames.csv")
     assert metrics["interrupted"] and metrics["frames"] == len(rows) == 27
+    assert metrics["signal"] == "SIGINT" and "error" not in metrics  # as Ctrl-C
     assert (tmp_path / "report.html").stat().st_size > 0
 
 

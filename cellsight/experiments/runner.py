@@ -15,12 +15,21 @@ transitions, occlusion events and the grasp: :mod:`.monitors`; the summary), ``k
 when interrupted or failed), two steps that read the log: ``metrics.json``
 (:mod:`cellsight.experiments.metrics` plus the run's facts) and ``report.html``
 (:mod:`cellsight.report.run_report`).
+
+The output folder must be new or empty; with ``overwrite`` it is cleared first, but only when it
+holds nothing but an earlier run's outputs (:func:`check_out_folder`). SIGINT and SIGTERM end
+the loop at the next frame boundary (:class:`StopSignals`): the metrics then say
+``"interrupted": true`` and which signal; an exception is recorded as ``"error"``.
 """
 
 from __future__ import annotations
 
 import json
 import logging
+import math
+import shutil
+import signal
+import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -30,6 +39,7 @@ import numpy as np
 from rich.progress import BarColumn, Progress, TextColumn
 
 from cellsight.control import GraspTask, Phase
+from cellsight.errors import CellsightError
 from cellsight.experiments.baseline import PnPBaseline
 from cellsight.experiments.keyframes import KeyFrames, draw_frame
 from cellsight.experiments.metrics import frame_metrics
@@ -63,7 +73,9 @@ class RunConfig:
     the true projection on the built-in cell, i.e. 0.21 px per coordinate).
     ``kinematic_prior``: while the jaws are closed on the part, the tracker predicts it by the
     gripper's motion measured from the joints (``holders`` of :meth:`Tracker.step`).
-    ``video_every``: a frame of ``views.mp4`` every so many vision frames."""
+    ``video_every``: a frame of ``views.mp4`` every so many vision frames. ``overwrite``: clear
+    ``out`` first when it holds an earlier run (:func:`check_out_folder`; else a non-empty
+    ``out`` is refused)."""
 
     experiment: int
     out: Path
@@ -78,18 +90,119 @@ class RunConfig:
     ideal_sigma_px: float = 0.2
     video_every: int = 2
     progress: bool = True
+    overwrite: bool = False
+
+    def __post_init__(self) -> None:
+        duration = self.duration
+        if duration is not None and not (duration > 0 and math.isfinite(duration)):
+            raise CellsightError(f"RunConfig.duration: expected a positive, finite number of "
+                                 f"seconds, got {duration!r}")
+        if self.seed < 0:
+            raise CellsightError(f"RunConfig.seed: expected a whole number >= 0, got {self.seed}")
+
+
+RUN_FILES = frozenset({"frames.csv", "metrics.json", "run.log", "report.html", "keyframes.json",
+                       "views.mp4"})
+"""The files a run writes into its folder, besides ``keyframes/*.png`` and ``fig_*.png``."""
+
+
+class RunFolderError(CellsightError, ValueError):
+    """The output folder cannot take a run: a file, under a file, or holding other things."""
+
+
+def _is_run_output(path: Path) -> bool:
+    """``path`` (in a run folder) is something a run writes: a file of :data:`RUN_FILES`, a
+    ``fig_*.png``, or the ``keyframes`` folder holding only ``*.png`` files (no links)."""
+    if path.is_symlink():
+        return False
+    if path.is_dir():
+        return path.name == "keyframes" and all(
+            p.suffix == ".png" and p.is_file() and not p.is_symlink() for p in path.iterdir())
+    return path.is_file() and (path.name in RUN_FILES
+                               or (path.name.startswith("fig_") and path.suffix == ".png"))
+
+
+def check_out_folder(out: Path, overwrite: bool, arg: str = "RunConfig.out",
+                     flag: str = "overwrite=True") -> list[Path]:
+    """Check, touching nothing, that the folder ``out`` can take a new run: absent (then
+    creatable: not under a file), empty, or, with ``overwrite``, holding only an earlier run's
+    outputs (:func:`_is_run_output`), which are returned for the caller to clear. Otherwise a
+    :class:`RunFolderError` naming ``arg`` (the option), the folder and, to pass, ``flag``."""
+    out = Path(out)
+    shown = repr(str(out)) if len(str(out)) <= 80 else repr(str(out)[:77] + "...")
+    try:
+        existing = next(p for p in (out, *out.parents) if p.exists() or p.is_symlink())
+        if not existing.is_dir():
+            where = "is not a folder" if existing == out else f"is under {str(existing)!r}, a file"
+            raise RunFolderError(f"{arg}: {shown} {where}; expected a folder")
+        entries = sorted(out.iterdir()) if existing == out else []
+        if entries and not overwrite:
+            raise RunFolderError(f"{arg}: {shown} is not empty ({len(entries)} entries); pass "
+                                 f"{flag} or choose another folder")
+        stranger = next((p for p in entries if not _is_run_output(p)), None)
+    except OSError as exc:
+        raise RunFolderError(f"{arg}: {shown}: not a usable folder ({exc.strerror})") from exc
+    if stranger is not None:
+        raise RunFolderError(f"{arg}: {shown} holds {stranger.name!r}, not a run's output; not "
+                             f"overwriting: move it or choose another folder")
+    return entries
+
+
+def _make_out_folder(out: Path, stale: list[Path], arg: str = "RunConfig.out") -> None:
+    """Remove ``stale`` (an earlier run's outputs, :func:`check_out_folder`), create ``out``."""
+    try:
+        for path in stale:
+            if path.is_dir():
+                shutil.rmtree(path)
+            else:
+                path.unlink()
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise RunFolderError(f"{arg}: {str(out)!r}: cannot clear or create it "
+                             f"({exc.strerror})") from exc
+
+
+class StopSignals:
+    """SIGINT and SIGTERM while a run holds them (a context manager): the first one only
+    records its name (:attr:`name`) for the loop to stop at the next frame boundary; later ones
+    are ignored, so that the final writing (metrics, report) is never cut. The previous
+    handlers come back on exit. Python sets handlers only in the main thread; elsewhere
+    nothing is installed and the signals act as before."""
+
+    SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+    def __init__(self) -> None:
+        self.name: str | None = None
+        self._previous: dict[int, object] = {}
+
+    def __enter__(self) -> StopSignals:
+        if threading.current_thread() is threading.main_thread():
+            for sig in self.SIGNALS:
+                self._previous[sig] = signal.signal(sig, self._record)
+        return self
+
+    def _record(self, signum: int, frame: object) -> None:
+        if self.name is None:
+            self.name = signal.Signals(signum).name
+
+    def __exit__(self, *exc_info: object) -> None:
+        for sig, previous in self._previous.items():
+            signal.signal(sig, signal.SIG_DFL if previous is None else previous)
+        self._previous.clear()
 
 
 class ExperimentRun:
     """One experiment run (module docstring); :meth:`run` does it and returns the metrics.
-    ``world``: the cell to run on (default: the simulated world of the scenario)."""
+    ``world``: the cell to run on (default: the simulated world of the scenario). The output
+    folder is checked first (:func:`check_out_folder`), cleared and created last."""
 
     def __init__(self, config: RunConfig, world: SimulatedCell | None = None) -> None:
         self.config = config
+        self.out = Path(config.out)
+        stale = check_out_folder(self.out, config.overwrite)
+        self.stop = StopSignals()
         self.cell: Cell = load_cell(config.cell)
         self.scenario: Scenario = scenario(self.cell, config.experiment)
-        self.out = Path(config.out)
-        self.out.mkdir(parents=True, exist_ok=True)
         sc, cell = self.scenario, self.cell
         self.robot, self.part = sc.robot, sc.workpiece
         self.world: SimulatedCell = (
@@ -108,14 +221,21 @@ class ExperimentRun:
         self.events = OcclusionEvents([c.name for c in cell.cameras])
         self.rows = FrameRows(self.robot, len(cell.cameras), config.sensor == "rendered")
         self.crossing = next(iter(sc.tasks), None)
+        _make_out_folder(self.out, stale)
 
     def run(self) -> dict:
-        """Run the experiment; write everything; return the metrics (``metrics.json`` and
-        ``report.html`` are written also on Ctrl-C or an error, which then propagates)."""
+        """Run the experiment; write everything; return the metrics. On SIGINT or SIGTERM the
+        loop ends at the next frame boundary and the metrics say ``"interrupted": true`` and
+        ``"signal"``; an exception is recorded (``"error"``) and then propagates. Either way
+        ``metrics.json`` and ``report.html`` are written, and signals during that are ignored."""
         handler = _log_to(self.out / "run.log")
-        try:
-            metrics = self._run_logged()
-        finally:
+        with self.stop:
+            try:
+                metrics = self._run_logged()
+            except BaseException:
+                _stop_logging_to(handler)
+                _report_anyway(self.out)
+                raise
             _stop_logging_to(handler)
             write_report(self.out)
         return metrics
@@ -133,17 +253,35 @@ class ExperimentRun:
         keys = KeyFrames(self.out, [c.name for c in self.cell.cameras], self.robot.name,
                          self.crossing)
         wall = time.perf_counter()
-        interrupted = True
+        ending: dict = {"interrupted": True}
         try:
             self._loop(writer, video, keys)
-            interrupted = False
+            ending = self._ending(None)
+        except BaseException as exc:
+            ending = self._ending(exc)
+            raise
         finally:
-            writer.close()
-            if video is not None:
-                video.close()
-            self.world.close()
-            metrics = self._write_metrics(time.perf_counter() - wall, interrupted)
+            _close_all([writer.close, video.close if video is not None else None,
+                        self.world.close])
+            metrics = self._write_metrics(time.perf_counter() - wall, ending)
         return metrics
+
+    def _ending(self, exc: BaseException | None) -> dict:
+        """How the loop ended, for the metrics: ``interrupted`` (bool), and the ``signal``'s
+        name (a KeyboardInterrupt counts as SIGINT) or the ``error`` (``"<type>: <message>"``)."""
+        try:
+            t = float(self.world.time)
+        except Exception:  # a broken world: the ending is still recorded
+            t = math.nan
+        if exc is None and self.stop.name is None:
+            return {"interrupted": False}
+        if exc is None or isinstance(exc, KeyboardInterrupt):
+            name = self.stop.name or "SIGINT"
+            log.warning("interrupted by %s at t = %.2f s", name, t)
+            return {"interrupted": True, "signal": name}
+        error = f"{type(exc).__name__}: {exc}"
+        log.error("failed at t = %.2f s: %s", t, error)
+        return {"interrupted": False, "error": error[:1000]}
 
     def _loop(self, writer: FrameWriter, video: VideoWriter | None, keys: KeyFrames) -> None:
         """Vision frames at ``VISION_HZ`` (on the control grid), control steps between them,
@@ -154,7 +292,7 @@ class ExperimentRun:
         k = 0
         with _progress_bar(cfg.progress) as progress:
             bar = progress.add_task(f"experiment {cfg.experiment}", total=end, phase="")
-            while True:
+            while self.stop.name is None:
                 t = self.world.time
                 if t > end + 1e-9 or (done_at is not None and t >= done_at + cfg.tail_s):
                     break
@@ -211,8 +349,9 @@ class ExperimentRun:
                                 velocity)
         self.grasp.after_vision(before, self.task.phase)
 
-    def _write_metrics(self, wall_s: float, interrupted: bool) -> dict:
-        """``metrics.json``: the run's facts and :func:`frame_metrics` of its log."""
+    def _write_metrics(self, wall_s: float, ending: dict) -> dict:
+        """``metrics.json``: the run's facts, how it ended (``ending``: :meth:`_ending`),
+        ``t_end_s`` (s, its last frame) and :func:`frame_metrics` of its log."""
         cfg = self.config
         frames = FrameLog.read(self.out / "frames.csv")
         t_end = float(frames.floats("t")[-1]) if frames.n else 0.0
@@ -230,7 +369,8 @@ class ExperimentRun:
             "failed_grasp_checks": self.task.attempts,
             **frame_metrics(frames),
             "wall_s": round(wall_s, 2),
-            "interrupted": interrupted,
+            **ending,
+            "t_end_s": round(t_end, 3),
             "cameras": [c.name for c in self.cell.cameras],
             "features": len(self.part.feature_points),
             "robot": self.robot.name,
@@ -258,6 +398,27 @@ def _log_to(path: Path) -> logging.Handler:
 def _stop_logging_to(handler: logging.Handler) -> None:
     logging.getLogger("cellsight").removeHandler(handler)
     handler.close()
+
+
+def _close_all(closers: list) -> None:
+    """Call each of ``closers`` (None: skipped); a failure is logged, the others still run."""
+    for close in closers:
+        if close is None:
+            continue
+        try:
+            close()
+        except Exception as exc:  # e.g. ffmpeg killed by the same Ctrl-C: keep the rest
+            log.warning("closing %s failed: %s: %s", getattr(close, "__qualname__", close),
+                        type(exc).__name__, exc)
+
+
+def _report_anyway(out: Path) -> None:
+    """``report.html`` of a run that failed or was interrupted by an exception: its own
+    failure is logged (to the terminal: run.log is closed), never raised over the first."""
+    try:
+        write_report(out)
+    except Exception as exc:
+        log.warning("no report.html for %s: %s: %s", out, type(exc).__name__, exc)
 
 
 def _progress_bar(enabled: bool) -> Progress:

@@ -68,7 +68,12 @@ def scenario(cell: Cell, number: int) -> Scenario:
 def _grasping_robot(cell: Cell) -> Robot:
     setup = cell.experiments
     if setup.robot is not None:
-        return cell.robot(setup.robot)
+        robot = cell.robot(setup.robot)
+        if robot.tool is None or robot.final is None:
+            raise CellFileError(setup.source, "experiments.robot", robot.name,
+                                "a robot with a tool and a FINAL pose to grasp the part; "
+                                f"{robot.name} has no {'tool' if robot.tool is None else 'final'}")
+        return robot
     for robot in cell.robots:
         if robot.tool is not None and robot.final is not None:
             return robot

@@ -61,15 +61,53 @@ def polyhedron_from_trimesh(name: str, mesh, scale: float = 1.0) -> Polyhedron:
     )
 
 
-def load_mesh_solid(path: str | Path, name: str | None = None, scale: float = 1.0) -> Polyhedron:
-    """Load an STL or OBJ file as a polyhedron (see :func:`polyhedron_from_trimesh`)."""
+MESH_TYPES = (".stl", ".obj")  # file types read
+MAX_MESH_BYTES = 100 * 2**20  # bytes, largest mesh file read
+
+
+def _read_mesh(path: Path):
+    """The triangle mesh in an STL or OBJ file, unprocessed; a :class:`GeometryError` naming
+    the file when it is missing, of another type, too large or unreadable."""
     import trimesh
 
-    path = Path(path)
     if not path.is_file():
-        raise GeometryError(f"mesh file {path} does not exist")
-    mesh = trimesh.load(path, force="mesh", process=True)
-    if len(mesh.faces) == 0:
-        raise GeometryError(f"mesh file {path} holds no triangles")
+        raise GeometryError(f"mesh file {path} does not exist (or is not a file)")
+    if path.suffix.lower() not in MESH_TYPES:
+        raise GeometryError(f"mesh file {path}: type {path.suffix or '(none)'!r} is not one of "
+                            f"{', '.join(MESH_TYPES)}")
+    if path.stat().st_size > MAX_MESH_BYTES:
+        raise GeometryError(f"mesh file {path}: {path.stat().st_size} bytes, more than "
+                            f"{MAX_MESH_BYTES}")
+    try:
+        mesh = trimesh.load(path, force="mesh", process=False)
+    except Exception as exc:  # trimesh's parsers raise anything on bad input
+        detail = str(exc).splitlines()[0][:80] if str(exc) else type(exc).__name__
+        raise GeometryError(f"mesh file {path}: not a readable mesh ({detail})") from exc
+    if not isinstance(mesh, trimesh.Trimesh):
+        raise GeometryError(f"mesh file {path}: not a triangle mesh")
+    return mesh
+
+
+def load_mesh_solid(path: str | Path, name: str | None = None, scale: float = 1.0) -> Polyhedron:
+    """Load an STL or OBJ file as a polyhedron (see :func:`polyhedron_from_trimesh`).
+
+    Refused, naming the file: a missing file, another type, a file trimesh cannot read, no
+    triangles, a non-finite vertex (trimesh's own processing would drop the triangles that use
+    it, silently opening a closed solid), a triangle naming a vertex that is not there.
+    """
+    path = Path(path)
+    mesh = _read_mesh(path)
+    vertices, faces = np.asarray(mesh.vertices), np.asarray(mesh.faces)
+    if len(faces) == 0:
+        raise GeometryError(f"mesh file {path} holds no triangles (empty, or not an "
+                            f"{path.suffix[1:].upper()} file)")
+    bad = np.flatnonzero(~np.isfinite(vertices).all(axis=1))
+    if len(bad):
+        raise GeometryError(f"mesh file {path}: vertex {int(bad[0]) + 1} is not finite "
+                            f"({np.asarray(vertices[bad[0]]).tolist()})")
+    if faces.min() < 0 or faces.max() >= len(vertices):
+        raise GeometryError(f"mesh file {path}: a triangle names a vertex outside "
+                            f"1..{len(vertices)}")
+    mesh.process()
     mesh.merge_vertices()
     return polyhedron_from_trimesh(name or path.stem, mesh, scale)

@@ -87,9 +87,7 @@ def check_polygon(points, label: str, planarity_tol: float = PLANARITY_TOL) -> n
     n = newell_normal(p)
     area = 0.5 * np.linalg.norm(n)
     if area <= AREA_TOL:
-        raise GeometryError(
-            f"{label}: degenerate polygon (area {area:.3g} m^2, collinear vertices)"
-        )
+        _zero_area(p, label, area)
     n_unit = n / (2 * area)
     dist = (p - p.mean(axis=0)) @ n_unit
     worst = float(np.abs(dist).max())
@@ -98,12 +96,29 @@ def check_polygon(points, label: str, planarity_tol: float = PLANARITY_TOL) -> n
             f"{label}: non-planar polygon (vertex {int(np.abs(dist).argmax())} is {worst:.3g} m "
             f"from the plane; tolerance {planarity_tol:.3g} m)"
         )
-    xy = (p - p[0]) @ plane_basis(n_unit).T
+    _check_simple((p - p[0]) @ plane_basis(n_unit).T, label)
+    return p
+
+
+def _check_simple(xy: np.ndarray, label: str) -> None:
+    """Raise unless no two non-adjacent edges of the 2D polygon ``xy`` (k, 2) touch."""
     k = len(xy)
     for i in range(k):
         for j in range(i + 1, k):
             if j == i + 1 or (i == 0 and j == k - 1):
                 continue
             if _segments_cross(xy[i], xy[(i + 1) % k], xy[j], xy[(j + 1) % k], 1e-9):
-                raise GeometryError(f"{label}: edges {i} and {j} intersect (polygon is not simple)")
-    return p
+                raise GeometryError(f"{label}: edges {i} and {j} intersect (polygon is not "
+                                    f"simple: self-intersecting)")
+
+
+def _zero_area(p: np.ndarray, label: str, area: float) -> None:
+    """Name why a polygon's (signed, Newell) area vanishes: collinear vertices, or a bow-tie
+    whose two loops cancel (self-intersecting); always raises."""
+    centred = p - p.mean(axis=0)
+    _, s, axes = np.linalg.svd(centred, full_matrices=False)
+    if s[1] > 1e-9 * max(s[0], 1e-12):  # the vertices span a plane: the outline crosses itself
+        _check_simple(centred @ axes[:2].T, label)
+        raise GeometryError(f"{label}: degenerate polygon (zero area, the outline folds back "
+                            f"on itself)")
+    raise GeometryError(f"{label}: degenerate polygon (area {area:.3g} m^2, collinear vertices)")

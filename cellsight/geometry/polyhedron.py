@@ -69,7 +69,8 @@ class Polyhedron:
                 f"solid '{self.name}': feature names must be unique, one per feature vertex"
             )
         if any(i < 0 or i >= len(v) for i in idx):
-            raise GeometryError(f"solid '{self.name}': feature vertex index out of range: {idx}")
+            raise GeometryError(f"solid '{self.name}': feature vertex index out of range "
+                                f"0..{len(v) - 1}: {[int(i) for i in idx]}")
         object.__setattr__(self, "vertices", v)
         object.__setattr__(self, "faces", faces)
         object.__setattr__(self, "normals", normals)
@@ -160,7 +161,8 @@ def box(name: str, size, center=(0.0, 0.0, 0.0)) -> Polyhedron:
     """Axis-aligned box of the given size (m) centred at ``center``, 8 vertices, 6 faces."""
     sx, sy, sz = (0.5 * float(s) for s in size)
     if min(sx, sy, sz) <= 0:
-        raise GeometryError(f"solid '{name}': box size must be positive, got {list(size)}")
+        raise GeometryError(f"solid '{name}': box size must be positive, got "
+                            f"{[float(s) for s in size]}")
     c = np.asarray(center, dtype=float)
     corners = np.array(
         [[x, y, z] for z in (-sz, sz) for y in (-sy, sy) for x in (-sx, sx)], dtype=float
@@ -178,7 +180,7 @@ def prism(name: str, polygon_xy, height: float, z0: float = 0.0, **features) -> 
     if xy.ndim != 2 or xy.shape[1] != 2 or len(xy) < 3:
         raise GeometryError(f"solid '{name}': prism polygon must be (k>=3, 2), got {xy.shape}")
     if height <= 0:
-        raise GeometryError(f"solid '{name}': prism height must be positive, got {height}")
+        raise GeometryError(f"solid '{name}': prism height must be positive, got {float(height)}")
     signed = 0.5 * np.sum(xy[:, 0] * np.roll(xy[:, 1], -1) - np.roll(xy[:, 0], -1) * xy[:, 1])
     if signed < 0:
         xy = xy[::-1]

@@ -13,6 +13,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from cellsight.errors import GeometryError
+
 RPY_SEQUENCE = "xyz"  # extrinsic x, then y, then z: R = Rz(yaw) Ry(pitch) Rx(roll)
 
 
@@ -69,10 +71,14 @@ def look_at(eye, target, up=(0.0, 0.0, 1.0)) -> np.ndarray:
     at ``target``; ``up`` is the base-frame direction that appears upward in the image."""
     eye, target, up = (np.asarray(v, dtype=float) for v in (eye, target, up))
     z = target - eye
+    if not np.linalg.norm(z) > 1e-9:  # also NaN
+        raise GeometryError(f"look_at: eye {eye.tolist()} and target {target.tolist()} coincide "
+                            f"(no viewing direction)")
     z /= np.linalg.norm(z)
     x = np.cross(z, up)
-    if np.linalg.norm(x) < 1e-9:
-        raise ValueError(f"look_at: viewing direction {z} is parallel to up {up}")
+    if not np.linalg.norm(x) >= 1e-9:
+        raise GeometryError(f"look_at: viewing direction {np.round(z, 6).tolist()} is parallel "
+                            f"to up {up.tolist()}")
     x /= np.linalg.norm(x)
     y = np.cross(z, x)
     return make_pose(np.column_stack([x, y, z]), eye)

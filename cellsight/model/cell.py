@@ -8,6 +8,7 @@ gives them in each camera frame.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Literal
@@ -15,7 +16,7 @@ from typing import Literal
 import numpy as np
 
 from cellsight.camera import Camera
-from cellsight.errors import CellsightError
+from cellsight.errors import CellsightError, short_repr
 from cellsight.geometry.polyhedron import Polyhedron
 from cellsight.model.robot import Robot
 
@@ -133,6 +134,23 @@ class Snapshot:
         return self.poses[self.cell.object_index(name)]
 
 
+OPENING_TOL = 1e-4  # m; a jaw opening this far outside [0, max] is numerical noise, clipped
+
+
+def _opening(robot: Robot, value: object) -> float:
+    """A robot's jaw opening (m), checked: a finite number in ``[0, max_opening]`` (within
+    ``OPENING_TOL``, clipped); a :class:`CellsightError` naming the robot and the value."""
+    top = robot.tool.max_opening
+    try:
+        opening = float(value)
+    except (TypeError, ValueError):
+        opening = math.nan
+    if not -OPENING_TOL <= opening <= top + OPENING_TOL:  # also NaN
+        raise CellsightError(f"robot {robot.name}: jaw opening {short_repr(value)} m; expected a "
+                             f"finite number in [0, {top:g}] m")
+    return min(max(opening, 0.0), top)
+
+
 class Cell:
     """A robot cell: robots with tools, workpieces, static objects and calibrated cameras,
     and the cell file's optional set-up of the paper's experiments (``experiments``).
@@ -237,13 +255,18 @@ class Cell:
 
         ``joints``: robot name -> joint vector (a robot left out stays at HOME); checked for
         length, finiteness and limits. ``part_poses``: workpiece name -> ``T_base_part`` (left
-        out: its nominal pose). ``openings``: robot name -> jaw opening in metres (default: open).
+        out: its nominal pose). ``openings``: robot name -> jaw opening in metres (default: open), a
+        finite number in ``[0, max_opening]`` (within ``OPENING_TOL``); checked.
         """
         joints = dict(joints or {})
         part_poses = dict(part_poses or {})
         openings = dict(openings or {})
         for name in list(joints) + list(openings):
             self.robot(name)
+        for name in openings:
+            if self.robot(name).tool is None:
+                raise CellsightError(f"robot {name}: has no gripper, yet a jaw opening "
+                                     f"({short_repr(openings[name])}) was given")
         for name in part_poses:
             self.workpiece(name)
         used_q, used_open, robot_frames = self._robot_frames(joints, openings)
@@ -269,9 +292,7 @@ class Cell:
             poses = {("link", i): T for i, T in enumerate(links)}
             if robot.tool is not None:
                 tool = links[-1] @ robot.tool.T_flange_tool
-                opening = float(openings.get(robot.name, robot.tool.max_opening))
-                if not np.isfinite(opening):
-                    raise CellsightError(f"robot {robot.name}: jaw opening is {opening}")
+                opening = _opening(robot, openings.get(robot.name, robot.tool.max_opening))
                 used_open[robot.name] = opening
                 poses["palm", None] = tool
                 for jaw, T in enumerate(robot.tool.jaw_poses(opening)):

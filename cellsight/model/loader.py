@@ -13,13 +13,21 @@ radians; ``deg`` fields are accepted where noted.
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import replace
 from pathlib import Path
 from typing import Annotated, Literal
 
 import numpy as np
-import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic import (
+    AfterValidator,
+    BaseModel,
+    BeforeValidator,
+    ConfigDict,
+    Field,
+    ValidationError,
+    model_validator,
+)
 
 from cellsight.camera import Camera
 from cellsight.errors import CellFileError, CellsightError
@@ -29,11 +37,32 @@ from cellsight.geometry.transforms import look_at, pose_from_xyz_rpy
 from cellsight.kinematics import DHChain, DHLink
 from cellsight.model.cell import Cell, ExperimentSetup, StaticObject, Workpiece
 from cellsight.model.robot import ParallelGripper, Robot
+from cellsight.model.yaml_input import load_yaml, read_cell_text
 
-Finite = Annotated[float, Field(allow_inf_nan=False)]
+SAFE_NAME = re.compile(r"[A-Za-z0-9_-][A-Za-z0-9_.-]{0,63}")  # a camera name: part of file names
+
+
+def _no_bool(value: object) -> object:
+    """Refuse ``true``/``false`` where a number is expected (pydantic would read 1.0, 0.0)."""
+    if isinstance(value, bool):
+        raise ValueError("a number, not a boolean")
+    return value
+
+
+def _safe_name(value: str) -> str:
+    if not SAFE_NAME.fullmatch(value):
+        raise ValueError("a name of at most 64 letters, digits, '_', '-' and '.', not starting "
+                         "with '.' (it becomes part of output file names)")
+    return value
+
+
+Number = Annotated[float, BeforeValidator(_no_bool)]
+Finite = Annotated[Number, Field(allow_inf_nan=False)]
 Vec2 = Annotated[list[Finite], Field(min_length=2, max_length=2)]
 Vec3 = Annotated[list[Finite], Field(min_length=3, max_length=3)]
-Positive = Annotated[float, Field(gt=0, allow_inf_nan=False)]
+Positive = Annotated[Number, Field(gt=0, allow_inf_nan=False)]
+Count = Annotated[int, Field(strict=True)]  # an integer: 2.0, "2" and true are refused
+Flag = Annotated[bool, Field(strict=True)]  # true or false: 1 and "yes" are refused
 
 
 class _Strict(BaseModel):
@@ -81,8 +110,8 @@ class SolidSpec(_Strict):
     segment: SegmentSpec | None = None
     mesh: MeshSpec | None = None
     vertices: list[Vec3] | None = None
-    faces: list[Annotated[list[Annotated[int, Field(ge=0)]], Field(min_length=3)]] | None = None
-    closed: bool = True
+    faces: list[Annotated[list[Annotated[Count, Field(ge=0)]], Field(min_length=3)]] | None = None
+    closed: Flag = True
     pose: PoseSpec | None = None
     features: list[str] | None = None
 
@@ -158,9 +187,9 @@ class CameraSpec(_Strict):
     """OpenCV pinhole camera. Focal length either in pixels (fx, fy) or as a lens (mm) with
     the pixel pitch (mm); the pose either as xyz/rpy of T_base_cam or as look_at."""
 
-    name: Annotated[str, Field(min_length=1)]
-    width: Annotated[int, Field(gt=0)]
-    height: Annotated[int, Field(gt=0)]
+    name: Annotated[str, AfterValidator(_safe_name)]
+    width: Annotated[Count, Field(gt=0)]
+    height: Annotated[Count, Field(gt=0)]
     fx: Positive | None = None
     fy: Positive | None = None
     lens_mm: Positive | None = None
@@ -187,7 +216,7 @@ class ConveyorSpec(_Strict):
 
     points: Annotated[list[Vec2], Field(min_length=2)]
     speed: Positive
-    t_start: Annotated[float, Field(ge=0, allow_inf_nan=False)] = 0.0
+    t_start: Annotated[Number, Field(ge=0, allow_inf_nan=False)] = 0.0
 
 
 class WaypointSpec(_Strict):
@@ -353,9 +382,14 @@ def build_cell(spec: CellSpec, file: str, folder: Path) -> Cell:
     parts = _workpieces(spec, file, folder)
     static = _static_objects(spec, file, folder)
     cameras = _cameras(spec, file)
+    if not parts:
+        raise CellFileError(file, "workpieces", spec.workpieces,
+                            "at least one workpiece (cellsight predicts which of a workpiece's "
+                            "feature points the cameras see)")
     names = [r.name for r in robots] + [w.name for w in parts] + [s.name for s in static]
     if dup := _repeated(names):
         raise CellFileError(file, "name", dup, "unique names of robots, workpieces, static")
+    _check_occluder_names(robots, parts, static, file)
     if dup := _repeated([c.name for c in cameras]):
         raise CellFileError(file, "cameras[].name", dup, "unique camera names")
     setup = _experiments(spec.experiments, robots, parts, file)
@@ -363,6 +397,43 @@ def build_cell(spec: CellSpec, file: str, folder: Path) -> Cell:
         return Cell(spec.name, robots, parts, static, cameras, source=file, experiments=setup)
     except CellsightError as exc:
         raise CellFileError(file, "<cell>", spec.name, str(exc)) from exc
+
+
+def _with_solids(label: str, n: int) -> list[str]:
+    """An occluder's label and its solids' names (``label.1``, ... when it has several)."""
+    return [label] + ([f"{label}.{j + 1}" for j in range(n)] if n > 1 else [])
+
+
+def _occluder_names(robots: list[Robot], parts: list[Workpiece],
+                    static: list[StaticObject]) -> list[tuple[str, str]]:
+    """(name, owner's field path) of every occluder label and solid name the :class:`Cell` will
+    give: ``R7AX.link2`` (``R7AX.link2.1``, ... for several solids), ``R7AX.gripper``
+    (``.jaw1``, ``.jaw2``), each workpiece's and static object's name."""
+    out = []
+    for r, robot in enumerate(robots):
+        for i, solids in enumerate(robot.link_solids):
+            owner = f"robots[{r}].base_solids" if i == 0 else f"robots[{r}].links[{i - 1}]"
+            out += [(n, owner) for n in _with_solids(f"{robot.name}.link{i}", len(solids))]
+        if robot.tool is not None:
+            label = f"{robot.name}.gripper"
+            names = _with_solids(label, len(robot.tool.palm)) + [f"{label}.jaw1", f"{label}.jaw2"]
+            out += [(n, f"robots[{r}].tool") for n in names]
+    out += [(w.name, f"workpieces[{k}].name") for k, w in enumerate(parts)]
+    for k, obj in enumerate(static):
+        out += [(n, f"static[{k}].name") for n in _with_solids(obj.name, len(obj.solids))]
+    return out
+
+
+def _check_occluder_names(robots: list[Robot], parts: list[Workpiece],
+                          static: list[StaticObject], file: str) -> None:
+    """Refuse a workpiece or static object whose name (or a solid's name) is another
+    occluder's label or solid name: occlusion reports name occluders by label."""
+    seen: dict[str, str] = {}
+    for name, owner in _occluder_names(robots, parts, static):
+        first = seen.setdefault(name, owner)
+        if first != owner:
+            raise CellFileError(file, owner, name, f"a name no other occluder has; {first} is "
+                                f"already named {name!r}")
 
 
 def _experiments(spec: ExperimentsSpec | None, robots: list[Robot], parts: list[Workpiece],
@@ -375,6 +446,12 @@ def _experiments(spec: ExperimentsSpec | None, robots: list[Robot], parts: list[
                                ("workpiece", spec.workpiece, [w.name for w in parts])):
         if name is not None and name not in names:
             raise CellFileError(file, f"experiments.{field}", name, f"one of {sorted(names)}")
+    grasping = by_name.get(spec.robot)
+    if grasping is not None and (grasping.tool is None or grasping.final is None):
+        raise CellFileError(file, "experiments.robot", spec.robot,
+                            "a robot with a tool and a FINAL pose (robots[].tool, "
+                            f"robots[].final) to grasp the part; {spec.robot} has no "
+                            f"{'tool' if grasping.tool is None else 'final'}")
     setup = ExperimentSetup(robot=spec.robot, workpiece=spec.workpiece, source=file)
     if spec.conveyor is not None:
         setup = replace(setup, conveyor_points=np.array(spec.conveyor.points),
@@ -407,38 +484,10 @@ def builtin_cell_path() -> Path:
     return Path(__file__).resolve().parent.parent / "data" / "dual_arm_cell.yaml"
 
 
-class _UniqueKeyLoader(yaml.SafeLoader):
-    """PyYAML's safe loader, refusing a mapping that repeats a key (PyYAML keeps the last)."""
-
-
-def _unique_mapping(loader: _UniqueKeyLoader, node: yaml.MappingNode, deep: bool = False):
-    seen = set()
-    for key_node, _ in node.value:
-        key = loader.construct_object(key_node, deep=deep)
-        try:
-            repeated = key in seen
-            seen.add(key)
-        except TypeError:  # an unhashable key: construct_mapping names the problem
-            repeated = False
-        if repeated:
-            raise yaml.constructor.ConstructorError(
-                "while reading a mapping", node.start_mark, f"duplicate key {key!r}",
-                key_node.start_mark)
-    return loader.construct_mapping(node, deep=deep)
-
-
-_UniqueKeyLoader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, _unique_mapping)
-
-
 def parse_cell_text(text: str, file: str, folder: Path) -> tuple[CellSpec, dict]:
     """Parse and validate YAML text (a repeated key is an error); returns the spec and the raw
     mapping."""
-    try:
-        raw = yaml.load(text, Loader=_UniqueKeyLoader)  # a SafeLoader
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        where = f"line {mark.line + 1}" if mark else "<yaml>"
-        raise CellFileError(file, where, getattr(exc, "problem", ""), "valid YAML") from exc
+    raw = load_yaml(text, file)
     if not isinstance(raw, dict):
         raise CellFileError(file, "<root>", raw, "a mapping with robots, workpieces, cameras")
     try:
@@ -452,7 +501,5 @@ def parse_cell_text(text: str, file: str, folder: Path) -> tuple[CellSpec, dict]
 def load_cell(path: str | Path | None = None) -> Cell:
     """Load a cell from a YAML file; the built-in dual-arm cell when ``path`` is None."""
     path = Path(path) if path is not None else builtin_cell_path()
-    if not path.is_file():
-        raise CellFileError(str(path), "<file>", str(path), "an existing YAML cell file")
-    spec, _ = parse_cell_text(path.read_text(), str(path), path.parent)
+    spec, _ = parse_cell_text(read_cell_text(path), str(path), path.parent)
     return build_cell(spec, str(path), path.parent)

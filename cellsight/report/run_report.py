@@ -492,7 +492,10 @@ def _header_html(run: Run) -> str:
            + ("kinematic prior on · " if m.get("kinematic_prior") else "")
            + f"{run.frames.n} frames")
     out = f"<h1>cellsight run report</h1><p class=sub>{html.escape(sub)}</p>"
-    if m.get("interrupted") or not m:
+    if m.get("error"):
+        out += (f"<p class=warn>Failed run ({html.escape(str(m['error']))}); results are "
+                f"incomplete.</p>")
+    elif m.get("interrupted") or not m:
         out += "<p class=warn>Partial run: interrupted or unfinished; results are incomplete.</p>"
     return out
 

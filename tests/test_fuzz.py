@@ -1,0 +1,25 @@
+"""A few thousand fuzz cases per test run (``make fuzz`` runs 10^5; see ``tests/fuzzing.py``):
+never a traceback, never a disagreement with the oracle."""
+
+from __future__ import annotations
+
+import warnings
+
+import fuzzing
+import pytest
+
+CASES = {"soup": 300, "hostile_soup": 1000, "cell_file": 300, "cell_text": 300, "cli": 100}
+
+
+@pytest.mark.parametrize("kind", fuzzing.KINDS)
+def test_fuzz(kind: str):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # overflow from the hostile values
+        tally = fuzzing.run_kind(kind, CASES[kind], seed=7)
+    assert not tally.failures, f"{len(tally.failures)} failures, first: {tally.failures[:3]}"
+    assert tally.cases == CASES[kind]
+    if kind == "soup":
+        kept = tally.queries - tally.ambiguous
+        assert tally.ambiguous <= 0.02 * tally.queries and 0.05 * kept < tally.hidden < 0.95 * kept
+    else:  # the hostile kinds reach the error paths
+        assert 0 < tally.refused <= tally.cases
