@@ -1,7 +1,8 @@
 """Numba kernel building a BSP tree of a polygon soup (paper, Section II).
 
 Every node's partition plane is the plane of one of the soup's polygons. Polygons (or pieces of
-polygons, *fragments*) are classified against it with the plane thickness ``eps``: COPLANAR when
+polygons, *fragments*) are classified against it with that polygon's own plane thickness ``eps``
+(local, see :mod:`.soup`; kept per node in ``node_eps`` for the visit): COPLANAR when
 every vertex is within ``eps`` of the plane (stored in the node), FRONT / BACK when no vertex is
 more than ``eps`` on the other side, SPANNING otherwise (split in two). A fragment's bounding
 sphere decides most cases; its vertices are looked at only when the sphere meets the plane.
@@ -134,8 +135,11 @@ def _split(frag, plane, eps, fv, n_verts, new, fint, fsphere, dist) -> int:
 
 
 @njit(cache=True)
-def build_tree(vertices, offsets, planes, spheres, eps, n_candidates, weight, seed):
-    """Build the tree; returns ``(node_planes, node_links, surfaces, n_splits, depth)``.
+def build_tree(vertices, offsets, planes, spheres, poly_eps, n_candidates, weight, seed):
+    """Build the tree; returns ``(node_planes, node_eps, node_links, surfaces, n_splits, depth)``.
+
+    ``poly_eps`` (P,): each polygon's plane thickness; ``node_eps`` (M,): that of the node's
+    partition plane (its polygon's), the one used against that plane everywhere.
 
     ``depth`` counts nodes on the longest root-to-leaf path (0 for an empty soup).
     Fragment ``f``: ``fint[f]`` = (first vertex in ``fv``, vertex count, polygon),
@@ -159,6 +163,7 @@ def build_tree(vertices, offsets, planes, spheres, eps, n_candidates, weight, se
     dist = np.empty(64)
     node_planes = np.empty((n_poly + 16, 4))
     node_links = np.empty((n_poly + 16, 4), np.int64)
+    node_eps = np.empty(n_poly + 16)
     surfaces = np.empty(n_poly + 16, np.int64)
     n_nodes = n_surf = n_splits = max_depth = 0
     stack = np.empty((64, 5), np.int64)  # (pool start, count, parent, side 0=front 1=back, depth)
@@ -181,6 +186,7 @@ def build_tree(vertices, offsets, planes, spheres, eps, n_candidates, weight, se
                 pick = ((rng >> 33) & 0x7FFFFFFF) % count
             cand = fint[pool[start + pick], 2]
             nx, ny, nz, dd = planes[cand, 0], planes[cand, 1], planes[cand, 2], planes[cand, 3]
+            eps = poly_eps[cand]
             n_front = n_back = n_split = 0
             for i in range(count):
                 frag = pool[start + i]
@@ -201,12 +207,15 @@ def build_tree(vertices, offsets, planes, spheres, eps, n_candidates, weight, se
             if best == 0.0:
                 break
         nx, ny, nz, dd = planes[q, 0], planes[q, 1], planes[q, 2], planes[q, 3]
+        eps = poly_eps[q]
         node = n_nodes
         n_nodes += 1
         if n_nodes > node_planes.shape[0]:
             node_planes, node_links = _grown(node_planes, n_nodes), _grown(node_links, n_nodes)
+            node_eps = _grown(node_eps, n_nodes)
         for a in range(4):
             node_planes[node, a] = planes[q, a]
+        node_eps[node] = eps
         node_links[node, 0], node_links[node, 1], node_links[node, 2] = -1, -1, n_surf
         if parent >= 0:
             node_links[parent, side] = node
@@ -266,5 +275,5 @@ def build_tree(vertices, offsets, planes, spheres, eps, n_candidates, weight, se
             stack[n_stack, 0], stack[n_stack, 1], stack[n_stack, 2] = start + n_back, n_front, node
             stack[n_stack, 3], stack[n_stack, 4] = 0, depth + 1
             n_stack += 1
-    return (node_planes[:n_nodes].copy(), node_links[:n_nodes].copy(), surfaces[:n_surf].copy(),
-            n_splits, max_depth)
+    return (node_planes[:n_nodes].copy(), node_eps[:n_nodes].copy(), node_links[:n_nodes].copy(),
+            surfaces[:n_surf].copy(), n_splits, max_depth)

@@ -21,46 +21,64 @@ def transform_vertices(local, vertex_owner, moving, poses, out):  # pragma: no c
 
 
 @njit(cache=True)
-def cull_polygons(vertices, offsets, closed, T_cam_base, box, margin, keep):  # pragma: no cover
+def cull_polygons(vertices, offsets, object_polys, object_closed, T_cam_base, box, margin,
+                  contain_margin, keep):  # pragma: no cover - jit
     """Mark in ``keep`` the polygons that may hide a point of the features' box from a camera.
 
     ``T_cam_base`` maps base to camera coordinates; ``box`` = (xmin, xmax, ymin, ymax, zmax):
     the features' bounds in normalised image coordinates (x/z, y/z) and their largest depth.
-    A polygon is kept when some vertex is nearer than ``zmax``, it faces the camera (or its
-    solid is open) and its normalised bounding box overlaps ``box`` grown by ``margin`` — or
-    when it reaches the camera's focal plane (z <= 1e-6 m), where its projection is unbounded.
+    Object ``k`` owns the polygons ``object_polys[k]:object_polys[k + 1]``; ``object_closed[k]``
+    says whether it is a closed solid. A polygon is kept when some vertex is nearer than
+    ``zmax``, it faces the camera (or its solid is open, or the solid's bounding box in camera
+    axes, grown by ``contain_margin`` m, holds the optical centre: the camera may be inside the
+    solid or on its boundary, where a line of sight can leave it through a back face) and its
+    normalised bounding box overlaps ``box`` grown by ``margin`` — or when it reaches the
+    camera's focal plane (z <= 1e-6 m), where its projection is unbounded.
     """
     R = T_cam_base[:3, :3]
     t = T_cam_base[:3, 3]
-    for p in range(offsets.shape[0] - 1):
-        if keep[p]:
-            continue
-        s, e = offsets[p], offsets[p + 1]
-        zmin, xmin, xmax, ymin, ymax = np.inf, np.inf, -np.inf, np.inf, -np.inf
-        nx = ny = nz = 0.0
-        cx0 = cy0 = cz0 = 0.0
-        for j in range(s, e):
-            jn = j + 1 if j + 1 < e else s
-            ax, ay, az = to_camera(R, t, vertices[j])
-            bx, by, bz = to_camera(R, t, vertices[jn])
-            nx += (ay - by) * (az + bz)
-            ny += (az - bz) * (ax + bx)
-            nz += (ax - bx) * (ay + by)
-            if j == s:
-                cx0, cy0, cz0 = ax, ay, az
-            zmin = min(zmin, az)
-            if az > 1e-6:
-                xmin, xmax = min(xmin, ax / az), max(xmax, ax / az)
-                ymin, ymax = min(ymin, ay / az), max(ymax, ay / az)
-        if zmin >= box[4]:
-            continue
-        if closed[p] and nx * -cx0 + ny * -cy0 + nz * -cz0 <= 0.0:
-            continue
-        if zmin <= 1e-6:
-            keep[p] = True
-        elif (xmax >= box[0] - margin and xmin <= box[1] + margin
-              and ymax >= box[2] - margin and ymin <= box[3] + margin):
-            keep[p] = True
+    for k in range(object_polys.shape[0] - 1):
+        first, last = object_polys[k], object_polys[k + 1]
+        closed = object_closed[k]
+        if closed:  # does the solid's box (camera axes) hold the optical centre (the origin)?
+            lo0 = lo1 = lo2 = np.inf
+            hi0 = hi1 = hi2 = -np.inf
+            for j in range(offsets[first], offsets[last]):
+                x, y, z = to_camera(R, t, vertices[j])
+                lo0, lo1, lo2 = min(lo0, x), min(lo1, y), min(lo2, z)
+                hi0, hi1, hi2 = max(hi0, x), max(hi1, y), max(hi2, z)
+            m = contain_margin
+            closed = not (lo0 <= m and lo1 <= m and lo2 <= m
+                          and hi0 >= -m and hi1 >= -m and hi2 >= -m)
+        for p in range(first, last):
+            if keep[p]:
+                continue
+            s, e = offsets[p], offsets[p + 1]
+            zmin, xmin, xmax, ymin, ymax = np.inf, np.inf, -np.inf, np.inf, -np.inf
+            nx = ny = nz = 0.0
+            cx0 = cy0 = cz0 = 0.0
+            for j in range(s, e):
+                jn = j + 1 if j + 1 < e else s
+                ax, ay, az = to_camera(R, t, vertices[j])
+                bx, by, bz = to_camera(R, t, vertices[jn])
+                nx += (ay - by) * (az + bz)
+                ny += (az - bz) * (ax + bx)
+                nz += (ax - bx) * (ay + by)
+                if j == s:
+                    cx0, cy0, cz0 = ax, ay, az
+                zmin = min(zmin, az)
+                if az > 1e-6:
+                    xmin, xmax = min(xmin, ax / az), max(xmax, ax / az)
+                    ymin, ymax = min(ymin, ay / az), max(ymax, ay / az)
+            if zmin >= box[4]:
+                continue
+            if closed and nx * -cx0 + ny * -cy0 + nz * -cz0 <= 0.0:
+                continue
+            if zmin <= 1e-6:
+                keep[p] = True
+            elif (xmax >= box[0] - margin and xmin <= box[1] + margin
+                  and ymax >= box[2] - margin and ymin <= box[3] + margin):
+                keep[p] = True
 
 
 @njit(cache=True)

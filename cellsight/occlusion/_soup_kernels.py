@@ -16,13 +16,14 @@ STATUS_BAD_OFFSETS = 1
 STATUS_FEW_VERTICES = 2
 STATUS_NOT_FINITE = 3
 STATUS_ZERO_AREA = 4
+_TINY = float(np.finfo(np.float64).tiny)
 
 
 @njit(cache=True)
-def polygon_planes(vertices: np.ndarray, offsets: np.ndarray):
-    """Planes and bounds of every polygon of a flat soup, in one pass.
+def polygon_planes(vertices: np.ndarray, offsets: np.ndarray, eps_rel: float, round_rel: float):
+    """Planes, bounds and plane thicknesses of every polygon of a flat soup, in one pass.
 
-    Returns ``(planes, boxes, spheres, areas, deviations, scale, status, where)``:
+    Returns ``(planes, boxes, spheres, areas, deviations, eps, status, where)``:
 
     - ``planes`` (P, 4): unit normal ``n`` (Newell's method on vertices taken relative to their
       mean, so the right-hand rule of the vertex order fixes its sign) and ``d`` with the plane
@@ -32,7 +33,10 @@ def polygon_planes(vertices: np.ndarray, offsets: np.ndarray):
     - ``areas`` (P,): polygon area (half the Newell vector's length; exact for simple planar
       polygons, convex or not);
     - ``deviations`` (P,): largest distance of a vertex from the plane;
-    - ``scale``: larger of the soup's box diagonal and its largest absolute coordinate;
+    - ``eps`` (P,): the polygon's own plane thickness (same unit as the vertices), the largest
+      of ``eps_rel`` times its box diagonal, ``round_rel`` times its largest absolute
+      coordinate (rounding), twice ``deviations`` and the smallest positive double: it depends
+      on nothing but the polygon itself;
     - ``status``/``where``: a ``STATUS_*`` code and the first polygon it concerns.
 
     The loop is written inline: numba helpers taking arrays cost reference counting per call.
@@ -43,11 +47,10 @@ def polygon_planes(vertices: np.ndarray, offsets: np.ndarray):
     spheres = np.zeros((n_poly, 4))
     areas = np.zeros(n_poly)
     deviations = np.zeros(n_poly)
+    eps = np.zeros(n_poly)
     status, where = STATUS_OK, 0
     if offsets[0] != 0 or offsets[n_poly] != vertices.shape[0]:
         status = STATUS_BAD_OFFSETS
-    lo = np.full(3, np.inf)
-    hi = np.full(3, -np.inf)
     for i in range(n_poly if status == STATUS_OK else 0):
         start, stop = offsets[i], offsets[i + 1]
         if stop - start < 3:
@@ -67,8 +70,6 @@ def polygon_planes(vertices: np.ndarray, offsets: np.ndarray):
         if not finite:
             status, where = STATUS_NOT_FINITE, i
             break
-        for a in range(3):
-            lo[a], hi[a] = min(lo[a], boxes[i, a]), max(hi[a], boxes[i, 3 + a])
         k = stop - start
         cx, cy, cz = cx / k, cy / k, cz / k
         nx = ny = nz = 0.0
@@ -95,11 +96,13 @@ def polygon_planes(vertices: np.ndarray, offsets: np.ndarray):
         spheres[i, 3] = np.sqrt(radius2)
         areas[i] = 0.5 * length
         deviations[i] = deviation
-    scale = 0.0
-    if n_poly > 0 and status == STATUS_OK:
-        diagonal = np.sqrt((hi[0] - lo[0]) ** 2 + (hi[1] - lo[1]) ** 2 + (hi[2] - lo[2]) ** 2)
-        scale = max(diagonal, max(np.abs(lo).max(), np.abs(hi).max()))
-    return planes, boxes, spheres, areas, deviations, scale, status, where
+        diagonal2 = magnitude = 0.0
+        for a in range(3):
+            diagonal2 += (boxes[i, 3 + a] - boxes[i, a]) ** 2
+            magnitude = max(magnitude, max(abs(boxes[i, a]), abs(boxes[i, 3 + a])))
+        eps[i] = max(max(eps_rel * np.sqrt(diagonal2), round_rel * magnitude),
+                     max(2.0 * deviation, _TINY))
+    return planes, boxes, spheres, areas, deviations, eps, status, where
 
 
 @njit(cache=True)

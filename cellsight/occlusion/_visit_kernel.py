@@ -1,12 +1,15 @@
 """Numba kernel of the paper's ``not_occluded`` visit (Section III-B) for many points at once.
 
+Every plane comes with its own thickness ``eps`` (its polygon's, local: see :mod:`.soup`):
+``node_eps`` for a node's partition plane, ``poly_eps`` for a surface's plane.
+
 Points are first located in the tree: pushed down FRONT (n.x - d > eps) or BACK (< -eps); a point
 within ``eps`` of a node's plane stays at that node, and a point reaching an empty child stays at
 that leaf position. Each node thus has three *slots*: ``3m`` (on its plane), ``3m + 1`` (its empty
 front child), ``3m + 2`` (its empty back child).
 
 The tree is then visited back to front from the viewpoint with an explicit stack. At node ``m``,
-with ``s`` the viewpoint's signed distance to its plane:
+with ``s`` the viewpoint's signed distance to its plane and ``eps`` that plane's thickness:
 
 - ``s > eps`` (IN_FRONT_OF): back subtree, ``process_surfaces(m)``, slot ``3m``, front subtree;
 - ``s < -eps`` (IN_BACK_OF): front subtree, ``process_surfaces(m)``, slot ``3m``, back subtree;
@@ -17,11 +20,11 @@ Visiting a slot adds its points to the active set (visible). ``process_surfaces`
 surface whose box misses the box of the viewpoint and the active points (cheap bounding test),
 then tests each active point against the surface ``q``, on the original polygon: ``q`` hides the
 point ``p`` when the segment from the viewpoint ``v`` crosses ``q`` strictly before ``p``. With
-``sv``/``sp`` the signed distances of ``v``/``p`` to ``q``'s plane: ``|sv| > eps`` (else edge-on),
-``sv`` and ``sp`` of opposite signs with ``|sp| > max(eps, tol)`` (a point on the polygon, e.g. a
-vertex of its own face, is not hidden by it; ``tol``, the caller's surface tolerance, extends
-this to points resting on a surface, such as a part's bottom corners on its support), i.e. the
-crossing parameter ``t = sv / (sv - sp)`` satisfies
+``sv``/``sp`` the signed distances of ``v``/``p`` to ``q``'s plane and ``eps`` its thickness:
+``|sv| > eps`` (else edge-on), ``sv`` and ``sp`` of opposite signs with ``|sp| > max(eps, tol)``
+(a point on the polygon, e.g. a vertex of its own face, is not hidden by it; ``tol``, the
+caller's surface tolerance, extends this to points resting on a surface, such as a part's
+bottom corners on its support), i.e. the crossing parameter ``t = sv / (sv - sp)`` satisfies
 ``t < 1 - eps / (|sv| + |sp|)``; then the crossing ``v + t (p - v)`` must fall in ``q``'s box
 (grown by ``eps``) and inside ``q`` (even-odd rule in the coordinate plane most parallel to
 ``q``: any simple polygon, convex or not).
@@ -62,7 +65,7 @@ def _first_non_finite(points, view) -> int:
 
 
 @njit(cache=True)
-def _locate(points, node_planes, node_links, eps):
+def _locate(points, node_planes, node_eps, node_links):
     """Slot of every point, as linked lists: ``head[slot]`` and ``following[point]``."""
     n_nodes = node_planes.shape[0]
     head = np.full(3 * n_nodes, -1, np.int64)
@@ -72,6 +75,7 @@ def _locate(points, node_planes, node_links, eps):
         while True:
             s = (node_planes[node, 0] * points[p, 0] + node_planes[node, 1] * points[p, 1]
                  + node_planes[node, 2] * points[p, 2] - node_planes[node, 3])
+            eps = node_eps[node]
             if s > eps:
                 child, slot = node_links[node, 0], 3 * node + 1
             elif s < -eps:
@@ -103,8 +107,8 @@ def _inside(x0, x1, q, a0, a1, vertices, offsets) -> bool:
 
 
 @njit(cache=True)
-def visit_tree(vertices, offsets, planes, boxes, node_planes, node_links, surfaces, depth, eps,
-               tol, points, view):
+def visit_tree(vertices, offsets, planes, poly_eps, boxes, node_planes, node_eps, node_links,
+               surfaces, depth, tol, points, view):
     """Visible flags (N,), nearest occluder indices (N,) int32 (-1 if visible) and ``bad``.
 
     ``bad`` is ``NO_BAD_INPUT``, ``BAD_VIEWPOINT`` or the first point with a non-finite
@@ -122,17 +126,16 @@ def visit_tree(vertices, offsets, planes, boxes, node_planes, node_links, surfac
         visible[:] = bad == NO_BAD_INPUT
         return visible, occluder, bad
     best_t = np.full(n_points, np.inf)
-    on_plane = max(eps, tol)
-    head, following = _locate(points, node_planes, node_links, eps)
+    head, following = _locate(points, node_planes, node_eps, node_links)
     active = np.empty(n_points, np.int64)
     n_active = 0
     stack = np.empty(3 * depth + 4, np.int64)  # codes (index << 2) | action
     stack[0] = _VISIT
     n_stack = 1
     vx, vy, vz = view[0], view[1], view[2]
-    reach = np.empty(6)  # box of the viewpoint and the active points (grown by eps)
+    reach = np.empty(6)  # box of the viewpoint and the active points
     for a in range(3):
-        reach[a], reach[3 + a] = view[a] - eps, view[a] + eps
+        reach[a], reach[3 + a] = view[a], view[a]
     while n_stack > 0:
         n_stack -= 1
         action, index = stack[n_stack] & 3, stack[n_stack] >> 2
@@ -142,7 +145,7 @@ def visit_tree(vertices, offsets, planes, boxes, node_planes, node_links, surfac
             front, back = node_links[index, 0], node_links[index, 1]
             front_code = (front << 2) | _VISIT if front >= 0 else ((3 * index + 1) << 2) | _SLOT
             back_code = (back << 2) | _VISIT if back >= 0 else ((3 * index + 2) << 2) | _SLOT
-            if abs(s) > eps:  # IN_FRONT_OF / IN_BACK_OF: far child, surfaces, own points, near
+            if abs(s) > node_eps[index]:  # IN_FRONT_OF / IN_BACK_OF: far, surfaces, own, near
                 near, far = (front_code, back_code) if s > 0.0 else (back_code, front_code)
                 stack[n_stack] = near
                 stack[n_stack + 1] = ((3 * index) << 2) | _SLOT
@@ -161,21 +164,23 @@ def visit_tree(vertices, offsets, planes, boxes, node_planes, node_links, surfac
                 n_active += 1
                 visible[p] = True
                 for a in range(3):
-                    reach[a] = min(reach[a], points[p, a] - eps)
-                    reach[3 + a] = max(reach[3 + a], points[p, a] + eps)
+                    reach[a] = min(reach[a], points[p, a])
+                    reach[3 + a] = max(reach[3 + a], points[p, a])
                 p = following[p]
         else:  # process_surfaces(index)
             for k in range(node_links[index, 2], node_links[index, 2] + node_links[index, 3]):
                 q = surfaces[k]
-                if (boxes[q, 0] > reach[3] or boxes[q, 3] < reach[0] or boxes[q, 1] > reach[4]
-                        or boxes[q, 4] < reach[1] or boxes[q, 2] > reach[5]
-                        or boxes[q, 5] < reach[2]):
+                eps = poly_eps[q]
+                if (boxes[q, 0] - eps > reach[3] or boxes[q, 3] + eps < reach[0]
+                        or boxes[q, 1] - eps > reach[4] or boxes[q, 4] + eps < reach[1]
+                        or boxes[q, 2] - eps > reach[5] or boxes[q, 5] + eps < reach[2]):
                     continue  # the polygon's box misses the box of every active segment
                 nx, ny, nz, dq = planes[q, 0], planes[q, 1], planes[q, 2], planes[q, 3]
                 sv = nx * vx + ny * vy + nz * vz - dq
                 if abs(sv) <= eps:  # seen edge-on: hides nothing
                     continue
                 a0, a1 = drop_axis(nx, ny, nz)
+                on_plane = max(eps, tol)
                 for i in range(n_active):
                     p = active[i]
                     px, py, pz = points[p, 0], points[p, 1], points[p, 2]

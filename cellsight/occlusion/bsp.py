@@ -17,9 +17,10 @@ viewpoint to the point crosses no polygon, where
   judged like any other, since the segment test has no viewing direction: the field of view is
   the caller's business.
 
-``eps`` is the soup's plane thickness (relative to its size, see :mod:`.soup`). Answers may
-differ from exact arithmetic only for points or viewpoints within a few ``eps`` of a polygon's
-plane, or crossings within a few ``eps`` of a polygon's edge.
+``eps`` is each polygon's own plane thickness (relative to its size, see :mod:`.soup`): local,
+so a polygon added far away never changes the answers for the others. Answers may differ from
+exact arithmetic only for points or viewpoints within a few ``eps`` of a polygon's plane, or
+crossings within a few ``eps`` of a polygon's edge.
 """
 
 from __future__ import annotations
@@ -44,6 +45,7 @@ class BSPTree:
     """A BSP tree of a polygon soup, in flat arrays; build with :meth:`build`.
 
     ``node_planes`` (M, 4): partition plane ``(n, d)`` of each node (node 0 is the root);
+    ``node_eps`` (M,): its thickness (its polygon's ``eps``, same unit as the soup);
     ``node_links`` (M, 4) int64: ``(front child, back child, first surface, surface count)``,
     -1 for an empty child; ``surfaces``: indices of the soup polygons stored in the nodes
     (a polygon split by a plane appears once per fragment); ``stats``: a dict with ``nodes``,
@@ -55,6 +57,7 @@ class BSPTree:
         self,
         soup: PolygonSoup,
         node_planes: np.ndarray,
+        node_eps: np.ndarray,
         node_links: np.ndarray,
         surfaces: np.ndarray,
         splits: int,
@@ -62,6 +65,7 @@ class BSPTree:
     ) -> None:
         self.soup = soup
         self.node_planes = node_planes
+        self.node_eps = node_eps
         self.node_links = node_links
         self.surfaces = surfaces
         self.stats = {
@@ -91,11 +95,11 @@ class BSPTree:
                 f"candidates must be >= 1 and split_weight in [0, 1], got {candidates}, "
                 f"{split_weight}"
             )
-        node_planes, node_links, surfaces, splits, depth = build_tree(
+        node_planes, node_eps, node_links, surfaces, splits, depth = build_tree(
             soup.vertices, soup.offsets, soup.planes, soup.spheres, soup.eps,
             candidates, split_weight, _SEED,
         )
-        return cls(soup, node_planes, node_links, surfaces, splits, depth)
+        return cls(soup, node_planes, node_eps, node_links, surfaces, splits, depth)
 
     def visibility(
         self, points: np.ndarray, viewpoint: np.ndarray, surface_tolerance: float = 0.0
@@ -104,7 +108,7 @@ class BSPTree:
 
         Returns ``visible`` (N,) bool and ``occluder`` (N,) int32: the index in the soup of the
         nearest polygon hiding the point (the first one crossed from the viewpoint), -1 when
-        visible. A point within ``surface_tolerance`` (m; at least the soup's ``eps``) of a
+        visible. A point within ``surface_tolerance`` (m; at least the polygon's ``eps``) of a
         polygon's plane is never hidden by that polygon. Non-finite input raises
         :class:`GeometryError`.
         """
@@ -117,8 +121,8 @@ class BSPTree:
             )
         soup = self.soup
         visible, occluder, bad = visit_tree(
-            soup.vertices, soup.offsets, soup.planes, soup.boxes, self.node_planes,
-            self.node_links, self.surfaces, self.stats["depth"], soup.eps,
+            soup.vertices, soup.offsets, soup.planes, soup.eps, soup.boxes, self.node_planes,
+            self.node_eps, self.node_links, self.surfaces, self.stats["depth"],
             float(surface_tolerance), points, viewpoint,
         )
         if bad == BAD_VIEWPOINT:

@@ -15,10 +15,12 @@ feature point gets a label per camera:
 
 Culling (exact, ``cull=True``): a surface can hide a feature from a camera only if (1) it faces
 the camera — for closed solids seen from outside, the first crossing of a line of sight is
-always through a front face, (2) part of it is nearer to the camera than the farthest feature,
-and (3) its projection overlaps the features' image bounding box (or it crosses the camera's
-focal plane). The tree is built from the union over cameras of the surfaces that survive,
-plus every workpiece surface.
+always through a front face; a closed solid whose bounding box (grown by ``CONTAIN_MARGIN``)
+holds the optical centre, where the camera may be inside it or on its boundary, keeps its back
+faces too (cheap and conservative, so exact for non-convex solids as well), (2) part of it is
+nearer to the camera than the farthest feature, and (3) its projection overlaps the features'
+image bounding box (or it crosses the camera's focal plane). The tree is built from the union
+over cameras of the surfaces that survive, plus every workpiece surface.
 """
 
 from __future__ import annotations
@@ -35,6 +37,7 @@ from cellsight.visibility import STATUS_INSIDE, CameraVisibility, Views
 CULL_MARGIN_PX = 2.0  # safety margin of the image-box overlap test, pixels
 NEAR_SAMPLES = 8  # points on the ring around a feature for the near-occluder test
 NEAR_DEPTH = 0.01  # m: a silhouette counts when at least this much nearer than the feature
+CONTAIN_MARGIN = 1e-3  # m: growth of a solid's box in the camera-inside test (any >= 0 is exact)
 
 
 class VisibilityPredictor:
@@ -50,7 +53,8 @@ class VisibilityPredictor:
     ``near_px`` (px): a visible feature whose ring of points this far around it (moved
     ``NEAR_DEPTH`` towards the camera) is partly hidden by another object is flagged
     ``near_occluder``: its image corner is a junction with that object's silhouette, a few
-    pixels off (0 disables the test). With culling, a ring point that ends inside another solid
+    pixels off (0 disables the test). Both must be finite and >= 0 (else
+    :class:`CellsightError`). With culling, a ring point that ends inside another solid
     can be missed (that solid's back faces are culled): rare, and only ever a missed flag.
     """
 
@@ -58,8 +62,8 @@ class VisibilityPredictor:
                  surface_tolerance: float = 2e-3, near_px: float = 5.0) -> None:
         self.cell = cell
         self.cull = cull
-        self.surface_tolerance = float(surface_tolerance)
-        self.near_px = float(near_px)
+        self.surface_tolerance = _non_negative("surface_tolerance", surface_tolerance, "m")
+        self.near_px = _non_negative("near_px", near_px, "px")
         n_cam = len(cell.cameras)
         if cameras is not None and (not len(cameras) or not all(
                 isinstance(k, int | np.integer) and 0 <= k < n_cam for k in cameras)):
@@ -80,8 +84,8 @@ class VisibilityPredictor:
         self.vertex_owner = np.asarray(vertex_owner, dtype=np.int64)
         self.poly_sizes = np.diff(self.offsets)
         self.vertex_poly = np.repeat(np.arange(len(owner)), self.poly_sizes)
-        closed = np.array([o.solid.closed for o in cell.objects])
-        self.poly_closed = closed[self.poly_owner]
+        self.object_closed = np.array([o.solid.closed for o in cell.objects])
+        self.object_polys = np.searchsorted(self.poly_owner, np.arange(len(cell.objects) + 1))
         kinds = np.array([o.kind for o in cell.objects])
         self._moving = np.flatnonzero(kinds[self.vertex_owner] != "static")
         # static poses never change: their vertices are placed once, here
@@ -126,8 +130,8 @@ class VisibilityPredictor:
             views.append((px, status))
             if self.cull and seen:
                 margin = (CULL_MARGIN_PX + self.near_px) / cam.focal_px
-                cull_polygons(vertices, self.offsets, self.poly_closed, cam.T_cam_base, box,
-                              margin, keep)
+                cull_polygons(vertices, self.offsets, self.object_polys, self.object_closed,
+                              cam.T_cam_base, box, margin, CONTAIN_MARGIN, keep)
         if not self.cull:
             keep[:] = True
         tree, polys = self._build(vertices, keep)
@@ -180,3 +184,15 @@ class VisibilityPredictor:
         np.cumsum(self.poly_sizes[polys], out=offsets[1:])
         soup = PolygonSoup.from_arrays(vertices[keep[self.vertex_poly]], offsets)
         return BSPTree.build(soup), polys
+
+
+def _non_negative(name: str, value, unit: str) -> float:
+    """``value`` as a float, or a :class:`CellsightError` naming ``name`` unless finite, >= 0."""
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        number = float("nan")
+    if not (np.isfinite(number) and number >= 0.0):
+        raise CellsightError(f"VisibilityPredictor: {name} must be a finite number >= 0 "
+                             f"({unit}), got {value!r}")
+    return number

@@ -5,15 +5,18 @@ three vertices, planar, simple (convex or not), in any orientation. Its unit nor
 follows the right-hand rule of the vertex order (Newell's method) and its plane is
 ``normals[i] . x = d[i]``. Lengths are in the caller's unit (metres in cellsight).
 
-Tolerances (all relative, so the soup's unit does not matter):
+Tolerances (all relative, so the soup's unit does not matter, and all per polygon):
 
 - validation (``from_polygons(validate=True)``), with ``size`` the polygon's box diagonal:
   area > ``DEGENERATE_REL * size**2``, every vertex within ``PLANARITY_REL * size`` of the plane,
   non-adjacent edges farther apart than ``SIMPLE_REL * size`` (in the polygon's 2D projection);
-- the plane thickness ``eps`` used by the tree (classification, point location, contacts):
-  ``max(EPS_REL * scale, 2 * largest vertex deviation from its own plane)`` where ``scale`` is
-  the larger of the soup's box diagonal and its largest absolute coordinate, so each polygon's
-  own vertices lie on its plane and rounding (~1e-16 * scale) stays far below ``eps``.
+- the plane thickness ``eps[i]`` of polygon ``i``, used by the tree for its plane
+  (classification against it, point location, contacts):
+  ``max(EPS_REL * size, ROUND_REL * magnitude, 2 * largest vertex deviation from its plane)``,
+  ``size`` its box diagonal and ``magnitude`` its largest absolute coordinate. It is *local*:
+  it depends on the polygon alone, so adding a polygon (however far away or large) never
+  changes the tolerance of the others. Its own vertices lie on its plane, and rounding of a
+  signed distance near it (~1e-16 * magnitude) stays far below it.
 """
 
 from __future__ import annotations
@@ -36,7 +39,7 @@ DEGENERATE_REL = 1e-10
 PLANARITY_REL = 1e-6
 SIMPLE_REL = 1e-9
 EPS_REL = 1e-9
-_TINY = float(np.finfo(np.float64).tiny)
+ROUND_REL = 1e-12
 
 
 class PolygonSoup:
@@ -46,13 +49,14 @@ class PolygonSoup:
     ``d`` (P,), ``planes``
     (P, 4) = ``[normals | d]``, ``boxes`` (P, 6) axis-aligned bounds ``(min xyz, max xyz)``,
     ``spheres`` (P, 4) bounding spheres (vertex mean, radius), ``areas`` (P,), ``deviations``
-    (P,) largest vertex distance from the plane, and ``eps``, the plane thickness (module doc).
+    (P,) largest vertex distance from the plane, and ``eps`` (P,), each polygon's plane thickness
+    (module doc).
     Build with :meth:`from_polygons` (checked) or :meth:`from_arrays` (hot path).
     """
 
     def __init__(self, vertices: np.ndarray, offsets: np.ndarray) -> None:
-        planes, boxes, spheres, areas, deviations, scale, status, where = polygon_planes(
-            vertices, offsets
+        planes, boxes, spheres, areas, deviations, eps, status, where = polygon_planes(
+            vertices, offsets, EPS_REL, ROUND_REL
         )
         if status != STATUS_OK:
             raise GeometryError(_status_message(status, where, vertices, offsets))
@@ -65,8 +69,7 @@ class PolygonSoup:
         self.spheres = spheres
         self.areas = areas
         self.deviations = deviations
-        worst = float(deviations.max()) if deviations.size else 0.0
-        self.eps = max(EPS_REL * scale, 2.0 * worst, _TINY)
+        self.eps = eps
 
     def __len__(self) -> int:
         return self.offsets.shape[0] - 1
