@@ -1,21 +1,92 @@
-"""Denavit–Hartenberg forward kinematics and the geometric Jacobian.
+"""Serial-chain forward kinematics and the geometric Jacobian: DH chains and URDF-style chains.
 
-Standard (distal) DH: ``A_i = Rz(theta_i) Tz(d_i) Tx(a_i) Rx(alpha_i)``. A revolute joint adds
-``q_i`` to ``theta_i``, a prismatic joint adds ``q_i`` to ``d_i``. Lengths in metres, angles in
-radians. Frame 0 is the chain base; frame ``i`` is attached to link ``i``.
+:class:`KinematicChain` is what the cell, the world, the CLIK and the planner use; two chains
+implement it:
+
+- :class:`DHChain`, standard (distal) DH: ``A_i = Rz(theta_i) Tz(d_i) Tx(a_i) Rx(alpha_i)``. A
+  revolute joint adds ``q_i`` to ``theta_i``, a prismatic joint adds ``q_i`` to ``d_i``; joint
+  ``i`` acts about/along z of frame ``i-1``.
+- :class:`SerialChain`, URDF-style: frame ``i`` (the child link of joint ``i``) is
+  ``T_{i-1} @ origin_i @ M_i(q_i)``, ``M_i`` a rotation about (revolute) or a translation along
+  (prismatic) the unit ``axis_i`` given in frame ``i``; joint ``i`` acts about/along that axis
+  through the origin of frame ``i``. Its forward kinematics is a numba kernel.
+
+Lengths in metres, angles in radians. Frame 0 is the chain base; frame ``i`` is attached to
+link ``i``.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Literal
+from typing import Literal, Protocol
 
 import numpy as np
+from numba import njit
 
 from cellsight.errors import KinematicsError
 
 JointKind = Literal["revolute", "prismatic"]
+
+
+class KinematicChain(Protocol):
+    """A serial chain of n joints (revolute: rad, prismatic: m), base frame 0, frames 1..n.
+
+    ``qlim`` (n, 2) joint limits; ``kinds`` each joint's kind; ``prismatic`` (n,) bool.
+    :meth:`fkine` gives the frames 0..n in the chain base frame, (n+1, 4, 4); frame ``i`` is the
+    frame of the link moved by joint ``i``. :meth:`jacobian_at` gives the geometric Jacobian
+    (6, n; rows: linear m/s, angular rad/s, chain base frame) of a point moving with frame n
+    from those frames. :meth:`joint_placements` says, for a body tree (the MuJoCo model), where
+    each frame sits in its parent at q = 0 and where its joint is, in the frame itself.
+    """
+
+    name: str
+    qlim: np.ndarray
+
+    @property
+    def n(self) -> int: ...
+
+    @property
+    def kinds(self) -> tuple[JointKind, ...]: ...
+
+    @property
+    def prismatic(self) -> np.ndarray: ...
+
+    def check_q(self, q, *, check_limits: bool = False, tol: float = 1e-9) -> np.ndarray: ...
+
+    def fkine(self, q) -> np.ndarray: ...
+
+    def jacobian(self, q, T_last_tool: np.ndarray | None = None) -> np.ndarray: ...
+
+    def jacobian_at(self, frames: np.ndarray, p_end: np.ndarray) -> np.ndarray: ...
+
+    def random_q(self, rng: np.random.Generator) -> np.ndarray: ...
+
+    def joint_placements(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]: ...
+
+
+def check_joint_vector(name: str, qlim: np.ndarray, q, check_limits: bool = False,
+                       tol: float = 1e-9) -> np.ndarray:
+    """Validate a joint vector for the chain ``name`` with limits ``qlim`` (n, 2): length n,
+    finite, and (if asked) inside the limits within ``tol``; a :class:`KinematicsError`."""
+    n = len(qlim)
+    q = np.asarray(q, dtype=float).ravel()
+    if q.shape != (n,):
+        raise KinematicsError(f"{name}: expected {n} joint values, got {q.size}")
+    bad = np.flatnonzero(~np.isfinite(q))
+    if bad.size:
+        i = int(bad[0])
+        raise KinematicsError(f"{name}: joint {i + 1} is not finite (q[{i}] = {q[i]})")
+    if check_limits:
+        lo, hi = qlim[:, 0] - tol, qlim[:, 1] + tol
+        out = np.flatnonzero((q < lo) | (q > hi))
+        if out.size:
+            i = int(out[0])
+            raise KinematicsError(
+                f"{name}: joint {i + 1} = {q[i]:.6g} outside its limits "
+                f"[{qlim[i, 0]:.6g}, {qlim[i, 1]:.6g}]"
+            )
+    return q
 
 
 @dataclass(frozen=True)
@@ -72,23 +143,16 @@ class DHChain:
 
     def check_q(self, q, *, check_limits: bool = False, tol: float = 1e-9) -> np.ndarray:
         """Validate a joint vector: length n, finite, and (if asked) inside the limits."""
-        q = np.asarray(q, dtype=float).ravel()
-        if q.shape != (self.n,):
-            raise KinematicsError(f"{self.name}: expected {self.n} joint values, got {q.size}")
-        bad = np.flatnonzero(~np.isfinite(q))
-        if bad.size:
-            i = int(bad[0])
-            raise KinematicsError(f"{self.name}: joint {i + 1} is not finite (q[{i}] = {q[i]})")
-        if check_limits:
-            lo, hi = self.qlim[:, 0] - tol, self.qlim[:, 1] + tol
-            out = np.flatnonzero((q < lo) | (q > hi))
-            if out.size:
-                i = int(out[0])
-                raise KinematicsError(
-                    f"{self.name}: joint {i + 1} = {q[i]:.6g} outside its limits "
-                    f"[{self.qlim[i, 0]:.6g}, {self.qlim[i, 1]:.6g}]"
-                )
-        return q
+        return check_joint_vector(self.name, self.qlim, q, check_limits, tol)
+
+    @property
+    def kinds(self) -> tuple[JointKind, ...]:
+        return tuple(lk.kind for lk in self.links)
+
+    @property
+    def prismatic(self) -> np.ndarray:
+        """(n,) bool: which joints are prismatic."""
+        return self._prismatic.copy()
 
     def link_transforms(self, q) -> np.ndarray:
         """The n DH matrices ``A_i(q_i)``, shape (n, 4, 4)."""
@@ -138,3 +202,144 @@ class DHChain:
     def random_q(self, rng: np.random.Generator) -> np.ndarray:
         """A uniformly random joint vector inside the limits."""
         return rng.uniform(self.qlim[:, 0], self.qlim[:, 1])
+
+    def joint_placements(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """At q = 0: frame i in frame i-1 (``A_i(0)``, (n, 4, 4)), and joint i's origin (m) and
+        unit axis in frame i ((n, 3) each): the z axis of frame i-1, written in frame i."""
+        A0 = self.link_transforms(np.zeros(self.n))
+        pos = np.array([-A[:3, :3].T @ A[:3, 3] for A in A0])
+        axis = np.array([A[:3, :3].T[:, 2] for A in A0])
+        return A0, pos, axis
+
+
+@njit(cache=True)
+def serial_fkine_kernel(origins: np.ndarray, axes: np.ndarray, prismatic: np.ndarray,
+                        q: np.ndarray, out: np.ndarray) -> None:
+    """Frames 0..n of a :class:`SerialChain` into ``out`` (n+1, 4, 4): ``out[0] = I``,
+    ``out[i+1] = out[i] @ origins[i] @ M_i(q[i])`` (Rodrigues' rotation about ``axes[i]``, or a
+    translation along it for a prismatic joint)."""
+    n = q.shape[0]
+    A = np.empty((4, 4))
+    M = np.empty((4, 4))
+    out[0] = 0.0
+    for k in range(4):
+        out[0, k, k] = 1.0
+    for i in range(n):
+        x, y, z = axes[i, 0], axes[i, 1], axes[i, 2]
+        M[:] = 0.0
+        M[3, 3] = 1.0
+        if prismatic[i]:
+            M[0, 0] = M[1, 1] = M[2, 2] = 1.0
+            M[0, 3], M[1, 3], M[2, 3] = x * q[i], y * q[i], z * q[i]
+        else:
+            c, s = np.cos(q[i]), np.sin(q[i])
+            v = 1.0 - c
+            M[0, 0], M[0, 1], M[0, 2] = c + x * x * v, x * y * v - z * s, x * z * v + y * s
+            M[1, 0], M[1, 1], M[1, 2] = y * x * v + z * s, c + y * y * v, y * z * v - x * s
+            M[2, 0], M[2, 1], M[2, 2] = z * x * v - y * s, z * y * v + x * s, c + z * z * v
+        for r in range(4):  # A = origins[i] @ M
+            for col in range(4):
+                acc = 0.0
+                for k in range(4):
+                    acc += origins[i, r, k] * M[k, col]
+                A[r, col] = acc
+        for r in range(4):  # out[i+1] = out[i] @ A
+            for col in range(4):
+                acc = 0.0
+                for k in range(4):
+                    acc += out[i, r, k] * A[k, col]
+                out[i + 1, r, col] = acc
+
+
+class SerialChain:
+    """A URDF-style serial chain (module docstring): per joint a fixed ``origin`` (4x4, frame i
+    at q = 0 in frame i-1), a unit ``axis`` in frame i, a kind and limits; ``link_names`` names
+    frames 0..n (the URDF's links).
+
+    >>> chain = SerialChain(np.eye(4)[None], [[0.0, 0.0, 1.0]], ["revolute"], [(-3.0, 3.0)])
+    >>> bool(np.allclose(chain.fkine([np.pi / 2])[-1][:2, 0], [0.0, 1.0]))
+    True
+    """
+
+    def __init__(self, origins, axes, kinds, qlim, name: str = "chain",
+                 link_names: tuple[str, ...] | None = None) -> None:
+        self.origins = np.ascontiguousarray(origins, dtype=float).reshape(-1, 4, 4)
+        n = len(self.origins)
+        if n == 0:
+            raise KinematicsError(f"{name}: a serial chain needs at least one joint")
+        axes = np.asarray(axes, dtype=float).reshape(n, 3)
+        norms = np.linalg.norm(axes, axis=1)
+        if not np.all(np.isfinite(self.origins)) or not np.all(norms > 1e-12):
+            raise KinematicsError(f"{name}: origins must be finite and axes non-zero")
+        self._axes = np.ascontiguousarray(axes / norms[:, None])
+        self._kinds: tuple[JointKind, ...] = tuple(kinds)
+        if len(self._kinds) != n or any(k not in ("revolute", "prismatic") for k in self._kinds):
+            raise KinematicsError(f"{name}: need {n} joint kinds 'revolute' or 'prismatic', "
+                                  f"got {self._kinds}")
+        self.qlim = np.array(qlim, dtype=float).reshape(n, 2)
+        if not np.all(np.isfinite(self.qlim)) or np.any(self.qlim[:, 0] >= self.qlim[:, 1]):
+            raise KinematicsError(f"{name}: joint limits must be finite (lo, hi), lo < hi")
+        self._prismatic = np.array([k == "prismatic" for k in self._kinds])
+        self.name = name
+        self.link_names = tuple(link_names) if link_names else tuple(
+            f"link{i}" for i in range(n + 1))
+
+    @property
+    def n(self) -> int:
+        """Number of joints."""
+        return len(self.origins)
+
+    @property
+    def kinds(self) -> tuple[JointKind, ...]:
+        return self._kinds
+
+    @property
+    def prismatic(self) -> np.ndarray:
+        """(n,) bool: which joints are prismatic."""
+        return self._prismatic.copy()
+
+    @property
+    def axes(self) -> np.ndarray:
+        """(n, 3) unit joint axes, each in its own frame i."""
+        return self._axes.copy()
+
+    def check_q(self, q, *, check_limits: bool = False, tol: float = 1e-9) -> np.ndarray:
+        """Validate a joint vector: length n, finite, and (if asked) inside the limits."""
+        return check_joint_vector(self.name, self.qlim, q, check_limits, tol)
+
+    def fkine(self, q) -> np.ndarray:
+        """Poses of frames 0..n in the chain base frame, shape (n+1, 4, 4); frame 0 = identity."""
+        q = self.check_q(q)
+        out = np.empty((self.n + 1, 4, 4))
+        serial_fkine_kernel(self.origins, self._axes, self._prismatic, q, out)
+        return out
+
+    def jacobian(self, q, T_last_tool: np.ndarray | None = None) -> np.ndarray:
+        """Geometric Jacobian (6, n) of frame n (or of a tool frame fixed to it), chain base
+        frame: rows 0-2 linear velocity (m/s), rows 3-5 angular velocity (rad/s)."""
+        T = self.fkine(q)
+        p_end = T[-1][:3, 3] if T_last_tool is None else (T[-1] @ T_last_tool)[:3, 3]
+        return self.jacobian_at(T, p_end)
+
+    def jacobian_at(self, frames: np.ndarray, p_end: np.ndarray) -> np.ndarray:
+        """Geometric Jacobian (6, n) of the point ``p_end`` (chain base frame, m) moving with
+        frame n, from the frames (n+1, 4, 4) of :meth:`fkine`."""
+        z = (frames[1:, :3, :3] @ self._axes[:, :, None])[:, :, 0].T  # joint axes, (3, n)
+        r = p_end[:, None] - frames[1:, :3, 3].T  # joint origin -> point, (3, n)
+        J = np.empty((6, self.n))
+        J[0] = z[1] * r[2] - z[2] * r[1]
+        J[1] = z[2] * r[0] - z[0] * r[2]
+        J[2] = z[0] * r[1] - z[1] * r[0]
+        J[3:] = z
+        J[:3, self._prismatic] = z[:, self._prismatic]
+        J[3:, self._prismatic] = 0.0
+        return J
+
+    def random_q(self, rng: np.random.Generator) -> np.ndarray:
+        """A uniformly random joint vector inside the limits."""
+        return rng.uniform(self.qlim[:, 0], self.qlim[:, 1])
+
+    def joint_placements(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """At q = 0: frame i in frame i-1 (the joint origins, (n, 4, 4)), and joint i's origin
+        (m, the frame's own: zero) and unit axis in frame i ((n, 3) each)."""
+        return self.origins.copy(), np.zeros((self.n, 3)), self._axes.copy()

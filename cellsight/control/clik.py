@@ -46,8 +46,7 @@ def default_joint_velocity_limits(robot: Robot) -> np.ndarray:
     """Default joint speed limits: 0.5 m/s per prismatic joint, 2 rad/s per revolute joint.
 
     The cell file gives no speed limits; these are conservative for a SMART-3 S-class arm."""
-    prismatic = np.array([lk.is_prismatic for lk in robot.chain.links])
-    return np.where(prismatic, PRISMATIC_SPEED, REVOLUTE_SPEED)
+    return np.where(robot.chain.prismatic, PRISMATIC_SPEED, REVOLUTE_SPEED)
 
 
 def rotation_error(R_desired: np.ndarray, R: np.ndarray) -> np.ndarray:

@@ -2,8 +2,8 @@
 
 Every solid of the cell is a :class:`CellObject` with a fixed index. A :class:`Snapshot` holds
 the pose of each object in the base frame, ``T_base_obj``, computed from the joint values (DH
-kinematics), the jaw openings and the workpiece poses; ``T_cam_obj = T_cam_base @ T_base_obj``
-gives them in each camera frame.
+or URDF kinematics), the jaw openings and the workpiece poses;
+``T_cam_obj = T_cam_base @ T_base_obj`` gives them in each camera frame.
 """
 
 from __future__ import annotations
@@ -99,7 +99,7 @@ FrameKind = Literal["link", "palm", "jaw", "part", "static"]
 class ObjectFrame:
     """The frame that carries a cell object (the object's frame is that frame).
 
-    ``kind``: ``link`` (DH frame ``index`` of robot ``owner``, 0 = the robot base), ``palm``
+    ``kind``: ``link`` (chain frame ``index`` of robot ``owner``, 0 = the robot base), ``palm``
     (the tool frame of robot ``owner``), ``jaw`` (jaw ``index``, 0 or 1, of robot ``owner``'s
     gripper), ``part`` (workpiece ``owner``) or ``static`` (static object ``owner``, at
     ``index`` in ``cell.static``).
@@ -194,9 +194,10 @@ class Cell:
         self._part = {p.name: p for p in self.workpieces}
 
     def _add_robot(self, robot: Robot) -> None:
-        """The robot's link solids (DH frame order), then its gripper's palm and two jaws."""
-        for i, solids in enumerate(robot.link_solids):
-            label = f"{robot.name}.link{i}"
+        """The robot's link solids (frame order; labelled ``R.link2`` for DH links,
+        ``R.upper_arm_link`` for URDF links), then its gripper's palm and two jaws."""
+        for i, link, solids in robot.link_groups():
+            label = f"{robot.name}.{link}"
             for j, solid in enumerate(solids):
                 self._add(CellObject(label + _suffix(j, solids), "link", solid, label, robot.name),
                           ObjectFrame("link", robot.name, i))

@@ -6,8 +6,11 @@ are given as ``box``, ``prism``, ``segment`` (a box along a segment, for links),
 ``vertices`` + ``faces`` (CCW seen from outside), or a ``mesh`` file (STL/OBJ, path relative to
 the cell file), each with an optional ``pose`` in its parent frame. An optional ``experiments``
 section sets up the paper's experiments: the grasping ``robot`` and ``workpiece``, the
-``conveyor`` path and a ``crossing`` robot's timed joint waypoints. Lengths in metres, angles in
-radians; ``deg`` fields are accepted where noted.
+``conveyor`` path and a ``crossing`` robot's timed joint waypoints. A robot is either a DH
+table (``links``) or a URDF file (``urdf: {file, geometry, flange}``, :mod:`cellsight.model.urdf`;
+``package://NAME/...`` through the top-level ``packages: {NAME: folder}`` map, folders relative
+to the cell file, or an installed package). Lengths in metres, angles in radians; ``deg`` fields
+are accepted where noted.
 """
 
 from __future__ import annotations
@@ -34,9 +37,10 @@ from cellsight.errors import CellFileError, CellsightError
 from cellsight.geometry.meshes import load_mesh_solid
 from cellsight.geometry.polyhedron import Polyhedron, box, prism, segment_box
 from cellsight.geometry.transforms import look_at, pose_from_xyz_rpy
-from cellsight.kinematics import DHChain, DHLink
+from cellsight.kinematics import DHChain, DHLink, KinematicChain
 from cellsight.model.cell import Cell, ExperimentSetup, StaticObject, Workpiece
 from cellsight.model.robot import ParallelGripper, Robot
+from cellsight.model.urdf import UrdfError, UrdfRobot, load_urdf_robot, resolve_uri
 from cellsight.model.yaml_input import load_yaml, read_cell_text
 
 SAFE_NAME = re.compile(r"[A-Za-z0-9_-][A-Za-z0-9_.-]{0,63}")  # a camera name: part of file names
@@ -154,14 +158,37 @@ class GripperSpec(_Strict):
     tcp: Vec3 = [0.0, 0.0, 0.0]
 
 
+class UrdfSpec(_Strict):
+    """A URDF robot: the file (relative to the cell file, or ``package://NAME/...``), which
+    geometry becomes its solids, and the flange link the tool mounts on (default: ``tool0`` when
+    it is fixed to the last actuated link, else that link)."""
+
+    file: Annotated[str, Field(min_length=1)]
+    geometry: Literal["collision", "visual"] = "collision"
+    flange: Annotated[str, Field(min_length=1)] | None = None
+
+
 class RobotSpec(_Strict):
+    """A robot: a DH table (``links``, with ``base_solids``) or a URDF (``urdf``)."""
+
     name: Annotated[str, Field(min_length=1)]
     base: PoseSpec = PoseSpec()
     base_solids: list[SolidSpec] = []
-    links: Annotated[list[LinkSpec], Field(min_length=1)]
+    links: Annotated[list[LinkSpec], Field(min_length=1)] | None = None
+    urdf: UrdfSpec | None = None
     tool: GripperSpec | None = None
     home: list[Finite]
     final: list[Finite] | None = None
+
+    @model_validator(mode="after")
+    def _one_model(self) -> RobotSpec:
+        if (self.links is None) == (self.urdf is None):
+            raise ValueError("exactly one of 'links' (a DH table) or 'urdf' (a URDF file); got "
+                             f"{'both' if self.links is not None else 'neither'}")
+        if self.urdf is not None and self.base_solids:
+            raise ValueError("'base_solids' only with 'links': a URDF robot's solids come "
+                             "from its URDF")
+        return self
 
 
 class WorkpieceSpec(_Strict):
@@ -240,6 +267,7 @@ class ExperimentsSpec(_Strict):
 
 class CellSpec(_Strict):
     name: str = "cell"
+    packages: dict[Annotated[str, Field(min_length=1)], str] = {}
     robots: list[RobotSpec] = []
     workpieces: list[WorkpieceSpec] = []
     static: list[StaticSpec] = []
@@ -303,18 +331,21 @@ def _link_solids(rs: RobotSpec, at: str, file: str, folder: Path) -> list[tuple[
     return solids
 
 
-def _gripper(rs: RobotSpec, at: str, file: str, folder: Path) -> ParallelGripper | None:
-    """A robot's parallel gripper, or None when it has no tool."""
+def _gripper(rs: RobotSpec, at: str, file: str, folder: Path,
+             T_last_flange: np.ndarray | None = None) -> ParallelGripper | None:
+    """A robot's parallel gripper, or None when it has no tool. ``T_last_flange``: the flange's
+    pose in the chain's last frame (a URDF's ``tool0``), folded into ``T_flange_tool``."""
     if rs.tool is None:
         return None
     t = rs.tool
     palm = tuple(_solid(s, f"{rs.name}.gripper", f"{at}.tool.palm[{j}]", file, folder)
                  for j, s in enumerate(t.palm))
     jaw = _solid(t.jaw, f"{rs.name}.gripper.jaw", f"{at}.tool.jaw", file, folder)
-    return ParallelGripper(palm, jaw, t.mount.matrix(), t.max_opening, np.array(t.tcp))
+    mount = t.mount.matrix() if T_last_flange is None else T_last_flange @ t.mount.matrix()
+    return ParallelGripper(palm, jaw, mount, t.max_opening, np.array(t.tcp))
 
 
-def _joint_vectors(rs: RobotSpec, chain: DHChain, at: str,
+def _joint_vectors(rs: RobotSpec, chain: KinematicChain, at: str,
                    file: str) -> tuple[np.ndarray, np.ndarray | None]:
     """A robot's HOME and optional FINAL joint vectors, checked for length and limits."""
     home = _check_len(file, f"{at}.home", rs.home, chain.n, "one per joint")
@@ -329,8 +360,28 @@ def _joint_vectors(rs: RobotSpec, chain: DHChain, at: str,
     return home, final
 
 
-def _robot(rs: RobotSpec, at: str, file: str, folder: Path) -> Robot:
-    """One robot: DH chain, solids, gripper and joint vectors (``at``: its field path)."""
+def _urdf(rs: RobotSpec, at: str, file: str, packages: dict[str, Path],
+          folder: Path) -> UrdfRobot:
+    """The chain, solids and flange of a robot's URDF; errors name the ``urdf`` field."""
+    spec = rs.urdf
+    try:
+        path = resolve_uri(spec.file, packages, folder)
+        return load_urdf_robot(path, rs.name, spec.geometry, spec.flange, packages)
+    except UrdfError as exc:
+        value = getattr(spec, exc.field, spec.file)
+        raise CellFileError(file, f"{at}.urdf.{exc.field}", value, str(exc)) from exc
+
+
+def _robot(rs: RobotSpec, at: str, file: str, folder: Path,
+           packages: dict[str, Path] | None = None) -> Robot:
+    """One robot: chain (DH table or URDF), solids, gripper and joint vectors (``at``: its
+    field path; ``packages``: the cell file's package folders)."""
+    if rs.urdf is not None:
+        model = _urdf(rs, at, file, packages or {}, folder)
+        tool = _gripper(rs, at, file, folder, model.T_last_flange)
+        home, final = _joint_vectors(rs, model.chain, at, file)
+        return Robot(rs.name, rs.base.matrix(), model.chain, model.link_solids, tool, home,
+                     final, model.solid_links)
     chain = DHChain(
         [DHLink(lk.a, lk.alpha, lk.d, lk.theta, lk.kind, tuple(lk.qlim)) for lk in rs.links],
         name=rs.name,
@@ -378,7 +429,9 @@ def _cameras(spec: CellSpec, file: str) -> list[Camera]:
 
 def build_cell(spec: CellSpec, file: str, folder: Path) -> Cell:
     """Turn a validated :class:`CellSpec` into a :class:`Cell`."""
-    robots = [_robot(rs, f"robots[{r}]", file, folder) for r, rs in enumerate(spec.robots)]
+    packages = {name: folder / sub for name, sub in spec.packages.items()}
+    robots = [_robot(rs, f"robots[{r}]", file, folder, packages)
+              for r, rs in enumerate(spec.robots)]
     parts = _workpieces(spec, file, folder)
     static = _static_objects(spec, file, folder)
     cameras = _cameras(spec, file)
@@ -407,13 +460,15 @@ def _with_solids(label: str, n: int) -> list[str]:
 def _occluder_names(robots: list[Robot], parts: list[Workpiece],
                     static: list[StaticObject]) -> list[tuple[str, str]]:
     """(name, owner's field path) of every occluder label and solid name the :class:`Cell` will
-    give: ``R7AX.link2`` (``R7AX.link2.1``, ... for several solids), ``R7AX.gripper``
+    give: ``R7AX.link2`` (``R7AX.link2.1``, ... for several solids; a URDF robot's links
+    ``UR5.upper_arm_link``), ``R7AX.gripper``
     (``.jaw1``, ``.jaw2``), each workpiece's and static object's name."""
     out = []
     for r, robot in enumerate(robots):
-        for i, solids in enumerate(robot.link_solids):
-            owner = f"robots[{r}].base_solids" if i == 0 else f"robots[{r}].links[{i - 1}]"
-            out += [(n, owner) for n in _with_solids(f"{robot.name}.link{i}", len(solids))]
+        for i, link, solids in robot.link_groups():
+            owner = (f"robots[{r}].urdf" if robot.solid_links is not None
+                     else f"robots[{r}].base_solids" if i == 0 else f"robots[{r}].links[{i - 1}]")
+            out += [(n, owner) for n in _with_solids(f"{robot.name}.{link}", len(solids))]
         if robot.tool is not None:
             label = f"{robot.name}.gripper"
             names = _with_solids(label, len(robot.tool.palm)) + [f"{label}.jaw1", f"{label}.jaw2"]

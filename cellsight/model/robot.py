@@ -1,8 +1,10 @@
-"""Robots: a DH chain placed in the cell, one or more solids per link, and a parallel-jaw gripper.
+"""Robots: a kinematic chain (DH or URDF) placed in the cell, solids per link, and a gripper.
 
 Frames: ``T_base_robot`` is the robot's frame 0 in the cell base frame (from calibration); link
-``i``'s solids are given in DH frame ``i`` (frame 0 for the robot's fixed base); the gripper is
-fixed to the flange (frame n) by ``T_flange_tool``. Tool frame: z along the approach direction,
+``i``'s solids are given in frame ``i`` of the chain (DH frame i, or the URDF child link of
+actuated joint i; frame 0 for the robot's fixed base); the gripper is fixed to frame n by
+``T_flange_tool`` (for a URDF robot this includes the fixed offset of its flange link, e.g.
+``tool0``). Tool frame: z along the approach direction,
 the jaws close along y; the tool centre point ``tcp`` is given in the tool frame (m).
 """
 
@@ -14,7 +16,7 @@ import numpy as np
 
 from cellsight.geometry.polyhedron import Polyhedron
 from cellsight.geometry.transforms import make_pose
-from cellsight.kinematics import DHChain
+from cellsight.kinematics import KinematicChain
 
 _FLIP_Z = make_pose(np.diag([-1.0, -1.0, 1.0]))  # half turn about the tool z axis
 
@@ -46,23 +48,40 @@ class ParallelGripper:
 
 @dataclass(frozen=True)
 class Robot:
-    """A robot of the cell: name, calibrated base pose, DH chain, link solids and tool.
+    """A robot of the cell: name, calibrated base pose, kinematic chain, link solids and tool.
 
-    ``link_solids[0]`` are fixed to frame 0 (the base), ``link_solids[i]`` to DH frame i.
+    ``link_solids[0]`` are fixed to frame 0 (the base), ``link_solids[i]`` to frame i.
     ``home`` and ``final`` are joint vectors (m for prismatic joints, rad for revolute ones).
+    ``solid_links`` names, per frame and per solid, the link the solid belongs to (a URDF
+    link's name; a link fixed to frame i carries its own name); None: ``link<i>`` (DH robots).
+    Occlusion reports name a robot's link ``<robot>.<link>``.
     """
 
     name: str
     T_base_robot: np.ndarray
-    chain: DHChain
+    chain: KinematicChain
     link_solids: tuple[tuple[Polyhedron, ...], ...]
     tool: ParallelGripper | None
     home: np.ndarray
     final: np.ndarray | None = None
+    solid_links: tuple[tuple[str, ...], ...] | None = None
 
     @property
     def n_joints(self) -> int:
         return self.chain.n
+
+    def link_groups(self) -> list[tuple[int, str, tuple[Polyhedron, ...]]]:
+        """(frame index, link name, its solids) of every link with solids, frame order then
+        first appearance; a DH robot's link i is ``link<i>`` (listed even without solids)."""
+        if self.solid_links is None:
+            return [(i, f"link{i}", solids) for i, solids in enumerate(self.link_solids)]
+        groups: list[tuple[int, str, tuple[Polyhedron, ...]]] = []
+        for i, (solids, links) in enumerate(zip(self.link_solids, self.solid_links,
+                                                strict=True)):
+            for link in dict.fromkeys(links):
+                groups.append((i, link, tuple(s for s, k in zip(solids, links, strict=True)
+                                              if k == link)))
+        return groups
 
     def link_poses(self, q) -> np.ndarray:
         """Poses of frames 0..n in the cell base frame, (n+1, 4, 4)."""

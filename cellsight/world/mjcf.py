@@ -4,8 +4,9 @@ Every cell object becomes a mesh geom named like the object (``R7AX.link3``, ``p
 ``table.2``) on a body whose frame *is* the object's frame, so that the body poses equal
 ``cell.snapshot(...).poses``:
 
-- robot ``R``: body ``R/0`` at ``T_base_robot`` (DH frame 0, holds ``R.link0`` solids), bodies
-  ``R/1`` .. ``R/n`` at the DH frames (standard DH; joint ``R/q<i>`` on the axis z_{i-1}, a
+- robot ``R``: body ``R/0`` at ``T_base_robot`` (frame 0, holds the base's solids), bodies
+  ``R/1`` .. ``R/n`` at the chain's frames (standard DH: joint ``R/q<i>`` on the axis z_{i-1};
+  URDF: at the joint origins, joint ``R/q<i>`` on the URDF axis through the body's origin; a
   hinge for a revolute joint, a slide for a prismatic one), body ``R/tool`` at
   ``T_flange_tool`` (palm geoms, site ``R/tcp``), jaw bodies ``R/jaw1``, ``R/jaw2`` sliding
   along their own y by half the opening (joints ``R/jaw1``, ``R/jaw2``);
@@ -149,19 +150,20 @@ def _geoms_and_assets(cell: Cell) -> tuple[dict[str, list[str]], list[str]]:
 
 
 def _link_bodies(robot: Robot, geoms: dict[str, list[str]]) -> list[str]:
-    """Opening tags, joints and geoms of the DH frame bodies ``R/1`` .. ``R/n``, nested (the
-    caller closes them)."""
+    """Opening tags, joints and geoms of the frame bodies ``R/1`` .. ``R/n`` (DH or URDF chain,
+    from its :meth:`joint_placements`), nested (the caller closes them)."""
     xml = []
-    A0 = robot.chain.link_transforms(np.zeros(robot.n_joints))
-    for i, (A, link) in enumerate(zip(A0, robot.chain.links, strict=True), start=1):
-        # The joint acts about/along z of frame i-1, written in frame i (the child body).
-        R, t = A[:3, :3], A[:3, 3]
-        kind = "slide" if link.is_prismatic else "hinge"
+    chain = robot.chain
+    A0, joint_pos, joint_axis = chain.joint_placements()
+    for i, (A, prismatic) in enumerate(zip(A0, chain.prismatic, strict=True), start=1):
+        # The joint's origin and axis in frame i (the child body): for DH, z of frame i-1.
+        kind = "slide" if prismatic else "hinge"
         xml.append(f"<body name={quoteattr(body_name(robot.name, i))} {_pose_attrs(A)}>")
         xml.append(_INERTIAL)
         xml.append(
             f"<joint name={quoteattr(joint_name(robot.name, i))} type=\"{kind}\" "
-            f'pos="{_num(-R.T @ t)}" axis="{_num(R.T[:, 2])}" range="{_num(link.qlim)}"/>'
+            f'pos="{_num(joint_pos[i - 1])}" axis="{_num(joint_axis[i - 1])}" '
+            f'range="{_num(chain.qlim[i - 1])}"/>'
         )
         xml += geoms.get(body_name(robot.name, i), [])
     return xml
