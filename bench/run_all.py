@@ -6,7 +6,7 @@ import importlib
 import sys
 from pathlib import Path
 
-BENCHES = ["bench_cell_occlusion", "bench_bsp_scaling", "bench_tracking"]
+BENCHES = ["bench_cell_occlusion", "bench_bsp_scaling", "bench_tracking", "bench_kinematics"]
 
 
 def main() -> None:
