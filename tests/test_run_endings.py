@@ -134,6 +134,6 @@ def test_a_signal_ends_the_run_cleanly(signals, code: int, tmp_path: Path) -> No
     assert f"s; partial results in {tmp_path}" in done.stderr
     metrics = json.loads((tmp_path / "metrics.json").read_text())
     assert metrics["interrupted"] is True and metrics["signal"] == name
-    assert metrics["frames"] == len(_rows(tmp_path)) > 4 and metrics["t_end_s"] < 60
+    assert metrics["frames"] == len(_rows(tmp_path)) >= 4 and metrics["t_end_s"] < 60
     assert (tmp_path / "report.html").stat().st_size > 0
     assert f"interrupted by {name}" in (tmp_path / "run.log").read_text()
