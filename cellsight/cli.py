@@ -2,9 +2,10 @@
 
 Commands: ``show`` (pictures of the cell and each camera's view), ``visibility`` (which feature
 points each camera sees, and why not), ``run`` (the paper's experiments), ``compare`` (two runs'
-metrics side by side). Every error on bad input is printed as one line naming its source (exit
-status 2); a crash as one line too (exit status 1; ``CELLSIGHT_DEBUG=1`` shows the traceback); a
-run ended by SIGINT or SIGTERM exits with 130 or 143 after writing its partial results.
+metrics side by side), ``cells`` (the built-in cells: ``--cell`` takes a name or a file). Every
+error on bad input is printed as one line naming its source (exit status 2); a crash as one line
+too (exit status 1; ``CELLSIGHT_DEBUG=1`` shows the traceback); a run ended by SIGINT or SIGTERM
+exits with 130 or 143 after writing its partial results.
 """
 
 from __future__ import annotations
@@ -331,12 +332,32 @@ def cmd_compare(args: argparse.Namespace) -> int:
     return 0
 
 
+CELL_HELP = ("a built-in cell's name (dual-arm, the default; ur-cell: see 'cellsight cells') "
+             "or a YAML cell file")
+
+
+def cmd_cells(args: argparse.Namespace) -> int:
+    """One line per built-in cell: name, file, robots, cameras, description."""
+    from cellsight.model.loader import BUILTIN_CELLS, parse_cell_text
+    from cellsight.model.yaml_input import read_cell_text
+
+    rows = []
+    for cell in BUILTIN_CELLS.values():
+        spec, _ = parse_cell_text(read_cell_text(cell.path), str(cell.path), cell.path.parent)
+        rows.append((cell.name, str(cell.path), "robots: " + ", ".join(r.name for r in spec.robots),
+                     "cameras: " + ", ".join(c.name for c in spec.cameras), cell.description))
+    widths = [max(len(row[k]) for row in rows) for k in range(4)]
+    for row in rows:
+        print("  ".join([*(v.ljust(w) for v, w in zip(row[:4], widths, strict=True)), row[4]]))
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="cellsight", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True)
 
     def cell_args(p: argparse.ArgumentParser) -> None:
-        p.add_argument("--cell", help="YAML cell file (default: the built-in dual-arm cell)")
+        p.add_argument("--cell", help=CELL_HELP)
         p.add_argument("--joints", help='JSON (or a JSON file): {"R7AX": [q1, ...], ...}; '
                                          "robots left out stay at HOME")
         p.add_argument("--part-pose", help='JSON (or file): {"part": {"xyz": [..], "rpy": [..]}}')
@@ -354,7 +375,7 @@ def build_parser() -> argparse.ArgumentParser:
     run = sub.add_parser("run", help="run one of the paper's experiments end to end")
     run.add_argument("experiment", type=int, choices=(1, 2, 3),
                      help="1: part still; 2: part on the conveyor; 3: as 2, with R6AX crossing")
-    run.add_argument("--cell", help="YAML cell file (default: the built-in dual-arm cell)")
+    run.add_argument("--cell", help=CELL_HELP)
     run.add_argument("--seed", type=int, default=0, help="seed of every random thing (0)")
     run.add_argument("--out", help="output folder (default out/experiment<N>)")
     run.add_argument("--sensor", choices=("rendered", "ideal"), default="rendered",
@@ -372,6 +393,9 @@ def build_parser() -> argparse.ArgumentParser:
                      help="clear --out first if it holds an earlier run (only a run's outputs; "
                           "a non-empty --out is refused without it)")
     run.set_defaults(func=cmd_run)
+
+    cells = sub.add_parser("cells", help="list the built-in cells (names for --cell)")
+    cells.set_defaults(func=cmd_cells)
 
     compare = sub.add_parser("compare", help="two runs' metrics side by side")
     compare.add_argument("run_a", help="output folder of a run")

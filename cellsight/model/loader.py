@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import math
 import re
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Annotated, Literal
 
@@ -534,9 +534,49 @@ def _experiments(spec: ExperimentsSpec | None, robots: list[Robot], parts: list[
     return setup
 
 
-def builtin_cell_path() -> Path:
-    """Path of the built-in dual-arm cell file."""
-    return Path(__file__).resolve().parent.parent / "data" / "dual_arm_cell.yaml"
+@dataclass(frozen=True)
+class BuiltinCell:
+    """A cell file shipped with cellsight, loaded by name (``load_cell("ur-cell")``)."""
+
+    name: str
+    file: str  # in ``cellsight/data``
+    description: str
+
+    @property
+    def path(self) -> Path:
+        return Path(__file__).resolve().parent.parent / "data" / self.file
+
+
+BUILTIN_CELLS: dict[str, BuiltinCell] = {cell.name: cell for cell in (
+    BuiltinCell("dual-arm", "dual_arm_cell.yaml",
+                "the paper's cell: R7AX on a track and R6AX (SmartSix-like DH surrogates), "
+                "two cameras, a conveyor"),
+    BuiltinCell("ur-cell", "ur_cell.yaml",
+                "two UR5 (example-robot-data URDF, collision meshes), three cameras, a conveyor"),
+)}
+DEFAULT_CELL = "dual-arm"
+
+
+def builtin_cell_path(name: str = DEFAULT_CELL) -> Path:
+    """Path of a built-in cell's file (default: the dual-arm cell)."""
+    return BUILTIN_CELLS[name].path
+
+
+def cell_path(cell: str | Path | None = None) -> Path:
+    """The file of ``cell``: an existing file, else a built-in cell's name (None: the default
+    built-in cell); a :class:`CellFileError` listing the built-in cells' names otherwise."""
+    if cell is None:
+        return builtin_cell_path()
+    path = Path(cell)
+    try:
+        if path.is_file():
+            return path
+    except (OSError, ValueError):  # not a usable path (too long, a NUL byte)
+        pass
+    if isinstance(cell, str) and cell in BUILTIN_CELLS:
+        return BUILTIN_CELLS[cell].path
+    raise CellFileError(str(cell), "<file>", str(cell), "an existing YAML cell file or the name "
+                        f"of a built-in cell ({', '.join(BUILTIN_CELLS)})")
 
 
 def parse_cell_text(text: str, file: str, folder: Path) -> tuple[CellSpec, dict]:
@@ -554,7 +594,9 @@ def parse_cell_text(text: str, file: str, folder: Path) -> tuple[CellSpec, dict]
 
 
 def load_cell(path: str | Path | None = None) -> Cell:
-    """Load a cell from a YAML file; the built-in dual-arm cell when ``path`` is None."""
-    path = Path(path) if path is not None else builtin_cell_path()
+    """Load a cell from a YAML file, or a built-in cell by name (``"dual-arm"``, ``"ur-cell"``:
+    :data:`BUILTIN_CELLS`); the built-in dual-arm cell when ``path`` is None. A file of a
+    built-in cell's name in the working folder wins over the built-in cell."""
+    path = cell_path(path)
     spec, _ = parse_cell_text(read_cell_text(path), str(path), path.parent)
     return build_cell(spec, str(path), path.parent)
