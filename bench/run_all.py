@@ -6,7 +6,8 @@ import importlib
 import sys
 from pathlib import Path
 
-BENCHES = ["bench_cell_occlusion", "bench_bsp_scaling", "bench_tracking", "bench_kinematics"]
+BENCHES = ["bench_cell_occlusion", "bench_ur_cell", "bench_bsp_scaling", "bench_tracking",
+           "bench_kinematics"]
 
 
 def main() -> None:

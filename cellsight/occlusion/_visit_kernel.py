@@ -108,11 +108,12 @@ def _inside(x0, x1, q, a0, a1, vertices, offsets) -> bool:
 
 @njit(cache=True)
 def visit_tree(vertices, offsets, planes, poly_eps, boxes, node_planes, node_eps, node_links,
-               surfaces, depth, tol, points, view):
+               surfaces, depth, tol, points, view, relevant):
     """Visible flags (N,), nearest occluder indices (N,) int32 (-1 if visible) and ``bad``.
 
     ``bad`` is ``NO_BAD_INPUT``, ``BAD_VIEWPOINT`` or the first point with a non-finite
-    coordinate (then nothing is computed).
+    coordinate (then nothing is computed). ``relevant`` (P,) bool: the polygons that may hide a
+    point (the caller's exact cull, e.g. per camera); the others are skipped.
 
     The per-node and per-(surface, point) work is written inline: numba keeps reference-count
     updates of every array passed to a call that LLVM does not inline, which would cost more
@@ -170,6 +171,8 @@ def visit_tree(vertices, offsets, planes, poly_eps, boxes, node_planes, node_eps
         else:  # process_surfaces(index)
             for k in range(node_links[index, 2], node_links[index, 2] + node_links[index, 3]):
                 q = surfaces[k]
+                if not relevant[q]:
+                    continue
                 eps = poly_eps[q]
                 if (boxes[q, 0] - eps > reach[3] or boxes[q, 3] + eps < reach[0]
                         or boxes[q, 1] - eps > reach[4] or boxes[q, 4] + eps < reach[1]

@@ -102,15 +102,20 @@ class BSPTree:
         return cls(soup, node_planes, node_eps, node_links, surfaces, splits, depth)
 
     def visibility(
-        self, points: np.ndarray, viewpoint: np.ndarray, surface_tolerance: float = 0.0
+        self,
+        points: np.ndarray,
+        viewpoint: np.ndarray,
+        surface_tolerance: float = 0.0,
+        relevant: np.ndarray | None = None,
     ) -> tuple[np.ndarray, np.ndarray]:
         """Which ``points`` (N, 3) the ``viewpoint`` (3,) sees, by the back-to-front visit.
 
         Returns ``visible`` (N,) bool and ``occluder`` (N,) int32: the index in the soup of the
         nearest polygon hiding the point (the first one crossed from the viewpoint), -1 when
         visible. A point within ``surface_tolerance`` (m; at least the polygon's ``eps``) of a
-        polygon's plane is never hidden by that polygon. Non-finite input raises
-        :class:`GeometryError`.
+        polygon's plane is never hidden by that polygon. ``relevant`` (P,) bool: the soup
+        polygons that may hide one of these points (an exact cull's answer; None: all), the
+        others are skipped. Non-finite input raises :class:`GeometryError`.
         """
         points = np.ascontiguousarray(points, dtype=np.float64)
         viewpoint = np.ascontiguousarray(viewpoint, dtype=np.float64)
@@ -120,10 +125,17 @@ class BSPTree:
                 f"{viewpoint.shape}"
             )
         soup = self.soup
+        if relevant is None:
+            relevant = np.ones(len(soup), dtype=np.bool_)
+        elif relevant.shape != (len(soup),) or relevant.dtype != np.bool_:
+            raise GeometryError(
+                f"relevant must be a bool array of {len(soup)} polygons, got {relevant.dtype} "
+                f"{relevant.shape}"
+            )
         visible, occluder, bad = visit_tree(
             soup.vertices, soup.offsets, soup.planes, soup.eps, soup.boxes, self.node_planes,
             self.node_eps, self.node_links, self.surfaces, self.stats["depth"],
-            float(surface_tolerance), points, viewpoint,
+            float(surface_tolerance), points, viewpoint, relevant,
         )
         if bad == BAD_VIEWPOINT:
             raise GeometryError(f"viewpoint has a non-finite coordinate: {viewpoint.tolist()}")

@@ -17,19 +17,36 @@ Culling (exact, ``cull=True``): a surface can hide a feature from a camera only 
 the camera — for closed solids seen from outside, the first crossing of a line of sight is
 always through a front face; a closed solid whose bounding box (grown by ``CONTAIN_MARGIN``)
 holds the optical centre, where the camera may be inside it or on its boundary, keeps its back
-faces too (cheap and conservative, so exact for non-convex solids as well), (2) part of it is
-nearer to the camera than the farthest feature, and (3) its projection overlaps the features'
-image bounding box (or it crosses the camera's focal plane). The tree is built from the union
-over cameras of the surfaces that survive, plus every workpiece surface.
+faces too (cheap and conservative, so exact for non-convex solids as well), and (2) for some
+feature in the image, part of it is nearer to the camera than the feature and its projection's
+bounding box (grown by a margin that covers the near-occluder ring) holds the feature's image
+(or it crosses the camera's focal plane): a line of sight crosses a surface at the feature's own
+normalised image coordinates. Whole objects, then clusters of at most ``CLUSTER_SIZE`` nearby
+polygons (:func:`polygon_clusters`), are skipped first by the same depth and image test on their
+box in the object's frame (its 8 corners span it, so nothing the per-polygon test would keep is
+skipped), and only the polygons of the clusters looked at are moved to the base frame. The tree
+is built from the union over cameras of the surfaces that survive, plus every workpiece
+surface. Surfaces that could hide nothing change no answer, so culled and unculled answers
+agree (tests/test_cull_clusters.py checks both that and, directly, that every surface a line
+of sight crosses while facing the camera is kept).
 """
 
 from __future__ import annotations
+
+import time
 
 import numpy as np
 
 from cellsight.errors import CellsightError
 from cellsight.model.cell import Cell, Snapshot
-from cellsight.occlusion._cull_kernel import cull_polygons, project_points, transform_vertices
+from cellsight.occlusion._cull_kernel import (
+    cull_camera,
+    gather_polygons,
+    label_answers,
+    place_polygons,
+    project_points,
+    transform_vertices,
+)
 from cellsight.occlusion.bsp import BSPTree
 from cellsight.occlusion.soup import PolygonSoup
 from cellsight.visibility import STATUS_INSIDE, CameraVisibility, Views
@@ -38,13 +55,16 @@ CULL_MARGIN_PX = 2.0  # safety margin of the image-box overlap test, pixels
 NEAR_SAMPLES = 8  # points on the ring around a feature for the near-occluder test
 NEAR_DEPTH = 0.01  # m: a silhouette counts when at least this much nearer than the feature
 CONTAIN_MARGIN = 1e-3  # m: growth of a solid's box in the camera-inside test (any >= 0 is exact)
+CLUSTER_SIZE = 16  # polygons: most per cluster (a box culled as a whole before its polygons)
 
 
 class VisibilityPredictor:
     """Predicts, for a cell snapshot, which workpiece features each camera sees.
 
     Offline (constructor): flat arrays of every surface in its object's frame, static surfaces
-    in the base frame. Per frame (:meth:`predict`): transform, cull, build, visit. ``cameras``
+    in the base frame, clusters of nearby surfaces with their boxes. Per frame (:meth:`predict`):
+    cull (moving only the surfaces looked at, into a buffer reused from frame to frame: do not
+    share one predictor between threads), build, visit (:meth:`stage_times` times each). ``cameras``
     restricts the prediction to some cameras (a non-empty list of indices into
     ``cell.cameras``; None: all).
     ``surface_tolerance`` (m): a feature within this distance of a surface's plane is not hidden
@@ -98,6 +118,15 @@ class VisibilityPredictor:
         self._feature_owner = np.repeat(self.part_objects, [len(f) for f in self.part_features])
         self.part_polys = np.isin(self.poly_owner, self.part_objects)
         self.labels = [o.label for o in cell.objects]
+        (self._cluster_polys, self._cluster_start, self._cluster_box, self._object_clusters,
+         self._object_box) = polygon_clusters(self.local_vertices, self.offsets,
+                                              self.object_polys, CLUSTER_SIZE)
+        cluster_object = np.repeat(np.arange(len(cell.objects)), np.diff(self._object_clusters))
+        self._static_ready = kinds[cluster_object] == "static"
+        self._part_clusters = np.isin(cluster_object, self.part_objects)
+        self._vertices = self._static_vertices.copy()  # per-frame buffer, moving rows on demand
+        self._ring_offsets: dict[str, np.ndarray] = {}  # camera name -> (K, 3) ring directions
+        self._part_bits = np.where(self.part_polys, 255, 0).astype(np.uint8)  # kept for all
 
     def world_vertices(self, snapshot: Snapshot) -> np.ndarray:
         """Every surface vertex in the base frame for this snapshot, (V, 3)."""
@@ -113,30 +142,57 @@ class VisibilityPredictor:
     def predict_snapshot(self, snapshot: Snapshot) -> Views:
         """Workpiece name -> one :class:`CameraVisibility` per camera (``cell.cameras`` order,
         or the predictor's ``cameras``)."""
-        cell = self.cell
-        vertices = self.world_vertices(snapshot)
-        features = [
+        points, views, vertices, keep = self._cull(snapshot)
+        tree, polys = self._build(vertices, keep)
+        return self._answer(tree, polys, points, views, keep)
+
+    def stage_times(self, snapshot: Snapshot) -> dict[str, float]:
+        """One prediction, timed by stage (s): ``cull`` (features, moving and culling the
+        surfaces), ``build`` (the tree), ``visit`` (visits and labels), ``total``; ``kept``:
+        the surfaces in the tree (a count)."""
+        t0 = time.perf_counter()
+        points, views, vertices, keep = self._cull(snapshot)
+        t1 = time.perf_counter()
+        tree, polys = self._build(vertices, keep)
+        t2 = time.perf_counter()
+        self._answer(tree, polys, points, views, keep)
+        t3 = time.perf_counter()
+        return {"cull": t1 - t0, "build": t2 - t1, "visit": t3 - t2, "total": t3 - t0,
+                "kept": int(len(polys))}
+
+    def _cull(self, snapshot: Snapshot):
+        """The features (N, 3) (base frame, m), per camera their pixels (N, 2) and status (N,),
+        the vertex buffer (base frame, m; the rows of the kept polygons filled) and ``keep``
+        (P,) uint8: bit ``camera_bit(c)`` set for the polygons that may hide a feature from the
+        predictor's camera c (0: culled for every camera)."""
+        points = np.concatenate([
             local @ snapshot.poses[k][:3, :3].T + snapshot.poses[k][:3, 3]
             for k, local in zip(self.part_objects, self.part_features, strict=True)
-        ]
-        points = np.concatenate(features)
+        ])
         n = len(points)
         views = []
-        keep = self.part_polys.copy()
-        for cam in self.cameras:
+        keep, vertices, ready, poses = self._frame_start(snapshot)
+        for c, cam in enumerate(self.cameras):
             px, status, box = np.empty((n, 2)), np.empty(n, dtype=np.int8), np.empty(5)
             seen = project_points(points, cam.T_cam_base, cam.K, cam.dist5,
                                   cam.width, cam.height, px, status, box)
             views.append((px, status))
             if self.cull and seen:
                 margin = (CULL_MARGIN_PX + self.near_px) / cam.focal_px
-                cull_polygons(vertices, self.offsets, self.object_polys, self.object_closed,
-                              cam.T_cam_base, box, margin, CONTAIN_MARGIN, keep)
-        if not self.cull:
-            keep[:] = True
-        tree, polys = self._build(vertices, keep)
-        result = {part.name: [] for part in cell.workpieces}
-        for cam, (px, status) in zip(self.cameras, views, strict=True):
+                cull_camera(self.local_vertices, self.offsets, poses, self.object_closed,
+                            self._object_box, self._object_clusters, self._cluster_box,
+                            self._cluster_polys, self._cluster_start, cam.T_cam_base, points,
+                            status, margin, CONTAIN_MARGIN, vertices, ready, keep,
+                            camera_bit(c))
+        return points, views, vertices, keep
+
+    def _answer(self, tree: BSPTree, polys: np.ndarray, points: np.ndarray, views,
+                keep: np.ndarray) -> Views:
+        """The visits of ``tree`` (of the polygons ``polys``) from every camera, as labels; each
+        camera's visit skips the polygons culled for it (``keep``, see :meth:`_cull`)."""
+        n = len(points)
+        result = {part.name: [] for part in self.cell.workpieces}
+        for c, (cam, (px, status)) in enumerate(zip(self.cameras, views, strict=True)):
             visible = np.zeros(n, dtype=bool)
             near = np.zeros(n, dtype=bool)
             occluder = np.full(n, -1, dtype=np.int32)
@@ -144,22 +200,34 @@ class VisibilityPredictor:
             if query.size:
                 ring = self._ring(cam, points[query])
                 vis, occ = tree.visibility(np.concatenate([points[query], ring.reshape(-1, 3)]),
-                                           cam.center, self.surface_tolerance)
-                owner = np.where(vis, -1, self.poly_owner[polys[np.maximum(occ, 0)]])
-                m = len(query)
-                visible[query] = vis[:m]
-                occluder[query] = owner[:m]
-                ring_owner = owner[m:].reshape(ring.shape[:2])
-                by_other = (ring_owner >= 0) & (ring_owner != self._feature_owner[query, None])
-                near[query] = vis[:m] & by_other.any(axis=1)
+                                           cam.center, self.surface_tolerance,
+                                           (keep[polys] & camera_bit(c)) != 0)
+                label_answers(vis, occ, polys, self.poly_owner, query, self._feature_owner,
+                              ring.shape[1], visible, occluder, near)
             start = 0
-            for k, f in zip(self.part_objects, features, strict=True):
+            for k, f in zip(self.part_objects, self.part_features, strict=True):
                 sl = slice(start, start + len(f))
                 start += len(f)
-                result[cell.objects[k].name].append(CameraVisibility(
+                result[self.cell.objects[k].name].append(CameraVisibility(
                     cam.name, visible[sl], px[sl], occluder[sl], status[sl], self.labels, k,
                     near[sl]))
         return result
+
+    def _frame_start(self, snapshot: Snapshot):
+        """The frame's ``keep`` bits (all set for the workpiece polygons, or for every polygon
+        without culling; see :meth:`_cull`), vertex
+        buffer (base frame, m; the workpieces' rows placed, every row without culling), cluster
+        ``ready`` flags and contiguous poses."""
+        poses = np.ascontiguousarray(snapshot.poses, dtype=np.float64)
+        if not self.cull:
+            return (np.full(len(self.poly_owner), 255, dtype=np.uint8),
+                    self.world_vertices(snapshot), None, poses)
+        vertices, ready = self._vertices, self._static_ready | self._part_clusters
+        for k in self.part_objects:
+            place_polygons(self.local_vertices, self.offsets,
+                           np.arange(self.object_polys[k], self.object_polys[k + 1]), poses[k],
+                           vertices)
+        return self._part_bits.copy(), vertices, ready, poses
 
     def _ring(self, cam, points: np.ndarray) -> np.ndarray:
         """Per point (N, 3): ``NEAR_SAMPLES`` points (N, K, 3) around it, ``near_px`` pixels
@@ -170,8 +238,11 @@ class VisibilityPredictor:
             return np.zeros((len(points), 0, 3))
         R = cam.T_base_cam[:3, :3]
         depth = (points - cam.center) @ R[:, 2]
-        angles = np.linspace(0.0, 2 * np.pi, NEAR_SAMPLES, endpoint=False)
-        offsets = np.cos(angles)[:, None] * R[:, 0] + np.sin(angles)[:, None] * R[:, 1]
+        offsets = self._ring_offsets.get(cam.name)
+        if offsets is None:  # unit directions in the image plane, once per camera
+            angles = np.linspace(0.0, 2 * np.pi, NEAR_SAMPLES, endpoint=False)
+            offsets = np.cos(angles)[:, None] * R[:, 0] + np.sin(angles)[:, None] * R[:, 1]
+            self._ring_offsets[cam.name] = offsets
         ring = points[:, None, :] + (self.near_px * depth / cam.focal_px)[:, None, None] * offsets
         towards = cam.center - ring
         towards /= np.linalg.norm(towards, axis=2, keepdims=True)
@@ -179,11 +250,57 @@ class VisibilityPredictor:
 
     def _build(self, vertices: np.ndarray, keep: np.ndarray) -> tuple[BSPTree, np.ndarray]:
         """BSP tree of the kept polygons, and their indices in this predictor's list."""
-        polys = np.flatnonzero(keep)
-        offsets = np.zeros(len(polys) + 1, dtype=np.int64)
-        np.cumsum(self.poly_sizes[polys], out=offsets[1:])
-        soup = PolygonSoup.from_arrays(vertices[keep[self.vertex_poly]], offsets)
+        polys = np.flatnonzero(keep != 0)
+        soup = PolygonSoup.from_arrays(*gather_polygons(vertices, self.offsets, polys))
         return BSPTree.build(soup), polys
+
+
+def camera_bit(c: int) -> int:
+    """The bit of the predictor's camera ``c`` in the per-polygon ``keep`` bits (cameras past
+    the 8th share the last one: a union of exact culls is exact)."""
+    return 1 << min(c, 7)
+
+
+def polygon_clusters(local: np.ndarray, offsets: np.ndarray, object_polys: np.ndarray,
+                     size: int) -> tuple[np.ndarray, ...]:
+    """Groups of at most ``size`` nearby polygons per object, for culling by boxes.
+
+    ``local`` (V, 3): vertices in their object's frame (m); polygon p is
+    ``local[offsets[p]:offsets[p + 1]]``; object k owns polygons
+    ``object_polys[k]:object_polys[k + 1]``. Each object's polygons are split at the median
+    of their centroids along the longest axis until a group has at most ``size``. Returns
+    ``cluster_polys`` (P,) (polygon indices, grouped), ``cluster_start`` (C+1,),
+    ``cluster_box`` (C, 6) (object-frame min xyz, max xyz of the group's vertices, m),
+    ``object_clusters`` (K+1,) (object k owns clusters ``object_clusters[k]:[k+1]``) and
+    ``object_box`` (K, 6).
+    """
+    starts = offsets[:-1]
+    sizes = np.diff(offsets)
+    centroid = np.add.reduceat(local, starts, axis=0) / sizes[:, None]
+    lo = np.minimum.reduceat(local, starts, axis=0)
+    hi = np.maximum.reduceat(local, starts, axis=0)
+    groups, object_clusters = [], [0]
+    for k in range(len(object_polys) - 1):
+        todo = [np.arange(object_polys[k], object_polys[k + 1])]
+        while todo:
+            polys = todo.pop()
+            if len(polys) <= size:
+                groups.append(polys)
+                continue
+            c = centroid[polys]
+            axis = int(np.argmax(c.max(axis=0) - c.min(axis=0)))
+            order = polys[np.argsort(c[:, axis], kind="stable")]
+            todo += [order[len(order) // 2:], order[:len(order) // 2]]
+        object_clusters.append(len(groups))
+    cluster_polys = np.concatenate(groups).astype(np.int64)
+    cluster_start = np.zeros(len(groups) + 1, dtype=np.int64)
+    np.cumsum([len(g) for g in groups], out=cluster_start[1:])
+    cluster_box = np.array([np.concatenate([lo[g].min(axis=0), hi[g].max(axis=0)])
+                            for g in groups])
+    bounds = np.array([[*lo[a:b].min(axis=0), *hi[a:b].max(axis=0)] if b > a else [0.0] * 6
+                       for a, b in zip(object_polys[:-1], object_polys[1:], strict=True)])
+    return (cluster_polys, cluster_start, cluster_box,
+            np.asarray(object_clusters, dtype=np.int64), bounds)
 
 
 def _non_negative(name: str, value, unit: str) -> float:
