@@ -31,6 +31,8 @@ import numpy as np
 
 from cellsight.errors import GeometryError
 from cellsight.occlusion._build_kernel import build_tree
+from cellsight.occlusion._cull_kernel import gather_polygons
+from cellsight.occlusion._segment_kernel import cull_segments, segment_visible
 from cellsight.occlusion._visit_kernel import BAD_VIEWPOINT, NO_BAD_INPUT, visit_tree
 from cellsight.occlusion.soup import PolygonSoup
 
@@ -144,9 +146,82 @@ class BSPTree:
         return visible, occluder
 
 
+#: The direct (point, polygon) test is used when points * kept polygons is at most this many
+#: pairs (rough estimate, not tuned: a pair test costs a few ns, a BSP build
+#: ~5 us per polygon plus the visit), else the BSP tree of the kept polygons.
+DIRECT_PAIRS = 1 << 22
+#: ... and the number of points at most this many (the visit's cost grows slower in points).
+DIRECT_POINTS = 512
+
+
 def visible_mask(
-    polygons: Sequence[np.ndarray], points: np.ndarray, viewpoint: np.ndarray
+    polygons: Sequence[np.ndarray], points: np.ndarray, viewpoint: np.ndarray,
+    _method: str = "auto",
 ) -> np.ndarray:
-    """Visible flags (N,) of ``points`` seen from ``viewpoint`` among ``polygons`` (validated)."""
-    tree = BSPTree.build(PolygonSoup.from_polygons(polygons))
-    return tree.visibility(points, viewpoint)[0]
+    """Visible flags (N,) of ``points`` (N, 3) seen from ``viewpoint`` (3,) among ``polygons``.
+
+    Same answers as ``BSPTree.build(PolygonSoup.from_polygons(polygons)).visibility(points,
+    viewpoint)[0]`` (module doc for the semantics and the per-polygon thickness ``eps``), and
+    the same :class:`GeometryError` for bad input: every polygon is validated. Then the
+    polygons that cannot cross any viewpoint->point segment are culled exactly
+    (:func:`._segment_kernel.cull_segments`), and the kept ones answered by a direct
+    compiled test of every (point, polygon) pair when that is cheap (at most
+    ``DIRECT_POINTS`` points and ``DIRECT_PAIRS`` pairs), else by a BSP tree of the kept
+    polygons. ``_method`` (testing and benchmarks only): ``"auto"``, ``"direct"``,
+    ``"bsp"`` (cull then tree) or ``"full"`` (the tree of everything, no cull).
+    """
+    soup = _checked_soup(polygons)
+    if _method == "full":
+        return BSPTree.build(soup).visibility(points, viewpoint)[0]
+    points, viewpoint = _checked_query(points, viewpoint)
+    kept = cull_segments(soup.planes, soup.eps, soup.boxes, soup.spheres, points, viewpoint)
+    n_pairs = points.shape[0] * kept.shape[0]
+    direct = points.shape[0] <= DIRECT_POINTS and n_pairs <= DIRECT_PAIRS
+    if _method == "direct" or (_method == "auto" and direct):
+        return segment_visible(soup.vertices, soup.offsets, soup.planes, soup.eps, soup.boxes,
+                               kept, 0.0, points, viewpoint)
+    if kept.shape[0] == 0:
+        return np.ones(points.shape[0], dtype=np.bool_)
+    sub = PolygonSoup.from_arrays(*gather_polygons(soup.vertices, soup.offsets, kept))
+    return BSPTree.build(sub).visibility(points, viewpoint)[0]
+
+
+def _checked_soup(polygons: Sequence[np.ndarray]) -> PolygonSoup:
+    """``PolygonSoup.from_polygons(polygons)`` (validated), with a fast path for a list of
+    (k >= 3, 3) real arrays: one concatenation instead of a conversion per polygon. Any
+    failure falls back to ``from_polygons``, which raises the usual :class:`GeometryError`."""
+    try:
+        vertices = np.concatenate(polygons)  # all (k_i, 3) when the result is (V, 3)
+        counts = np.fromiter(map(len, polygons), dtype=np.int64, count=len(polygons))
+        if vertices.ndim != 2 or vertices.shape[1] != 3 or vertices.dtype.kind not in "fiu":
+            raise ValueError
+        if counts.min() < 3:
+            raise ValueError
+        offsets = np.zeros(counts.size + 1, dtype=np.int64)
+        np.cumsum(counts, out=offsets[1:])
+        soup = PolygonSoup.from_arrays(vertices, offsets)
+        soup._validate()
+    except (AttributeError, TypeError, ValueError, GeometryError):
+        return PolygonSoup.from_polygons(polygons)
+    return soup
+
+
+def _checked_query(points: np.ndarray, viewpoint: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``points`` (N, 3) and ``viewpoint`` (3,) as float64, with the same
+    :class:`GeometryError` as :meth:`BSPTree.visibility` for a bad shape or a non-finite
+    coordinate."""
+    points = np.ascontiguousarray(points, dtype=np.float64)
+    viewpoint = np.ascontiguousarray(viewpoint, dtype=np.float64)
+    if points.ndim != 2 or points.shape[1] != 3 or viewpoint.shape != (3,):
+        raise GeometryError(
+            f"expected points (N, 3) and a viewpoint (3,), got shapes {points.shape} and "
+            f"{viewpoint.shape}"
+        )
+    if not np.isfinite(viewpoint).all():
+        raise GeometryError(f"viewpoint has a non-finite coordinate: {viewpoint.tolist()}")
+    bad = np.flatnonzero(~np.isfinite(points).all(axis=1))
+    if bad.size:
+        raise GeometryError(
+            f"point {bad[0]} has a non-finite coordinate: {points[bad[0]].tolist()}"
+        )
+    return points, viewpoint

@@ -1,0 +1,118 @@
+"""``visible_mask`` (cull, then direct pair test or BSP) against the BSP of everything and
+Open3D's ``RaycastingScene`` rebuilt per call, on the same segments.
+
+Scenes: 40 random boxes (240 quads, :func:`bench_bsp_scaling.box_scene`) with 32 points, and
+the two UR5 collision meshes of ``ur-cell`` at HOME (every object's faces triangulated, about
+10,900 triangles) with 16 random points in the robots' box seen from camera 0. Times are warm
+medians in milliseconds per call (input: the list of (k, 3) polygons). Open3D tests occlusion
+of the rays viewpoint->point up to ``1 - 1e-4`` of their length (its peer tolerance).
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from cellsight.occlusion import visible_mask
+
+PEER_TOLERANCE = 1e-4
+
+
+def box_scene_polygons() -> tuple[list[np.ndarray], np.ndarray, np.ndarray]:
+    """40 random boxes as quads, 32 points, a viewpoint."""
+    from bench_bsp_scaling import box_scene
+
+    vertices, offsets, points, viewpoint = box_scene(240)
+    polygons = [vertices[offsets[i]:offsets[i + 1]] for i in range(len(offsets) - 1)]
+    return polygons, points[:32], viewpoint
+
+
+def ur_scene_polygons() -> tuple[list[np.ndarray], np.ndarray, np.ndarray]:
+    """The ur-cell's triangles at HOME, 16 random points in the robots' box, camera 0."""
+    import cellsight
+    from cellsight.occlusion.predictor import VisibilityPredictor
+
+    cell = cellsight.load_cell("ur-cell")
+    predictor = VisibilityPredictor(cell)
+    vertices = predictor.world_vertices(cell.snapshot())
+    triangles = np.concatenate([
+        predictor.offsets[k] + cell.objects[obj].solid.face_triangles(face)
+        for k, (obj, face) in enumerate(predictor.poly_source)
+    ])
+    polygons = [vertices[t] for t in triangles]
+    robots = [k for k, o in enumerate(cell.objects) if o.name.startswith("UR5")]
+    used = np.concatenate([np.arange(predictor.offsets[k], predictor.offsets[k + 1])
+                           for k, (obj, _) in enumerate(predictor.poly_source) if obj in robots])
+    lo, hi = vertices[used].min(axis=0), vertices[used].max(axis=0)
+    points = np.random.default_rng(3).uniform(lo, hi, (16, 3))
+    return polygons, points, np.asarray(cell.cameras[0].center, dtype=np.float64)
+
+
+def fan_triangles(polygons) -> tuple[np.ndarray, np.ndarray]:
+    """Flat float32 vertices and fan triangles (T, 3) uint32 of the polygons (prepared once,
+    outside Open3D's timing, as a caller holding a triangle mesh would)."""
+    counts = np.fromiter(map(len, polygons), dtype=np.int64, count=len(polygons))
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    tris = [np.stack([np.full(c - 2, s), s + np.arange(1, c - 1), s + np.arange(2, c)], 1)
+            for s, c in zip(starts, counts, strict=True)]
+    return np.concatenate(polygons).astype(np.float32), np.concatenate(tris).astype(np.uint32)
+
+
+def open3d_mask(mesh, points, viewpoint) -> np.ndarray:
+    """Open3D: scene rebuilt from the triangles ``mesh``, then one occlusion test."""
+    import open3d as o3d
+
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(o3d.core.Tensor(mesh[0]), o3d.core.Tensor(mesh[1]))
+    rays = np.hstack([np.broadcast_to(viewpoint, points.shape), points - viewpoint])
+    hit = scene.test_occlusions(o3d.core.Tensor(rays.astype(np.float32)), tnear=0.0,
+                                tfar=1.0 - PEER_TOLERANCE)
+    return ~hit.numpy().astype(bool)
+
+
+def _median_ms(call, repeats: int = 30) -> float:
+    """Warm median wall time of ``call`` in ms."""
+    call()
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        call()
+        times.append(time.perf_counter() - start)
+    return 1e3 * float(np.median(times))
+
+
+def run() -> list[dict]:
+    """One row per scene: polygons, points, before/after/bsp-after-cull/Open3D ms, agreement."""
+    rows = []
+    for name, scene in (("40 boxes", box_scene_polygons), ("two UR5", ur_scene_polygons)):
+        polygons, points, viewpoint = scene()
+        answer = visible_mask(polygons, points, viewpoint, _method="full")
+        row = {"scene": name, "polygons": len(polygons), "points": len(points)}
+        for key, method in (("before", "full"), ("after", "auto"), ("direct", "direct"),
+                            ("culled_bsp", "bsp")):
+            def call(m=method, polys=polygons, pts=points, view=viewpoint):
+                return visible_mask(polys, pts, view, _method=m)
+
+            row[key] = _median_ms(call)
+            row[key + "_same"] = bool((visible_mask(polygons, points, viewpoint, _method=method)
+                                       == answer).all())
+        mesh = fan_triangles(polygons)
+        row["open3d"] = _median_ms(lambda: open3d_mask(mesh, points, viewpoint))  # noqa: B023
+        row["open3d_same"] = int((open3d_mask(mesh, points, viewpoint) == answer).sum())
+        rows.append(row)
+    return rows
+
+
+def main() -> None:
+    """Print one line per scene."""
+    for r in run():
+        print(f"{r['scene']}: {r['polygons']} polygons, {r['points']} points | before (BSP of "
+              f"all) {r['before']:.3f} ms | after {r['after']:.3f} ms (direct {r['direct']:.3f},"
+              f" culled BSP {r['culled_bsp']:.3f}) | Open3D {r['open3d']:.3f} ms | after/Open3D "
+              f"{r['after'] / r['open3d']:.2f} | same as before: {r['after_same']}, Open3D "
+              f"agrees on {r['open3d_same']}/{r['points']}")
+
+
+if __name__ == "__main__":
+    main()
