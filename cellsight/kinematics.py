@@ -89,6 +89,22 @@ def check_joint_vector(name: str, qlim: np.ndarray, q, check_limits: bool = Fals
     return q
 
 
+def geometric_jacobian(axes: np.ndarray, origins: np.ndarray, p_end: np.ndarray,
+                       prismatic: np.ndarray) -> np.ndarray:
+    """Geometric Jacobian (6, n) of the point ``p_end`` (m) from each joint's unit axis and a
+    point on it, ``axes`` and ``origins`` (3, n), all in one frame: rows 0-2 linear velocity,
+    3-5 angular; a prismatic joint moves along its axis."""
+    z, r = axes, p_end[:, None] - origins  # joint origin -> point, (3, n)
+    J = np.empty((6, z.shape[1]))
+    J[0] = z[1] * r[2] - z[2] * r[1]  # z x r, written out: np.cross costs ten times more
+    J[1] = z[2] * r[0] - z[0] * r[2]
+    J[2] = z[0] * r[1] - z[1] * r[0]
+    J[3:] = z
+    J[:3, prismatic] = z[:, prismatic]
+    J[3:, prismatic] = 0.0
+    return J
+
+
 @dataclass(frozen=True)
 class DHLink:
     """One DH link: constant parameters (m, rad), joint kind and joint limits ``qlim`` (lo, hi)."""
@@ -188,16 +204,9 @@ class DHChain:
         """Geometric Jacobian (6, n) of the point ``p_end`` (chain base frame, m) moving with
         the last frame, from the frames (n+1, 4, 4) of :meth:`fkine` (so that a caller that
         needs both pays for one forward kinematics)."""
-        z = frames[:-1, :3, 2].T  # joint axes, (3, n)
-        r = p_end[:, None] - frames[:-1, :3, 3].T  # joint origin -> point, (3, n)
-        J = np.empty((6, self.n))
-        J[0] = z[1] * r[2] - z[2] * r[1]  # z x r, written out: np.cross costs ten times more
-        J[1] = z[2] * r[0] - z[0] * r[2]
-        J[2] = z[0] * r[1] - z[1] * r[0]
-        J[3:] = z
-        J[:3, self._prismatic] = z[:, self._prismatic]
-        J[3:, self._prismatic] = 0.0
-        return J
+        # joint i turns about z of frame i-1, through its origin
+        return geometric_jacobian(frames[:-1, :3, 2].T, frames[:-1, :3, 3].T, p_end,
+                                  self._prismatic)
 
     def random_q(self, rng: np.random.Generator) -> np.ndarray:
         """A uniformly random joint vector inside the limits."""
@@ -324,16 +333,9 @@ class SerialChain:
     def jacobian_at(self, frames: np.ndarray, p_end: np.ndarray) -> np.ndarray:
         """Geometric Jacobian (6, n) of the point ``p_end`` (chain base frame, m) moving with
         frame n, from the frames (n+1, 4, 4) of :meth:`fkine`."""
-        z = (frames[1:, :3, :3] @ self._axes[:, :, None])[:, :, 0].T  # joint axes, (3, n)
-        r = p_end[:, None] - frames[1:, :3, 3].T  # joint origin -> point, (3, n)
-        J = np.empty((6, self.n))
-        J[0] = z[1] * r[2] - z[2] * r[1]
-        J[1] = z[2] * r[0] - z[0] * r[2]
-        J[2] = z[0] * r[1] - z[1] * r[0]
-        J[3:] = z
-        J[:3, self._prismatic] = z[:, self._prismatic]
-        J[3:, self._prismatic] = 0.0
-        return J
+        # joint i moves along / about its axis in frame i, through frame i's origin
+        axes = (frames[1:, :3, :3] @ self._axes[:, :, None])[:, :, 0].T
+        return geometric_jacobian(axes, frames[1:, :3, 3].T, p_end, self._prismatic)
 
     def random_q(self, rng: np.random.Generator) -> np.ndarray:
         """A uniformly random joint vector inside the limits."""

@@ -119,13 +119,7 @@ class BSPTree:
         polygons that may hide one of these points (an exact cull's answer; None: all), the
         others are skipped. Non-finite input raises :class:`GeometryError`.
         """
-        points = np.ascontiguousarray(points, dtype=np.float64)
-        viewpoint = np.ascontiguousarray(viewpoint, dtype=np.float64)
-        if points.ndim != 2 or points.shape[1] != 3 or viewpoint.shape != (3,):
-            raise GeometryError(
-                f"expected points (N, 3) and a viewpoint (3,), got shapes {points.shape} and "
-                f"{viewpoint.shape}"
-            )
+        points, viewpoint = _query_arrays(points, viewpoint)  # non-finite: found by the visit
         soup = self.soup
         if relevant is None:
             relevant = np.ones(len(soup), dtype=np.bool_)
@@ -206,10 +200,9 @@ def _checked_soup(polygons: Sequence[np.ndarray]) -> PolygonSoup:
     return soup
 
 
-def _checked_query(points: np.ndarray, viewpoint: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``points`` (N, 3) and ``viewpoint`` (3,) as float64, with the same
-    :class:`GeometryError` as :meth:`BSPTree.visibility` for a bad shape or a non-finite
-    coordinate."""
+def _query_arrays(points, viewpoint) -> tuple[np.ndarray, np.ndarray]:
+    """``points`` (N, 3) and ``viewpoint`` (3,) as contiguous float64, or a
+    :class:`GeometryError` naming the shapes."""
     points = np.ascontiguousarray(points, dtype=np.float64)
     viewpoint = np.ascontiguousarray(viewpoint, dtype=np.float64)
     if points.ndim != 2 or points.shape[1] != 3 or viewpoint.shape != (3,):
@@ -217,6 +210,14 @@ def _checked_query(points: np.ndarray, viewpoint: np.ndarray) -> tuple[np.ndarra
             f"expected points (N, 3) and a viewpoint (3,), got shapes {points.shape} and "
             f"{viewpoint.shape}"
         )
+    return points, viewpoint
+
+
+def _checked_query(points: np.ndarray, viewpoint: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``points`` (N, 3) and ``viewpoint`` (3,) as float64, with the same
+    :class:`GeometryError` as :meth:`BSPTree.visibility` for a bad shape or a non-finite
+    coordinate."""
+    points, viewpoint = _query_arrays(points, viewpoint)
     if not np.isfinite(viewpoint).all():
         raise GeometryError(f"viewpoint has a non-finite coordinate: {viewpoint.tolist()}")
     bad = np.flatnonzero(~np.isfinite(points).all(axis=1))
