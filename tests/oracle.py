@@ -259,3 +259,29 @@ def random_prism(rng: np.random.Generator, centre, size: float):
     shift = np.asarray(centre) - np.array([0, 0, height / 2]) @ rot.T * size
     faces = [f * size @ rot.T + shift for f in faces]
     return faces, np.concatenate([bottom, top]) * size @ rot.T + shift
+
+
+def cell_scene(cell, snapshot) -> tuple[list[np.ndarray], list[str], np.ndarray]:
+    """Every surface of a cell snapshot in the base frame with its object's label ('self' for
+    a workpiece), and the first workpiece's features (F, 3)."""
+    from cellsight.geometry.transforms import transform_points
+
+    polygons, labels = [], []
+    for obj, T in zip(cell.objects, snapshot.poses, strict=True):
+        for k in range(len(obj.solid.faces)):
+            polygons.append(transform_points(T, obj.solid.face_points(k)))
+            labels.append("self" if obj.kind == "workpiece" else obj.label)
+    part = cell.workpieces[0]
+    return polygons, labels, transform_points(snapshot.pose(part.name), part.feature_points)
+
+
+def soup_and_solids(rng: np.random.Generator) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """A random soup of 3-24 polygons plus a convex solid and a non-convex prism: the
+    polygons, and the two solids' vertex arrays."""
+    polygons = random_soup(rng, int(rng.integers(3, 25)))
+    vertices = []
+    for make in (random_convex_solid, random_prism):
+        faces, corners = make(rng, rng.uniform(-1, 1, 3), rng.uniform(0.3, 0.8))
+        polygons += faces
+        vertices.append(corners)
+    return polygons, vertices

@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from oracle import random_convex_solid, random_prism, random_rotation, random_soup, segment_oracle
+from oracle import random_rotation, random_soup, segment_oracle, soup_and_solids
 
 from cellsight.occlusion import BSPTree, PolygonSoup
 
@@ -18,12 +18,7 @@ seeds = st.integers(min_value=0, max_value=2**32 - 1)
 def scene(seed: int) -> tuple[list[np.ndarray], np.ndarray, np.ndarray]:
     """Polygons (a soup plus two solids), query points (free and on vertices), a viewpoint."""
     rng = np.random.default_rng(seed)
-    polygons = random_soup(rng, int(rng.integers(3, 25)))
-    vertices = []
-    for make in (random_convex_solid, random_prism):
-        faces, corners = make(rng, rng.uniform(-1, 1, 3), rng.uniform(0.3, 0.8))
-        polygons += faces
-        vertices.append(corners)
+    polygons, vertices = soup_and_solids(rng)
     points = np.concatenate([rng.uniform(-1.5, 1.5, (30, 3))] + vertices)
     return polygons, points, rng.uniform(-3, 3, 3)
 

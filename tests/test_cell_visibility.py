@@ -4,11 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from oracle import segment_oracle
+from oracle import cell_scene, segment_oracle
 
 from cellsight import load_cell
 from cellsight.errors import CellsightError
-from cellsight.geometry.transforms import pose_from_xyz_rpy, transform_points
+from cellsight.geometry.transforms import pose_from_xyz_rpy
 from cellsight.occlusion.predictor import VisibilityPredictor
 from cellsight.occlusion.scenarios import random_snapshots
 
@@ -20,18 +20,6 @@ def cell():
     return load_cell()
 
 
-def _scene(cell, snapshot):
-    """Every surface in the base frame with its object's label, and the features."""
-    polygons, labels = [], []
-    for obj, T in zip(cell.objects, snapshot.poses, strict=True):
-        for k in range(len(obj.solid.faces)):
-            polygons.append(transform_points(T, obj.solid.face_points(k)))
-            labels.append("self" if obj.kind == "workpiece" else obj.label)
-    part = cell.workpieces[0]
-    features = transform_points(snapshot.pose(part.name), part.feature_points)
-    return polygons, labels, features
-
-
 @pytest.mark.parametrize("cull", [True, False])
 def test_builtin_cell_matches_oracle_at_random_configurations(cell, cull) -> None:
     predictor = VisibilityPredictor(cell, cull=cull)
@@ -39,7 +27,7 @@ def test_builtin_cell_matches_oracle_at_random_configurations(cell, cull) -> Non
     checked = left_out = hidden_by_others = 0
     mismatches = []
     for s, snapshot in enumerate(snapshots):
-        polygons, labels, features = _scene(cell, snapshot)
+        polygons, labels, features = cell_scene(cell, snapshot)
         result = predictor.predict_snapshot(snapshot)["part"]
         for c, cam in enumerate(cell.cameras):
             pred = result[c]
@@ -116,7 +104,7 @@ def test_near_occluder_flags_match_the_oracle_on_the_ring(cell) -> None:
     checked = flagged = culled_misses = 0
     mismatches = []
     for s, snapshot in enumerate(random_snapshots(cell, 50, seed=5)):
-        polygons, labels, features = _scene(cell, snapshot)
+        polygons, labels, features = cell_scene(cell, snapshot)
         result = predictor.predict_snapshot(snapshot)["part"]
         fast = culled.predict_snapshot(snapshot)["part"]
         for c, cam in enumerate(cell.cameras):

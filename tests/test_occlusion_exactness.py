@@ -13,12 +13,11 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from oracle import random_convex_solid, random_prism, random_soup, segment_oracle
+from oracle import cell_scene, random_soup, segment_oracle, soup_and_solids
 
 from cellsight import load_cell
 from cellsight.errors import CellsightError
 from cellsight.geometry.polyhedron import box, prism
-from cellsight.geometry.transforms import transform_points
 from cellsight.model.cell import Cell, StaticObject
 from cellsight.occlusion import BSPTree, PolygonSoup
 from cellsight.occlusion.predictor import VisibilityPredictor
@@ -48,17 +47,6 @@ def _with_housing(cell: Cell, solid) -> Cell:
                 cell.source, cell.experiments)
 
 
-def _scene(cell, snapshot):
-    """Every surface in the base frame with its object's label, and the part's features."""
-    polygons, labels = [], []
-    for obj, T in zip(cell.objects, snapshot.poses, strict=True):
-        for k in range(len(obj.solid.faces)):
-            polygons.append(transform_points(T, obj.solid.face_points(k)))
-            labels.append("self" if obj.kind == "workpiece" else obj.label)
-    part = cell.workpieces[0]
-    return polygons, labels, transform_points(snapshot.pose(part.name), part.feature_points)
-
-
 @pytest.mark.parametrize("case", list(HOUSINGS))
 def test_camera_in_or_on_a_closed_solid(cell, case) -> None:
     """Culled == unculled == oracle for cam1 inside / on a housing, at HOME and at random
@@ -73,7 +61,7 @@ def test_camera_in_or_on_a_closed_solid(cell, case) -> None:
         slow = full.predict_snapshot(snapshot)["part"][0]
         np.testing.assert_array_equal(fast.visible, slow.visible)
         assert fast.reason == slow.reason
-        polygons, labels, features = _scene(housed, snapshot)
+        polygons, labels, features = cell_scene(housed, snapshot)
         seen = np.flatnonzero(fast.status == 0)
         if not seen.size:
             continue
@@ -133,12 +121,7 @@ def _scene_and_far(seed: int, n_far: int):
     ``n_far`` polygons far behind the viewpoint or beyond the farthest point (1 km to 1000 km
     away, 1 cm to 1/1000 of their distance wide): no segment can reach them."""
     rng = np.random.default_rng(seed)
-    polygons = random_soup(rng, int(rng.integers(3, 25)))
-    vertices = []
-    for make in (random_convex_solid, random_prism):
-        faces, corners = make(rng, rng.uniform(-1, 1, 3), rng.uniform(0.3, 0.8))
-        polygons += faces
-        vertices.append(corners)
+    polygons, vertices = soup_and_solids(rng)
     # points just behind / in front of the soup polygons' centres: a plane tolerance grown by
     # a far polygon would take them for points on the polygon
     near = [p.mean(0) + sign * gap * np.cross(p[1] - p[0], p[2] - p[0])
