@@ -95,3 +95,36 @@ def test_non_convex_obj_is_rebuilt_with_its_octagons(tmp_path) -> None:
 def test_missing_mesh_file(tmp_path) -> None:
     with pytest.raises(GeometryError, match="does not exist"):
         load_mesh_solid(tmp_path / "nope.stl")
+
+
+def test_rigid_move_keeps_the_normals_a_fresh_solid_computes() -> None:
+    """A rigidly moved solid skips validation: its normals must be what validation gives."""
+    from scipy.spatial.transform import Rotation
+
+    solid = prism("u", [[0, 0], [3, 0], [3, 2], [2, 2], [2, 1], [1, 1], [1, 2], [0, 2]], 0.5)
+    T = np.eye(4)
+    T[:3, :3] = Rotation.from_rotvec([0.3, -1.1, 2.0]).as_matrix()
+    T[:3, 3] = [0.4, -2.0, 7.0]
+    moved = solid.transformed(T, "moved")
+    fresh = Polyhedron("fresh", moved.vertices, moved.faces, moved.closed)
+    np.testing.assert_allclose(moved.normals, fresh.normals, atol=1e-12)
+    assert moved.name == "moved" and moved.renamed("again").faces == solid.faces
+
+
+def test_non_rigid_move_is_validated_again() -> None:
+    """Flattening a box by a zero scale makes its faces degenerate: refused."""
+    flatten = np.diag([1.0, 1.0, 0.0, 1.0])
+    with pytest.raises(GeometryError, match="solid 'b'"):
+        box("b", (1.0, 1.0, 1.0)).transformed(flatten)
+
+
+def test_a_mesh_file_loads_once_per_process(tmp_path) -> None:
+    """The second load of the same file is the first's solid under the new name; a changed
+    file is read again."""
+    path = tmp_path / "cube.stl"
+    trimesh.creation.box((1.0, 1.0, 1.0)).export(path)
+    first, second = load_mesh_solid(path, "a"), load_mesh_solid(path, "b")
+    assert (first.name, second.name) == ("a", "b") and second.vertices is first.vertices
+    trimesh.creation.box((2.0, 1.0, 1.0)).export(path)
+    third = load_mesh_solid(path, "c")
+    assert np.ptp(third.vertices[:, 0]) == pytest.approx(2.0)

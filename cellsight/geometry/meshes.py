@@ -248,6 +248,9 @@ def load_mesh_solid(path: str | Path, name: str | None = None, scale: float = 1.
     it, silently opening a closed solid), a triangle naming a vertex that is not there.
     """
     path = Path(path)
+    key = _cache_key(path, scale)
+    if key is not None and key in _LOADED:
+        return _LOADED[key].renamed(name or path.stem)
     mesh = _read_mesh(path)
     vertices, faces = np.asarray(mesh.vertices), np.asarray(mesh.faces)
     if len(faces) == 0:
@@ -260,4 +263,21 @@ def load_mesh_solid(path: str | Path, name: str | None = None, scale: float = 1.
     if faces.min() < 0 or faces.max() >= len(vertices):
         raise GeometryError(f"mesh file {path}: a triangle names a vertex outside "
                             f"1..{len(vertices)}")
-    return polyhedron_from_trimesh(name or path.stem, mesh, scale)
+    solid = polyhedron_from_trimesh(name or path.stem, mesh, scale)
+    if key is not None:
+        _LOADED[key] = solid
+    return solid
+
+
+#: Solids already loaded in this process, by (resolved file, size, modification time, scale):
+#: a robot model's meshes are merged once however many arms use them (errors are not kept).
+_LOADED: dict[tuple, Polyhedron] = {}
+
+
+def _cache_key(path: Path, scale: float) -> tuple | None:
+    """The key of ``path`` in ``_LOADED`` (None when it cannot be read: the load reports it)."""
+    try:
+        stat = path.resolve().stat()
+    except OSError:
+        return None
+    return (str(path.resolve()), stat.st_size, stat.st_mtime_ns, float(scale))

@@ -99,15 +99,29 @@ class Polyhedron:
         return total
 
     def transformed(self, T: np.ndarray, name: str | None = None) -> Polyhedron:
-        """The same solid with its vertices moved by the pose ``T`` (4x4)."""
-        return Polyhedron(
-            name or self.name,
-            transform_points(T, self.vertices),
-            self.faces,
-            self.closed,
-            self.feature_names,
-            self.feature_vertices,
-        )
+        """The same solid with its vertices moved by the pose ``T`` (4x4). A rigid ``T``
+        (rotation orthonormal to ``RIGID_TOL``, det +1) keeps every face valid, so the result is
+        not validated again; any other ``T`` gives a fully validated solid."""
+        T = np.asarray(T, dtype=float)
+        vertices = transform_points(T, self.vertices)
+        if not _is_rigid(T):
+            return Polyhedron(name or self.name, vertices, self.faces, self.closed,
+                              self.feature_names, self.feature_vertices)
+        return self._valid_copy(name or self.name, vertices, self.normals @ T[:3, :3].T)
+
+    def renamed(self, name: str) -> Polyhedron:
+        """The same solid under another name (not validated again; arrays shared)."""
+        return self._valid_copy(name, self.vertices, self.normals)
+
+    def _valid_copy(self, name: str, vertices: np.ndarray, normals: np.ndarray) -> Polyhedron:
+        """This solid's faces and features over ``vertices``, which the caller guarantees
+        keep them valid (a rigid move of this solid's), without the checks of construction."""
+        copy = object.__new__(Polyhedron)
+        for key, value in (("name", name), ("vertices", vertices), ("faces", self.faces),
+                           ("closed", self.closed), ("feature_names", self.feature_names),
+                           ("feature_vertices", self.feature_vertices), ("normals", normals)):
+            object.__setattr__(copy, key, value)
+        return copy
 
     def face_triangles(self, k: int) -> np.ndarray:
         """Triangles (t, 3) covering face ``k``, as positions in the face's vertex list, wound
@@ -126,6 +140,18 @@ class Polyhedron:
         return np.concatenate([
             np.asarray(face)[self.face_triangles(k)] for k, face in enumerate(self.faces)
         ])
+
+
+RIGID_TOL = 1e-9  # largest |R^T R - I| entry of a rotation treated as exact
+
+
+def _is_rigid(T: np.ndarray) -> bool:
+    """Whether ``T`` is a 4x4 rigid transform: orthonormal rotation, det +1, last row 0 0 0 1."""
+    R = T[:3, :3]
+    return (T.shape == (4, 4) and bool(np.all(np.isfinite(T)))
+            and bool(np.allclose(T[3], [0.0, 0.0, 0.0, 1.0], rtol=0.0, atol=0.0))
+            and float(np.abs(R.T @ R - np.eye(3)).max()) <= RIGID_TOL
+            and float(np.linalg.det(R)) > 0.0)
 
 
 def _check_closed(name: str, v: np.ndarray, faces: Sequence[Sequence[int]]) -> None:
