@@ -261,17 +261,18 @@ def random_prism(rng: np.random.Generator, centre, size: float):
     return faces, np.concatenate([bottom, top]) * size @ rot.T + shift
 
 
-def cell_scene(cell, snapshot) -> tuple[list[np.ndarray], list[str], np.ndarray]:
+def cell_scene(cell, snapshot, part: str | None = None
+               ) -> tuple[list[np.ndarray], list[str], np.ndarray]:
     """Every surface of a cell snapshot in the base frame with its object's label ('self' for
-    a workpiece), and the first workpiece's features (F, 3)."""
+    the workpiece ``part``, by default the first), and that workpiece's features (F, 3)."""
     from cellsight.geometry.transforms import transform_points
 
+    part = cell.workpiece(part) if part else cell.workpieces[0]
     polygons, labels = [], []
     for obj, T in zip(cell.objects, snapshot.poses, strict=True):
         for k in range(len(obj.solid.faces)):
             polygons.append(transform_points(T, obj.solid.face_points(k)))
-            labels.append("self" if obj.kind == "workpiece" else obj.label)
-    part = cell.workpieces[0]
+            labels.append("self" if obj.name == part.name else obj.label)
     return polygons, labels, transform_points(snapshot.pose(part.name), part.feature_points)
 
 

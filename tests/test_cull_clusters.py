@@ -19,6 +19,7 @@ from cellsight.errors import GeometryError
 from cellsight.occlusion.bsp import BSPTree
 from cellsight.occlusion.predictor import (
     CLUSTER_SIZE,
+    FRAME_BSP,
     VisibilityPredictor,
     camera_bit,
     polygon_clusters,
@@ -67,7 +68,7 @@ def _crossed(a, b, c, view, points) -> np.ndarray:
 
 @pytest.mark.parametrize("near_px", [0.0, 5.0])
 def test_every_polygon_that_can_hide_a_feature_is_kept(cell, near_px) -> None:
-    predictor = VisibilityPredictor(cell, near_px=near_px)
+    predictor = VisibilityPredictor(cell, near_px=near_px, structure=FRAME_BSP)
     tris, tri_poly = _triangles(predictor)
     closed = predictor.object_closed[predictor.poly_owner[tri_poly]]
     checked = needed = 0
@@ -91,7 +92,8 @@ def test_every_polygon_that_can_hide_a_feature_is_kept(cell, near_px) -> None:
 
 
 def test_culled_answers_equal_unculled_ones(cell) -> None:
-    culled, full = VisibilityPredictor(cell), VisibilityPredictor(cell, cull=False)
+    culled = VisibilityPredictor(cell, structure=FRAME_BSP)
+    full = VisibilityPredictor(cell, cull=False, structure=FRAME_BSP)
     hidden = 0
     for snapshot in random_snapshots(cell, 8, seed=9):
         fast, slow = culled.predict_snapshot(snapshot), full.predict_snapshot(snapshot)

@@ -20,7 +20,7 @@ from cellsight.errors import CellsightError
 from cellsight.geometry.polyhedron import box, prism
 from cellsight.model.cell import Cell, StaticObject
 from cellsight.occlusion import BSPTree, PolygonSoup
-from cellsight.occlusion.predictor import VisibilityPredictor
+from cellsight.occlusion.predictor import FRAME_BSP, STRUCTURES, VisibilityPredictor
 from cellsight.occlusion.scenarios import random_snapshots
 
 L_SHAPE = [(-0.05, -0.05), (0.2, -0.05), (0.2, 0.05), (0.05, 0.05), (0.05, 0.2), (-0.05, 0.2)]
@@ -47,13 +47,15 @@ def _with_housing(cell: Cell, solid) -> Cell:
                 cell.source, cell.experiments)
 
 
+@pytest.mark.parametrize("structure", STRUCTURES)
 @pytest.mark.parametrize("case", list(HOUSINGS))
-def test_camera_in_or_on_a_closed_solid(cell, case) -> None:
-    """Culled == unculled == oracle for cam1 inside / on a housing, at HOME and at random
-    configurations; the housing really hides the features it should."""
+def test_camera_in_or_on_a_closed_solid(cell, case, structure) -> None:
+    """Culled BSP (or hierarchies) == unculled BSP == oracle for cam1 inside / on a housing,
+    at HOME and at random configurations; the housing really hides the features it should."""
     solid, expect = HOUSINGS[case]
     housed = _with_housing(cell, solid)
-    culled, full = VisibilityPredictor(housed), VisibilityPredictor(housed, cull=False)
+    culled = VisibilityPredictor(housed, structure=structure)
+    full = VisibilityPredictor(housed, cull=False, structure=FRAME_BSP)
     snapshots = [housed.snapshot()] + random_snapshots(housed, 12, seed=3)
     checked = by_housing = seen_total = 0
     for snapshot in snapshots:

@@ -1,10 +1,18 @@
 """Cell-level occlusion prediction (paper, Section III and Fig. 4).
 
-At each sampling time: every object's surfaces, kept in the object's own frame, are moved by
-its current pose (joint measurements for links and tools, the tracker's predicted pose for
-workpieces; static objects are transformed once, offline); one BSP tree of the surfaces is
-built; it is visited back to front from each camera's optical centre and every workpiece
-feature point gets a label per camera:
+Every object's surfaces are kept in the object's own frame. At each sampling time, with each
+object's current pose (joint measurements for links and tools, the tracker's predicted pose
+for workpieces, fixed for static objects), every workpiece feature point gets a label per
+camera, by one of two structures (``structure``; same answers, tests/test_forest.py):
+
+- ``"object-bvh"`` (default; issue 12): a bounding-volume hierarchy of each object's surfaces,
+  built once, offline, in the object's frame (:mod:`.forest`); per frame only the queries (the
+  optical centres and the features) are moved into each object's frame;
+- ``"frame-bsp"`` (the paper's): the surfaces are moved by the poses (static objects once,
+  offline), one BSP tree of them is built and visited back to front from each camera's
+  optical centre (culled first, see below).
+
+The labels:
 
 - visible: its pixel coordinates are valid and no surface hides it;
 - ``behind``: it lies behind the camera (depth <= 0);
@@ -13,22 +21,23 @@ feature point gets a label per camera:
 - an object label (``R7AX.gripper``, ``R6AX.link3``, ``table``): hidden by that object
   (mutual occlusion); the nearest occluder along the line of sight is named.
 
-Culling (exact, ``cull=True``): a surface can hide a feature from a camera only if (1) it faces
-the camera — for closed solids seen from outside, the first crossing of a line of sight is
-always through a front face; a closed solid whose bounding box (grown by ``CONTAIN_MARGIN``)
-holds the optical centre, where the camera may be inside it or on its boundary, keeps its back
-faces too (cheap and conservative, so exact for non-convex solids as well), and (2) for some
-feature in the image, part of it is nearer to the camera than the feature and its projection's
-bounding box (grown by a margin that covers the near-occluder ring) holds the feature's image
-(or it crosses the camera's focal plane): a line of sight crosses a surface at the feature's own
-normalised image coordinates. Whole objects, then clusters of at most ``CLUSTER_SIZE`` nearby
-polygons (:func:`polygon_clusters`), are skipped first by the same depth and image test on their
-box in the object's frame (its 8 corners span it, so nothing the per-polygon test would keep is
-skipped), and only the polygons of the clusters looked at are moved to the base frame. The tree
-is built from the union over cameras of the surfaces that survive, plus every workpiece
-surface. Surfaces that could hide nothing change no answer, so culled and unculled answers
-agree (tests/test_cull_clusters.py checks both that and, directly, that every surface a line
-of sight crosses while facing the camera is kept).
+Culling (``frame-bsp`` mode, ``cull=True``; exact): a surface can hide a feature from a camera
+only if (1) it faces the camera — for closed solids seen from outside, the first crossing of a
+line of sight is always through a front face; a closed solid whose bounding box (grown by
+``CONTAIN_MARGIN``) holds the optical centre, where the camera may be inside it or on its
+boundary, keeps its back faces too (cheap and conservative, so exact for non-convex solids as
+well), and (2) for some feature in the image, part of it is nearer to the camera than the
+feature and its projection's bounding box (grown by a margin that covers the near-occluder
+ring) holds the feature's image (or it crosses the camera's focal plane): a line of sight
+crosses a surface at the feature's own normalised image coordinates. Whole objects, then
+clusters of at most ``CLUSTER_SIZE`` nearby polygons (:func:`polygon_clusters`), are skipped
+first by the same depth and image test on their box in the object's frame (its 8 corners span
+it, so nothing the per-polygon test would keep is skipped), and only the polygons of the
+clusters looked at are moved to the base frame. The tree is built from the union over cameras
+of the surfaces that survive, plus every workpiece surface. Surfaces that could hide nothing
+change no answer, so culled and unculled answers agree (tests/test_cull_clusters.py checks both
+that and, directly, that every surface a line of sight crosses while facing the camera is
+kept).
 """
 
 from __future__ import annotations
@@ -48,6 +57,7 @@ from cellsight.occlusion._cull_kernel import (
     transform_vertices,
 )
 from cellsight.occlusion.bsp import BSPTree
+from cellsight.occlusion.forest import ObjectForest
 from cellsight.occlusion.soup import PolygonSoup
 from cellsight.visibility import STATUS_INSIDE, CameraVisibility, Views
 
@@ -56,15 +66,22 @@ NEAR_SAMPLES = 8  # points on the ring around a feature for the near-occluder te
 NEAR_DEPTH = 0.01  # m: a silhouette counts when at least this much nearer than the feature
 CONTAIN_MARGIN = 1e-3  # m: growth of a solid's box in the camera-inside test (any >= 0 is exact)
 CLUSTER_SIZE = 16  # polygons: most per cluster (a box culled as a whole before its polygons)
+#: Structures: static per-object hierarchies built once in each object's frame
+#: (:mod:`.forest`, the default), or the paper's one BSP tree of the culled surfaces per frame.
+OBJECT_BVH, FRAME_BSP = "object-bvh", "frame-bsp"
+STRUCTURES = (OBJECT_BVH, FRAME_BSP)
 
 
 class VisibilityPredictor:
     """Predicts, for a cell snapshot, which workpiece features each camera sees.
 
-    Offline (constructor): flat arrays of every surface in its object's frame, static surfaces
-    in the base frame, clusters of nearby surfaces with their boxes. Per frame (:meth:`predict`):
-    cull (moving only the surfaces looked at, into a buffer reused from frame to frame: do not
-    share one predictor between threads), build, visit (:meth:`stage_times` times each). ``cameras``
+    Offline (constructor): flat arrays of every surface in its object's frame and, for the
+    ``structure`` (:data:`STRUCTURES`, module doc), each object's hierarchy, or the static
+    surfaces in the base frame and clusters of nearby surfaces with their boxes. Per frame
+    (:meth:`predict`): project the features, then query the hierarchies (cameras in parallel),
+    or cull (moving only the surfaces looked at, into a buffer reused from frame to frame: do
+    not share one predictor between threads), build, visit (:meth:`stage_times` times each).
+    ``cull`` (``frame-bsp`` only) turns the exact cull off. ``cameras``
     restricts the prediction to some cameras (a non-empty list of indices into
     ``cell.cameras``; None: all).
     ``surface_tolerance`` (m): a feature within this distance of a surface's plane is not hidden
@@ -74,14 +91,19 @@ class VisibilityPredictor:
     ``NEAR_DEPTH`` towards the camera) is partly hidden by another object is flagged
     ``near_occluder``: its image corner is a junction with that object's silhouette, a few
     pixels off (0 disables the test). Both must be finite and >= 0 (else
-    :class:`CellsightError`). With culling, a ring point that ends inside another solid
-    can be missed (that solid's back faces are culled): rare, and only ever a missed flag.
+    :class:`CellsightError`). A ring point that ends inside another solid can be missed (that
+    solid's back faces are skipped): rare, and only ever a missed flag.
     """
 
     def __init__(self, cell: Cell, *, cull: bool = True, cameras: list[int] | None = None,
-                 surface_tolerance: float = 2e-3, near_px: float = 5.0) -> None:
+                 surface_tolerance: float = 2e-3, near_px: float = 5.0,
+                 structure: str = "object-bvh") -> None:
         self.cell = cell
         self.cull = cull
+        if structure not in STRUCTURES:
+            raise CellsightError(f"VisibilityPredictor: structure must be one of "
+                                 f"{', '.join(STRUCTURES)}, got {structure!r}")
+        self.structure = structure
         self.surface_tolerance = _non_negative("surface_tolerance", surface_tolerance, "m")
         self.near_px = _non_negative("near_px", near_px, "px")
         n_cam = len(cell.cameras)
@@ -127,6 +149,9 @@ class VisibilityPredictor:
         self._vertices = self._static_vertices.copy()  # per-frame buffer, moving rows on demand
         self._ring_offsets: dict[str, np.ndarray] = {}  # camera name -> (K, 3) ring directions
         self._part_bits = np.where(self.part_polys, 255, 0).astype(np.uint8)  # kept for all
+        self._forest = None if structure == FRAME_BSP else ObjectForest(
+            self.local_vertices, self.offsets, self.object_polys,
+            self.object_closed & (kinds != "workpiece"), CONTAIN_MARGIN)
 
     def world_vertices(self, snapshot: Snapshot) -> np.ndarray:
         """Every surface vertex in the base frame for this snapshot, (V, 3)."""
@@ -142,15 +167,26 @@ class VisibilityPredictor:
     def predict_snapshot(self, snapshot: Snapshot) -> Views:
         """Workpiece name -> one :class:`CameraVisibility` per camera (``cell.cameras`` order,
         or the predictor's ``cameras``)."""
+        if self._forest is not None:
+            points, views = self._project(snapshot)
+            return self._forest_answer(snapshot, points, views)
         points, views, vertices, keep = self._cull(snapshot)
         tree, polys = self._build(vertices, keep)
         return self._answer(tree, polys, points, views, keep)
 
     def stage_times(self, snapshot: Snapshot) -> dict[str, float]:
         """One prediction, timed by stage (s): ``cull`` (features, moving and culling the
-        surfaces), ``build`` (the tree), ``visit`` (visits and labels), ``total``; ``kept``:
-        the surfaces in the tree (a count)."""
+        surfaces; ``object-bvh``: projecting the features), ``build`` (the tree; 0 for
+        ``object-bvh``), ``visit`` (visits or queries, and labels), ``total``; ``kept``: the
+        surfaces in the tree (``object-bvh``: every surface, a count)."""
         t0 = time.perf_counter()
+        if self._forest is not None:
+            points, views = self._project(snapshot)
+            t1 = time.perf_counter()
+            self._forest_answer(snapshot, points, views)
+            t3 = time.perf_counter()
+            return {"cull": t1 - t0, "build": 0.0, "visit": t3 - t1, "total": t3 - t0,
+                    "kept": len(self.poly_owner)}
         points, views, vertices, keep = self._cull(snapshot)
         t1 = time.perf_counter()
         tree, polys = self._build(vertices, keep)
@@ -165,19 +201,11 @@ class VisibilityPredictor:
         the vertex buffer (base frame, m; the rows of the kept polygons filled) and ``keep``
         (P,) uint8: bit ``camera_bit(c)`` set for the polygons that may hide a feature from the
         predictor's camera c (0: culled for every camera)."""
-        points = np.concatenate([
-            local @ snapshot.poses[k][:3, :3].T + snapshot.poses[k][:3, 3]
-            for k, local in zip(self.part_objects, self.part_features, strict=True)
-        ])
-        n = len(points)
-        views = []
+        points, views = self._project(snapshot)
         keep, vertices, ready, poses = self._frame_start(snapshot)
         for c, cam in enumerate(self.cameras):
-            px, status, box = np.empty((n, 2)), np.empty(n, dtype=np.int8), np.empty(5)
-            seen = project_points(points, cam.T_cam_base, cam.K, cam.dist5,
-                                  cam.width, cam.height, px, status, box)
-            views.append((px, status))
-            if self.cull and seen:
+            status = views[c][1]
+            if self.cull and (status == STATUS_INSIDE).any():
                 margin = (CULL_MARGIN_PX + self.near_px) / cam.focal_px
                 cull_camera(self.local_vertices, self.offsets, poses, self.object_closed,
                             self._object_box, self._object_clusters, self._cluster_box,
@@ -186,24 +214,78 @@ class VisibilityPredictor:
                             camera_bit(c))
         return points, views, vertices, keep
 
+    def _project(self, snapshot: Snapshot) -> tuple[np.ndarray, list]:
+        """The features (N, 3) (base frame, m) and, per camera, their pixels (N, 2) and
+        status (N,)."""
+        points = np.concatenate([
+            local @ snapshot.poses[k][:3, :3].T + snapshot.poses[k][:3, 3]
+            for k, local in zip(self.part_objects, self.part_features, strict=True)
+        ])
+        n = len(points)
+        views = []
+        for cam in self.cameras:
+            px, status, box = np.empty((n, 2)), np.empty(n, dtype=np.int8), np.empty(5)
+            project_points(points, cam.T_cam_base, cam.K, cam.dist5, cam.width, cam.height,
+                           px, status, box)
+            views.append((px, status))
+        return points, views
+
+    def _queries(self, points: np.ndarray, views) -> list[tuple[np.ndarray, np.ndarray, int]]:
+        """Per camera: the features in its image (indices), their points followed by their
+        near-occluder rings (base frame, m), and the ring size."""
+        out = []
+        for cam, (_, status) in zip(self.cameras, views, strict=True):
+            query = np.flatnonzero(status == STATUS_INSIDE)
+            ring = self._ring(cam, points[query])
+            out.append((query, np.concatenate([points[query], ring.reshape(-1, 3)]),
+                        ring.shape[1]))
+        return out
+
     def _answer(self, tree: BSPTree, polys: np.ndarray, points: np.ndarray, views,
                 keep: np.ndarray) -> Views:
         """The visits of ``tree`` (of the polygons ``polys``) from every camera, as labels; each
         camera's visit skips the polygons culled for it (``keep``, see :meth:`_cull`)."""
+        answers = []
+        for c, (cam, (query, queried, n_ring)) in enumerate(
+                zip(self.cameras, self._queries(points, views), strict=True)):
+            if not query.size:
+                answers.append(None)
+                continue
+            vis, occ = tree.visibility(queried, cam.center, self.surface_tolerance,
+                                       (keep[polys] & camera_bit(c)) != 0)
+            answers.append((query, vis, occ, polys, n_ring))
+        return self._labelled(points, views, answers)
+
+    def _forest_answer(self, snapshot: Snapshot, points: np.ndarray, views) -> Views:
+        """The answers of the static per-object hierarchies (``structure="object-bvh"``), as
+        labels."""
+        queries = self._queries(points, views)
+        starts = np.zeros(len(queries) + 1, dtype=np.int64)
+        np.cumsum([len(q[1]) for q in queries], out=starts[1:])
+        occ = self._forest.occluders(np.ascontiguousarray(snapshot.poses, dtype=np.float64),
+                                     np.array([cam.center for cam in self.cameras]), starts,
+                                     np.concatenate([q[1] for q in queries]),
+                                     self.surface_tolerance)
+        everything = np.arange(len(self.poly_owner))
+        answers = [(query, occ[a:b] < 0, occ[a:b], everything, n_ring) if query.size else None
+                   for (query, _, n_ring), a, b in zip(queries, starts[:-1], starts[1:],
+                                                       strict=True)]
+        return self._labelled(points, views, answers)
+
+    def _labelled(self, points: np.ndarray, views, answers) -> Views:
+        """Per workpiece, one :class:`CameraVisibility` per camera from each camera's answers
+        (``(query, vis, occ, polys, n_ring)``: see :func:`label_answers`; None: no feature in
+        its image)."""
         n = len(points)
         result = {part.name: [] for part in self.cell.workpieces}
-        for c, (cam, (px, status)) in enumerate(zip(self.cameras, views, strict=True)):
+        for cam, (px, status), answer in zip(self.cameras, views, answers, strict=True):
             visible = np.zeros(n, dtype=bool)
             near = np.zeros(n, dtype=bool)
             occluder = np.full(n, -1, dtype=np.int32)
-            query = np.flatnonzero(status == STATUS_INSIDE)
-            if query.size:
-                ring = self._ring(cam, points[query])
-                vis, occ = tree.visibility(np.concatenate([points[query], ring.reshape(-1, 3)]),
-                                           cam.center, self.surface_tolerance,
-                                           (keep[polys] & camera_bit(c)) != 0)
+            if answer is not None:
+                query, vis, occ, polys, n_ring = answer
                 label_answers(vis, occ, polys, self.poly_owner, query, self._feature_owner,
-                              ring.shape[1], visible, occluder, near)
+                              n_ring, visible, occluder, near)
             start = 0
             for k, f in zip(self.part_objects, self.part_features, strict=True):
                 sl = slice(start, start + len(f))
