@@ -91,3 +91,33 @@ def test_empty_and_float32_input():
     square = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], np.float32)
     np.testing.assert_array_equal(visible_mask([square], points, np.array([0.5, 0.5, 2.0])),
                                   [False, True])
+
+
+def test_an_array_of_equal_polygons_answers_as_the_list():
+    """(P, k, 3) input (a mesh's triangles, boxes' quads) against the oracle and the list."""
+    rng = np.random.default_rng(12)
+    triangles = np.concatenate([
+        [tri for face in random_convex_solid(rng, rng.uniform(-1, 1, 3), 0.5)[0]
+         for tri in _fan(face)] for _ in range(6)])
+    points, view = rng.uniform(-1.5, 1.5, (64, 3)), rng.uniform(-4, 4, 3)
+    answer = visible_mask(triangles, points, view)
+    np.testing.assert_array_equal(answer, visible_mask(list(triangles), points, view))
+    oracle = segment_oracle(list(triangles), points, view)
+    sure = ~oracle.ambiguous
+    np.testing.assert_array_equal(answer[sure], oracle.visible[sure])
+    assert 0 < answer.sum() < len(points)
+
+
+def _fan(face: np.ndarray) -> list[np.ndarray]:
+    """The triangles of a convex face, fanned from its first vertex."""
+    return [face[[0, i, i + 1]] for i in range(1, len(face) - 1)]
+
+
+@pytest.mark.parametrize("bad, message", [
+    (np.zeros((2, 2, 3)), "polygon 0 has 2 vertices"),
+    (np.full((1, 3, 3), np.nan), "polygon 0 has a non-finite vertex"),
+    (np.zeros((1, 3, 3)), "polygon 0 is degenerate"),
+])
+def test_a_bad_polygon_array_raises_as_from_polygons(bad, message):
+    with pytest.raises(GeometryError, match=message):
+        visible_mask(bad, np.zeros((1, 3)), np.ones(3))

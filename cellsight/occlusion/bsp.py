@@ -149,10 +149,12 @@ DIRECT_POINTS = 512
 
 
 def visible_mask(
-    polygons: Sequence[np.ndarray], points: np.ndarray, viewpoint: np.ndarray,
+    polygons: Sequence[np.ndarray] | np.ndarray, points: np.ndarray, viewpoint: np.ndarray,
     _method: str = "auto",
 ) -> np.ndarray:
-    """Visible flags (N,) of ``points`` (N, 3) seen from ``viewpoint`` (3,) among ``polygons``.
+    """Visible flags (N,) of ``points`` (N, 3) seen from ``viewpoint`` (3,) among ``polygons``:
+    a sequence of (k_i, 3) vertex arrays, or one (P, k, 3) array of polygons with k vertices
+    each (a triangle mesh as ``vertices[triangles]``: the fastest input, no per-polygon copy).
 
     Same answers as ``BSPTree.build(PolygonSoup.from_polygons(polygons)).visibility(points,
     viewpoint)[0]`` (module doc for the semantics and the per-polygon thickness ``eps``), and
@@ -180,13 +182,18 @@ def visible_mask(
     return BSPTree.build(sub).visibility(points, viewpoint)[0]
 
 
-def _checked_soup(polygons: Sequence[np.ndarray]) -> PolygonSoup:
-    """``PolygonSoup.from_polygons(polygons)`` (validated), with a fast path for a list of
-    (k >= 3, 3) real arrays: one concatenation instead of a conversion per polygon. Any
+def _checked_soup(polygons: Sequence[np.ndarray] | np.ndarray) -> PolygonSoup:
+    """``PolygonSoup.from_polygons(polygons)`` (validated), with fast paths for a (P, k >= 3,
+    3) real array (polygons of k vertices each, e.g. a mesh's triangles: no copy) and a list
+    of (k >= 3, 3) real arrays (one concatenation instead of a conversion per polygon). Any
     failure falls back to ``from_polygons``, which raises the usual :class:`GeometryError`."""
     try:
-        vertices = np.concatenate(polygons)  # all (k_i, 3) when the result is (V, 3)
-        counts = np.fromiter(map(len, polygons), dtype=np.int64, count=len(polygons))
+        if isinstance(polygons, np.ndarray) and polygons.ndim == 3:
+            vertices = polygons.reshape(-1, polygons.shape[-1])
+            counts = np.full(polygons.shape[0], polygons.shape[1], dtype=np.int64)
+        else:
+            vertices = np.concatenate(polygons)  # all (k_i, 3) when the result is (V, 3)
+            counts = np.fromiter(map(len, polygons), dtype=np.int64, count=len(polygons))
         if vertices.ndim != 2 or vertices.shape[1] != 3 or vertices.dtype.kind not in "fiu":
             raise ValueError
         if counts.min() < 3:
