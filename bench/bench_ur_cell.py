@@ -69,10 +69,12 @@ def _features(predictor: VisibilityPredictor, snapshot) -> np.ndarray:
 
 
 def cellsight_fn(predictor: VisibilityPredictor):
-    """Visible flags, cameras after cameras, from cellsight's predictor."""
+    """Visible flags from cellsight's predictor, cameras after cameras, each camera's in the
+    order of :func:`_features` (the parts' features, parts in cell order), as the peers'."""
     def fn(s):
-        return np.concatenate([np.concatenate([v.visible for v in views])
-                               for views in predictor.predict_snapshot(s).values()])
+        views = list(predictor.predict_snapshot(s).values())  # per part, per camera
+        return np.concatenate([v[c].visible for c in range(len(predictor.cameras))
+                               for v in views])
     return fn
 
 

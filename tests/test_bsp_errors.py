@@ -164,3 +164,33 @@ def test_empty_soup_hides_nothing():
     assert tree.stats == {"nodes": 0, "splits": 0, "depth": 0, "fragments": 0}
     visible, occluder = tree.visibility(np.zeros((2, 3)), np.ones(3))
     assert visible.all() and (occluder == -1).all()
+
+
+@pytest.mark.parametrize("seed", range(40))
+def test_thin_triangles_are_non_simple_exactly_when_a_vertex_nears_the_opposite_edge(seed):
+    """A triangle's vertex within SIMPLE_REL x its 2D box diagonal of the opposite edge makes it
+    non-simple (the triangle path of ``first_non_simple``), distances computed here in numpy."""
+    from cellsight.occlusion._soup_kernels import first_non_simple
+    from cellsight.occlusion.soup import SIMPLE_REL
+
+    rng = np.random.default_rng(seed)
+    a, b = np.array([0.0, 0.0]), np.array([1.0, rng.uniform(-0.2, 0.2)])
+    u = rng.uniform(-0.2, 1.2)
+    away = rng.choice([0.3, 0.9, 1.1, 3.0]) * SIMPLE_REL * np.hypot(1.0, 1.2)
+    normal = np.array([-(b - a)[1], (b - a)[0]]) / np.linalg.norm(b - a)
+    c = a + u * (b - a) + away * normal
+    tri2 = np.roll(np.array([a, b, c]), rng.integers(3), axis=0)
+    tri = np.column_stack([tri2, np.zeros(3)])
+    soup = PolygonSoup.from_arrays(tri, np.array([0, 3]))
+    found, _, _, dist = first_non_simple(soup.vertices, soup.offsets, soup.planes, SIMPLE_REL)
+
+    def to_edge(p, q, r):
+        t = np.clip((p - q) @ (r - q) / ((r - q) @ (r - q)), 0.0, 1.0)
+        return np.linalg.norm(p - q - t * (r - q))
+
+    p0, p1, p2 = tri2
+    nearest = min(to_edge(p2, p0, p1), to_edge(p0, p1, p2), to_edge(p1, p2, p0))
+    tol = SIMPLE_REL * np.linalg.norm(tri2.max(axis=0) - tri2.min(axis=0))
+    assert (found == 0) == (nearest <= tol)
+    if found == 0:
+        assert dist == pytest.approx(nearest, rel=1e-6, abs=1e-15)

@@ -13,11 +13,19 @@ the same ``t`` (within ``TIE``) name the one listed first.
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 from numba import njit, prange
+from numba.core.errors import NumbaWarning
 
 from cellsight.occlusion._soup_kernels import drop_axis
 from cellsight.occlusion._visit_kernel import _inside
+
+# numba tries its TBB threading layer first and warns when the installed TBB is too old, then
+# uses another layer (OpenMP or its own): nothing for a user to act on.
+warnings.filterwarnings("ignore", message="The TBB threading layer requires TBB",
+                        category=NumbaWarning)
 
 SLACK = 1e-9  # m: rounding allowance of the box tests (moving a point to a frame: ~1e-15 m)
 #: Crossings this close in ``t`` (a fraction of the segment) are a tie, e.g. a part's bottom on

@@ -129,6 +129,26 @@ def _point_segment_distance(px, py, ax, ay, bx, by) -> float:
 
 
 @njit(cache=True)
+def _folded_triangle(vertices, start, a0, a1, tol):
+    """The first edge pair (0, 1), (0, 2), (1, 2) of the triangle at ``vertices[start:start
+    + 3]`` whose far ends lie within ``tol`` of the other edge (projected on axes a0, a1), as
+    :func:`first_non_simple`'s loop finds it: ``(edge_a, edge_b, distance)``, -1 if none."""
+    x0, y0 = vertices[start, a0], vertices[start, a1]
+    x1, y1 = vertices[start + 1, a0], vertices[start + 1, a1]
+    x2, y2 = vertices[start + 2, a0], vertices[start + 2, a1]
+    d2 = _point_segment_distance(x2, y2, x0, y0, x1, y1)  # vertex 2 to edge 0 (0-1)
+    d0 = _point_segment_distance(x0, y0, x1, y1, x2, y2)  # vertex 0 to edge 1 (1-2)
+    d1 = _point_segment_distance(x1, y1, x2, y2, x0, y0)  # vertex 1 to edge 2 (2-0)
+    if min(d2, d0) <= tol:
+        return 0, 1, min(d2, d0)
+    if min(d2, d1) <= tol:
+        return 0, 2, min(d2, d1)
+    if min(d0, d1) <= tol:
+        return 1, 2, min(d0, d1)
+    return -1, -1, 0.0
+
+
+@njit(cache=True)
 def _segment_distance(ax, ay, bx, by, cx, cy, dx, dy) -> float:
     """Distance between the 2D segments a-b and c-d (0 when they cross)."""
     o1 = (bx - ax) * (cy - ay) - (by - ay) * (cx - ax)
@@ -163,6 +183,11 @@ def first_non_simple(vertices: np.ndarray, offsets: np.ndarray, planes: np.ndarr
             lo0, hi0 = min(lo0, vertices[j, a0]), max(hi0, vertices[j, a0])
             lo1, hi1 = min(lo1, vertices[j, a1]), max(hi1, vertices[j, a1])
         tol = tol_rel * np.sqrt((hi0 - lo0) ** 2 + (hi1 - lo1) ** 2)
+        if k == 3:  # every edge pair is adjacent: the loop below, with each distance once
+            ea, eb, dist = _folded_triangle(vertices, start, a0, a1, tol)
+            if ea >= 0:
+                return i, ea, eb, dist
+            continue
         for ea in range(k):
             pa, qa = start + ea, start + (ea + 1) % k
             for eb in range(ea + 1, k):
