@@ -1,5 +1,6 @@
 """Per-frame occlusion prediction on a cell with two UR5 (real collision meshes) and three
-cameras (issue 11): cellsight's culled BSP against Open3D and MuJoCo on the same rays.
+cameras (issues 11, 12): cellsight (static per-object hierarchies, and the paper's culled
+per-frame BSP) against Open3D and MuJoCo on the same rays.
 
 The cell: the built-in UR cell (``cellsight/data/ur_cell.yaml``) when it exists, else
 ``bench/ur2_cell.yaml`` (the UR5 test cell with a second UR5 and a third camera). 300 random
@@ -8,9 +9,10 @@ nominal pose (random position and yaw, sometimes lifted and tipped; ``random_sna
 no part in a gripper). Every method starts from the same snapshot (object poses) and pays for
 moving the surfaces:
 
-- cellsight: ``VisibilityPredictor.predict_snapshot`` (exact cull, one BSP tree, a visit per
-  camera, labels), the features only (``near_px=0``) and a 0.1 mm surface tolerance like the
-  peers'; in a row of its own, with the tracker's near-occluder ring (8 more points each);
+- cellsight: ``VisibilityPredictor.predict_snapshot``, ``object-bvh`` (the default) and
+  ``frame-bsp`` (exact cull, one BSP tree, a visit per camera), labels included, the features
+  only (``near_px=0``) and a 0.1 mm surface tolerance like the peers'; in a row of its own,
+  with the tracker's near-occluder ring (8 more points each);
 - Open3D ``RaycastingScene`` rebuilt each frame from the same triangles (moved to the base
   frame), ``test_occlusions`` on the rays centre -> feature ending 1e-4 short of the feature;
 - MuJoCo ``mj_multiRay`` on the world's model (the same meshes, ``cellsight.world.World``):
@@ -18,11 +20,11 @@ moving the surfaces:
   a hit counting when more than 0.1 mm before the feature.
 
 Times are milliseconds per frame (all three cameras), median and 99th percentile over the
-configurations; each configuration is timed ``REPEATS`` times (one method at a time) and its best
-time kept, so that other processes on this shared 2-core machine do not make the tail. Answers
-(features in the image only) are compared with cellsight's; disagreements are counted.
-A second table splits cellsight's time into stages (transform and cull, build, visit) with the
-surfaces kept, median and 99th percentile.
+configurations; each configuration is timed ``REPEATS`` times (one method at a time) and its
+best time kept, so that other processes on this shared 2-core machine do not make the tail.
+Answers (features in the image only) are compared with cellsight's; disagreements are counted.
+A second table splits the frame-bsp mode's time into stages (transform and cull, build, visit)
+with the surfaces kept, median and 99th percentile.
 """
 
 from __future__ import annotations
@@ -34,7 +36,7 @@ import numpy as np
 
 import cellsight
 from cellsight import load_cell
-from cellsight.occlusion.predictor import VisibilityPredictor
+from cellsight.occlusion.predictor import FRAME_BSP, VisibilityPredictor
 from cellsight.occlusion.scenarios import random_snapshots
 
 FRAMES = 300
@@ -168,8 +170,10 @@ def run(frames: int = FRAMES, path: Path | None = None) -> tuple[list[dict], dic
     same = {"surface_tolerance": PEER_TOLERANCE}
     base = VisibilityPredictor(cell, near_px=0.0, **same)
     methods = {
-        "cellsight BSP (culled)": cellsight_fn(base),
-        "cellsight BSP + near-occluder ring (tracker's)": cellsight_fn(
+        "cellsight object-bvh (default)": cellsight_fn(base),
+        "cellsight frame-bsp (paper's, culled)": cellsight_fn(
+            VisibilityPredictor(cell, near_px=0.0, structure=FRAME_BSP, **same)),
+        "cellsight object-bvh + near-occluder ring (tracker's)": cellsight_fn(
             VisibilityPredictor(cell, **same)),
         "Open3D RaycastingScene (rebuilt)": open3d_fn(base),
         "MuJoCo mj_multiRay (mj_kinematics)": mujoco_fn(base),
@@ -177,7 +181,7 @@ def run(frames: int = FRAMES, path: Path | None = None) -> tuple[list[dict], dic
     results = timed(methods, snapshots)
     masks = [np.concatenate([cam.sees(_features(base, s)) for cam in cell.cameras])
              for s in snapshots]
-    ours = results["cellsight BSP (culled)"][1]
+    ours = results["cellsight object-bvh (default)"][1]
     rows = []
     for name, (times, answers) in results.items():
         disagree = sum(int(((a != b) & m).sum()) for a, b, m in zip(answers, ours, masks,
@@ -185,8 +189,9 @@ def run(frames: int = FRAMES, path: Path | None = None) -> tuple[list[dict], dic
         rows.append({"method": name, "median": 1e3 * np.median(times),
                      "p99": 1e3 * np.percentile(times, 99), "disagree": disagree,
                      "checked": int(sum(m.sum() for m in masks))})
+    paper = VisibilityPredictor(cell, near_px=0.0, structure=FRAME_BSP, **same)
     facts = {"cell": path.name, "surfaces": len(base.poly_owner), "cameras": len(cell.cameras),
-             "features": len(_features(base, snapshots[0])), "stages": stages(base, snapshots)}
+             "features": len(_features(base, snapshots[0])), "stages": stages(paper, snapshots)}
     return rows, facts
 
 
@@ -221,7 +226,7 @@ def main(path: Path | None = None) -> None:
                       f"{r['disagree']} / {r['checked']}")
     console = Console(width=120)
     console.print(table)
-    split = Table(title="cellsight BSP (culled): stages")
+    split = Table(title="cellsight frame-bsp (culled): stages")
     for col in ("stage", "median", "p99"):
         split.add_column(col, justify="left" if col == "stage" else "right", no_wrap=True)
     for name, med, p99 in facts["stages"]:
