@@ -97,7 +97,7 @@ class VisibilityPredictor:
 
     def __init__(self, cell: Cell, *, cull: bool = True, cameras: list[int] | None = None,
                  surface_tolerance: float = 2e-3, near_px: float = 5.0,
-                 structure: str = "object-bvh") -> None:
+                 structure: str = OBJECT_BVH) -> None:
         self.cell = cell
         self.cull = cull
         if structure not in STRUCTURES:
