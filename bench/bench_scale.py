@@ -29,7 +29,15 @@ import json
 from pathlib import Path
 
 import numpy as np
-from bench_ur_cell import PEER_TOLERANCE, _features, cellsight_fn, mujoco_fn, open3d_fn, timed
+from bench_ur_cell import (
+    PEER_TOLERANCE,
+    cellsight_fn,
+    compared,
+    in_view,
+    mujoco_fn,
+    open3d_fn,
+    timed,
+)
 
 from cellsight.occlusion.predictor import FRAME_BSP, VisibilityPredictor
 from cellsight.occlusion.scale_cells import scale_cell
@@ -71,18 +79,11 @@ def measure(size: tuple[int, int, int], frames: int = FRAMES) -> dict:
         "MuJoCo mj_multiRay": mujoco_fn(base),
     }
     results = timed(fns, snapshots)
-    masks = [np.concatenate([cam.sees(_features(base, s)) for cam in cell.cameras])
-             for s in snapshots]
-    ours = results["cellsight object-bvh"][1]
-    row = {"cameras": size[0], "arms": size[1], "parts": size[2],
-           "triangles": int(sum(len(f) - 2 for o in cell.objects for f in o.solid.faces)),
-           "rays": int(np.mean([m.sum() for m in masks]))}
-    for name, (times, answers) in results.items():
-        row[name] = {"median": 1e3 * float(np.median(times)),
-                     "p99": 1e3 * float(np.percentile(times, 99)),
-                     "disagree": sum(int(((a != b) & m).sum()) for a, b, m in
-                                     zip(answers, ours, masks, strict=True))}
-    return row
+    masks = in_view(base, snapshots)
+    return {"cameras": size[0], "arms": size[1], "parts": size[2],
+            "triangles": int(sum(len(f) - 2 for o in cell.objects for f in o.solid.faces)),
+            "rays": int(np.mean([m.sum() for m in masks])),
+            **compared(results, "cellsight object-bvh", masks)}
 
 
 def exponents(rows: list[dict]) -> dict[str, dict[str, float]]:

@@ -144,6 +144,24 @@ def mujoco_fn(predictor: VisibilityPredictor):
     return fn
 
 
+def in_view(predictor: VisibilityPredictor, snapshots) -> list[np.ndarray]:
+    """Per snapshot, which rays (cameras, then features, as the methods answer) end in an
+    image: the rays compared."""
+    return [np.concatenate([cam.sees(_features(predictor, s)) for cam in predictor.cameras])
+            for s in snapshots]
+
+
+def compared(results: dict, reference: str, masks) -> dict[str, dict]:
+    """Method name -> median and p99 ms and ``disagree``: the rays in view (``masks``) where
+    its answers differ from the ``reference`` method's (``results`` from :func:`timed`)."""
+    ours = results[reference][1]
+    return {name: {"median": 1e3 * float(np.median(times)),
+                   "p99": 1e3 * float(np.percentile(times, 99)),
+                   "disagree": sum(int(((a != b) & m).sum())
+                                   for a, b, m in zip(answers, ours, masks, strict=True))}
+            for name, (times, answers) in results.items()}
+
+
 def timed(methods: dict, snapshots) -> dict:
     """Method name -> (best time per configuration (s), answers); each method warmed up, then
     ``REPEATS`` passes over the configurations (one method at a time)."""
@@ -179,16 +197,10 @@ def run(frames: int = FRAMES, path: Path | None = None) -> tuple[list[dict], dic
         "MuJoCo mj_multiRay (mj_kinematics)": mujoco_fn(base),
     }
     results = timed(methods, snapshots)
-    masks = [np.concatenate([cam.sees(_features(base, s)) for cam in cell.cameras])
-             for s in snapshots]
-    ours = results["cellsight object-bvh (default)"][1]
-    rows = []
-    for name, (times, answers) in results.items():
-        disagree = sum(int(((a != b) & m).sum()) for a, b, m in zip(answers, ours, masks,
-                                                                    strict=True))
-        rows.append({"method": name, "median": 1e3 * np.median(times),
-                     "p99": 1e3 * np.percentile(times, 99), "disagree": disagree,
-                     "checked": int(sum(m.sum() for m in masks))})
+    masks = in_view(base, snapshots)
+    rows = [{"method": name, **figures, "checked": int(sum(m.sum() for m in masks))}
+            for name, figures in compared(results, "cellsight object-bvh (default)",
+                                          masks).items()]
     paper = VisibilityPredictor(cell, near_px=0.0, structure=FRAME_BSP, **same)
     facts = {"cell": path.name, "surfaces": len(base.poly_owner), "cameras": len(cell.cameras),
              "features": len(_features(base, snapshots[0])), "stages": stages(paper, snapshots)}
