@@ -149,6 +149,7 @@ class VisibilityPredictor:
         self._vertices = self._static_vertices.copy()  # per-frame buffer, moving rows on demand
         self._ring_offsets: dict[str, np.ndarray] = {}  # camera name -> (K, 3) ring directions
         self._part_bits = np.where(self.part_polys, 255, 0).astype(np.uint8)  # kept for all
+        self._every_poly = np.arange(len(self.poly_owner))  # the forest's occluder indices
         self._forest = None if structure == FRAME_BSP else ObjectForest(
             self.local_vertices, self.offsets, self.object_polys,
             self.object_closed & (kinds != "workpiece"), CONTAIN_MARGIN)
@@ -266,8 +267,7 @@ class VisibilityPredictor:
                                      np.array([cam.center for cam in self.cameras]), starts,
                                      np.concatenate([q[1] for q in queries]),
                                      self.surface_tolerance)
-        everything = np.arange(len(self.poly_owner))
-        answers = [(query, occ[a:b] < 0, occ[a:b], everything, n_ring) if query.size else None
+        answers = [(query, occ[a:b] < 0, occ[a:b], self._every_poly, n_ring) if query.size else None
                    for (query, _, n_ring), a, b in zip(queries, starts[:-1], starts[1:],
                                                        strict=True)]
         return self._labelled(points, views, answers)
