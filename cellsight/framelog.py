@@ -12,6 +12,8 @@ c = 1..C, F features; an empty field is a missing value):
   frame with too few holds the last fix, for at most the tracker's ``lost_after_s``);
 - ``gripper_x, gripper_y, gripper_z`` (m): the grasping robot's true TCP; ``jaw_opening`` (m);
   ``jaws_closed`` (jaws closed on the part, 0/1); ``grasped`` (part held, 0/1);
+- ``q_{robot}_{j}`` (rad or m, j = 1..n): every robot's true joint values, enough to replay
+  the cell (``cellsight view``, ``cellsight export``); absent in runs logged before them;
 - per camera: ``vis_pred_c{c}`` (predicted visible at the tracker's predicted pose),
   ``vis_true_c{c}`` (visible by the simulator's ray casts at the true pose), ``sel_c{c}``
   (selected: a window was planned), ``meas_c{c}`` (a feature was measured in it), ``rej_c{c}``
@@ -35,6 +37,7 @@ existed have the same format and load the same way.
 from __future__ import annotations
 
 import csv
+import re
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -67,12 +70,26 @@ def timing_column(stage: str) -> str:
     return f"t_{stage}_ms"
 
 
-def columns(n_cameras: int) -> list[str]:
-    """The header of ``frames.csv`` for ``n_cameras`` cameras."""
+def joint_column(robot: str, j: int) -> str:
+    """The column of robot ``robot``'s joint ``j`` (1-based)."""
+    return f"q_{robot}_{j}"
+
+
+def joint_fields(joints: Mapping[str, np.ndarray]) -> dict[str, float]:
+    """The ``q_{robot}_{j}`` columns of every robot's joint vector."""
+    return {joint_column(robot, j + 1): float(v) for robot, q in joints.items()
+            for j, v in enumerate(q)}
+
+
+def columns(n_cameras: int, joint_counts: Mapping[str, int] | None = None) -> list[str]:
+    """The header of ``frames.csv`` for ``n_cameras`` cameras and robots with
+    ``joint_counts`` (name -> number of joints) joints."""
     cols = ["t", "phase", "stage", "status"]
     for prefix in POSE_PREFIXES:
         cols += [f"{prefix}_{a}" for a in POSE]
     cols += list(GRIPPER)
+    for robot, n in (joint_counts or {}).items():
+        cols += [joint_column(robot, j) for j in range(1, n + 1)]
     for c in range(1, n_cameras + 1):
         cols += [camera_column(name, c) for name in PER_CAMERA]
     cols += [timing_column(s) for s in STAGES]
@@ -113,9 +130,10 @@ class FrameWriter:
     """Writes ``frames.csv`` row by row, flushing each row (an interrupted run keeps them).
     Use as a context manager or call :meth:`close`."""
 
-    def __init__(self, path: Path, n_cameras: int) -> None:
+    def __init__(self, path: Path, n_cameras: int,
+                 joint_counts: Mapping[str, int] | None = None) -> None:
         self.path = Path(path)
-        self.columns = columns(n_cameras)
+        self.columns = columns(n_cameras, joint_counts)
         self._file: TextIO = self.path.open("w", newline="")
         self._writer = csv.DictWriter(self._file, self.columns, quoting=csv.QUOTE_NONNUMERIC)
         self._writer.writeheader()
@@ -202,6 +220,26 @@ class FrameLog:
     def poses(self, prefix: str) -> np.ndarray:
         """(N, 6) ``{prefix}_x .. {prefix}_yaw`` (m, rad), NaN rows where missing."""
         return np.column_stack([self.floats(f"{prefix}_{a}") for a in POSE]).reshape(-1, 6)
+
+    @property
+    def robots(self) -> dict[str, int]:
+        """Robot name -> number of joints, for every robot with ``q_{robot}_{j}`` columns (in
+        the order logged; none in runs logged before them)."""
+        counts: dict[str, int] = {}
+        for name in self.columns:
+            match = re.fullmatch(r"q_(.+)_(\d+)", name)
+            if match:
+                counts[match[1]] = max(counts.get(match[1], 0), int(match[2]))
+        return counts
+
+    def joints(self, robot: str) -> np.ndarray:
+        """(N, n) robot ``robot``'s logged joint values; a KeyError names the robots logged."""
+        n = self.robots.get(robot)
+        if n is None:
+            raise KeyError(f"frames.csv has no joint columns of robot {robot!r} (logged: "
+                           f"{sorted(self.robots) or 'none'})")
+        return np.column_stack([self.floats(joint_column(robot, j))
+                                for j in range(1, n + 1)]).reshape(self.n, n)
 
     @property
     def n_cameras(self) -> int:

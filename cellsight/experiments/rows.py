@@ -15,6 +15,7 @@ from cellsight.framelog import (
     camera_column,
     encode_bits,
     encode_labels,
+    joint_fields,
     pose_fields,
     timing_fields,
 )
@@ -65,6 +66,7 @@ class FrameRows:
         for prefix, T in (("true", truth.T_base_part), ("est", estimate), ("pnp", pnp)):
             row.update(pose_fields(prefix, T))
         row.update(self._gripper(world))
+        row.update(joint_fields(world.true_joints()))
         reasons = rec.reasons
         for c in range(self.n_cameras):
             row.update(self._camera(c, rec, truth, reasons[c] if reasons else None))

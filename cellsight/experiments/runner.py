@@ -246,7 +246,8 @@ class ExperimentRun:
                  cfg.experiment, self.scenario.description, self.cell.source, cfg.seed,
                  cfg.sensor, "on" if cfg.occlusion_prediction else "off",
                  "; kinematic prior on" if cfg.kinematic_prior else "")
-        writer = FrameWriter(self.out / "frames.csv", len(self.cell.cameras))
+        writer = FrameWriter(self.out / "frames.csv", len(self.cell.cameras),
+                             {r.name: r.n_joints for r in self.cell.robots})
         video = None
         if cfg.sensor == "rendered" and cfg.video_every > 0:
             video = VideoWriter(self.out / "views.mp4", fps=VISION_HZ / cfg.video_every)
