@@ -196,6 +196,14 @@ class Grippers:
         qpos = self.scene.data.qpos
         return {name: float(qpos[adr].sum()) for name, adr in self._jaw_adr.items()}
 
+    def set_opening(self, robot: str, opening: float) -> None:
+        """Put the jaws at an opening (m, clipped to the gripper's range) at once, holding
+        nothing: a replayed state, not a motion."""
+        jaws = self._jaws[robot]
+        jaws.opening = jaws.command = float(np.clip(opening, 0.0, self._tools[robot].max_opening))
+        jaws.clamped = jaws.holding = None
+        self._write(robot)
+
     def clamped(self, robot: str) -> str | None:
         """The workpiece the robot's jaws are closed on (both jaws touch it), or None."""
         return self._jaws[robot].clamped
