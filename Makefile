@@ -30,9 +30,11 @@ test: dev lint
 demo: venv
 	.venv/bin/cellsight run 3 --out out/experiment3 --overwrite
 
-# The README's table: experiments 1-3 x sensors x seeds, with and without occlusion prediction.
+# The README's table: experiments 1-3 x sensors x seeds, with and without occlusion prediction
+# (the comparisons on the first seed), resumable: `cellsight sweep` (out/table/summary.*).
 experiments: venv
-	$(PY) scripts/experiment_table.py --out out/table
+	.venv/bin/cellsight sweep --out out/table --experiments 1 2 3 --sensors rendered ideal \
+		--variants pred nopred prior --seeds 0 1 2 --variant-seeds 1 --jobs 2
 
 # Hostile and random input, 10^5 cases (a few thousand run in `make test`); tests/fuzzing.py.
 fuzz: dev

@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from cellsight.errors import CellsightError
+from cellsight.sweep import command as sweep_command
 
 
 def _debug() -> bool:
@@ -401,6 +402,7 @@ def build_parser() -> argparse.ArgumentParser:
     compare.add_argument("run_a", help="output folder of a run")
     compare.add_argument("run_b", help="output folder of another run")
     compare.set_defaults(func=cmd_compare)
+    sweep_command.register(sub)
     return parser
 
 

@@ -20,7 +20,7 @@ LAYERS = [
     {"occlusion", "tracking", "control"},
     {"world", "framelog"},
     {"report"},
-    {"experiments"},
+    {"experiments", "sweep", "view", "export", "placement"},
     {"cli", "__init__", "__main__", "data"},
 ]
 

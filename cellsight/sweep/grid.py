@@ -1,0 +1,105 @@
+"""The sweep's grid of runs and one run of it, resumable.
+
+A run is a :class:`RunSpec`: a cell (a built-in name or a cell file), an experiment (1-3), a
+sensor (``rendered`` / ``ideal``), a variant (:data:`VARIANTS`: the tracker's options) and a
+seed, written into its own folder ``<out>/<cell>/e<N>_<sensor>_<variant>_s<seed>``.
+:func:`run_spec` reuses a folder whose ``metrics.json`` is complete (read back, neither
+interrupted nor failed) and runs the others again (their folder cleared first).
+"""
+
+from __future__ import annotations
+
+import itertools
+import json
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+from cellsight.errors import CellsightError
+from cellsight.experiments import RunConfig, run_experiment
+
+VARIANTS: dict[str, dict[str, bool]] = {
+    "pred": {"occlusion_prediction": True, "kinematic_prior": False},
+    "nopred": {"occlusion_prediction": False, "kinematic_prior": False},
+    "prior": {"occlusion_prediction": True, "kinematic_prior": True},
+}
+"""Variant name -> the run's options: ``pred`` the paper's tracker (occlusion prediction on),
+``nopred`` windows on every model point in the image, ``prior`` with the gripper's kinematic
+prior while it holds the part."""
+
+SENSORS = ("rendered", "ideal")
+
+
+@dataclass(frozen=True)
+class RunSpec:
+    """One run of a sweep (module docstring); ``duration``: simulated seconds (None: until
+    the task is done)."""
+
+    cell: str
+    experiment: int
+    sensor: str
+    variant: str
+    seed: int
+    duration: float | None = None
+
+    @property
+    def folder(self) -> Path:
+        """The run's folder under the sweep's output folder."""
+        stem = Path(self.cell).stem if self.cell.endswith((".yaml", ".yml")) else self.cell
+        return Path(stem) / f"e{self.experiment}_{self.sensor}_{self.variant}_s{self.seed}"
+
+    def config(self, out: Path) -> RunConfig:
+        """The run's :class:`~cellsight.experiments.RunConfig`, writing into ``out/folder``."""
+        return RunConfig(self.experiment, Path(out) / self.folder, cell=self.cell,
+                         seed=self.seed, sensor=self.sensor, duration=self.duration,
+                         progress=False, overwrite=True, **VARIANTS[self.variant])
+
+
+def sweep_grid(cells: Sequence[str], experiments: Sequence[int], sensors: Sequence[str],
+               variants: Sequence[str], seeds: Sequence[int], variant_seeds: int | None = None,
+               duration: float | None = None) -> list[RunSpec]:
+    """Every combination, in that order; variants other than the first run on the first
+    ``variant_seeds`` seeds only (None: on all), as comparisons."""
+    for name, values, allowed in (("--sensors", sensors, SENSORS),
+                                  ("--variants", variants, tuple(VARIANTS)),
+                                  ("--experiments", experiments, (1, 2, 3))):
+        bad = [v for v in values if v not in allowed]
+        if bad or not values:
+            raise CellsightError(f"{name}: expected one or more of {list(allowed)}, got "
+                                 f"{list(values)}")
+    if not cells or not seeds or any(s < 0 for s in seeds):
+        raise CellsightError(f"--cells and --seeds: expected one or more cells and seeds >= 0, "
+                             f"got {list(cells)} and {list(seeds)}")
+    if variant_seeds is not None and variant_seeds < 1:
+        raise CellsightError(f"--variant-seeds: expected a whole number >= 1, got "
+                             f"{variant_seeds}")
+    compared = set(seeds[:variant_seeds]) if variant_seeds is not None else set(seeds)
+    return [RunSpec(cell, e, sensor, variant, seed, duration)
+            for cell, e, sensor, variant, seed in itertools.product(
+                cells, experiments, sensors, variants, seeds)
+            if variant == variants[0] or seed in compared]
+
+
+def finished_metrics(folder: Path) -> dict | None:
+    """The metrics of a finished run in ``folder`` (neither interrupted nor failed), else
+    None."""
+    try:
+        metrics = json.loads((Path(folder) / "metrics.json").read_text())
+    except (OSError, ValueError):  # not run yet, or cut short while writing
+        return None
+    if isinstance(metrics, dict) and not metrics.get("interrupted") and not metrics.get("error"):
+        return metrics
+    return None
+
+
+def run_spec(job: tuple[RunSpec, Path]) -> dict:
+    """Run one ``(spec, out)`` job (or reuse its finished folder); returns its metrics, with
+    ``"error"`` set when it failed (the sweep goes on) and ``"reused"`` when it was done."""
+    spec, out = job
+    done = finished_metrics(Path(out) / spec.folder)
+    if done is not None:
+        return {**done, "reused": True}
+    try:
+        return run_experiment(spec.config(out))
+    except Exception as exc:  # recorded; the other runs go on
+        return {"error": f"{type(exc).__name__}: {exc}"[:1000]}

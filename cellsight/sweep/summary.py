@@ -1,0 +1,129 @@
+"""A sweep's results as tables and plots: ``summary.csv`` (one row per run, every scalar
+metric and the per-phase errors), ``summary.md`` (the README's tables: the whole task, then
+the position error per phase) and ``summary.png`` (position RMSE and time lost in view per
+experiment, sensor and variant, one dot per seed)."""
+
+from __future__ import annotations
+
+import csv
+from collections.abc import Sequence
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+
+from cellsight.control import Phase  # noqa: E402
+from cellsight.sweep.grid import RunSpec  # noqa: E402
+
+COLUMNS = (
+    ("grasp_success", "grasp", "{}"),
+    ("in_view_fraction", "in view", "{:.2f}"),
+    ("lost_in_view_s", "lost s", "{:.2f}"),
+    ("position_rmse_mm", "pos. RMSE mm", "{:.2f}"),
+    ("max_position_error_mm", "max pos. mm", "{:.2f}"),
+    ("orientation_rmse_deg", "orient. RMSE deg", "{:.2f}"),
+    ("pnp_position_rmse_mm", "PnP pos. RMSE mm", "{:.2f}"),
+    ("visibility_accuracy", "visibility acc.", "{:.4f}"),
+    ("wrong_measurements", "wrong", "{}"),
+    ("wrong_accepted", "wrong accepted", "{}"),
+    ("grasp_position_error_mm", "grasp err. mm", "{:.2f}"),
+)
+"""The whole-task columns of ``summary.md``: metric key, header, format."""
+VARIANT_NAMES = {"pred": "on", "nopred": "**off**", "prior": "on + kinematic prior"}
+RUN_KEYS = ("cell", "experiment", "sensor", "variant", "seed")
+
+
+def _fmt(metrics: dict, key: str, pattern: str) -> str:
+    value = metrics.get(key)
+    return "–" if value is None else pattern.format(value)
+
+
+def _phases() -> list[str]:
+    return [str(p) for p in Phase.working()]
+
+
+def flat_row(spec: RunSpec, metrics: dict) -> dict[str, object]:
+    """One run's CSV row: its grid coordinates, ``status``, the scalar metrics and the
+    per-phase ``<phase>_<metric>`` figures."""
+    status = "failed" if metrics.get("error") else "done"
+    row: dict[str, object] = {"cell": spec.folder.parent.name, "experiment": spec.experiment,
+                              "sensor": spec.sensor, "variant": spec.variant, "seed": spec.seed,
+                              "status": status, "error": metrics.get("error", "")}
+    row.update({k: v for k, v in metrics.items()
+                if k not in row and isinstance(v, int | float | str | bool | None)})
+    for phase, figures in (metrics.get("phases") or {}).items():
+        row.update({f"{phase}_{k}": v for k, v in figures.items()})
+    return row
+
+
+def write_csv(path: Path, rows: Sequence[dict]) -> None:
+    """``summary.csv``: the union of the rows' columns, in first-seen order."""
+    header = list(dict.fromkeys(k for row in rows for k in row))
+    with Path(path).open("w", newline="") as f:
+        writer = csv.DictWriter(f, header)
+        writer.writeheader()
+        writer.writerows(rows)
+
+
+def markdown(specs: Sequence[RunSpec], results: Sequence[dict]) -> str:
+    """The two Markdown tables: whole-task metrics per run, then position RMSE / max (mm) per
+    working phase."""
+    lead = ["cell", "exp.", "sensor", "occlusion prediction", "seed"]
+    phases = _phases()
+
+    def cells(spec: RunSpec) -> list[str]:
+        return [spec.folder.parent.name, str(spec.experiment), spec.sensor,
+                VARIANT_NAMES[spec.variant], str(spec.seed)]
+
+    lines = ["| " + " | ".join(lead + [c[1] for c in COLUMNS]) + " |",
+             "|" + "---|" * (len(lead) + len(COLUMNS))]
+    for spec, m in zip(specs, results, strict=True):
+        values = ([f"failed: {m['error'][:60]}"] + [""] * (len(COLUMNS) - 1) if m.get("error")
+                  else [_fmt(m, key, pattern) for key, _, pattern in COLUMNS])
+        lines.append("| " + " | ".join(cells(spec) + values) + " |")
+    lines += ["", "Position RMSE / max (mm) per phase:", "",
+              "| " + " | ".join(lead + phases) + " |", "|" + "---|" * (len(lead) + len(phases))]
+    for spec, m in zip(specs, results, strict=True):
+        per = m.get("phases") or {}
+        values = [f"{_fmt(per.get(p, {}), 'position_rmse_mm', '{:.2f}')} / "
+                  f"{_fmt(per.get(p, {}), 'max_position_error_mm', '{:.2f}')}" for p in phases]
+        lines.append("| " + " | ".join(cells(spec) + values) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def plot(path: Path, specs: Sequence[RunSpec], results: Sequence[dict]) -> None:
+    """``summary.png``: per (cell, experiment, sensor, variant) group, position RMSE (mm) and
+    time lost in view (s), one dot per seed and a bar at their mean."""
+    groups: dict[tuple, list[dict]] = {}
+    for spec, m in zip(specs, results, strict=True):
+        if not m.get("error"):
+            key = (spec.folder.parent.name, spec.experiment, spec.sensor, spec.variant)
+            groups.setdefault(key, []).append(m)
+    names = [f"{c} e{e}\n{s} {v}" for c, e, s, v in groups]
+    fig, axes = plt.subplots(2, 1, figsize=(max(6.0, 0.9 * len(groups) + 2), 6.5), sharex=True)
+    for ax, key, label in ((axes[0], "position_rmse_mm", "position RMSE (mm)"),
+                           (axes[1], "lost_in_view_s", "lost while in view (s)")):
+        for x, runs in enumerate(groups.values()):
+            values = [float(m[key]) for m in runs if m.get(key) is not None]
+            if values:
+                ax.bar(x, sum(values) / len(values), color="#9ecae1", width=0.7)
+                ax.plot([x] * len(values), values, "o", color="#08519c", ms=4)
+        ax.set_ylabel(label)
+        ax.grid(axis="y", alpha=0.3)
+    axes[1].set_xticks(range(len(names)), names, rotation=60, ha="right", fontsize=7)
+    axes[0].set_title("sweep: whole task, every frame in view (bar: mean over seeds)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def write_summary(out: Path, specs: Sequence[RunSpec], results: Sequence[dict]) -> list[Path]:
+    """Write ``summary.csv``, ``summary.md`` and ``summary.png`` into ``out``; their paths."""
+    out = Path(out)
+    paths = [out / "summary.csv", out / "summary.md", out / "summary.png"]
+    write_csv(paths[0], [flat_row(s, m) for s, m in zip(specs, results, strict=True)])
+    paths[1].write_text(markdown(specs, results))
+    plot(paths[2], specs, results)
+    return paths

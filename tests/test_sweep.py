@@ -1,0 +1,104 @@
+"""``cellsight sweep`` (issue 15): the grid, resuming, the summary, and the same results on a
+local pool and on a Dask ``LocalCluster`` (each run's own metrics.json is the oracle)."""
+
+from __future__ import annotations
+
+import csv
+import json
+
+import pytest
+
+from cellsight.cli import main
+from cellsight.errors import CellsightError
+from cellsight.sweep import RunSpec, map_jobs, sweep_grid
+from cellsight.sweep.command import run_sweep
+
+DURATION = 0.6  # s of simulated time per run: a few frames, enough to compare
+COMPARED = ("frames", "position_rmse_mm", "max_position_error_mm", "visibility_accuracy",
+            "measurements")
+
+
+def _square(x: int) -> int:
+    return x * x
+
+
+def test_grid_is_the_product_with_comparisons_on_the_first_seeds():
+    specs = sweep_grid(["dual-arm", "ur-cell"], [1, 3], ["ideal"], ["pred", "nopred"],
+                       [0, 1, 2], variant_seeds=1)
+    assert len(specs) == 2 * 2 * (3 + 1)
+    assert {s.seed for s in specs if s.variant == "nopred"} == {0}
+    assert len({s.folder for s in specs}) == len(specs)
+    assert str(RunSpec("cells/my_cell.yaml", 3, "ideal", "pred", 2).folder) == \
+        "my_cell/e3_ideal_pred_s2"
+
+
+@pytest.mark.parametrize("kwargs, needle", [
+    ({"sensors": ["camera"]}, "--sensors"), ({"variants": ["fast"]}, "--variants"),
+    ({"experiments": [4]}, "--experiments"), ({"seeds": [-1]}, "--seeds"),
+    ({"variant_seeds": 0}, "--variant-seeds")])
+def test_grid_refuses_bad_values(kwargs, needle):
+    args = {"cells": ["dual-arm"], "experiments": [1], "sensors": ["ideal"],
+            "variants": ["pred"], "seeds": [0]} | kwargs
+    with pytest.raises(CellsightError, match=needle):
+        sweep_grid(**args)
+
+
+def test_engine_gives_every_result_once_in_process_and_on_a_pool():
+    for workers in (1, 2):
+        got = dict(map_jobs(_square, list(range(7)), workers=workers, progress=False))
+        assert got == {i: i * i for i in range(7)}
+
+
+@pytest.fixture(scope="module")
+def local_sweep(tmp_path_factory):
+    out = tmp_path_factory.mktemp("sweep")
+    specs = sweep_grid(["dual-arm"], [1, 3], ["ideal"], ["pred"], [0], duration=DURATION)
+    return out, specs, run_sweep(specs, out, jobs=2, progress=False)
+
+
+def test_sweep_writes_each_run_and_a_summary_of_them(local_sweep):
+    out, specs, results = local_sweep
+    with (out / "summary.csv").open() as f:
+        rows = list(csv.DictReader(f))
+    assert len(rows) == len(specs)
+    for spec, metrics, row in zip(specs, results, rows, strict=True):
+        own = json.loads((out / spec.folder / "metrics.json").read_text())
+        assert own["experiment"] == spec.experiment == int(row["experiment"])
+        for key in COMPARED:
+            assert metrics[key] == own[key]
+            assert float(row[key]) == pytest.approx(float(own[key]))
+    assert (out / "summary.png").stat().st_size > 10_000
+    assert "pos. RMSE mm" in (out / "summary.md").read_text()
+
+
+def test_sweep_resumes_finished_runs_and_redoes_interrupted_ones(local_sweep):
+    out, specs, _ = local_sweep
+    first, second = (out / s.folder / "metrics.json" for s in specs)
+    interrupted = json.loads(second.read_text()) | {"interrupted": True, "signal": "SIGINT"}
+    second.write_text(json.dumps(interrupted))
+    stamp = first.stat().st_mtime_ns
+    results = run_sweep(specs, out, jobs=1, progress=False)
+    assert results[0].get("reused") and first.stat().st_mtime_ns == stamp
+    assert not results[1].get("reused") and not json.loads(second.read_text())["interrupted"]
+
+
+def test_dask_cluster_gives_the_local_results(local_sweep, tmp_path):
+    distributed = pytest.importorskip("distributed")
+    _, specs, local = local_sweep
+    with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=True,
+                                  dashboard_address=None) as cluster:
+        status = main(["sweep", "--out", str(tmp_path), "--experiments", "1", "3",
+                       "--sensors", "ideal", "--duration", str(DURATION), "--quiet",
+                       "--scheduler", cluster.scheduler_address])
+    assert status == 0
+    for spec, metrics in zip(specs, local, strict=True):
+        remote = json.loads((tmp_path / spec.folder / "metrics.json").read_text())
+        assert {k: remote[k] for k in COMPARED} == {k: metrics[k] for k in COMPARED}
+
+
+def test_unreachable_scheduler_is_a_clear_error(tmp_path, capsys):
+    status = main(["sweep", "--out", str(tmp_path), "--experiments", "1", "--sensors", "ideal",
+                   "--duration", "0.1", "--quiet", "--scheduler", "tcp://127.0.0.1:9",
+                   "--scheduler-timeout", "1"])
+    assert status == 2
+    assert "--scheduler" in capsys.readouterr().err
