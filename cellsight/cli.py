@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from cellsight.errors import CellsightError
+from cellsight.placement import command as placement_command
 from cellsight.sweep import command as sweep_command
 
 
@@ -403,6 +404,7 @@ def build_parser() -> argparse.ArgumentParser:
     compare.add_argument("run_b", help="output folder of another run")
     compare.set_defaults(func=cmd_compare)
     sweep_command.register(sub)
+    placement_command.register(sub)
     return parser
 
 

@@ -175,6 +175,21 @@ class VisibilityPredictor:
         tree, polys = self._build(vertices, keep)
         return self._answer(tree, polys, points, views, keep)
 
+    def occluders(self, snapshot: Snapshot, centers: np.ndarray, starts: np.ndarray,
+                  points: np.ndarray) -> np.ndarray:
+        """For any viewpoints, not only the cell's cameras (camera placement): the nearest
+        polygon (Q,) int32 (an index into :attr:`poly_owner`; -1: none) crossing each segment
+        from viewpoint c's optical centre ``centers[c]`` (base frame, m) to
+        ``points[starts[c]:starts[c + 1]]`` (base frame, m) in ``snapshot``, with this
+        predictor's surface tolerance. ``object-bvh`` structure only."""
+        if self._forest is None:
+            raise CellsightError("VisibilityPredictor.occluders needs structure='object-bvh'")
+        return self._forest.occluders(np.ascontiguousarray(snapshot.poses, dtype=np.float64),
+                                      np.ascontiguousarray(centers, dtype=np.float64),
+                                      np.ascontiguousarray(starts, dtype=np.int64),
+                                      np.ascontiguousarray(points, dtype=np.float64),
+                                      self.surface_tolerance)
+
     def stage_times(self, snapshot: Snapshot) -> dict[str, float]:
         """One prediction, timed by stage (s): ``cull`` (features, moving and culling the
         surfaces; ``object-bvh``: projecting the features), ``build`` (the tree; 0 for

@@ -2,7 +2,8 @@
 
 :func:`map_jobs` yields ``(index, result)`` as jobs finish, in any order, with a rich progress
 bar. ``workers`` = 1 and no scheduler: in this process, one after the other (no pickling, the
-numba caches warm); ``workers`` > 1: a :class:`~concurrent.futures.ProcessPoolExecutor`;
+numba caches warm); ``workers`` > 1: a :class:`~concurrent.futures.ProcessPoolExecutor` of
+spawned processes (not forked: numba's OpenMP threads, once started, make a fork unsafe);
 ``scheduler``: the address of a Dask ``distributed`` scheduler (``tcp://host:8786``) or a
 :class:`distributed.Client` / ``LocalCluster`` object, whose workers must be able to import
 cellsight. Jobs and results must pickle; the function must be importable by name (module
@@ -13,6 +14,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
+from multiprocessing import get_context
 from typing import Any
 
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
@@ -42,7 +44,7 @@ def map_jobs(fn: Callable[[Any], Any], jobs: Sequence[Any], *, workers: int = 1,
 
 
 def _on_pool(fn: Callable, jobs: Sequence, workers: int) -> Iterator[tuple[int, Any]]:
-    pool = ProcessPoolExecutor(min(workers, len(jobs)))
+    pool = ProcessPoolExecutor(min(workers, len(jobs)), mp_context=get_context("spawn"))
     try:
         futures = {pool.submit(fn, job): i for i, job in enumerate(jobs)}
         for future in as_completed(futures):
