@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from cellsight.errors import CellsightError
+from cellsight.export import command as export_command
 from cellsight.placement import command as placement_command
 from cellsight.sweep import command as sweep_command
 
@@ -405,6 +406,7 @@ def build_parser() -> argparse.ArgumentParser:
     compare.set_defaults(func=cmd_compare)
     sweep_command.register(sub)
     placement_command.register(sub)
+    export_command.register(sub)
     return parser
 
 

@@ -51,6 +51,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="run the task's experiment with these seeds, with the cell's cameras "
                         "and with the chosen ones, and compare")
     p.add_argument("--verify-sensors", nargs="+", default=["ideal"], help="rendered / ideal")
+    p.add_argument("--verify-duration", type=float, help="simulated seconds of each verify run "
+                   "(default: the whole task)")
     p.add_argument("--jobs", type=int, default=2, help="local worker processes (verify runs)")
     p.add_argument("--scheduler", help="a Dask scheduler's address for the scoring and runs")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
@@ -91,7 +93,7 @@ def _template(cell: Cell, name: str | None):
 
 def verification(args, source: str, placed: Path, experiment: int) -> list[str]:
     """Run the experiment with both camera sets (sweep engine); the comparison table."""
-    specs = [RunSpec(cell, experiment, sensor, "pred", seed)
+    specs = [RunSpec(cell, experiment, sensor, "pred", seed, args.verify_duration)
              for sensor in args.verify_sensors for seed in args.verify_seeds
              for cell in (source, str(placed))]
     results = run_sweep(specs, args.out / "verify", args.jobs, args.scheduler, not args.quiet)
@@ -124,7 +126,7 @@ def cmd_place_cameras(args: argparse.Namespace) -> int:
     folder = task_folder(args)
     task = TaskFrames.read(folder, args.every)
     cell = load_cell(args.cell or task.cell)
-    k = args.cameras or len(cell.cameras)
+    k = len(cell.cameras) if args.cameras is None else args.cameras
     candidates = shell_candidates(cell, task, _template(cell, args.template), args.radii,
                                   args.elevations, args.azimuth_step)
     if not 1 <= k <= len(candidates):

@@ -61,9 +61,7 @@ def frame_views(predictor: VisibilityPredictor, template: Camera, R_cb: np.ndarr
     pc = np.matmul(R_cb, points.T).transpose(0, 2, 1) + t_cb[:, None, :]
     C, F = pc.shape[:2]
     px = template.project_camera(pc.reshape(-1, 3)).reshape(C, F, 2)
-    with np.errstate(invalid="ignore"):
-        inside = ((pc[..., 2] > 0) & (px[..., 0] >= 0) & (px[..., 0] <= template.width - 1)
-                  & (px[..., 1] >= 0) & (px[..., 1] <= template.height - 1))
+    inside = (pc[..., 2] > 0) & template.in_image(px.reshape(-1, 2)).reshape(C, F)
     cams, feats = np.nonzero(inside)
     starts = np.searchsorted(cams, np.arange(C + 1))
     visible = np.zeros((C, F), dtype=bool)

@@ -171,20 +171,6 @@ class World:
         self.grippers.let_go(name)
         self.parts.place(name, T_base_part)
 
-    def show_state(self, joints: Mapping[str, np.ndarray],
-                   part_poses: Mapping[str, np.ndarray],
-                   openings: Mapping[str, float] | None = None) -> None:
-        """Put the cell in a logged state at once, for replay: robot name -> joint vector
-        (rad, m; robots left out stay), workpiece name -> ``T_base_part`` (resting there, held
-        by nobody), robot name -> jaw opening (m). Robots with a task of their own are
-        refused (make the world without ``tasks`` to replay them)."""
-        self.robots.drive(joints)
-        for name, T in part_poses.items():
-            self.place_part(name, T)
-        for name, opening in (openings or {}).items():
-            self.grippers.set_opening(name, opening)
-        self.scene.sync()
-
     def grasp_pose(self, name: str) -> np.ndarray:
         """``T_part_tcp`` of the grasp that engages for this workpiece."""
         return self.grippers.grasp_pose(self.cell.workpiece(name).name)

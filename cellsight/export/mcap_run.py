@@ -1,0 +1,286 @@
+"""A run folder (``cellsight run``) as an MCAP file of ROS 2 messages, for ROS 2 tools and
+Foxglove.
+
+Topics (``<cam>``, ``<part>``: the camera's and the workpiece's names as ROS name tokens,
+:func:`~cellsight.export.ros.topic_token`):
+
+- ``/tf_static`` (``tf2_msgs/msg/TFMessage``, once, at the first frame): the fixed frames of
+  :mod:`cellsight.export.frames`: robots' bases, tools and TCPs, cameras' optical frames,
+  static objects;
+- ``/tf`` (one per frame): every robot's chain frames at the logged joints, ``<part>_true``
+  and, in frames where the tracker has one, ``<part>_est``;
+- ``/<part>/true_pose``, ``/<part>/est_pose`` (``geometry_msgs/msg/PoseStamped``, frame
+  ``base``; the estimate only in frames that have one);
+- ``/<cam>/visibility`` (``visualization_msgs/msg/MarkerArray``, one per frame):
+  :mod:`cellsight.export.markers`;
+- ``/<cam>/camera_info`` (``sensor_msgs/msg/CameraInfo``) and ``/<cam>/image_raw``
+  (``sensor_msgs/msg/Image``, mono8, frame ``<cam>_optical``), every ``every``-th frame
+  (frames 0, every, 2 every, ...): the images are rendered again by MuJoCo at the logged state
+  (robots' joints, the part at its true pose, the grasping robot's jaw opening), so the same
+  for either sensor; ``images=False`` leaves the images out (the camera info stays).
+
+Time: message stamps, log and publish times are all the frame's run time ``t`` from the Unix
+epoch (:data:`~cellsight.export.ros.EPOCH_NS`). The file is written as the frames go; when
+interrupted (SIGINT, or the caller's :class:`Stop`) or failing, it is closed properly with the
+frames written so far (its ``cellsight`` metadata then says ``complete: false``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from cellsight.errors import CellsightError
+from cellsight.export import frames as tf
+from cellsight.export import markers, ros
+from cellsight.export.msgdefs import msgdef, schema_name
+from cellsight.export.run_data import RunData, load_run
+from cellsight.geometry.transforms import transform_points
+
+TF, POSE, CAMERA_INFO, IMAGE, MARKERS = (
+    "tf2_msgs/TFMessage", "geometry_msgs/PoseStamped", "sensor_msgs/CameraInfo",
+    "sensor_msgs/Image", "visualization_msgs/MarkerArray")
+
+
+class Stop(BaseException):  # a signal, like KeyboardInterrupt: not caught as an Exception
+    """Raised (by a signal handler) to end an export early; ``args[0]`` names the signal."""
+
+
+@dataclass
+class ExportResult:
+    """What was written: ``topics`` topic -> [message type, count]; ``frames`` of the run's
+    ``total`` frames; ``stopped_by`` the signal that ended it early (None: complete)."""
+
+    path: Path
+    topics: dict[str, list] = field(default_factory=dict)
+    frames: int = 0
+    total: int = 0
+    images: int = 0
+    t_first: float = float("nan")
+    t_last: float = float("nan")
+    stopped_by: str | None = None
+
+
+class _Bag:
+    """The MCAP writer, its schemas registered on first use, and the message counts."""
+
+    def __init__(self, stream, result: ExportResult) -> None:
+        from mcap_ros2.writer import Writer
+
+        self._writer = Writer(stream)
+        self._schemas: dict = {}
+        self.result = result
+
+    def write(self, topic: str, kind: str, message: dict, ns: int) -> None:
+        schema = self._schemas.get(kind)
+        if schema is None:
+            schema = self._schemas[kind] = self._writer.register_msgdef(schema_name(kind),
+                                                                        msgdef(kind))
+        self._writer.write_message(topic, schema, message, log_time=ns, publish_time=ns)
+        self.result.topics.setdefault(topic, [schema_name(kind), 0])[1] += 1
+
+    def close(self, metadata: dict[str, str]) -> None:
+        self._writer.add_metadata("cellsight", metadata)
+        self._writer.finish()
+
+
+def check_output(path: str | Path, overwrite: bool, run_folder: Path) -> Path:
+    """The output file, checked touching nothing: not a folder, not one of the run's own
+    files, not existing unless ``overwrite``, its folder creatable."""
+    from cellsight.experiments.runner import RUN_FILES
+
+    path = Path(path)
+    if path.is_dir():
+        raise CellsightError(f"--mcap: {str(path)!r} is a folder; expected a file name")
+    if path.name in RUN_FILES and path.resolve().parent == run_folder.resolve():
+        raise CellsightError(f"--mcap: {str(path)!r} is the run's own {path.name}")
+    if path.exists() and not overwrite:
+        raise CellsightError(f"--mcap: {str(path)!r} exists; pass --overwrite to replace it")
+    parent = next((p for p in path.absolute().parents if p.exists()), None)
+    if parent is not None and not parent.is_dir():
+        raise CellsightError(f"--mcap: {str(path)!r} is under {str(parent)!r}, a file")
+    return path
+
+
+class _Images:
+    """The cameras' images re-rendered at logged states by a :class:`~cellsight.world.ReplayWorld`
+    of the run's cell without tasks (made on first use)."""
+
+    def __init__(self, run: RunData) -> None:
+        self.run = run
+        self._world = None
+        tool = run.robot is not None and any(r.name == run.robot and r.tool is not None
+                                             for r in run.cell.robots)
+        self._gripper = run.robot if tool else None
+
+    def render(self, k: int) -> list[np.ndarray]:
+        from cellsight.world import ReplayWorld
+
+        run = self.run
+        if self._world is None:
+            self._world = ReplayWorld(run.cell)
+        openings = ({self._gripper: float(run.opening[k])}
+                    if self._gripper and np.isfinite(run.opening[k]) else {})
+        self._world.show_state({r: q[k] for r, q in run.joints.items()},
+                               {run.part.name: run.T_true[k]}, openings)
+        try:
+            return self._world.render()
+        except RuntimeError as exc:
+            raise CellsightError(f"rendering the camera images failed ({exc}); pass "
+                                 f"--no-images to export without them") from exc
+
+    def close(self) -> None:
+        if self._world is not None:
+            self._world.close()
+
+
+def _topic_tokens(run: RunData) -> tuple[list[str], str]:
+    """The cameras' and the workpiece's names as topic tokens, checked distinct."""
+    cams = [ros.topic_token(c.name) for c in run.cell.cameras]
+    if len(set(cams)) != len(cams):
+        raise CellsightError(f"cell {run.cell.source}: cameras {[c.name for c in run.cell.cameras]}"
+                             f" give the same ROS topic names {cams}")
+    return cams, ros.topic_token(run.part.name)
+
+
+class _Frames:
+    """The messages of each frame of a run (module docstring), buffered per frame so that an
+    interruption falls between frames."""
+
+    def __init__(self, run: RunData, every: int, images: _Images | None) -> None:
+        self.run, self.every, self.images = run, every, images
+        self.cams, self.part = _topic_tokens(run)
+        self.static = tf.static_transforms(run.cell, run.part.name)
+        self.size = markers.marker_size(run.part.feature_points)
+
+    def tf_static(self) -> list[tuple[str, str, dict]]:
+        ns = ros.time_ns(self.run.t[0])
+        return [("/tf_static", TF, {"transforms": [ros.transform(ns, *t) for t in self.static]})]
+
+    def messages(self, k: int) -> list[tuple[str, str, dict]]:
+        """Every message of frame ``k``: (topic, type, message)."""
+        run = self.run
+        ns = ros.time_ns(run.t[k])
+        true_frame, est_frame = tf.part_frames(run.part.name)
+        transforms = [t for r in run.cell.robots
+                      for t in tf.robot_transforms(r, run.joints[r.name][k])]
+        transforms.append((tf.ROOT, true_frame, run.T_true[k]))
+        has_est = bool(np.all(np.isfinite(run.T_est[k])))
+        if has_est:
+            transforms.append((tf.ROOT, est_frame, run.T_est[k]))
+        out = [("/tf", TF, {"transforms": [ros.transform(ns, *t) for t in transforms]}),
+               (f"/{self.part}/true_pose", POSE, ros.pose_stamped(ns, tf.ROOT, run.T_true[k]))]
+        if has_est:
+            out.append((f"/{self.part}/est_pose", POSE,
+                        ros.pose_stamped(ns, tf.ROOT, run.T_est[k])))
+        points = transform_points(run.T_true[k], run.part.feature_points)
+        for c, (cam, token) in enumerate(zip(run.cell.cameras, self.cams, strict=True)):
+            out.append((f"/{token}/visibility", MARKERS, markers.visibility_markers(
+                ns, points, run.part.feature_names, cam.center, run.vis_pred[c][k],
+                bool(run.vis_pred_present[c][k]), run.vis_true[c][k],
+                bool(run.vis_true_present[c][k]), self.size)))
+        if k % self.every == 0:
+            out += self._camera_messages(k, ns)
+        return out
+
+    def _camera_messages(self, k: int, ns: int) -> list[tuple[str, str, dict]]:
+        images = self.images.render(k) if self.images is not None else None
+        out = []
+        for c, (cam, token) in enumerate(zip(self.run.cell.cameras, self.cams, strict=True)):
+            frame = tf.optical_frame(cam.name)
+            out.append((f"/{token}/camera_info", CAMERA_INFO, ros.camera_info(ns, frame, cam)))
+            if images is not None:
+                out.append((f"/{token}/image_raw", IMAGE, ros.mono8_image(ns, frame, images[c])))
+        return out
+
+
+def _progress_bar(enabled: bool):
+    from rich.progress import (
+        BarColumn,
+        MofNCompleteColumn,
+        Progress,
+        TextColumn,
+        TimeElapsedColumn,
+        TimeRemainingColumn,
+    )
+
+    return Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
+                    TextColumn("frames"), TimeElapsedColumn(), TimeRemainingColumn(),
+                    disable=not enabled, transient=False)
+
+
+def _metadata(run: RunData, result: ExportResult, every: int, images: bool,
+              error: BaseException | None) -> dict[str, str]:
+    """The file's ``cellsight`` metadata record: where it came from and how it ended."""
+    m = run.metrics
+    data = {"run": str(run.folder), "cell": str(run.cell.source),
+            "experiment": str(m.get("experiment")), "seed": str(m.get("seed")),
+            "sensor": str(m.get("sensor")),
+            "time": "stamps, log and publish times: the run's time t (s) from the Unix epoch",
+            "frames": f"{result.frames}/{result.total}", "image_every": str(every),
+            "images": "rendered by MuJoCo at the logged state" if images else "none",
+            "complete": "true" if result.frames == result.total else "false"}
+    if result.stopped_by:
+        data["stopped_by"] = result.stopped_by
+    if error is not None:
+        data["error"] = f"{type(error).__name__}: {error}"[:500]
+    return data
+
+
+def export_mcap(run_dir: str | Path, out: str | Path, *, every: int = 1, images: bool = True,
+                overwrite: bool = False, progress: bool = True,
+                cell: str | Path | None = None) -> ExportResult:
+    """Write the run in ``run_dir`` to the MCAP file ``out`` (module docstring); ``cell``
+    overrides the cell named by the run's metrics.json. Returns what was written; stopped by
+    SIGINT (or :class:`Stop`), the file holds the frames before it and ``stopped_by`` says so."""
+    if isinstance(every, bool) or not isinstance(every, int) or every < 1:
+        raise CellsightError(f"--every: expected a whole number >= 1, got {every!r}")
+    run = load_run(run_dir, cell)
+    path = check_output(out, overwrite, run.folder)
+    result = ExportResult(path, total=run.n)
+    renderer = _Images(run) if images else None
+    source = _Frames(run, every, renderer)
+    error: BaseException | None = None
+    with _open_output(path) as stream, _progress_bar(progress) as bar:
+        bag = _Bag(stream, result)
+        task = bar.add_task("exporting", total=run.n)
+        try:
+            _write_all(bag, source, result, lambda: bar.advance(task))
+        except (KeyboardInterrupt, Stop) as exc:
+            result.stopped_by = exc.args[0] if isinstance(exc, Stop) and exc.args else "SIGINT"
+        except BaseException as exc:
+            error = exc
+            raise
+        finally:
+            if renderer is not None:
+                renderer.close()
+            bag.close(_metadata(run, result, every, images, error))
+    return result
+
+
+def _open_output(path: Path):
+    """The output file opened for writing (its folder made), or a clear error naming it."""
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        return path.open("wb")
+    except OSError as exc:
+        raise CellsightError(f"--mcap: cannot write {str(path)!r} "
+                             f"({exc.strerror or exc})") from exc
+
+
+def _write_all(bag: _Bag, source: _Frames, result: ExportResult,
+               advance: Callable[[], None]) -> None:
+    run = source.run
+    for k in range(run.n):
+        batch = (source.tf_static() if k == 0 else []) + source.messages(k)
+        ns = ros.time_ns(run.t[k])
+        for topic, kind, message in batch:
+            bag.write(topic, kind, message, ns)
+        result.frames = k + 1
+        result.images += sum(kind == IMAGE for _, kind, _ in batch)
+        result.t_first = float(run.t[0])
+        result.t_last = float(run.t[k])
+        advance()
