@@ -22,8 +22,10 @@ import numpy as np
 
 from cellsight.errors import CellsightError
 from cellsight.export import command as export_command
+from cellsight.model.arguments import parse_joints, parse_part_poses
 from cellsight.placement import command as placement_command
 from cellsight.sweep import command as sweep_command
+from cellsight.view import command as view_command
 
 
 def _debug() -> bool:
@@ -43,80 +45,6 @@ def _short(value, limit: int = 60) -> str:
     return text if len(text) <= limit else text[: limit - 3] + "..."
 
 
-def _json_arg(text: str | None, what: str):
-    """Parse a JSON command-line value, or read it from a file when it names one (a value that
-    starts with ``{`` or ``[`` is always JSON)."""
-    if text is None:
-        return None
-    source = text
-    if text.lstrip()[:1] not in ("{", "["):
-        path = Path(text)
-        try:
-            is_file = path.is_file()
-        except OSError:  # not a usable path (too long, ...): take it as JSON text
-            is_file = False
-        if is_file:
-            try:
-                source = path.read_bytes().decode("utf-8")
-            except UnicodeDecodeError as exc:
-                raise CellsightError(f"--{what}: {path}: not UTF-8 text") from exc
-    try:
-        return json.loads(source)
-    except json.JSONDecodeError as exc:
-        raise CellsightError(f"--{what}: not valid JSON ({exc.msg} at column {exc.colno})") from exc
-
-
-def _numbers(value, what: str, shape: tuple[int, ...] | None = None) -> np.ndarray:
-    """``value`` as a float array of finite numbers (of ``shape`` if given), else a clear error."""
-    try:
-        array = np.asarray(value, dtype=float)
-    except (TypeError, ValueError):
-        array = None
-    if (array is None or array.ndim == 0 or (shape is not None and array.shape != shape)
-            or not np.all(np.isfinite(array))):
-        expected = "finite numbers" if shape is None else f"finite numbers of shape {shape}"
-        raise CellsightError(f"{what}: expected {expected}, got {_short(value)}")
-    return array
-
-
-def _joints(text: str | None) -> dict[str, np.ndarray]:
-    """``{"R7AX": [...], ...}`` -> robot name -> joint vector."""
-    data = _json_arg(text, "joints") or {}
-    if not isinstance(data, dict):
-        raise CellsightError(f"--joints: expected an object robot -> list of numbers, got "
-                             f"{_short(data)}")
-    return {name: _numbers(q, f"--joints: robot {name!r}") for name, q in data.items()}
-
-
-def _part_poses(text: str | None) -> dict[str, np.ndarray]:
-    """``{"part": {"xyz": [...], "rpy": [...]}}`` or a 4x4 rigid transform per workpiece."""
-    from cellsight.geometry.transforms import pose_from_xyz_rpy
-
-    data = _json_arg(text, "part-pose") or {}
-    if not isinstance(data, dict):
-        raise CellsightError(f"--part-pose: expected an object name -> pose, got {_short(data)}")
-    poses = {}
-    for name, value in data.items():
-        what = f"--part-pose: {name!r}"
-        if isinstance(value, dict):
-            unknown = sorted(set(value) - {"xyz", "rpy"})
-            if unknown:
-                raise CellsightError(f"{what}: unknown keys {unknown}; expected xyz and rpy")
-            xyz = _numbers(value.get("xyz", [0, 0, 0]), f"{what}.xyz", (3,))
-            rpy = _numbers(value.get("rpy", [0, 0, 0]), f"{what}.rpy", (3,))
-            poses[name] = pose_from_xyz_rpy(xyz, rpy)
-        else:
-            T = _numbers(value, what, (4, 4))
-            R = T[:3, :3]
-            rigid = (np.allclose(R.T @ R, np.eye(3), atol=1e-6) and np.linalg.det(R) > 0
-                     and np.allclose(T[3], [0, 0, 0, 1]))
-            if not rigid:
-                raise CellsightError(f"{what}: expected a rigid transform (rotation with det +1, "
-                                     f"last row 0 0 0 1), got {_short(value)}")
-            poses[name] = T
-    return poses
-
-
 def cmd_show(args: argparse.Namespace) -> int:
     from rich.console import Console
 
@@ -125,7 +53,7 @@ def cmd_show(args: argparse.Namespace) -> int:
     from cellsight.report.show import show_cell
 
     cell = load_cell(args.cell)
-    snapshot = cell.snapshot(_joints(args.joints), _part_poses(args.part_pose))
+    snapshot = cell.snapshot(parse_joints(args.joints), parse_part_poses(args.part_pose))
     visibility = VisibilityPredictor(cell).predict_snapshot(snapshot)
     paths = show_cell(snapshot, Path(args.out), visibility)
     console = Console()
@@ -142,7 +70,8 @@ def cmd_visibility(args: argparse.Namespace) -> int:
     from cellsight.occlusion.predictor import VisibilityPredictor
 
     cell = load_cell(args.cell)
-    result = VisibilityPredictor(cell).predict(_joints(args.joints), _part_poses(args.part_pose))
+    result = VisibilityPredictor(cell).predict(parse_joints(args.joints),
+                                               parse_part_poses(args.part_pose))
     if args.json:
         out = {
             part: [
@@ -407,6 +336,7 @@ def build_parser() -> argparse.ArgumentParser:
     sweep_command.register(sub)
     placement_command.register(sub)
     export_command.register(sub)
+    view_command.register(sub)
     return parser
 
 

@@ -1,0 +1,86 @@
+"""Command-line values of a cell's state, shared by ``cellsight show``, ``visibility`` and
+``view``: ``--joints`` and ``--part-pose`` (JSON text, or the name of a JSON file). Every bad
+value is a :class:`~cellsight.errors.CellsightError` naming the option and the value."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from cellsight.errors import CellsightError, short_repr
+from cellsight.geometry.transforms import pose_from_xyz_rpy
+
+
+def json_value(text: str | None, option: str):
+    """``text`` parsed as JSON, or the JSON file it names (text starting with ``{`` or ``[`` is
+    always JSON); None when ``text`` is None."""
+    if text is None:
+        return None
+    source = text
+    if text.lstrip()[:1] not in ("{", "["):
+        path = Path(text)
+        try:
+            is_file = path.is_file()
+        except (OSError, ValueError):  # not a usable path: take it as JSON text
+            is_file = False
+        if is_file:
+            try:
+                source = path.read_bytes().decode("utf-8")
+            except UnicodeDecodeError as exc:
+                raise CellsightError(f"--{option}: {path}: not UTF-8 text") from exc
+    try:
+        return json.loads(source)
+    except json.JSONDecodeError as exc:
+        raise CellsightError(f"--{option}: not valid JSON ({exc.msg} at column {exc.colno})"
+                             ) from exc
+
+
+def _numbers(value, what: str, shape: tuple[int, ...] | None = None) -> np.ndarray:
+    """``value`` as finite floats (of ``shape`` if given), else an error naming ``what``."""
+    try:
+        array = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        array = None
+    if (array is None or array.ndim == 0 or (shape is not None and array.shape != shape)
+            or not np.all(np.isfinite(array))):
+        expected = "finite numbers" if shape is None else f"finite numbers of shape {shape}"
+        raise CellsightError(f"{what}: expected {expected}, got {short_repr(value)}")
+    return array
+
+
+def parse_joints(text: str | None) -> dict[str, np.ndarray]:
+    """``{"R7AX": [q1, ...], ...}`` (JSON or a JSON file) -> robot name -> joint vector."""
+    data = json_value(text, "joints") or {}
+    if not isinstance(data, dict):
+        raise CellsightError(f"--joints: expected an object robot -> list of numbers, got "
+                             f"{short_repr(data)}")
+    return {name: _numbers(q, f"--joints: robot {name!r}") for name, q in data.items()}
+
+
+def parse_part_poses(text: str | None) -> dict[str, np.ndarray]:
+    """``{"part": {"xyz": [...], "rpy": [...]}}`` or a 4x4 rigid transform per workpiece."""
+    data = json_value(text, "part-pose") or {}
+    if not isinstance(data, dict):
+        raise CellsightError(f"--part-pose: expected an object name -> pose, got "
+                             f"{short_repr(data)}")
+    poses = {}
+    for name, value in data.items():
+        what = f"--part-pose: {name!r}"
+        if isinstance(value, dict):
+            unknown = sorted(set(value) - {"xyz", "rpy"})
+            if unknown:
+                raise CellsightError(f"{what}: unknown keys {unknown}; expected xyz and rpy")
+            xyz = _numbers(value.get("xyz", [0, 0, 0]), f"{what}.xyz", (3,))
+            rpy = _numbers(value.get("rpy", [0, 0, 0]), f"{what}.rpy", (3,))
+            poses[name] = pose_from_xyz_rpy(xyz, rpy)
+            continue
+        T = _numbers(value, what, (4, 4))
+        R = T[:3, :3]
+        if not (np.allclose(R.T @ R, np.eye(3), atol=1e-6) and np.linalg.det(R) > 0
+                and np.allclose(T[3], [0, 0, 0, 1])):
+            raise CellsightError(f"{what}: expected a rigid transform (rotation with det +1, "
+                                 f"last row 0 0 0 1), got {short_repr(value)}")
+        poses[name] = T
+    return poses
