@@ -102,3 +102,16 @@ def test_unreachable_scheduler_is_a_clear_error(tmp_path, capsys):
                    "--scheduler-timeout", "1"])
     assert status == 2
     assert "--scheduler" in capsys.readouterr().err
+
+
+def test_a_run_on_a_cell_file_changed_since_is_run_again(tmp_path):
+    from cellsight.model.loader import cell_path
+
+    cell = tmp_path / "my_cell.yaml"
+    cell.write_text(cell_path("dual-arm").read_text())
+    specs = sweep_grid([str(cell)], [1], ["ideal"], ["pred"], [0], duration=0.2)
+    run_sweep(specs, tmp_path / "out", jobs=1, progress=False)
+    assert run_sweep(specs, tmp_path / "out", jobs=1, progress=False)[0].get("reused")
+    cell.write_text(cell.read_text() + "\n# moved a camera\n")
+    again = run_sweep(specs, tmp_path / "out", jobs=1, progress=False)[0]
+    assert not again.get("reused") and not again.get("error")

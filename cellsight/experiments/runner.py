@@ -24,6 +24,7 @@ the loop at the next frame boundary (:class:`StopSignals`): the metrics then say
 
 from __future__ import annotations
 
+import hashlib
 import json
 import logging
 import math
@@ -360,6 +361,7 @@ class ExperimentRun:
             "experiment": cfg.experiment,
             "description": self.scenario.description,
             "cell": self.cell.source,
+            "cell_sha256": cell_digest(self.cell.source),
             "seed": cfg.seed,
             "sensor": cfg.sensor,
             "occlusion_prediction": cfg.occlusion_prediction,
@@ -384,6 +386,15 @@ class ExperimentRun:
         log.info("metrics: %s", json.dumps({k: v for k, v in metrics.items()
                                             if not isinstance(v, list | dict)}))
         return metrics
+
+
+def cell_digest(source: str) -> str | None:
+    """SHA-256 (hex) of the cell file's bytes (None when it cannot be read): which cell a run
+    used, even when the file is later rewritten (a sweep reuses a run only for the same)."""
+    try:
+        return hashlib.sha256(Path(source).read_bytes()).hexdigest()
+    except OSError:
+        return None
 
 
 def _log_to(path: Path) -> logging.Handler:

@@ -14,7 +14,7 @@ from rich.console import Console
 from cellsight.errors import CellsightError
 from cellsight.experiments import RunConfig, run_experiment
 from cellsight.model.cell import Cell
-from cellsight.model.loader import load_cell
+from cellsight.model.loader import cell_path, load_cell
 from cellsight.placement.candidates import shell_candidates
 from cellsight.placement.cellfile import write_cell_file
 from cellsight.placement.choose import choose_cameras, placement_loss
@@ -63,7 +63,7 @@ def task_folder(args: argparse.Namespace) -> Path:
     """The run folder of ``--task``: as given, or OUT/task after running the experiment."""
     if args.task in ("1", "2", "3"):
         folder = args.out / "task"
-        if finished_metrics(folder) is None:
+        if finished_metrics(folder, str(cell_path(args.cell))) is None:
             run_experiment(RunConfig(int(args.task), folder, cell=args.cell, sensor="ideal",
                                      progress=not args.quiet, overwrite=True))
         return folder

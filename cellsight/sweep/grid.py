@@ -4,7 +4,8 @@ A run is a :class:`RunSpec`: a cell (a built-in name or a cell file), an experim
 sensor (``rendered`` / ``ideal``), a variant (:data:`VARIANTS`: the tracker's options) and a
 seed, written into its own folder ``<out>/<cell>/e<N>_<sensor>_<variant>_s<seed>``.
 :func:`run_spec` reuses a folder whose ``metrics.json`` is complete (read back, neither
-interrupted nor failed) and runs the others again (their folder cleared first).
+interrupted nor failed, and run on the same cell file, by its SHA-256) and runs the others again
+(their folder cleared first).
 """
 
 from __future__ import annotations
@@ -17,6 +18,8 @@ from pathlib import Path
 
 from cellsight.errors import CellsightError
 from cellsight.experiments import RunConfig, run_experiment
+from cellsight.experiments.runner import cell_digest
+from cellsight.model.loader import cell_path
 
 VARIANTS: dict[str, dict[str, bool]] = {
     "pred": {"occlusion_prediction": True, "kinematic_prior": False},
@@ -80,23 +83,25 @@ def sweep_grid(cells: Sequence[str], experiments: Sequence[int], sensors: Sequen
             if variant == variants[0] or seed in compared]
 
 
-def finished_metrics(folder: Path) -> dict | None:
-    """The metrics of a finished run in ``folder`` (neither interrupted nor failed), else
-    None."""
+def finished_metrics(folder: Path, cell: str | None = None) -> dict | None:
+    """The metrics of a finished run in ``folder`` (neither interrupted nor failed; with
+    ``cell``, a cell name or file, run on that cell's file as it is now), else None."""
     try:
         metrics = json.loads((Path(folder) / "metrics.json").read_text())
     except (OSError, ValueError):  # not run yet, or cut short while writing
         return None
-    if isinstance(metrics, dict) and not metrics.get("interrupted") and not metrics.get("error"):
-        return metrics
-    return None
+    if not isinstance(metrics, dict) or metrics.get("interrupted") or metrics.get("error"):
+        return None
+    if cell is not None and metrics.get("cell_sha256") != cell_digest(str(cell_path(cell))):
+        return None  # another cell, or the file changed since
+    return metrics
 
 
 def run_spec(job: tuple[RunSpec, Path]) -> dict:
     """Run one ``(spec, out)`` job (or reuse its finished folder); returns its metrics, with
     ``"error"`` set when it failed (the sweep goes on) and ``"reused"`` when it was done."""
     spec, out = job
-    done = finished_metrics(Path(out) / spec.folder)
+    done = finished_metrics(Path(out) / spec.folder, spec.cell)
     if done is not None:
         return {**done, "reused": True}
     try:
