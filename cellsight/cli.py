@@ -20,6 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
+from cellsight import cameras_cli
 from cellsight.errors import CellsightError
 from cellsight.export import command as export_command
 from cellsight.model.arguments import parse_joints, parse_part_poses
@@ -337,6 +338,7 @@ def build_parser() -> argparse.ArgumentParser:
     placement_command.register(sub)
     export_command.register(sub)
     view_command.register(sub)
+    cameras_cli.register(sub)
     return parser
 
 

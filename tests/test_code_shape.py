@@ -21,7 +21,7 @@ LAYERS = [
     {"world", "framelog"},
     {"report"},
     {"experiments", "sweep", "view", "export", "placement"},
-    {"cli", "__init__", "__main__", "data"},
+    {"cli", "cameras_cli", "__init__", "__main__", "data"},
 ]
 
 

@@ -59,7 +59,7 @@ def _mask(text: str) -> np.ndarray:
 
 def test_short_run_writes_every_log_column_and_metric(short_run: Path) -> None:
     rows = read_frames(short_run / "frames.csv")
-    assert list(rows[0]) == columns(2)
+    assert list(rows[0]) == columns(2, {r.name: r.n_joints for r in load_cell().robots})
     assert len(rows) == int(DURATION * VISION_HZ) + 1
     t = np.array([float(r["t"]) for r in rows])
     # vision frames, each on the control grid (within one control period)

@@ -51,7 +51,8 @@ def _crashing_run(config: RunConfig) -> ExperimentRun:
 def _rows(folder: Path) -> list[list[str]]:
     with (folder / "frames.csv").open(newline="") as f:
         rows = list(csv.reader(f))
-    assert rows[0] == columns(2) and all(len(r) == len(rows[0]) for r in rows)
+    joints = {r.name: r.n_joints for r in load_cell().robots}
+    assert rows[0] == columns(2, joints) and all(len(r) == len(rows[0]) for r in rows)
     return rows[1:]
 
 

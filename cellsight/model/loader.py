@@ -9,8 +9,11 @@ section sets up the paper's experiments: the grasping ``robot`` and ``workpiece`
 ``conveyor`` path and a ``crossing`` robot's timed joint waypoints. A robot is either a DH
 table (``links``) or a URDF file (``urdf: {file, geometry, flange}``, :mod:`cellsight.model.urdf`;
 ``package://NAME/...`` through the top-level ``packages: {NAME: folder}`` map, folders relative
-to the cell file, or an installed package). Lengths in metres, angles in radians; ``deg`` fields
-are accepted where noted.
+to the cell file, or an installed package). A camera's intrinsics may come from a calibration file
+(``calibration: FILE`` or ``{file, format: opencv|ros}``) and its pose from an eye-to-hand
+hand-eye result (``hand_eye: FILE`` or ``{file, format: opencv|easy_handeye, robot}``),
+files relative to the cell file (:mod:`cellsight.model.calibration`). Lengths in metres, angles
+in radians; ``deg`` fields are accepted where noted.
 """
 
 from __future__ import annotations
@@ -38,6 +41,7 @@ from cellsight.geometry.meshes import load_mesh_solid
 from cellsight.geometry.polyhedron import Polyhedron, box, prism, segment_box
 from cellsight.geometry.transforms import look_at, pose_from_xyz_rpy
 from cellsight.kinematics import DHChain, DHLink, KinematicChain
+from cellsight.model.calibration import CalibrationError, read_hand_eye, read_intrinsics
 from cellsight.model.cell import Cell, ExperimentSetup, StaticObject, Workpiece
 from cellsight.model.robot import ParallelGripper, Robot
 from cellsight.model.urdf import UrdfError, UrdfRobot, load_urdf_robot, resolve_uri
@@ -210,13 +214,48 @@ class LookAtSpec(_Strict):
     up: Vec3 = [0.0, 0.0, 1.0]
 
 
+def _file_entry(value: object) -> object:
+    """A bare file name stands for ``{file: NAME}``."""
+    if isinstance(value, str):
+        return {"file": value}
+    if not isinstance(value, dict):
+        raise ValueError("a file name, or a mapping {file, format, ...}")
+    return value
+
+
+class CalibrationFileSpec(_Strict):
+    """A camera's intrinsics file (relative to the cell file): OpenCV FileStorage YAML/XML or
+    ROS camera_info YAML (:mod:`cellsight.model.calibration`), the format guessed if not given."""
+
+    file: Annotated[str, Field(min_length=1)]
+    format: Literal["opencv", "ros"] | None = None
+
+
+class HandEyeSpec(_Strict):
+    """A fixed camera's pose from an eye-to-hand calibration file (relative to the cell file):
+    easy_handeye YAML or OpenCV FileStorage with ``R_base_camera``/``t_base_camera``. The pose
+    is in ``robot``'s base frame when given (composed with the robot's ``base``), else in the
+    cell's base frame."""
+
+    file: Annotated[str, Field(min_length=1)]
+    format: Literal["opencv", "easy_handeye"] | None = None
+    robot: Annotated[str, Field(min_length=1)] | None = None
+
+
+CalibrationFile = Annotated[CalibrationFileSpec, BeforeValidator(_file_entry)]
+HandEyeFile = Annotated[HandEyeSpec, BeforeValidator(_file_entry)]
+INTRINSIC_KEYS = ("width", "height", "fx", "fy", "lens_mm", "pixel_mm", "cx", "cy", "dist")
+
+
 class CameraSpec(_Strict):
-    """OpenCV pinhole camera. Focal length either in pixels (fx, fy) or as a lens (mm) with
-    the pixel pitch (mm); the pose either as xyz/rpy of T_base_cam or as look_at."""
+    """OpenCV pinhole camera. Intrinsics either from a ``calibration`` file or given: image
+    size and the focal length in pixels (fx, fy) or as a lens (mm) with the pixel pitch (mm);
+    the pose as xyz/rpy of T_base_cam (``pose``), ``look_at`` or a ``hand_eye`` file."""
 
     name: Annotated[str, AfterValidator(_safe_name)]
-    width: Annotated[Count, Field(gt=0)]
-    height: Annotated[Count, Field(gt=0)]
+    calibration: CalibrationFile | None = None
+    width: Annotated[Count, Field(gt=0)] | None = None
+    height: Annotated[Count, Field(gt=0)] | None = None
     fx: Positive | None = None
     fy: Positive | None = None
     lens_mm: Positive | None = None
@@ -226,15 +265,26 @@ class CameraSpec(_Strict):
     dist: Annotated[list[Finite], Field(min_length=4, max_length=5)] | None = None
     pose: PoseSpec | None = None
     look_at: LookAtSpec | None = None
+    hand_eye: HandEyeFile | None = None
 
     @model_validator(mode="after")
     def _complete(self) -> CameraSpec:
-        if (self.fx is None) == (self.lens_mm is None):
-            raise ValueError("give either fx (and optionally fy) in pixels, or lens_mm + pixel_mm")
-        if self.lens_mm is not None and self.pixel_mm is None:
-            raise ValueError("lens_mm needs pixel_mm")
-        if (self.pose is None) == (self.look_at is None):
-            raise ValueError("give exactly one of pose or look_at")
+        given = [k for k in INTRINSIC_KEYS if getattr(self, k) is not None]
+        if self.calibration is not None and given:
+            raise ValueError(f"'calibration' gives the image size, K and distortion: drop "
+                             f"{', '.join(given)} (or the calibration file)")
+        if self.calibration is None:
+            if self.width is None or self.height is None:
+                raise ValueError("width and height (px), or a calibration file")
+            if (self.fx is None) == (self.lens_mm is None):
+                raise ValueError("give either fx (and optionally fy) in pixels, or lens_mm + "
+                                 "pixel_mm, or a calibration file")
+            if self.lens_mm is not None and self.pixel_mm is None:
+                raise ValueError("lens_mm needs pixel_mm")
+        poses = [k for k in ("pose", "look_at", "hand_eye") if getattr(self, k) is not None]
+        if len(poses) != 1:
+            raise ValueError(f"give exactly one of pose, look_at or hand_eye; got "
+                             f"{', '.join(poses) or 'none'}")
         return self
 
 
@@ -408,19 +458,61 @@ def _static_objects(spec: CellSpec, file: str, folder: Path) -> list[StaticObjec
     ]
 
 
-def _camera(cs: CameraSpec) -> Camera:
-    """The camera of a validated spec (intrinsics through :meth:`Camera.from_intrinsics`)."""
-    T = cs.pose.matrix() if cs.pose else look_at(cs.look_at.eye, cs.look_at.target, cs.look_at.up)
+def _calibration_error(file: str, field: str, exc: CalibrationError) -> CellFileError:
+    """A calibration file's error as the cell file's, naming both files (the calibration
+    file's name cut to 160 characters, control characters escaped) and the key."""
+    name = re.sub(r"[\x00-\x1f\x7f]", lambda m: f"\\x{ord(m.group()):02x}", exc.file)
+    name = name if len(name) <= 160 else name[:60] + "..." + name[-97:]
+    return CellFileError(file, field, exc.value, f"{name}: key '{exc.key}': {exc.expected}")
+
+
+def _camera_pose(cs: CameraSpec, at: str, file: str, folder: Path,
+                 robots: dict[str, Robot]) -> np.ndarray:
+    """T_base_cam from ``pose``, ``look_at`` or a ``hand_eye`` file (in a robot's base)."""
+    if cs.pose is not None:
+        return cs.pose.matrix()
+    if cs.look_at is not None:
+        return look_at(cs.look_at.eye, cs.look_at.target, cs.look_at.up)
+    he = cs.hand_eye
+    T_base = np.eye(4)
+    if he.robot is not None:
+        if he.robot not in robots:
+            raise CellFileError(file, f"{at}.hand_eye.robot", he.robot,
+                                f"one of the cell's robots {sorted(robots)}")
+        T_base = robots[he.robot].T_base_robot
+    try:
+        return T_base @ read_hand_eye(folder / he.file, he.format)
+    except CalibrationError as exc:
+        raise _calibration_error(file, f"{at}.hand_eye", exc) from exc
+
+
+def _camera(cs: CameraSpec, at: str, file: str, folder: Path,
+            robots: dict[str, Robot]) -> Camera:
+    """The camera of a validated spec: intrinsics from its calibration file or through
+    :meth:`Camera.from_intrinsics`; ``at``: its field path."""
+    T = _camera_pose(cs, at, file, folder, robots)
+    if cs.calibration is not None:
+        try:
+            intrinsics = read_intrinsics(folder / cs.calibration.file, cs.calibration.format)
+        except CalibrationError as exc:
+            raise _calibration_error(file, f"{at}.calibration", exc) from exc
+        return intrinsics.camera(T, cs.name)
     return Camera.from_intrinsics(
         cs.width, cs.height, T, fx=cs.fx, fy=cs.fy, lens_mm=cs.lens_mm, pixel_mm=cs.pixel_mm,
         cx=cs.cx, cy=cs.cy, dist=cs.dist, name=cs.name)
 
 
-def _cameras(spec: CellSpec, file: str) -> list[Camera]:
+def _cameras(spec: CellSpec, file: str, folder: Path,
+             robots: list[Robot] | None = None) -> list[Camera]:
+    """The cell's cameras; calibration files relative to ``folder``, hand-eye poses in the
+    base frame of one of ``robots`` where the entry names one."""
+    by_name = {r.name: r for r in robots or []}
     cameras = []
     for c, cs in enumerate(spec.cameras):
         try:
-            cameras.append(_camera(cs))
+            cameras.append(_camera(cs, f"cameras[{c}]", file, folder, by_name))
+        except CellFileError:
+            raise
         except (CellsightError, ValueError) as exc:
             raise CellFileError(file, f"cameras[{c}]", cs.model_dump(exclude_none=True),
                                 str(exc)) from exc
@@ -434,7 +526,7 @@ def build_cell(spec: CellSpec, file: str, folder: Path) -> Cell:
               for r, rs in enumerate(spec.robots)]
     parts = _workpieces(spec, file, folder)
     static = _static_objects(spec, file, folder)
-    cameras = _cameras(spec, file)
+    cameras = _cameras(spec, file, folder, robots)
     if not parts:
         raise CellFileError(file, "workpieces", spec.workpieces,
                             "at least one workpiece (cellsight predicts which of a workpiece's "

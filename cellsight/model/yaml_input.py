@@ -11,6 +11,7 @@ naming the file and the line.
 
 from __future__ import annotations
 
+import copy
 from pathlib import Path
 
 import yaml
@@ -145,3 +146,31 @@ def read_cell_text(path: Path) -> str:
         line = data.count(b"\n", 0, exc.start) + 1
         raise CellFileError(file, f"line {line}", data[exc.start:exc.start + 4],
                             f"UTF-8 text (byte {exc.start} is not UTF-8)") from exc
+
+
+def _absolute(value: str, folder: Path) -> str:
+    """A file name of a cell file (relative to ``folder``) as an absolute one; URIs stay."""
+    return value if "://" in value else str((folder / value).resolve())
+
+
+def with_absolute_paths(raw: dict, folder: Path) -> dict:
+    """A copy of a cell file's mapping whose mesh files, URDF files and package folders are
+    absolute (so that the cell loads from any folder); shared (aliased) parts stay shared."""
+    data = copy.deepcopy(raw)
+    packages = data.get("packages") or {}
+    for name, sub in packages.items():
+        packages[name] = _absolute(sub, folder)
+    seen: set[int] = set()
+    todo: list[object] = [data]
+    while todo:
+        node = todo.pop()
+        if id(node) in seen or not isinstance(node, dict | list):
+            continue
+        seen.add(id(node))
+        children = node.values() if isinstance(node, dict) else node
+        if isinstance(node, dict):
+            for key in ("mesh", "urdf"):
+                if isinstance(node.get(key), dict) and isinstance(node[key].get("file"), str):
+                    node[key]["file"] = _absolute(node[key]["file"], folder)
+        todo.extend(children)
+    return data

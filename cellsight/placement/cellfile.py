@@ -8,7 +8,7 @@ import numpy as np
 import yaml
 
 from cellsight.camera import Camera
-from cellsight.model.yaml_input import read_cell_text
+from cellsight.model.yaml_input import read_cell_text, with_absolute_paths
 
 
 def camera_entry(camera: Camera, name: str, reach: float = 1.0) -> dict:
@@ -28,26 +28,12 @@ def camera_entry(camera: Camera, name: str, reach: float = 1.0) -> dict:
     return entry
 
 
-def _absolute_files(node, folder: Path):
-    """``node`` with every relative ``file:`` path made absolute against ``folder`` (the
-    cell file moves; ``package://`` and other URIs stay)."""
-    if isinstance(node, dict):
-        out = {k: _absolute_files(v, folder) for k, v in node.items()}
-        value = out.get("file")
-        if isinstance(value, str) and "://" not in value and not Path(value).is_absolute():
-            out["file"] = str((folder / value).resolve())
-        return out
-    if isinstance(node, list):
-        return [_absolute_files(v, folder) for v in node]
-    return node
-
-
 def write_cell_file(source: str, cameras: list[Camera], path: Path, note: str = "") -> Path:
     """Write the cell of file ``source`` with ``cameras`` (named ``cam1``, ``cam2``, ...)
     instead of its own, to ``path``; ``note``: a comment for its head."""
     src = Path(source)
     data = yaml.safe_load(read_cell_text(src))
-    data = _absolute_files(data, src.parent)
+    data = with_absolute_paths(data, src.resolve().parent)
     data["cameras"] = [camera_entry(cam, f"cam{i + 1}") for i, cam in enumerate(cameras)]
     head = [f"# {line}" for line in note.splitlines()]
     head.append(f"# The cell of {src} with cameras placed by cellsight place-cameras:")

@@ -1,0 +1,539 @@
+"""Camera calibration files: intrinsics and fixed cameras' hand-eye poses, read and written.
+
+Intrinsics (image size, ``K``, distortion), two formats:
+
+- ``opencv``: an OpenCV ``FileStorage`` file, YAML or XML, as the calibration sample writes
+  it: ``image_width``, ``image_height`` (integers, px), ``camera_matrix`` (or ``K``: a 3x3
+  ``opencv-matrix``) and ``distortion_coefficients`` (or ``D``, ``dist_coeffs``: 4, 5, 8, 12
+  or 14 numbers, ``k1 k2 p1 p2 [k3 [k4 k5 k6 [s1..s4 [tx ty]]]]``). Read with
+  ``cv2.FileStorage`` itself, from memory (after the checks below); other keys are ignored.
+- ``ros``: a ROS ``camera_info`` YAML as ``camera_calibration`` writes it: ``image_width``,
+  ``image_height``, ``camera_name``, ``camera_matrix: {rows: 3, cols: 3, data: [9]}``,
+  ``distortion_model`` (``plumb_bob``: 5 numbers; ``rational_polynomial``: 8),
+  ``distortion_coefficients: {rows, cols, data}``; ``rectification_matrix`` and
+  ``projection_matrix`` (stereo rectification) are not used: cellsight models the raw image.
+
+cellsight's lens model is OpenCV's ``k1 k2 p1 p2 k3`` (:mod:`cellsight.camera`): coefficients
+beyond the fifth (rational, thin-prism, tilt) must be zero, or the file is refused.
+
+Hand-eye poses of a fixed (eye-to-hand, "eye on base") camera, two formats; both give the
+pose of the camera's optical frame (x right, y down, z forward: the frame OpenCV-based trackers
+report in) in the robot's base frame, ``T_base_camera``, which maps camera coordinates to base
+coordinates (``p_base = R p_camera + t``), the pose :class:`cellsight.camera.Camera` stores:
+
+- ``easy_handeye``: the YAML easy_handeye saves: ``parameters: {eye_on_hand: false,
+  robot_base_frame, tracking_base_frame, ...}``, ``transformation: {x, y, z, qx, qy, qz, qw}``
+  (the ``tracking_base_frame``'s pose in the ``robot_base_frame``; metres, unit quaternion).
+- ``opencv``: an OpenCV ``FileStorage`` (YAML or XML) with ``R_base_camera`` (3x3) and
+  ``t_base_camera`` (3x1, metres), or the same under OpenCV's own names ``R_cam2base`` /
+  ``t_cam2base`` (what ``cv2.calibrateHandEye`` returns when given base-to-gripper poses for
+  an eye-to-hand set-up: it maps camera coordinates to base coordinates, the same direction).
+
+An eye-on-hand (eye-in-hand) result is refused: ``eye_on_hand: true``, or OpenCV keys
+``R_cam2gripper`` / ``R_gripper2cam``; cellsight's cameras are fixed. Rotations may be off a
+proper rotation by up to ``ROTATION_TOL`` (a rounded file) and are then made exact (the nearest
+rotation; a quaternion normalised).
+
+A format is given or guessed: an ``.xml`` or ``.json`` name, an XML text, a ``%YAML:`` header
+(OpenCV's, which PyYAML cannot read) or an ``!!opencv-matrix`` tag mean ``opencv``; else the
+ROS layout (``ros`` / ``easy_handeye``). Files are read as UTF-8 of at most
+``MAX_CALIBRATION_BYTES``, brackets and tags nested at most ``MAX_NESTING`` deep (OpenCV's
+parsers recurse without a limit). Every refusal is a :class:`CalibrationError` naming the file,
+the key, the value and what was expected.
+
+Writers: :func:`write_opencv_intrinsics` (YAML or XML by the file's extension, through
+``cv2.FileStorage``), :func:`write_ros_camera_info`, :func:`write_easy_handeye` and
+:func:`write_opencv_hand_eye` (``R_base_camera`` / ``t_base_camera``); each writes what the
+matching reader reads back exactly (floats to 17 significant digits, the pose's quaternion
+aside).
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+import yaml
+from scipy.spatial.transform import Rotation
+
+from cellsight.camera import Camera
+from cellsight.errors import CellFileError, CellsightError, short_repr
+from cellsight.model.yaml_input import load_yaml
+
+MAX_CALIBRATION_BYTES = 2**20  # bytes: a calibration file is a few kilobytes
+MAX_NESTING = 64  # brackets / XML elements nested in a calibration file
+ROTATION_TOL = 1e-3  # largest |R^T R - I| entry, or |1 - |q||, of a rotation read from a file
+OPENCV, ROS, EASY_HANDEYE = "opencv", "ros", "easy_handeye"
+INTRINSICS_FORMATS = (OPENCV, ROS)
+HAND_EYE_FORMATS = (OPENCV, EASY_HANDEYE)
+K_KEYS = ("camera_matrix", "K")
+DIST_KEYS = ("distortion_coefficients", "D", "dist_coeffs")
+DIST_SIZES = (4, 5, 8, 12, 14)  # numbers in an OpenCV distortion vector
+ROS_MODELS = {"plumb_bob": 5, "rational_polynomial": 8}  # distortion model -> numbers
+HAND_EYE_KEYS = (("R_base_camera", "t_base_camera"), ("R_cam2base", "t_cam2base"))
+EYE_ON_HAND_KEYS = ("R_cam2gripper", "t_cam2gripper", "R_gripper2cam", "t_gripper2cam")
+QUATERNION_KEYS = ("qx", "qy", "qz", "qw")
+
+
+class CalibrationError(CellsightError, ValueError):
+    """A calibration file is missing, unreadable or malformed: ``file``, ``key`` (the key in
+    the file, ``<file>`` for the whole file), ``value`` and what was ``expected``."""
+
+    def __init__(self, file: str, key: str, value: object, expected: str) -> None:
+        self.file, self.key, self.value, self.expected = file, key, value, expected
+        super().__init__(f"{file}: key '{key}': got {short_repr(value)}; expected {expected}")
+
+
+@dataclass(frozen=True)
+class Intrinsics:
+    """What an intrinsics file gives: image size (px), ``K`` (3x3, px), the distortion ``k1 k2
+    p1 p2 k3`` (None: none) and the camera's name in the file (ROS ``camera_name``, or None)."""
+
+    width: int
+    height: int
+    K: np.ndarray
+    dist: np.ndarray | None
+    name: str | None = None
+
+    def camera(self, T_base_cam: np.ndarray, name: str) -> Camera:
+        return Camera(self.K, self.width, self.height, T_base_cam, self.dist, name)
+
+
+# ----------------------------------------------------------------------------- reading text
+
+
+def _nesting(text: str) -> int:
+    """Deepest nesting of ``[``/``{`` and XML elements (a cheap upper bound: quotes ignored)."""
+    depth = deepest = 0
+    for token in re.finditer(r"[\[{]|[\]}]|<[A-Za-z_][^<>]*?(/?)>|</", text):
+        t = token.group()
+        if t in "[{" or (t.startswith("<") and t != "</" and not token.group(1)):
+            depth += 1
+            deepest = max(deepest, depth)
+        elif t in "]}" or t == "</":
+            depth = max(depth - 1, 0)
+    return deepest
+
+
+def read_text(path: Path) -> str:
+    """A calibration file's text: an existing, readable UTF-8 file of at most
+    ``MAX_CALIBRATION_BYTES``, nested at most ``MAX_NESTING`` deep."""
+    file = str(path)
+    try:
+        size = path.stat().st_size if path.is_file() else None
+        if size is not None and size <= MAX_CALIBRATION_BYTES:
+            data = path.read_bytes()
+    except OSError as exc:
+        raise CalibrationError(file, "<file>", file, f"a readable file ({exc.strerror})") from exc
+    except ValueError as exc:  # a NUL byte in the name
+        raise CalibrationError(file, "<file>", file, f"a usable file name ({exc})") from exc
+    if size is None:
+        raise CalibrationError(file, "<file>", file, "an existing calibration file")
+    if size > MAX_CALIBRATION_BYTES:
+        raise CalibrationError(file, "<file>", f"{size} bytes", "a calibration file of at "
+                               f"most {MAX_CALIBRATION_BYTES} bytes")
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise CalibrationError(file, "<file>", data[exc.start:exc.start + 4],
+                               f"UTF-8 text (byte {exc.start} is not UTF-8)") from exc
+    if not text.strip():
+        raise CalibrationError(file, "<file>", "", "a calibration file (it is empty)")
+    if (depth := _nesting(text)) > MAX_NESTING:
+        raise CalibrationError(file, "<file>", f"nesting {depth} deep",
+                               f"brackets and elements nested at most {MAX_NESTING} deep")
+    return text
+
+
+def guess_format(path: Path, text: str, kinds: tuple[str, str]) -> str:
+    """``kinds[0]`` (``opencv``) for an ``.xml``/``.json`` name, XML text, a ``%YAML:`` header
+    or an ``!!opencv-matrix`` tag; else ``kinds[1]`` (the ROS layout)."""
+    head = text.lstrip()
+    if (path.suffix.lower() in (".xml", ".json") or head.startswith(("<", "%YAML:"))
+            or "!!opencv-matrix" in text):
+        return kinds[0]
+    return kinds[1]
+
+
+def _format(path: Path, text: str, fmt: str | None, kinds: tuple[str, str]) -> str:
+    if fmt is None:
+        return guess_format(path, text, kinds)
+    if fmt not in kinds:
+        raise CalibrationError(str(path), "<format>", fmt, f"one of {', '.join(kinds)}")
+    return fmt
+
+
+# --------------------------------------------------------------------------- checked values
+
+
+def _finite(file: str, key: str, values, shape: tuple[int, ...]) -> np.ndarray:
+    """``values`` as finite floats of ``shape`` (numbers only: no booleans, no strings)."""
+    flat = values if isinstance(values, list) else [values]
+    if any(isinstance(v, bool) or not isinstance(v, int | float) for v in flat):
+        raise CalibrationError(file, key, values, "numbers")
+    array = np.array(flat, dtype=float)
+    if array.size != int(np.prod(shape)):
+        raise CalibrationError(file, key, values, f"{int(np.prod(shape))} numbers "
+                               f"(a {'x'.join(map(str, shape))} matrix)")
+    if not np.all(np.isfinite(array)):
+        raise CalibrationError(file, key, values, "finite numbers")
+    return array.reshape(shape)
+
+
+def _size(file: str, key: str, value) -> int:
+    if isinstance(value, bool) or not isinstance(value, int) or value <= 0:
+        raise CalibrationError(file, key, value, "a positive integer (px)")
+    return int(value)
+
+
+def _camera_matrix(file: str, key: str, K: np.ndarray) -> np.ndarray:
+    if K[0, 0] <= 0 or K[1, 1] <= 0 or K[2, 2] != 1 or K[1, 0] or K[2, 0] or K[2, 1]:
+        raise CalibrationError(file, key, K.tolist(), "a camera matrix [[fx, s, cx], [0, fy, "
+                               "cy], [0, 0, 1]] with fx, fy > 0")
+    return K
+
+
+def _lens(file: str, key: str, dist: np.ndarray) -> np.ndarray:
+    """The ``k1 k2 p1 p2 k3`` of a distortion vector whose further coefficients are zero."""
+    if dist.size > 5 and np.any(dist[5:]):
+        raise CalibrationError(file, key, dist.tolist(), "a distortion model cellsight can use: "
+                               "k1 k2 p1 p2 k3 (OpenCV's 5 coefficients, ROS plumb_bob); the "
+                               "coefficients after the fifth (k4 k5 k6 ...) must be zero")
+    out = np.zeros(5)
+    out[:min(dist.size, 5)] = dist[:5]
+    return out
+
+
+def _rotation(file: str, key: str, R: np.ndarray) -> np.ndarray:
+    """The nearest rotation to ``R``, which must be one within ``ROTATION_TOL`` (``R`` itself
+    when it is one to 1e-12: a file written by cellsight reads back exactly)."""
+    off = np.abs(R.T @ R - np.eye(3)).max()
+    if off > ROTATION_TOL or np.linalg.det(R) <= 0:
+        raise CalibrationError(file, key, R.tolist(), "a rotation matrix (orthonormal, det +1, "
+                               f"within {ROTATION_TOL})")
+    if off <= 1e-12:
+        return R
+    u, _, vt = np.linalg.svd(R)
+    return u @ vt
+
+
+def _pose(R: np.ndarray, t: np.ndarray) -> np.ndarray:
+    T = np.eye(4)
+    T[:3, :3], T[:3, 3] = R, t
+    return T
+
+
+class _Missing:
+    """The value of a key a file does not have."""
+
+    def __repr__(self) -> str:
+        return "<missing>"
+
+
+MISSING = _Missing()
+
+
+def _entry(file: str, mapping: dict, key: str, prefix: str = "") -> object:
+    """``mapping[key]``, or an error naming the missing key (``prefix``: the parent's keys)."""
+    if key not in mapping:
+        raise CalibrationError(file, prefix + key, MISSING, f"a key '{key}' (the file has "
+                               f"{short_repr(sorted(map(str, mapping)))})")
+    return mapping[key]
+
+
+def _first(file: str, mapping: dict, keys: tuple[str, ...], what: str) -> str:
+    """The first of ``keys`` the mapping has; an error naming them all otherwise."""
+    for key in keys:
+        if key in mapping:
+            return key
+    raise CalibrationError(file, keys[0], MISSING, f"{what} under one of the keys "
+                           f"{', '.join(keys)}")
+
+
+def _dims(file: str, key: str, value) -> tuple[int, int, list]:
+    """``rows``, ``cols`` and ``data`` of a matrix written as ``{rows, cols, [dt,] data}``
+    (an OpenCV ``opencv-matrix``, a ROS matrix) or ``{sizes: [n] or [rows, cols], dt, data}``
+    (an ``opencv-nd-matrix``: ``cv2.FileStorage`` writes a 1-D array so)."""
+    if not isinstance(value, dict):
+        raise CalibrationError(file, key, value, "a matrix {rows, cols, data} (an OpenCV "
+                               "opencv-matrix, a ROS matrix)")
+    if "sizes" in value and "rows" not in value:
+        sizes = value["sizes"] if isinstance(value["sizes"], list) else [value["sizes"]]
+        if len(sizes) not in (1, 2):
+            raise CalibrationError(file, f"{key}.sizes", value["sizes"], "one or two sizes")
+        value = {"rows": sizes[0], "cols": sizes[1] if len(sizes) == 2 else 1, **value}
+    rows, cols, data = (_entry(file, value, k, f"{key}.") for k in ("rows", "cols", "data"))
+    for name, n in (("rows", rows), ("cols", cols)):
+        if isinstance(n, bool) or not isinstance(n, int) or n < 0:
+            raise CalibrationError(file, f"{key}.{name}", n, "a count (an integer >= 0)")
+    if not isinstance(data, list):
+        data = [data]  # one number: OpenCV writes a 1x1 matrix's data as a scalar
+    if len(data) != rows * cols:
+        raise CalibrationError(file, f"{key}.data", data, f"rows x cols = {rows * cols} numbers")
+    return rows, cols, data
+
+
+def _matrix(file: str, key: str, value, shape: tuple[int, int]) -> np.ndarray:
+    """A matrix of exactly ``shape`` and finite numbers."""
+    rows, cols, data = _dims(file, key, value)
+    if (rows, cols) != shape:
+        raise CalibrationError(file, key, f"a {rows}x{cols} matrix", f"a {shape[0]}x{shape[1]} "
+                               "matrix")
+    return _finite(file, f"{key}.data", data, shape)
+
+
+def _vector(file: str, key: str, value, sizes: tuple[int, ...]) -> np.ndarray:
+    """A row or column of ``sizes`` finite numbers, flat."""
+    rows, cols, data = _dims(file, key, value)
+    if min(rows, cols) != 1 or rows * cols not in sizes:
+        raise CalibrationError(file, key, f"a {rows}x{cols} matrix", "a row or column of "
+                               f"{' or '.join(map(str, sizes))} numbers")
+    return _finite(file, f"{key}.data", data, (rows * cols,))
+
+
+# ------------------------------------------------------------------ OpenCV FileStorage input
+
+
+def _cv_problem(exc: Exception) -> str:
+    """The useful part of an OpenCV parser error: ``line N: problem``."""
+    text = " ".join(str(exc.__cause__ or exc).split())
+    if found := re.search(r"\((\d+)\): ([^']*)'?$", text):
+        return f"line {found.group(1)}: {found.group(2)}"
+    if found := re.search(r"error: \(-?\d+:[^)]*\) (.*)$", text):
+        return found.group(1)
+    return text
+
+
+def _python(node: cv2.FileNode, depth: int = 0) -> object:
+    """A FileStorage node as Python values (int, float, str, list, dict; None when empty);
+    deeper than a matrix's ``data`` is shown as ``'<nested>'``."""
+    if node.isInt():
+        return int(node.real())
+    if node.isReal():
+        return float(node.real())
+    if node.isString():
+        return node.string()
+    if depth > 4 and (node.isSeq() or node.isMap()):
+        return "<nested>"
+    if node.isSeq():
+        return [_python(node.at(i), depth + 1) for i in range(node.size())]
+    if node.isMap():
+        return {k: _python(node.getNode(k), depth + 1) for k in node.keys()}
+    return None
+
+
+def opencv_storage(file: str, text: str) -> dict[str, object]:
+    """The top-level keys of an OpenCV FileStorage text (YAML or XML), read by
+    ``cv2.FileStorage`` from memory, as Python values."""
+    if text.lstrip().startswith("<") and not text.lstrip().startswith("<?xml"):
+        text = '<?xml version="1.0"?>\n' + text  # cv2 tells XML in memory by its declaration
+    try:
+        fs = cv2.FileStorage(text, cv2.FILE_STORAGE_READ | cv2.FILE_STORAGE_MEMORY)
+        root = fs.root()
+        if root.isNone() or root.empty():
+            return {}
+        if not root.isMap():
+            raise CalibrationError(file, "<file>", "a sequence", "a mapping of keys (an OpenCV "
+                                   "FileStorage file)")
+        return {key: _python(root.getNode(key)) for key in root.keys()}
+    except CalibrationError:
+        raise
+    except Exception as exc:  # cv2.error, or a SystemError wrapping one
+        raise CalibrationError(file, "<file>", _cv_problem(exc), "an OpenCV FileStorage file "
+                               "(YAML or XML) that cv2.FileStorage reads") from exc
+
+
+def _yaml_mapping(file: str, text: str) -> dict:
+    """A YAML mapping read safely (bounded, no repeated keys: :func:`load_yaml`)."""
+    try:
+        raw = load_yaml(text, file)
+    except CellFileError as exc:
+        raise CalibrationError(file, exc.field, exc.value, exc.expected) from exc
+    if not isinstance(raw, dict):
+        raise CalibrationError(file, "<file>", raw, "a YAML mapping of keys")
+    return raw
+
+
+# ---------------------------------------------------------------------------- intrinsics in
+
+
+def _distortion_model(file: str, model: object) -> int:
+    """The number of coefficients of a ROS distortion model cellsight can use."""
+    if model not in ROS_MODELS:
+        raise CalibrationError(file, "distortion_model", model, "a distortion model cellsight "
+                               "can use: plumb_bob, or rational_polynomial with k4 = k5 = k6 = 0")
+    return ROS_MODELS[model]
+
+
+def _opencv_intrinsics(file: str, keys: dict) -> Intrinsics:
+    if "distortion_model" in keys:  # a ROS file read by cv2.FileStorage: mind its model
+        _distortion_model(file, keys["distortion_model"])
+    width = _size(file, "image_width", _entry(file, keys, "image_width"))
+    height = _size(file, "image_height", _entry(file, keys, "image_height"))
+    k_key = _first(file, keys, K_KEYS, "a 3x3 camera matrix")
+    K = _camera_matrix(file, k_key, _matrix(file, k_key, keys[k_key], (3, 3)))
+    d_key = _first(file, keys, DIST_KEYS, "the distortion coefficients")
+    dist = _lens(file, d_key, _vector(file, d_key, keys[d_key], DIST_SIZES))
+    name = keys.get("camera_name")
+    return Intrinsics(width, height, K, dist, name if isinstance(name, str) else None)
+
+
+def _ros_intrinsics(file: str, raw: dict) -> Intrinsics:
+    width = _size(file, "image_width", _entry(file, raw, "image_width"))
+    height = _size(file, "image_height", _entry(file, raw, "image_height"))
+    K = _camera_matrix(file, "camera_matrix",
+                       _matrix(file, "camera_matrix", _entry(file, raw, "camera_matrix"), (3, 3)))
+    size = _distortion_model(file, _entry(file, raw, "distortion_model"))
+    d_key = "distortion_coefficients"
+    dist = _lens(file, d_key, _vector(file, d_key, _entry(file, raw, d_key), (size,)))
+    name = raw.get("camera_name")
+    return Intrinsics(width, height, K, dist, name if isinstance(name, str) else None)
+
+
+def read_intrinsics(path: str | Path, fmt: str | None = None) -> Intrinsics:
+    """Image size, ``K`` and distortion from an OpenCV FileStorage (``fmt="opencv"``) or ROS
+    ``camera_info`` (``"ros"``) file; None: guessed (:func:`guess_format`)."""
+    path = Path(path)
+    text = read_text(path)
+    if _format(path, text, fmt, INTRINSICS_FORMATS) == OPENCV:
+        return _opencv_intrinsics(str(path), opencv_storage(str(path), text))
+    return _ros_intrinsics(str(path), _yaml_mapping(str(path), text))
+
+
+# ------------------------------------------------------------------------------ hand-eye in
+
+
+def _eye_on_hand(file: str, key: str, value) -> None:
+    if value is True or value == 1:
+        raise CalibrationError(file, key, value, "an eye-to-hand (eye-on-base) calibration of a "
+                               "fixed camera: cellsight's cameras do not move with a robot")
+    if value is not False and value != 0:
+        raise CalibrationError(file, key, value, "false (0): a fixed, eye-to-hand camera")
+
+
+def _easy_handeye(file: str, raw: dict) -> np.ndarray:
+    params = _entry(file, raw, "parameters")
+    if not isinstance(params, dict):
+        raise CalibrationError(file, "parameters", params, "a mapping (eye_on_hand, "
+                               "robot_base_frame, tracking_base_frame, ...)")
+    _eye_on_hand(file, "parameters.eye_on_hand",
+                 _entry(file, params, "eye_on_hand", "parameters."))
+    tr = _entry(file, raw, "transformation")
+    if not isinstance(tr, dict):
+        raise CalibrationError(file, "transformation", tr, "a mapping {x, y, z, qx, qy, qz, qw}")
+    xyz, q = ([_finite(file, f"transformation.{k}", _entry(file, tr, k, "transformation."), ())
+               for k in keys] for keys in (("x", "y", "z"), QUATERNION_KEYS))
+    q = np.array(q, dtype=float)
+    if abs(np.linalg.norm(q) - 1.0) > ROTATION_TOL:
+        raise CalibrationError(file, "transformation.qx..qw", q.tolist(),
+                               f"a unit quaternion (norm 1 within {ROTATION_TOL})")
+    return _pose(Rotation.from_quat(q / np.linalg.norm(q)).as_matrix(), np.array(xyz, float))
+
+
+def _opencv_hand_eye(file: str, keys: dict) -> np.ndarray:
+    if found := [k for k in EYE_ON_HAND_KEYS if k in keys]:
+        raise CalibrationError(file, found[0], "an eye-on-hand result", "an eye-to-hand "
+                               "(eye-on-base) result of a fixed camera: R_base_camera and "
+                               "t_base_camera (or R_cam2base and t_cam2base)")
+    if "eye_on_hand" in keys:
+        _eye_on_hand(file, "eye_on_hand", keys["eye_on_hand"])
+    pairs = [p for p in HAND_EYE_KEYS if p[0] in keys or p[1] in keys]
+    if len(pairs) != 1:
+        raise CalibrationError(file, HAND_EYE_KEYS[0][0], [k for p in pairs for k in p] or
+                               MISSING, "the camera's pose in the base frame: R_base_camera "
+                               "(3x3) and t_base_camera (3x1, m), or R_cam2base and t_cam2base; "
+                               "one pair")
+    r_key, t_key = pairs[0]
+    R = _rotation(file, r_key, _matrix(file, r_key, _entry(file, keys, r_key), (3, 3)))
+    return _pose(R, _vector(file, t_key, _entry(file, keys, t_key), (3,)))
+
+
+def read_hand_eye(path: str | Path, fmt: str | None = None) -> np.ndarray:
+    """``T_base_camera`` (4x4: the camera's optical frame in the robot's base frame) from an
+    eye-to-hand calibration: an easy_handeye YAML (``fmt="easy_handeye"``) or an OpenCV
+    FileStorage (``"opencv"``); None: guessed (:func:`guess_format`)."""
+    path = Path(path)
+    text = read_text(path)
+    if _format(path, text, fmt, HAND_EYE_FORMATS) == OPENCV:
+        return _opencv_hand_eye(str(path), opencv_storage(str(path), text))
+    return _easy_handeye(str(path), _yaml_mapping(str(path), text))
+
+
+# ---------------------------------------------------------------------------------- writing
+
+
+def _save(path: Path, text: str) -> Path:
+    try:
+        path.write_text(text, encoding="utf-8")
+    except OSError as exc:
+        raise CellsightError(f"{path}: cannot write the file ({exc.strerror})") from exc
+    return path
+
+
+def _storage_text(path: Path, items: list[tuple[str, object]], comment: str = "") -> str:
+    """An OpenCV FileStorage text (YAML, or XML for an ``.xml`` name) of ``items``."""
+    suffix = path.suffix.lower()
+    if suffix not in (".yaml", ".yml", ".xml"):
+        raise CellsightError(f"{path}: an OpenCV FileStorage file is named .yaml, .yml or .xml")
+    fs = cv2.FileStorage(suffix, cv2.FILE_STORAGE_WRITE | cv2.FILE_STORAGE_MEMORY)
+    if comment:
+        fs.writeComment(comment)
+    for key, value in items:
+        fs.write(key, value)
+    return fs.releaseAndGetString()
+
+
+def write_opencv_intrinsics(path: str | Path, camera: Camera) -> Path:
+    """``camera_name``, ``image_width``, ``image_height``, ``camera_matrix`` (3x3) and
+    ``distortion_coefficients`` (5x1, ``k1 k2 p1 p2 k3``) through ``cv2.FileStorage``: YAML,
+    or XML for an ``.xml`` name."""
+    path = Path(path)
+    return _save(path, _storage_text(path, [
+        ("camera_name", camera.name), ("image_width", camera.width),
+        ("image_height", camera.height), ("camera_matrix", camera.K),
+        ("distortion_coefficients", camera.dist5.reshape(5, 1))]))
+
+
+def _ros_matrix(M: np.ndarray) -> dict:
+    return {"rows": M.shape[0], "cols": M.shape[1], "data": [float(v) for v in M.ravel()]}
+
+
+def write_ros_camera_info(path: str | Path, camera: Camera) -> Path:
+    """A ROS ``camera_info`` YAML in ``camera_calibration``'s layout (``plumb_bob``; identity
+    rectification, projection ``[K | 0]``)."""
+    P = np.hstack([camera.K, np.zeros((3, 1))])
+    data = {"image_width": camera.width, "image_height": camera.height,
+            "camera_name": camera.name, "camera_matrix": _ros_matrix(camera.K),
+            "distortion_model": "plumb_bob",
+            "distortion_coefficients": _ros_matrix(camera.dist5.reshape(1, 5)),
+            "rectification_matrix": _ros_matrix(np.eye(3)), "projection_matrix": _ros_matrix(P)}
+    return _save(Path(path), yaml.safe_dump(data, sort_keys=False, default_flow_style=None))
+
+
+def write_easy_handeye(path: str | Path, T_base_cam: np.ndarray, robot_base_frame: str = "base",
+                       tracking_base_frame: str = "camera_optical_frame") -> Path:
+    """An easy_handeye YAML of a fixed camera (``eye_on_hand: false``): its optical frame's
+    pose ``T_base_cam`` as ``transformation: {x, y, z, qx, qy, qz, qw}``."""
+    T = np.asarray(T_base_cam, dtype=float)
+    q = Rotation.from_matrix(T[:3, :3]).as_quat()
+    transformation = dict(zip(("x", "y", "z", *QUATERNION_KEYS),
+                              (float(v) for v in (*T[:3, 3], *q)), strict=True))
+    data = {"parameters": {"eye_on_hand": False, "robot_base_frame": robot_base_frame,
+                           "tracking_base_frame": tracking_base_frame},
+            "transformation": transformation}
+    return _save(Path(path), yaml.safe_dump(data, sort_keys=False))
+
+
+def write_opencv_hand_eye(path: str | Path, T_base_cam: np.ndarray) -> Path:
+    """``R_base_camera`` (3x3), ``t_base_camera`` (3x1, m) and ``eye_on_hand: 0`` through
+    ``cv2.FileStorage`` (YAML, or XML for an ``.xml`` name)."""
+    path = Path(path)
+    T = np.asarray(T_base_cam, dtype=float)
+    comment = ("The camera's optical frame (x right, y down, z forward) in the base frame: "
+               "p_base = R_base_camera p_camera + t_base_camera (m)")
+    return _save(path, _storage_text(path, [
+        ("eye_on_hand", 0), ("R_base_camera", T[:3, :3].copy()),
+        ("t_base_camera", T[:3, 3].reshape(3, 1).copy())], comment))
