@@ -31,7 +31,9 @@ from rich.table import Table
 
 from cellsight.experiments import RunConfig, run_experiment
 from cellsight.model.loader import load_cell
-from cellsight.placement import TaskFrames, score_candidates, shell_candidates
+from cellsight.placement.candidates import shell_candidates
+from cellsight.placement.scoring import score_candidates
+from cellsight.placement.task import TaskFrames
 from cellsight.sweep.grid import finished_metrics
 from cellsight.world import ReplayWorld
 

@@ -15,17 +15,11 @@ from oracle import cell_scene, segment_oracle
 from cellsight.camera import Camera
 from cellsight.cli import main
 from cellsight.model.loader import load_cell
-from cellsight.placement import (
-    TaskFrames,
-    choose_cameras,
-    placement_loss,
-    score_candidates,
-    shell_candidates,
-)
-from cellsight.placement.candidates import work_area
+from cellsight.placement.candidates import shell_candidates, work_area
 from cellsight.placement.cellfile import write_cell_file
-from cellsight.placement.choose import position_sigma_mm
-from cellsight.placement.scoring import CandidateScores
+from cellsight.placement.choose import choose_cameras, placement_loss, position_sigma_mm
+from cellsight.placement.scoring import CandidateScores, score_candidates
+from cellsight.placement.task import TaskFrames
 
 SIGMA_PX = 0.5
 

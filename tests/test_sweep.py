@@ -10,8 +10,9 @@ import pytest
 
 from cellsight.cli import main
 from cellsight.errors import CellsightError
-from cellsight.sweep import RunSpec, map_jobs, sweep_grid
 from cellsight.sweep.command import run_sweep
+from cellsight.sweep.engine import map_jobs
+from cellsight.sweep.grid import RunSpec, sweep_grid
 
 DURATION = 0.6  # s of simulated time per run: a few frames, enough to compare
 COMPARED = ("frames", "position_rmse_mm", "max_position_error_mm", "visibility_accuracy",

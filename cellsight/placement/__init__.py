@@ -8,13 +8,6 @@ tracker, and pick the best few.
   predictor's object hierarchies, all candidates at once) and the pose information it gives;
 - :mod:`.choose`: the objective (predicted position error, frames with fewer than 4 points)
   and the greedy choice with exchanges;
-- :mod:`.report` and :mod:`.command`: ``cellsight place-cameras``.
+- :mod:`.report` and :mod:`.command`: ``cellsight place-cameras`` (the package imports nothing
+  itself, so that the command line registers the command without loading the rest).
 """
-
-from cellsight.placement.candidates import shell_candidates
-from cellsight.placement.choose import Placement, choose_cameras, placement_loss
-from cellsight.placement.scoring import CandidateScores, score_candidates
-from cellsight.placement.task import TaskFrames
-
-__all__ = ["CandidateScores", "Placement", "TaskFrames", "choose_cameras", "placement_loss",
-           "score_candidates", "shell_candidates"]

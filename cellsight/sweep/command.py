@@ -9,11 +9,7 @@ import json
 import sys
 from pathlib import Path
 
-from rich.console import Console
-
-from cellsight.sweep.engine import map_jobs
-from cellsight.sweep.grid import SENSORS, VARIANTS, RunSpec, run_spec, sweep_grid
-from cellsight.sweep.summary import write_summary
+from cellsight.sweep.grid import SENSORS, VARIANTS, RunSpec, sweep_grid
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -47,6 +43,10 @@ def run_sweep(specs: list[RunSpec], out: Path, jobs: int = 2, scheduler=None,
               progress: bool = True, connect_s: float = 20.0) -> list[dict]:
     """Run (or reuse) every run of ``specs`` into ``out``; write ``sweep.json`` first and the
     summary last; return the metrics in ``specs`` order (``"error"`` for a failed run)."""
+    from cellsight.sweep.engine import map_jobs
+    from cellsight.sweep.grid import run_spec
+    from cellsight.sweep.summary import write_summary
+
     out.mkdir(parents=True, exist_ok=True)
     (out / "sweep.json").write_text(json.dumps(
         [{**vars(s), "folder": str(s.folder)} for s in specs], indent=1))
@@ -60,6 +60,8 @@ def run_sweep(specs: list[RunSpec], out: Path, jobs: int = 2, scheduler=None,
 
 
 def cmd_sweep(args: argparse.Namespace) -> int:
+    from rich.console import Console
+
     specs = sweep_grid(args.cells, args.experiments, args.sensors, args.variants, args.seeds,
                        args.variant_seeds, args.duration)
     console = Console()

@@ -15,11 +15,12 @@ import json
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from cellsight.errors import CellsightError
-from cellsight.experiments import RunConfig, run_experiment
-from cellsight.experiments.runner import cell_digest
-from cellsight.model.loader import cell_path
+
+if TYPE_CHECKING:
+    from cellsight.experiments import RunConfig
 
 VARIANTS: dict[str, dict[str, bool]] = {
     "pred": {"occlusion_prediction": True, "kinematic_prior": False},
@@ -53,6 +54,8 @@ class RunSpec:
 
     def config(self, out: Path) -> RunConfig:
         """The run's :class:`~cellsight.experiments.RunConfig`, writing into ``out/folder``."""
+        from cellsight.experiments import RunConfig
+
         return RunConfig(self.experiment, Path(out) / self.folder, cell=self.cell,
                          seed=self.seed, sensor=self.sensor, duration=self.duration,
                          progress=False, overwrite=True, **VARIANTS[self.variant])
@@ -92,6 +95,9 @@ def finished_metrics(folder: Path, cell: str | None = None) -> dict | None:
         return None
     if not isinstance(metrics, dict) or metrics.get("interrupted") or metrics.get("error"):
         return None
+    from cellsight.experiments.runner import cell_digest
+    from cellsight.model.loader import cell_path
+
     if cell is not None and metrics.get("cell_sha256") != cell_digest(str(cell_path(cell))):
         return None  # another cell, or the file changed since
     return metrics
@@ -100,6 +106,8 @@ def finished_metrics(folder: Path, cell: str | None = None) -> dict | None:
 def run_spec(job: tuple[RunSpec, Path]) -> dict:
     """Run one ``(spec, out)`` job (or reuse its finished folder); returns its metrics, with
     ``"error"`` set when it failed (the sweep goes on) and ``"reused"`` when it was done."""
+    from cellsight.experiments import run_experiment
+
     spec, out = job
     done = finished_metrics(Path(out) / spec.folder, spec.cell)
     if done is not None:
