@@ -1,6 +1,6 @@
 """A sweep's results as tables and plots: ``summary.csv`` (one row per run, every scalar
 metric and the per-phase errors), ``summary.md`` (the README's tables: the whole task, then
-the position error per phase) and ``summary.png`` (position RMSE and time lost in view per
+the position error per phase) and ``summary.png`` (position RMSE and largest position error per
 experiment, sensor and variant, one dot per seed)."""
 
 from __future__ import annotations
@@ -94,8 +94,8 @@ def markdown(specs: Sequence[RunSpec], results: Sequence[dict]) -> str:
 
 
 def plot(path: Path, specs: Sequence[RunSpec], results: Sequence[dict]) -> None:
-    """``summary.png``: per (cell, experiment, sensor, variant) group, position RMSE (mm) and
-    time lost in view (s), one dot per seed and a bar at their mean."""
+    """``summary.png``: per (cell, experiment, sensor, variant) group, position RMSE and the
+    largest position error (mm, whole task), one dot per seed and a bar at their mean."""
     groups: dict[tuple, list[dict]] = {}
     for spec, m in zip(specs, results, strict=True):
         if not m.get("error"):
@@ -104,7 +104,7 @@ def plot(path: Path, specs: Sequence[RunSpec], results: Sequence[dict]) -> None:
     names = [f"{c} e{e}\n{s} {v}" for c, e, s, v in groups]
     fig, axes = plt.subplots(2, 1, figsize=(max(6.0, 0.9 * len(groups) + 2), 6.5), sharex=True)
     for ax, key, label in ((axes[0], "position_rmse_mm", "position RMSE (mm)"),
-                           (axes[1], "lost_in_view_s", "lost while in view (s)")):
+                           (axes[1], "max_position_error_mm", "largest position error (mm)")):
         for x, runs in enumerate(groups.values()):
             values = [float(m[key]) for m in runs if m.get(key) is not None]
             if values:
