@@ -183,7 +183,10 @@ def test_place_cameras_command_writes_cell_and_report(short_run, tmp_path):
 @pytest.mark.parametrize("args, needle", [
     (["--task", "nowhere"], "--task"),
     (["--task", "{run}", "--cameras", "0"], "--cameras"),
-    (["--task", "{run}", "--template", "cam9"], "--template")])
+    (["--task", "{run}", "--template", "cam9"], "--template"),
+    (["--task", "3", "--verify-sensors", "lidar"], "--verify-sensors"),
+    (["--task", "3", "--elevations", "95"], "--elevations"),
+    (["--task", "3", "--every", "0"], "--every")])
 def test_place_cameras_bad_input_is_one_clear_line(short_run, tmp_path, capsys, args, needle):
     args = [a.replace("{run}", str(short_run)) for a in args]
     status = main(["place-cameras", "--out", str(tmp_path), "--quiet", *args])

@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 from rich.console import Console
 
+from cellsight.control import Phase
 from cellsight.errors import CellsightError
 from cellsight.experiments import RunConfig, run_experiment
 from cellsight.model.cell import Cell
@@ -23,11 +24,29 @@ from cellsight.placement.report import plot_candidates, plot_task, set_figures, 
 from cellsight.placement.scoring import CandidateScores, score_candidates
 from cellsight.placement.task import TaskFrames
 from cellsight.sweep.command import run_sweep
-from cellsight.sweep.grid import RunSpec, finished_metrics
+from cellsight.sweep.grid import SENSORS, RunSpec, finished_metrics
 
 VERIFY_KEYS = ("grasp_success", "position_rmse_mm", "max_position_error_mm",
                "orientation_rmse_deg", "lost_in_view_s", "pnp_position_rmse_mm",
                "visibility_accuracy", "measurements")
+
+
+def check_arguments(args: argparse.Namespace) -> None:
+    """The checks that need nothing loaded, before anything runs or is written."""
+    if bad := [s for s in args.verify_sensors if s not in SENSORS]:
+        raise CellsightError(f"--verify-sensors: expected {' or '.join(SENSORS)}, got {bad}")
+    for name in ("cameras", "every"):
+        value = getattr(args, name)
+        if value is not None and value < 1:
+            raise CellsightError(f"--{name}: expected a whole number >= 1, got {value}")
+    if any(s < 0 for s in args.verify_seeds):
+        raise CellsightError(f"--verify-seeds: expected seeds >= 0, got {args.verify_seeds}")
+    numbers = [*args.radii, *args.elevations, args.azimuth_step]
+    if not all(np.isfinite(numbers)) or min(args.radii) <= 0 or args.azimuth_step <= 0 or not (
+            all(0 < e < 90 for e in args.elevations)):
+        raise CellsightError(f"--radii, --elevations, --azimuth-step: expected radii > 0 m, "
+                             f"elevations in (0, 90) deg and a step > 0 deg, got {args.radii}, "
+                             f"{args.elevations}, {args.azimuth_step}")
 
 
 def task_folder(args: argparse.Namespace) -> Path:
@@ -72,8 +91,7 @@ def verification(args, source: str, placed: Path, experiment: int) -> list[str]:
              + ") | cell's cameras | chosen cameras |", "|---|---|---|---|"]
     for sensor in args.verify_sensors:
         runs = [(s, m) for s, m in zip(specs, results, strict=True) if s.sensor == sensor]
-        keys = list(VERIFY_KEYS) + [f"{p}.position_rmse_mm" for p in ("approach", "grasp",
-                                                                       "manipulate", "release")]
+        keys = list(VERIFY_KEYS) + [f"{p}.position_rmse_mm" for p in Phase.working()]
         for key in keys:
             means = []
             for cell in (source, str(placed)):
@@ -94,6 +112,7 @@ def _metric(metrics: dict, key: str):
 
 def place_cameras(args: argparse.Namespace) -> int:
     """Run ``cellsight place-cameras`` with its parsed arguments; the exit status."""
+    check_arguments(args)
     args.out.mkdir(parents=True, exist_ok=True)
     folder = task_folder(args)
     task = TaskFrames.read(folder, args.every)
