@@ -18,7 +18,7 @@ LAYERS = [
     {"camera", "_camera_kernel", "kinematics", "visibility"},
     {"model"},
     {"occlusion", "tracking", "control"},
-    {"world", "framelog"},
+    {"world", "framelog", "runfolder"},
     {"report"},
     {"experiments", "sweep", "view", "export", "placement"},
     {"cli", "cameras_cli", "__init__", "__main__", "data"},

@@ -6,8 +6,7 @@ register the command without importing the MCAP libraries."""
 
 from __future__ import annotations
 
-_NAMES = {"ExportResult": "mcap_run", "Stop": "mcap_run", "export_mcap": "mcap_run",
-          "RunDataError": "run_data", "load_run": "run_data"}
+_NAMES = {"ExportResult": "mcap_run", "Stop": "mcap_run", "export_mcap": "mcap_run"}
 
 __all__ = sorted(_NAMES)
 

@@ -37,8 +37,8 @@ from cellsight.errors import CellsightError
 from cellsight.export import frames as tf
 from cellsight.export import markers, ros
 from cellsight.export.msgdefs import msgdef, schema_name
-from cellsight.export.run_data import RunData, load_run
 from cellsight.geometry.transforms import transform_points
+from cellsight.runfolder import RunData, load_run
 
 TF, POSE, CAMERA_INFO, IMAGE, MARKERS = (
     "tf2_msgs/TFMessage", "geometry_msgs/PoseStamped", "sensor_msgs/CameraInfo",

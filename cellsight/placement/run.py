@@ -6,7 +6,6 @@ engine to compare how they track."""
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 import numpy as np
@@ -23,6 +22,7 @@ from cellsight.placement.choose import choose_cameras, placement_loss
 from cellsight.placement.report import plot_candidates, plot_task, set_figures, write_report
 from cellsight.placement.scoring import CandidateScores, score_candidates
 from cellsight.placement.task import TaskFrames
+from cellsight.runfolder import load_run
 from cellsight.sweep.command import run_sweep
 from cellsight.sweep.grid import SENSORS, RunSpec, finished_metrics
 
@@ -115,8 +115,8 @@ def place_cameras(args: argparse.Namespace) -> int:
     check_arguments(args)
     args.out.mkdir(parents=True, exist_ok=True)
     folder = task_folder(args)
-    task = TaskFrames.read(folder, args.every)
-    cell = load_cell(args.cell or task.cell)
+    run = load_run(folder, args.cell)
+    task, cell = TaskFrames.of(run, args.every), run.cell
     k = len(cell.cameras) if args.cameras is None else args.cameras
     candidates = shell_candidates(cell, task, _template(cell, args.template), args.radii,
                                   args.elevations, args.azimuth_step)
@@ -133,7 +133,7 @@ def place_cameras(args: argparse.Namespace) -> int:
     single = np.array([placement_loss(scores, [c]).loss for c in range(len(candidates))])
     plot_task(args.out / "fig_task.png", task, sets)
     plot_candidates(args.out / "fig_candidates.png", task, scores, single, chosen, cell.cameras)
-    metrics_experiment = int(json.loads((folder / "metrics.json").read_text())["experiment"])
+    metrics_experiment = int(run.metrics["experiment"])
     rows = (verification(args, cell.source, placed, metrics_experiment)
             if args.verify_seeds else [])
     header = [f"# Camera placement: {k} cameras for experiment {metrics_experiment} on "

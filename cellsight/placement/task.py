@@ -1,18 +1,15 @@
 """The frames of a task to place cameras for: every robot's joints, the workpiece's true pose
-and the task phase at each vision frame, read from a run folder (``frames.csv`` with the
-joint columns, ``metrics.json``)."""
+and the task phase at each vision frame, from a run folder read back
+(:mod:`cellsight.runfolder`)."""
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from cellsight.errors import CellsightError
-from cellsight.framelog import FrameLog
-from cellsight.geometry.transforms import pose_from_xyz_rpy
+from cellsight.runfolder import RunData, load_run
 
 
 @dataclass(frozen=True)
@@ -32,29 +29,19 @@ class TaskFrames:
     run: Path
 
     @classmethod
-    def read(cls, run: Path, every: int = 1) -> TaskFrames:
-        """The task of the run in folder ``run``, every ``every``-th vision frame."""
-        run = Path(run)
-        try:
-            metrics = json.loads((run / "metrics.json").read_text())
-            part, robot, cell = metrics["workpiece"], metrics["robot"], metrics["cell"]
-        except (OSError, ValueError, KeyError, TypeError) as exc:
-            raise CellsightError(f"--task: {run / 'metrics.json'}: not a finished run's metrics "
-                                 f"({type(exc).__name__}: {exc})") from exc
-        log = FrameLog.read(run / "frames.csv")
-        if not log.robots:
-            raise CellsightError(f"--task: {run / 'frames.csv'}: no joint columns q_<robot>_<j> "
-                                 f"(a run logged before they were added); run it again")
-        rows = np.arange(0, log.n, max(int(every), 1))
-        poses = log.poses("true")[rows]
-        keep = np.all(np.isfinite(poses), axis=1)
-        if not keep.any():
-            raise CellsightError(f"--task: {run / 'frames.csv'}: no frame with the part's pose")
-        rows = rows[keep]
-        return cls(log.floats("t")[rows], np.asarray(log.text("phase"), dtype=object)[rows],
-                   {r: log.joints(r)[rows] for r in log.robots}, part,
-                   np.stack([pose_from_xyz_rpy(p[:3], p[3:]) for p in poses[keep]]),
-                   {robot: log.floats("jaw_opening")[rows]}, cell, run)
+    def of(cls, run: RunData, every: int = 1) -> TaskFrames:
+        """The task of a run read back (:func:`cellsight.runfolder.load_run`), every
+        ``every``-th vision frame."""
+        rows = np.arange(0, run.n, max(int(every), 1))
+        openings = {run.robot: run.opening[rows]} if run.robot else {}
+        return cls(run.t[rows], np.asarray(run.frames.text("phase"), dtype=object)[rows],
+                   {r: q[rows] for r, q in run.joints.items()}, run.part.name,
+                   run.T_true[rows], openings, run.cell.source, run.folder)
+
+    @classmethod
+    def read(cls, folder: Path, every: int = 1) -> TaskFrames:
+        """The task of the run in ``folder`` (its own cell), every ``every``-th frame."""
+        return cls.of(load_run(folder), every)
 
     @property
     def n(self) -> int:

@@ -1,9 +1,10 @@
-"""A run folder read back for export: its ``metrics.json``, its cell and its ``frames.csv``,
-checked against each other, with every problem a :class:`RunDataError` naming the file, the
-field and the value.
+"""A run folder read back (:func:`load_run`), for everything that replays a run: ``cellsight
+view``, ``cellsight export`` and ``cellsight place-cameras``. Its ``metrics.json``, its cell and
+its ``frames.csv`` are checked against each other, with every problem a :class:`RunDataError`
+naming the file, the field and the value.
 
 A run logged before ``frames.csv`` had the robots' joints (``q_<robot>_<j>``) cannot be
-exported: its robots' motion is not in the log, so neither their TF nor the camera images
+replayed: its robots' motion is not in the log, so neither their poses nor the camera images
 (where they hide the part) could be made right; it says so and asks for the run again.
 """
 
@@ -23,12 +24,12 @@ from cellsight.model.loader import load_cell
 
 
 class RunDataError(CellsightError, ValueError):
-    """A run folder that cannot be exported: missing, unreadable, or inconsistent."""
+    """A run folder that cannot be replayed: missing, unreadable, or inconsistent."""
 
 
 @dataclass
 class RunData:
-    """A run's log for export. ``t`` (N,) s; ``joints``: robot -> (N, n); ``T_true`` (N, 4, 4)
+    """A run's log, checked. ``t`` (N,) s; ``joints``: robot -> (N, n); ``T_true`` (N, 4, 4)
     the part's true pose; ``T_est`` (N, 4, 4), NaN where the tracker had no estimate;
     ``opening`` (N,) the grasping robot's jaw opening (m, NaN where not logged);
     ``vis_pred`` / ``vis_true``: per camera (N, F) bool and ``*_present`` (N,) bool."""
@@ -53,12 +54,18 @@ class RunData:
     def n(self) -> int:
         return len(self.t)
 
+    def bits(self, name: str) -> np.ndarray:
+        """(N, C, F) bool of the per-camera 0/1 column ``name`` (``vis_pred``, ``vis_true``,
+        ``sel``, ``meas``, ``rej``, ``wrong``); rows without a value are all False."""
+        return np.stack(_visibility(self.frames, self.cell, self.part, name)[0], axis=1)
+
 
 def read_metrics(folder: Path) -> dict:
     """``<folder>/metrics.json`` as a dict; a :class:`RunDataError` naming the folder or file."""
     if not folder.is_dir():
-        what = "does not exist" if not folder.exists() else "is not a folder"
-        raise RunDataError(f"{folder}: {what}; expected a run's output folder (cellsight run)")
+        what = "it does not exist" if not folder.exists() else "it is not a folder"
+        raise RunDataError(f"{folder}: no such run folder: {what}; expected a run's output "
+                           f"folder (cellsight run)")
     path = folder / "metrics.json"
     try:
         data = json.loads(path.read_bytes().decode("utf-8"))
@@ -133,7 +140,8 @@ def _joints(frames: FrameLog, cell: Cell, t: np.ndarray, path: Path) -> dict[str
     if not logged:
         raise RunDataError(f"{path}: no joint columns (q_<robot>_<j>): this run was logged "
                            f"before cellsight logged the robots' joints, so its robots cannot "
-                           f"be replayed; run the experiment again (cellsight run) to export it")
+                           f"be replayed; run the experiment again (cellsight run) to replay "
+                           f"or export it")
     names = {r.name for r in cell.robots}
     for robot, n in logged.items():
         if robot not in names:
@@ -161,7 +169,7 @@ def _poses(rows: np.ndarray) -> np.ndarray:
 
 
 def _visibility(frames: FrameLog, cell: Cell, part: Workpiece, name: str):
-    """Per camera: (N, F) bits of ``name`` (vis_pred, vis_true) and (N,) rows with a value."""
+    """Per camera: (N, F) bits of the 0/1 column ``name`` and (N,) rows with a value."""
     F = len(part.feature_points)
     bits, present = [], []
     for c in range(1, len(cell.cameras) + 1):
