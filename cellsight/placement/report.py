@@ -19,7 +19,7 @@ from cellsight.placement.candidates import work_area  # noqa: E402
 from cellsight.placement.choose import MIN_POINTS, Placement  # noqa: E402
 from cellsight.placement.scoring import CandidateScores  # noqa: E402
 from cellsight.placement.task import TaskFrames  # noqa: E402
-from cellsight.tracking.selection import select_features  # noqa: E402
+from cellsight.tracking.selection import camera_resolution, select_features  # noqa: E402
 
 
 @dataclass(frozen=True)
@@ -44,9 +44,7 @@ def set_figures(name: str, cell: Cell, task: TaskFrames, placement: Placement) -
         views = predictor.predict(*task.state(k))[task.part]
         visible = np.stack([v.visible for v in views])
         pixels = np.stack([v.pixels for v in views])
-        centroid = task.part_poses[k][:3, 3]
-        rho = np.array([c.focal_px / max(c.depth(centroid[None])[0], 1e-6)
-                        for c in cell.cameras])
+        rho = camera_resolution(cell.cameras, task.part_poses[k][:3, 3])
         points[k] = visible.sum()
         if visible.any():
             quality[k] = max(select_features(np.nan_to_num(pixels), visible, rho).quality, 0.0)

@@ -71,10 +71,13 @@ use a few points where a per-camera PnP could not.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numba
 import numpy as np
+
+from cellsight.camera import Camera
 
 
 @dataclass(frozen=True)
@@ -472,6 +475,13 @@ def _select_feasible(pixels, visible, rho, k_max, m_min, *args):
         if quality >= 0 or not eligible.any() or k <= m_min:
             return out
         k_max = k - 1
+
+
+def camera_resolution(cameras: Sequence[Camera], point: np.ndarray) -> np.ndarray:
+    """``rho_c`` (C,) px/m: each camera's focal length over the depth of ``point`` (base frame,
+    m; the part's centroid), the selection's weight of each camera (module docstring)."""
+    return np.array([c.focal_px / max(c.depth(np.asarray(point)[None])[0], 1e-6)
+                     for c in cameras])
 
 
 def select_features(

@@ -38,7 +38,7 @@ from cellsight.tracking.loss import LossRule
 from cellsight.tracking.measurement import Observation, PinholeMeasurement
 from cellsight.tracking.motion import POSE_DIM, ConstantVelocity
 from cellsight.tracking.records import PartFrame, TrackerFrame
-from cellsight.tracking.selection import SelectionConfig, select_features
+from cellsight.tracking.selection import SelectionConfig, camera_resolution, select_features
 from cellsight.tracking.status import TrackStatus
 from cellsight.tracking.timing import StageTimer
 from cellsight.tracking.windowing import WindowConfig, plan_windows
@@ -261,9 +261,8 @@ class Tracker:
         """Per camera: pixels per metre at the estimated part's centroid (focal / depth), the
         selection's weight of each camera."""
         T = track.ekf.pose
-        centroid = track.points.mean(axis=0) @ T[:3, :3].T + T[:3, 3]
-        return np.array([c.focal_px / max(c.depth(centroid[None])[0], 1e-6)
-                         for c in self.cameras])
+        return camera_resolution(self.cameras, track.points.mean(axis=0) @ T[:3, :3].T
+                                 + T[:3, 3])
 
     def _acquire(self, rec: PartFrame, track: _Track, crowd, images: Any, t: float,
                  timer: StageTimer) -> None:
