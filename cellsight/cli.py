@@ -108,13 +108,14 @@ def cmd_visibility(args: argparse.Namespace) -> int:
 
 
 SUMMARY_KEYS = (
-    "experiment", "seed", "sensor", "occlusion_prediction", "kinematic_prior", "frames",
+    "experiment", "seed", "realism", "structure", "sensor", "occlusion_prediction",
+    "kinematic_prior", "frames",
     "grasp_success", "grasp_position_error_mm", "in_view_fraction", "lost_in_view_s",
     "position_rmse_mm", "orientation_rmse_deg", "max_position_error_mm", "pnp_position_rmse_mm",
     "pnp_orientation_rmse_deg", "visibility_accuracy", "visibility_accuracy_all",
     "false_visible", "false_hidden", "measurements", "rejected_measurements",
     "wrong_measurements", "wrong_accepted", "pixels_grabbed_fraction",
-    "extraction_error_px_median", "wall_s",
+    "extraction_error_px_median", "frames_dropped", "collision_count", "wall_s",
 )
 
 
@@ -175,7 +176,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         experiment=args.experiment, out=out, cell=args.cell, seed=args.seed,
         sensor=args.sensor, occlusion_prediction=not args.no_occlusion_prediction,
         kinematic_prior=args.kinematic_prior, duration=args.duration, progress=not args.quiet,
-        overwrite=args.overwrite,
+        overwrite=args.overwrite, realism=args.realism, structure=args.structure,
     )
     try:
         metrics = run_experiment(config)
@@ -319,6 +320,13 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--kinematic-prior", action="store_true",
                      help="once the jaws hold the part, predict it by the gripper's measured "
                           "motion (off by default: the paper tracks from images alone)")
+    run.add_argument("--realism", default="exact", metavar="PROFILE",
+                     help="how the simulated world departs from the cell file: exact (default: "
+                          "it is the cell file), lab, harsh, or a YAML file (FILE or FILE:NAME; "
+                          "see cellsight/data/realism.yaml)")
+    run.add_argument("--structure", choices=("object-bvh", "frame-bsp"), default="object-bvh",
+                     help="occlusion predictor: per-object hierarchies (default) or the "
+                          "paper's per-frame BSP tree")
     run.add_argument("--duration", type=float,
                      help="simulated seconds (default: until the task is done)")
     run.add_argument("--quiet", action="store_true", help="no progress bar")

@@ -18,7 +18,7 @@ LAYERS = [
     {"camera", "_camera_kernel", "kinematics", "visibility"},
     {"model"},
     {"occlusion", "tracking", "control"},
-    {"world", "framelog", "runfolder"},
+    {"world", "framelog", "runfolder", "realism"},
     {"report"},
     {"experiments", "sweep", "view", "export", "placement"},
     {"cli", "cameras_cli", "__init__", "__main__", "data"},

@@ -582,7 +582,7 @@ def _world_run(speed: float, world_grasp: bool, t_end: float = 40.0):
     conveyor = (world_mod.ConveyorPath(np.array([start, start + [0.8, 0.0]]), speed)
                 if speed > 0 else world_mod.ConveyorPath.still())
     world = world_mod.World(CELL, seed=1, conveyor=conveyor)
-    T_part_tcp = world.grasp_pose(PART.name) if world_grasp else grasp_pose_in_part(PART)
+    T_part_tcp = world.grippers.grasp_pose(PART.name) if world_grasp else grasp_pose_in_part(PART)
     planner = TrajectoryPlanner(T_part_tcp, max_speed=0.5, max_angular_speed=1.2)
     task = GraspTask(ROBOT, PART, timing=FAST, planner=planner)
     rng = np.random.default_rng(2)

@@ -23,6 +23,7 @@ from cellsight.model import Cell, StaticObject
 from cellsight.visibility import STATUS_BEHIND, STATUS_INSIDE, STATUS_OUTSIDE
 from cellsight.world import ConveyorPath, Waypoint, World
 from cellsight.world.grasp import JawPads, PartSection
+from cellsight.world.imperfections import Imperfections
 from cellsight.world.mjcf import mjcf_camera
 
 
@@ -380,7 +381,7 @@ def _part_in_gripper(world: World, cell: Cell, offset: np.ndarray) -> np.ndarray
     """Place the part so that its grasp pose is ``offset`` (in the TCP frame) from R7AX's TCP
     at HOME; returns the part pose."""
     robot = cell.robot("R7AX")
-    T = robot.tcp_pose(robot.home) @ offset @ invert_pose(world.grasp_pose("part"))
+    T = robot.tcp_pose(robot.home) @ offset @ invert_pose(world.grippers.grasp_pose("part"))
     world.place_part("part", T)
     return T
 
@@ -429,7 +430,7 @@ def test_jaws_centre_a_slightly_offset_part_and_grasp_it(cell):
     _close(world)
     assert world.grasped("R7AX")
     robot = cell.robot("R7AX")
-    centred = robot.tcp_pose(robot.home) @ invert_pose(world.grasp_pose("part"))
+    centred = robot.tcp_pose(robot.home) @ invert_pose(world.grippers.grasp_pose("part"))
     moved = world.true_part_poses()["part"]
     np.testing.assert_allclose(moved[:3, 3], centred[:3, 3], atol=1e-6)
     assert np.linalg.norm(moved[:3, 3] - placed[:3, 3]) == pytest.approx(0.005, abs=1e-6)
@@ -480,7 +481,8 @@ def test_second_arm_follows_its_timed_waypoints(cell):
 
 
 def test_joint_measurements_are_noisy_and_seeded(cell):
-    a, b = World(cell, seed=3, joint_noise_std=1e-3), World(cell, seed=3, joint_noise_std=1e-3)
+    noisy = Imperfections(noise_rad=1e-3, noise_m=1e-3)
+    a, b = World(cell, seed=3, errors=noisy), World(cell, seed=3, errors=noisy)
     samples = np.array([a.measured_joints()["R7AX"] for _ in range(2000)])
     np.testing.assert_array_equal(b.measured_joints()["R7AX"], samples[0])
     err = samples - a.true_joints()["R7AX"]

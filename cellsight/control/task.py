@@ -188,13 +188,15 @@ class GraspTask:
     # ---- rates -------------------------------------------------------------------------------
 
     def update_vision(self, t: float, part_pose: np.ndarray | None, joints_measured: np.ndarray,
-                      jaws_closed: bool, part_velocity: np.ndarray | None = None) -> None:
+                      jaws_closed: bool, part_velocity: np.ndarray | None = None,
+                      stamp: float | None = None) -> None:
         """Vision-rate update at time ``t``: ``part_pose`` is the estimated ``T_base_part``
-        (None when not localised), ``part_velocity`` its optional linear velocity (m/s),
-        ``joints_measured`` the robot's joints, ``jaws_closed`` the gripper's jaw sensor."""
+        (None when not localised) at time ``stamp`` (its image's exposure; default ``t``: no
+        latency), ``part_velocity`` its optional linear velocity (m/s), ``joints_measured`` the
+        robot's joints at ``t``, ``jaws_closed`` the gripper's jaw sensor at ``t``."""
         self.servo.start(t, joints_measured)
         if self.phase in (Phase.WAITING, Phase.APPROACH, Phase.GRASP):
-            self.planner.part.update(t, part_pose, part_velocity)
+            self.planner.part.update(t if stamp is None else stamp, part_pose, part_velocity)
         T_meas = self.robot.tcp_pose(joints_measured)
         self._handlers[self.phase](t, T_meas, bool(jaws_closed))
         self.servo.new_target(t)

@@ -161,10 +161,20 @@ def _timing(log: FrameLog) -> dict[str, float | None]:
     return out
 
 
+def fewest_visible(log: FrameLog) -> dict[str, list[int]]:
+    """Per working phase, per camera: the fewest features truly visible in any of its frames
+    (how deeply an occluder blinded each camera; an experiment's meaning, checked per seed)."""
+    visible = _per_camera(log, "vis_true", "bits").sum(axis=2)
+    phases = np.array(log.text("phase"))
+    return {p: visible[phases == p].min(axis=0).astype(int).tolist()
+            for p in PHASES if np.any(phases == p)}
+
+
 def frame_metrics(log: FrameLog) -> dict:
     """The metrics of the module docstring from a run's frame log."""
     return {
         "frames": log.n,
+        "fewest_visible": fewest_visible(log),
         **_estimation(log),
         **_visibility(log),
         **_measurements(log),

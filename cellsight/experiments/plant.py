@@ -67,6 +67,15 @@ class GroundTruth(Protocol):
         """Workpiece name -> what each camera truly sees of it (one view per camera)."""
         ...
 
+    def true_corners(self) -> list[np.ndarray]:
+        """Per camera, the pixels (N, 2) of the corners of everything in front of it (where a
+        corner extractor could latch on)."""
+        ...
+
+    def collisions(self) -> list[dict]:
+        """Every contact so far that is not the grasp: bodies, start and end (s), depth (mm)."""
+        ...
+
     def grasped(self, robot: str) -> bool:
         """The robot really holds a workpiece."""
         ...

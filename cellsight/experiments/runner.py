@@ -43,6 +43,7 @@ from cellsight.control import GraspTask, Phase
 from cellsight.errors import CellsightError
 from cellsight.experiments.baseline import PnPBaseline
 from cellsight.experiments.keyframes import KeyFrames, draw_frame
+from cellsight.experiments.latency import Deliveries, Estimate
 from cellsight.experiments.metrics import frame_metrics
 from cellsight.experiments.monitors import GraspMonitor, OcclusionEvents
 from cellsight.experiments.plant import SimulatedCell
@@ -52,13 +53,13 @@ from cellsight.experiments.sensors import IdealExtractor
 from cellsight.framelog import FrameLog, FrameWriter
 from cellsight.model.cell import Cell
 from cellsight.model.loader import load_cell
-from cellsight.occlusion.predictor import VisibilityPredictor
+from cellsight.occlusion.predictor import OBJECT_BVH, STRUCTURES, VisibilityPredictor
 from cellsight.occlusion.projection import ProjectionOnly
 from cellsight.rates import VISION_HZ
+from cellsight.realism import FrameClock, Profile, draw_world
 from cellsight.report.run_report import write_report
 from cellsight.report.video import VideoWriter
 from cellsight.tracking import Tracker, TrackerConfig
-from cellsight.tracking.records import PartFrame
 from cellsight.world import World
 
 log = logging.getLogger(__name__)
@@ -92,6 +93,8 @@ class RunConfig:
     video_every: int = 2
     progress: bool = True
     overwrite: bool = False
+    realism: str | Path | Profile = "exact"
+    structure: str = OBJECT_BVH
 
     def __post_init__(self) -> None:
         duration = self.duration
@@ -100,6 +103,9 @@ class RunConfig:
                                  f"seconds, got {duration!r}")
         if self.seed < 0:
             raise CellsightError(f"RunConfig.seed: expected a whole number >= 0, got {self.seed}")
+        if self.structure not in STRUCTURES:
+            raise CellsightError(f"RunConfig.structure: expected one of {', '.join(STRUCTURES)}, "
+                                 f"got {self.structure!r}")
 
 
 RUN_FILES = frozenset({"frames.csv", "metrics.json", "run.log", "report.html", "keyframes.json",
@@ -203,14 +209,19 @@ class ExperimentRun:
         stale = check_out_folder(self.out, config.overwrite)
         self.stop = StopSignals()
         self.cell: Cell = load_cell(config.cell)
-        self.scenario: Scenario = scenario(self.cell, config.experiment)
+        self.draws = draw_world(config.realism, self.cell, config.seed)
+        self.scenario: Scenario = scenario(self.cell, config.experiment, self.draws.scenario)
         sc, cell = self.scenario, self.cell
         self.robot, self.part = sc.robot, sc.workpiece
         self.world: SimulatedCell = (
             world if world is not None
-            else World(cell, seed=config.seed, conveyor=sc.conveyor, tasks=sc.tasks))
-        predictor = (VisibilityPredictor(cell) if config.occlusion_prediction
-                     else ProjectionOnly(cell))
+            else World(self.draws.cell, seed=config.seed, conveyor=sc.conveyor, tasks=sc.tasks,
+                       errors=self.draws.errors))
+        predictor = (VisibilityPredictor(cell, structure=config.structure)
+                     if config.occlusion_prediction else ProjectionOnly(cell))
+        self.clock = FrameClock(self.draws.profile.timing, config.seed)
+        self.deliveries = Deliveries()
+        self.frames_dropped = 0
         self.ideal = (IdealExtractor(config.ideal_sigma_px, config.seed)
                       if config.sensor == "ideal" else None)
         tracking = TrackerConfig()
@@ -306,9 +317,12 @@ class ExperimentRun:
                 self._control_until(k / VISION_HZ)
 
     def _control_until(self, t_next: float) -> None:
-        """Control steps until the world's time reaches ``t_next`` (s)."""
+        """Control steps until the world's time reaches ``t_next`` (s); estimates reach the
+        planner when their latency is over."""
         world, name = self.world, self.robot.name
         while world.time < t_next - 1e-9:
+            for estimate in self.deliveries.due(world.time):
+                self._plan(world.time, estimate, world.measured_joints()[name])
             q, opening = self.task.step_control(world.time, world.measured_joints()[name])
             world.step({name: q}, {name: opening})
             self.grasp.after_control_step(world.time)
@@ -317,38 +331,55 @@ class ExperimentRun:
                       keys: KeyFrames) -> None:
         """Frame ``k`` at time ``t`` (s): track, plan, log, picture."""
         world, name = self.world, self.robot.name
+        fate = self.clock.next()
         joints = world.measured_joints()
         openings = world.jaw_openings()
         truth = PartTruth.of(world, self.part.name)
-        images = world.render() if self.config.sensor == "rendered" else None
-        if self.ideal is not None:
-            self.ideal.set_truth(truth.pixels, truth.visible)
+        images = self._grab(fate.dropped, truth)
         holders = None
         if self.config.kinematic_prior and world.jaws_closed_on_part(name):
             holders = {self.part.name: self.robot.tcp_pose(joints[name])}
         frame = self.tracker.step(images, joints, t, openings, holders)
         rec = frame.parts[self.part.name]
-        self._plan(t, rec, joints[name])
+        estimate = Estimate.of(t, rec)
+        if self.clock.ideal:
+            self._plan(t, estimate, joints[name])
+        elif not fate.dropped:
+            self.deliveries.add(t + fate.latency_s, estimate)
         phase = str(self.task.phase)
         self.events.update(t, phase, rec.reasons)
         pnp = self.baseline.update(t, rec.measured)
         writer.write(self.rows.row(t, self.task, frame, rec, truth, pnp, world))
 
         def draw(caption: str, scale: float = 1.0) -> np.ndarray:
-            shown = images if images is not None else world.render()
+            grabbed = images is not None and all(i is not None for i in images)
+            shown = images if grabbed else world.render()
             return draw_frame(shown, rec, truth.visible, self.cell.cameras, caption, scale)
 
         keys.offer_frame(t, phase, rec, draw)
         if video is not None and k % self.config.video_every == 0:
             video.add(draw(f"t = {t:5.2f} s   {phase}   tracker: {rec.status}", 0.5))
 
-    def _plan(self, t: float, rec: PartFrame, joints: np.ndarray) -> None:
-        """The task's vision update with the tracker's estimate (pose and linear velocity)."""
-        pose = rec.T_base_part if rec.status.has_estimate else None
-        velocity = None if pose is None else rec.state[6:9]
+    def _grab(self, dropped: bool, truth: PartTruth) -> list | None:
+        """The frame's images (rendered sensor; None per camera when the frame is dropped), or
+        the ideal sensor's truth set (nothing when dropped)."""
+        n = len(self.cell.cameras)
+        self.frames_dropped += dropped
+        if self.ideal is not None:
+            if dropped:
+                self.ideal.set_truth(None, None)
+            else:
+                self.ideal.set_truth(truth.pixels, truth.visible, self.world.true_corners())
+            return None
+        return [None] * n if dropped else self.world.render()
+
+    def _plan(self, t: float, estimate: Estimate, joints: np.ndarray) -> None:
+        """The task's vision update at time ``t`` with the tracker's ``estimate`` (pose and
+        linear velocity, of its exposure time)."""
         before = self.task.phase
-        self.task.update_vision(t, pose, joints, self.world.jaws_closed_on_part(self.robot.name),
-                                velocity)
+        self.task.update_vision(t, estimate.pose, joints,
+                                self.world.jaws_closed_on_part(self.robot.name),
+                                estimate.velocity, stamp=estimate.t)
         self.grasp.after_vision(before, self.task.phase)
 
     def _write_metrics(self, wall_s: float, ending: dict) -> dict:
@@ -357,6 +388,7 @@ class ExperimentRun:
         cfg = self.config
         frames = FrameLog.read(self.out / "frames.csv")
         t_end = float(frames.floats("t")[-1]) if frames.n else 0.0
+        collisions = self.world.collisions()
         metrics = {
             "experiment": cfg.experiment,
             "description": self.scenario.description,
@@ -366,6 +398,13 @@ class ExperimentRun:
             "sensor": cfg.sensor,
             "occlusion_prediction": cfg.occlusion_prediction,
             "kinematic_prior": cfg.kinematic_prior,
+            "structure": cfg.structure,
+            "realism": self.draws.profile.name,
+            "realism_file": self.draws.profile.file,
+            "draws": self.draws.record,
+            "collisions": collisions,
+            "collision_count": len(collisions),
+            "frames_dropped": self.frames_dropped,
             "grasp_success": bool(self.grasp.held_at_manipulate),
             "grasp_position_error_mm": self.grasp.error_mm,
             "final_phase": str(self.task.phase),

@@ -5,16 +5,22 @@
 3. As 2, and a second robot runs its own task that crosses the cameras' views.
 
 The grasping robot defaults to the first robot with a tool and a FINAL pose, the workpiece to
-the cell's first one.
+the cell's first one. A realism profile's seed may shift the scenario
+(:class:`~cellsight.realism.ScenarioShift`): the conveyor's path moves with the part's start and
+turns about it, its speed scales, and the crossing robot's waypoints move in time and in joint
+space, all together (so that the crossing keeps its meaning).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+import numpy as np
+
 from cellsight.errors import CellFileError
 from cellsight.model.cell import Cell, Workpiece
 from cellsight.model.robot import Robot
+from cellsight.realism import ScenarioShift
 from cellsight.world import ConveyorPath, Waypoint
 
 DESCRIPTIONS = {
@@ -39,9 +45,10 @@ class Scenario:
         return DESCRIPTIONS[self.number]
 
 
-def scenario(cell: Cell, number: int) -> Scenario:
-    """The experiment ``number`` (1, 2 or 3) on ``cell``; raises :class:`CellFileError` naming
-    the missing field of the cell file's ``experiments`` section."""
+def scenario(cell: Cell, number: int, shift: ScenarioShift | None = None) -> Scenario:
+    """The experiment ``number`` (1, 2 or 3) on ``cell``, shifted by ``shift`` (module
+    docstring; None: as the cell file says); raises :class:`CellFileError` naming the missing
+    field of the cell file's ``experiments`` section."""
     if number not in DESCRIPTIONS:
         raise ValueError(f"experiment must be one of {sorted(DESCRIPTIONS)}, got {number}")
     setup = cell.experiments
@@ -54,15 +61,30 @@ def scenario(cell: Cell, number: int) -> Scenario:
         if setup.conveyor_points is None:
             raise CellFileError(setup.source, "experiments.conveyor", None,
                                 f"a conveyor path for experiment {number}")
-        conveyor = ConveyorPath(setup.conveyor_points, setup.conveyor_speed,
-                                setup.conveyor_t_start, workpiece=part.name)
+        points, speed = setup.conveyor_points, setup.conveyor_speed
+        if shift is not None:
+            points, speed = _shifted_path(points, shift), speed * shift.speed_scale
+        conveyor = ConveyorPath(points, speed, setup.conveyor_t_start, workpiece=part.name)
     tasks = {}
     if number == 3:
         if not setup.crossing_waypoints:
             raise CellFileError(setup.source, "experiments.crossing", None,
                                 "a crossing robot's waypoints for experiment 3")
-        tasks[setup.crossing_robot] = [Waypoint(t, q) for t, q in setup.crossing_waypoints]
+        dt, dq = (0.0, 0.0) if shift is None else (shift.crossing_dt, shift.crossing_dq)
+        dq = 0.0 if dq is None else dq
+        tasks[setup.crossing_robot] = [Waypoint(t + dt, q + dq)
+                                       for t, q in setup.crossing_waypoints]
     return Scenario(number, robot, part, conveyor, tasks)
+
+
+def _shifted_path(points: np.ndarray, shift: ScenarioShift) -> np.ndarray:
+    """The conveyor's polyline turned by ``shift.turn`` about its first point, then moved by
+    ``shift.shift`` (m); unchanged when both are zero."""
+    if shift.turn == 0 and not np.any(shift.shift):
+        return points
+    c, s = np.cos(shift.turn), np.sin(shift.turn)
+    start = points[0]
+    return start + shift.shift + (points - start) @ np.array([[c, s], [-s, c]])
 
 
 def _grasping_robot(cell: Cell) -> Robot:

@@ -25,6 +25,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--sensors", nargs="+", default=list(SENSORS), help="rendered and/or ideal")
     p.add_argument("--variants", nargs="+", default=["pred"],
                    help="tracker options: " + ", ".join(VARIANTS) + " (default pred)")
+    p.add_argument("--realism", nargs="+", default=["exact"], metavar="PROFILE",
+                   help="the world's realism profiles: exact, lab, harsh, or YAML files "
+                        "(FILE or FILE:NAME; default exact)")
+    p.add_argument("--structure", nargs="+", default=["object-bvh"], metavar="STRUCTURE",
+                   help="the occlusion predictor's structures: object-bvh (default) and/or the "
+                        "paper's per-frame frame-bsp")
     p.add_argument("--seeds", type=int, nargs="+", default=[0])
     p.add_argument("--variant-seeds", type=int,
                    help="run the variants after the first on the first N seeds only")
@@ -63,7 +69,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     from rich.console import Console
 
     specs = sweep_grid(args.cells, args.experiments, args.sensors, args.variants, args.seeds,
-                       args.variant_seeds, args.duration)
+                       args.variant_seeds, args.duration, args.realism, args.structure)
     console = Console()
     try:
         results = run_sweep(specs, args.out, args.jobs, args.scheduler, not args.quiet,

@@ -1,8 +1,10 @@
 """The sweep's grid of runs and one run of it, resumable.
 
 A run is a :class:`RunSpec`: a cell (a built-in name or a cell file), an experiment (1-3), a
-sensor (``rendered`` / ``ideal``), a variant (:data:`VARIANTS`: the tracker's options) and a
-seed, written into its own folder ``<out>/<cell>/e<N>_<sensor>_<variant>_s<seed>``.
+sensor (``rendered`` / ``ideal``), a variant (:data:`VARIANTS`: the tracker's options), a
+realism profile (``exact``, ``lab``, ``harsh`` or a file), the predictor's structure and a
+seed, written into its own folder ``<out>/<cell>/e<N>_<sensor>_<variant>[_<realism>]
+[_<structure>]_s<seed>`` (the realism when not ``exact``, the structure when not the default).
 :func:`run_spec` reuses a folder whose ``metrics.json`` is complete (read back, neither
 interrupted nor failed, and run on the same cell file, by its SHA-256) and runs the others again
 (their folder cleared first).
@@ -32,6 +34,7 @@ VARIANTS: dict[str, dict[str, bool]] = {
 prior while it holds the part."""
 
 SENSORS = ("rendered", "ideal")
+STRUCTURES = ("object-bvh", "frame-bsp")  # cellsight.occlusion.predictor's, not imported here
 
 
 @dataclass(frozen=True)
@@ -45,12 +48,19 @@ class RunSpec:
     variant: str
     seed: int
     duration: float | None = None
+    realism: str = "exact"
+    structure: str = STRUCTURES[0]
 
     @property
     def folder(self) -> Path:
         """The run's folder under the sweep's output folder."""
         stem = Path(self.cell).stem if self.cell.endswith((".yaml", ".yml")) else self.cell
-        return Path(stem) / f"e{self.experiment}_{self.sensor}_{self.variant}_s{self.seed}"
+        name = f"e{self.experiment}_{self.sensor}_{self.variant}"
+        if self.realism != "exact":
+            name += "_" + Path(self.realism.replace(":", "_")).stem
+        if self.structure != STRUCTURES[0]:
+            name += "_" + self.structure
+        return Path(stem) / f"{name}_s{self.seed}"
 
     def config(self, out: Path) -> RunConfig:
         """The run's :class:`~cellsight.experiments.RunConfig`, writing into ``out/folder``."""
@@ -58,15 +68,23 @@ class RunSpec:
 
         return RunConfig(self.experiment, Path(out) / self.folder, cell=self.cell,
                          seed=self.seed, sensor=self.sensor, duration=self.duration,
-                         progress=False, overwrite=True, **VARIANTS[self.variant])
+                         progress=False, overwrite=True, realism=self.realism,
+                         structure=self.structure, **VARIANTS[self.variant])
 
 
 def sweep_grid(cells: Sequence[str], experiments: Sequence[int], sensors: Sequence[str],
                variants: Sequence[str], seeds: Sequence[int], variant_seeds: int | None = None,
-               duration: float | None = None) -> list[RunSpec]:
+               duration: float | None = None, realisms: Sequence[str] = ("exact",),
+               structures: Sequence[str] = STRUCTURES[:1]) -> list[RunSpec]:
     """Every combination, in that order; variants other than the first run on the first
-    ``variant_seeds`` seeds only (None: on all), as comparisons."""
-    for name, values, allowed in (("--sensors", sensors, SENSORS),
+    ``variant_seeds`` seeds only (None: on all), as comparisons. Every realism profile is
+    loaded (and so checked) before anything runs."""
+    from cellsight.realism import load_profile
+
+    for realism in realisms:
+        load_profile(realism)
+    for name, values, allowed in (("--structures", structures, STRUCTURES),
+                                  ("--sensors", sensors, SENSORS),
                                   ("--variants", variants, tuple(VARIANTS)),
                                   ("--experiments", experiments, (1, 2, 3))):
         bad = [v for v in values if v not in allowed]
@@ -80,9 +98,9 @@ def sweep_grid(cells: Sequence[str], experiments: Sequence[int], sensors: Sequen
         raise CellsightError(f"--variant-seeds: expected a whole number >= 1, got "
                              f"{variant_seeds}")
     compared = set(seeds[:variant_seeds]) if variant_seeds is not None else set(seeds)
-    return [RunSpec(cell, e, sensor, variant, seed, duration)
-            for cell, e, sensor, variant, seed in itertools.product(
-                cells, experiments, sensors, variants, seeds)
+    return [RunSpec(cell, e, sensor, variant, seed, duration, realism, structure)
+            for cell, e, realism, structure, sensor, variant, seed in itertools.product(
+                cells, experiments, realisms, structures, sensors, variants, seeds)
             if variant == variants[0] or seed in compared]
 
 

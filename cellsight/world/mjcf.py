@@ -12,12 +12,16 @@ Every cell object becomes a mesh geom named like the object (``R7AX.link3``, ``p
   along their own y by half the opening (joints ``R/jaw1``, ``R/jaw2``);
 - workpiece ``P``: a mocap body ``P`` (driven kinematically by the world);
 - static object ``S``: a fixed body ``S`` at ``T_base_obj``;
+- an intruder the cell file does not know (:mod:`cellsight.world.intruders`): a mocap body and
+  geom named like it (``unknown.box``);
 - a floor plane ``floor`` at z = 0, lights, and one fixed camera per cell camera.
 
-Geom groups: 0 static objects and floor, 1 robots, 2 workpieces. Contacts are off and the
-jointed bodies get a nominal inertia (1 kg): the world is kinematic, the model is never
-integrated. Vertices and poses are written with full float64 precision (MuJoCo stores mesh
-vertices as float32, about 1e-8 m here).
+Geom groups: 0 static objects, intruders and floor, 1 robots, 2 workpieces. The jointed bodies
+get a nominal inertia (1 kg): the world is kinematic, the model is never integrated. Every geom
+may collide (``contype`` and ``conaffinity`` 1), but only so that MuJoCo's collision detection
+reports contacts (:mod:`cellsight.world.contacts`): no contact force ever acts. Vertices and
+poses are written with full float64 precision (MuJoCo stores mesh vertices as float32, about
+1e-8 m here).
 """
 
 from __future__ import annotations
@@ -33,12 +37,14 @@ from cellsight.model import Cell, CellObject
 from cellsight.model.cell import ObjectFrame
 from cellsight.model.robot import Robot
 from cellsight.rates import CONTROL_HZ
+from cellsight.world.intruders import Intruder
 
 GROUP_STATIC, GROUP_ROBOT, GROUP_PART = 0, 1, 2
 _FLIP_YZ = np.diag([1.0, -1.0, -1.0])  # OpenCV camera axes <-> MuJoCo camera axes
 
 # Grey levels (B/W cameras): a bright part on darker surroundings, so its edges stand out.
 _GREY = {"workpiece": 0.92, "link": 0.62, "tool": 0.38, "static": 0.34}
+_INTRUDER_GREY = 0.5
 _FLOOR_GREY = 0.12
 
 
@@ -204,6 +210,14 @@ def _robot_body(robot: Robot, geoms: dict[str, list[str]]) -> str:
     return "\n".join(xml)
 
 
+def _intruder_body(intruder: Intruder) -> str:
+    g = _INTRUDER_GREY
+    name = quoteattr(intruder.name)
+    return (f'<body name={name} mocap="true" {_pose_attrs(intruder.pose(0.0))}>'
+            f'<geom name={name} type="mesh" mesh={name} group="{GROUP_STATIC}" '
+            f'rgba="{g} {g} {g} 1"/></body>')
+
+
 def _world_bodies(cell: Cell, geoms: dict[str, list[str]]) -> list[str]:
     """Robots' body trees, workpieces' mocap bodies and static objects' fixed bodies."""
     world = [_robot_body(robot, geoms) for robot in cell.robots]
@@ -222,13 +236,16 @@ def _world_bodies(cell: Cell, geoms: dict[str, list[str]]) -> list[str]:
     return world
 
 
-def cell_mjcf(cell: Cell, render_size: tuple[int, int] | None = None) -> str:
-    """MJCF text of the cell (see the module docstring for names and frames).
+def cell_mjcf(cell: Cell, render_size: tuple[int, int] | None = None,
+              intruders: tuple[Intruder, ...] = ()) -> str:
+    """MJCF text of the cell and the ``intruders`` it does not know (see the module docstring
+    for names and frames).
 
     ``render_size`` = (width, height) of the rendered images (default: each camera's own).
     """
     geoms, assets = _geoms_and_assets(cell)
-    world = _world_bodies(cell, geoms)
+    assets += [_mesh_asset(i.name, i.solid) for i in intruders]
+    world = _world_bodies(cell, geoms) + [_intruder_body(i) for i in intruders]
     sizes = [render_size or (c.width, c.height) for c in cell.cameras] or [(640, 480)]
     offw, offh = max(s[0] for s in sizes), max(s[1] for s in sizes)
     cameras = [mjcf_camera(c, render_size) for c in cell.cameras]
@@ -241,7 +258,7 @@ def cell_mjcf(cell: Cell, render_size: tuple[int, int] | None = None) -> str:
   <headlight ambient="0.22 0.22 0.22" diffuse="0.38 0.38 0.38" specular="0 0 0"/>
   <map znear="0.005" zfar="40"/>
 </visual>
-<default><geom contype="0" conaffinity="0"/></default>
+<default><geom contype="1" conaffinity="1"/></default>
 <asset>
 {chr(10).join(assets)}
 </asset>

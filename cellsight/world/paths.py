@@ -143,14 +143,20 @@ class PartMotion:
 
     A workpiece rests at its nominal pose, except the one the ``conveyor`` carries (until it
     is first grasped). One that is held follows its holder's TCP at the relative pose of the
-    grasp. One that is released falls straight down (gravity, no rotation) onto whatever lies
-    below it (static objects, other workpieces: ray casts) and rests there.
+    grasp, settled in the jaws by ``seat`` (a pose in the TCP frame applied when the grasp
+    engages) and sliding along the tool's approach axis (+z) at ``slip`` (m/s). One that is
+    released falls straight down (gravity, no rotation) onto whatever lies below it (static
+    objects, other workpieces: ray casts) and rests there.
     """
 
-    def __init__(self, scene: Scene, cell: Cell, conveyor: ConveyorPath) -> None:
+    def __init__(self, scene: Scene, cell: Cell, conveyor: ConveyorPath,
+                 seat: np.ndarray | None = None, slip: float = 0.0) -> None:
         self.scene = scene
         self.cell = cell
         self.conveyor = conveyor
+        self.seat = np.eye(4) if seat is None else np.asarray(seat, dtype=float)
+        self.slip = float(slip)
+        self._dt = 0.0
         model = scene.model
         self._body = {p.name: model.body(p.name).id for p in cell.workpieces}
         self._mocap = {name: model.body_mocapid[b] for name, b in self._body.items()}
@@ -166,6 +172,7 @@ class PartMotion:
     def step(self, t: float, dt: float) -> None:
         """Move the conveyor's workpiece to its place at time ``t`` (s) and let the falling
         ones fall for ``dt`` (s)."""
+        self._dt = dt
         for name, part in self._parts.items():
             if part.mode == "conveyor":
                 part.pose = self._conveyor_pose(t)
@@ -198,12 +205,13 @@ class PartMotion:
         """Weld a workpiece to a TCP at its current relative pose (the grasp engages)."""
         part = self._parts[name]
         part.mode = "held"
-        part.T_tcp_part = invert_pose(T_base_tcp) @ part.pose
+        part.T_tcp_part = self.seat @ invert_pose(T_base_tcp) @ part.pose
         part.fall_left = part.fall_speed = 0.0
 
     def carry(self, name: str, T_base_tcp: np.ndarray) -> None:
         """Move a held workpiece with its holder's TCP."""
         part = self._parts[name]
+        part.T_tcp_part[2, 3] += self.slip * self._dt
         part.pose = T_base_tcp @ part.T_tcp_part
         self._write(name)
 

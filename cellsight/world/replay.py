@@ -19,7 +19,7 @@ class ReplayWorld(World):
         """Put the cell in a logged state: robot name -> joint vector (rad, m; robots left out
         stay), workpiece name -> ``T_base_part`` (resting there, held by nobody), robot name ->
         jaw opening (m)."""
-        self.robots.drive(joints)
+        self.robots.place(joints)
         for name, T in part_poses.items():
             self.place_part(name, T)
         for name, opening in (openings or {}).items():

@@ -24,6 +24,7 @@ import mujoco
 import numpy as np
 
 from cellsight.camera import Camera
+from cellsight.geometry.transforms import transform_points
 from cellsight.model import Cell
 from cellsight.visibility import (
     STATUS_BEHIND,
@@ -32,6 +33,7 @@ from cellsight.visibility import (
     CameraVisibility,
     Views,
 )
+from cellsight.world.intruders import Intruders
 from cellsight.world.mjcf import object_bodies
 from cellsight.world.scene import Scene
 
@@ -92,6 +94,7 @@ class RayTruth:
         self.geom_object = np.array(geom_object, dtype=np.int32)
         self._part_object = {p.name: cell.object_index(p.name) for p in cell.workpieces}
         self._object_body = np.array([model.body(b).id for b in object_bodies(cell)])
+        self._vertices = [o.solid.vertices for o in cell.objects]
 
     def views(self, part_poses: Mapping[str, np.ndarray]) -> Views:
         """Workpiece -> one :class:`CameraVisibility` per camera (``cell.cameras`` order), for
@@ -111,3 +114,17 @@ class RayTruth:
         """``T_base_obj`` of every cell object (``cell.objects`` order), (n, 4, 4), read from
         MuJoCo."""
         return self.scene.body_poses(self._object_body)
+
+    def corner_pixels(self, intruders: Intruders) -> list[np.ndarray]:
+        """Per camera, the distorted pixels (N, 2) of the vertices of every cell object and
+        intruder that lie in front of it, at their poses now (whether each vertex is itself
+        hidden is not checked)."""
+        poses = list(self.object_poses()) + [self.scene.body_pose(b) for b in intruders.bodies]
+        solids = self._vertices + [i.solid.vertices for i in intruders.intruders]
+        points = np.concatenate([transform_points(T, v) for T, v in zip(poses, solids,
+                                                                         strict=True)])
+        out = []
+        for cam in self.cell.cameras:
+            in_cam = cam.to_camera(points)
+            out.append(cam.project_camera(in_cam[in_cam[:, 2] > 1e-6]))
+        return out

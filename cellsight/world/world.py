@@ -1,12 +1,15 @@
-"""The simulated cell: a kinematic MuJoCo world generated from the cell model.
+"""The simulated cell: a MuJoCo world generated from its own cell model (the one the world
+*is*, which may differ from the cell file the system uses) and its
+:class:`~cellsight.world.imperfections.Imperfections`.
 
-Stepping (``CONTROL_HZ`` = 500 Hz, ``dt_control`` = 2 ms) is kinematic, like a cell whose
-industrial controllers track their set-points: each step writes the joint values and the
-workpiece poses and MuJoCo computes the body, geom and camera poses (``mj_kinematics``);
-nothing is integrated. :class:`World` puts together its parts, each in its own module:
+Stepping (``CONTROL_HZ`` = 500 Hz, ``dt_control`` = 2 ms): each step moves the joints through
+their servos, writes the joint values and the workpiece and intruder poses, and MuJoCo computes
+the body, geom and camera poses (``mj_kinematics``) and the contacts (``mj_collision``); no
+contact force acts. :class:`World` puts together its parts, each in its own module:
 
-- robots (:class:`RobotJoints`, here): ideal position control. A robot driven by the caller
-  reaches each joint set-point within the control period (clipped to its joint limits); a
+- robots (:class:`RobotJoints`, here): position control through each joint's servo
+  (:mod:`cellsight.world.servo`; the ideal one reaches each set-point within the control
+  period), clipped to the joint limits, in the encoders' terms (offsets, resolution, noise); a
   robot with a task follows its timed waypoints (:class:`~cellsight.world.paths.JointTask`);
   any other robot holds still;
 - grippers (:class:`~cellsight.world.grasp.Grippers`): pneumatic parallel jaws that centre,
@@ -14,6 +17,9 @@ nothing is integrated. :class:`World` puts together its parts, each in its own m
 - workpieces (:class:`~cellsight.world.paths.PartMotion`): carried by the conveyor
   (:class:`~cellsight.world.paths.ConveyorPath`) until the first grasp, held, falling after a
   release, resting;
+- intruders (:mod:`cellsight.world.intruders`) the cell file does not know;
+- collisions (:class:`~cellsight.world.contacts.ContactMonitor`), checked every step;
+- images (:mod:`cellsight.world.render`, then :mod:`cellsight.world.images`);
 - truth (:class:`~cellsight.world.truth.RayTruth`): joint values, jaw openings, part poses and
   object poses are read from MuJoCo; what each camera sees comes from MuJoCo ray casts, in the
   predictors' own type (:meth:`World.true_views`);
@@ -31,24 +37,33 @@ import numpy as np
 from cellsight.model import Cell
 from cellsight.rates import CONTROL_HZ, VISION_HZ
 from cellsight.visibility import Views
+from cellsight.world.contacts import ContactMonitor
 from cellsight.world.grasp import Grippers
+from cellsight.world.images import Imager
+from cellsight.world.imperfections import IDEAL, Imperfections
+from cellsight.world.intruders import Intruders
 from cellsight.world.mjcf import cell_mjcf, joint_name
 from cellsight.world.paths import ConveyorPath, JointTask, PartMotion, Waypoint
 from cellsight.world.render import GrayRenderer
 from cellsight.world.scene import Scene
+from cellsight.world.servo import JointServo
 from cellsight.world.truth import RayTruth
 
 
 class RobotJoints:
-    """Every robot's joint values (rad, m), written into MuJoCo (module docstring).
+    """Every robot's joints (rad, m): set-points through each robot's servo into MuJoCo, and
+    the encoders' readings (module docstring).
 
-    ``initial_joints``: robot name -> joint vector at t = 0 (default HOME, checked against the
-    joint limits); ``tasks``: robot name -> timed joint waypoints, starting from its initial
-    joints at t = 0."""
+    ``initial_joints``: robot name -> joint vector at t = 0 as the encoders read it (default
+    HOME, checked against the joint limits); ``tasks``: robot name -> timed joint waypoints,
+    starting from its initial joints at t = 0. ``errors``: the encoders' offsets, resolution and
+    noise and the servo (:class:`~cellsight.world.imperfections.Imperfections`); set-points and
+    readings are in the encoders' terms, the joints move in the true ones."""
 
     def __init__(self, scene: Scene, cell: Cell, initial_joints: Mapping[str, np.ndarray],
-                 tasks: Mapping[str, Sequence[Waypoint]]) -> None:
-        self.scene, self.cell = scene, cell
+                 tasks: Mapping[str, Sequence[Waypoint]], errors: Imperfections,
+                 dt: float) -> None:
+        self.scene, self.cell, self.errors = scene, cell, errors
         m = scene.model
         self._qadr = {
             r.name: np.array([m.jnt_qposadr[m.joint(joint_name(r.name, i)).id]
@@ -56,18 +71,28 @@ class RobotJoints:
             for r in cell.robots
         }
         self._lims = {r.name: r.chain.qlim for r in cell.robots}
+        self._offset = {r.name: np.asarray(errors.encoder_offsets.get(r.name, np.zeros(r.n_joints)),
+                                           dtype=float) for r in cell.robots}
+        self._noise = {r.name: np.where(r.chain.prismatic, errors.noise_m, errors.noise_rad)
+                       for r in cell.robots}
+        self._quantum = {r.name: np.where(r.chain.prismatic, errors.quantum_m, errors.quantum_rad)
+                         for r in cell.robots}
         initial = dict(initial_joints)
-        for r in cell.robots:
-            self._set(r.name, r.chain.check_q(initial.pop(r.name, r.home), check_limits=True))
+        q0 = {r.name: r.chain.check_q(initial.pop(r.name, r.home), check_limits=True)
+              for r in cell.robots}
         if initial:
             raise KeyError(f"initial_joints: no robot named {sorted(initial)}")
-        q0 = self.true()
+        self._servo = {name: JointServo(errors.servo, self._true_target(name, q), dt)
+                       for name, q in q0.items()}
+        for name in self._servo:
+            self._write(name)
         self._tasks = {name: JointTask(q0[cell.robot(name).name], waypoints)
                        for name, waypoints in tasks.items()}
 
     def drive(self, setpoints: Mapping[str, np.ndarray]) -> None:
-        """Reach joint set-points (robot name -> vector), clipped to the joint limits; a robot
-        that follows its own task cannot be driven."""
+        """Joint set-points (robot name -> vector, as the encoders read), clipped to the joint
+        limits; a robot that follows its own task cannot be driven. They are reached by
+        :meth:`advance`."""
         for name, q in setpoints.items():
             if name in self._tasks:
                 raise ValueError(f"robot {name} follows its own task; do not drive it")
@@ -77,29 +102,60 @@ class RobotJoints:
             lim = self._lims[name]
             if q.shape != (len(lim),) or not np.all(np.isfinite(q)):
                 raise ValueError(f"robot {name}: set-point needs {len(lim)} finite values, got {q}")
-            self._set(name, q)
+            self._servo[name].target = self._true_target(name, q)
 
     def follow_tasks(self, t: float) -> None:
         """Every robot with a task takes its set-point at time ``t`` (s)."""
         for name, task in self._tasks.items():
-            self._set(name, task.at(t))
+            self._servo[name].target = self._true_target(name, task.at(t))
+
+    def advance(self) -> None:
+        """One control period of every robot's servo."""
+        for name in self._servo:
+            self._servo[name].step()
+            self._write(name)
+
+    def place(self, joints: Mapping[str, np.ndarray]) -> None:
+        """Put robots at joint vectors (as the encoders read) at once, at rest (a replayed
+        state, not a motion)."""
+        self.drive(joints)
+        for name in joints:
+            self._servo[name].place(self._servo[name].target)
+            self._write(name)
 
     def true(self) -> dict[str, np.ndarray]:
         """Joint values of every robot, read from MuJoCo."""
         qpos = self.scene.data.qpos
         return {name: qpos[adr].copy() for name, adr in self._qadr.items()}
 
-    def _set(self, name: str, q: np.ndarray) -> None:
+    def measured(self, rng: np.random.Generator) -> dict[str, np.ndarray]:
+        """What the encoders read: the true values plus their offsets, rounded to their
+        resolution, plus their Gaussian noise (drawn from ``rng``)."""
+        out = {}
+        for name, q in self.true().items():
+            q = q + self._offset[name]
+            step = self._quantum[name]
+            q = np.where(step > 0, np.round(q / np.where(step > 0, step, 1.0)) * step, q)
+            out[name] = q + rng.normal(0.0, self._noise[name], q.shape)
+        return out
+
+    def _true_target(self, name: str, q: np.ndarray) -> np.ndarray:
         lim = self._lims[name]
-        self.scene.set_qpos(self._qadr[name], np.clip(q, lim[:, 0], lim[:, 1]))
+        return np.clip(np.asarray(q, dtype=float) - self._offset[name], lim[:, 0], lim[:, 1])
+
+    def _write(self, name: str) -> None:
+        lim = self._lims[name]
+        self.scene.set_qpos(self._qadr[name], np.clip(self._servo[name].q, lim[:, 0], lim[:, 1]))
 
 
 class World:
     """The simulated cell (see the module docstring).
 
     ``conveyor``: the conveyor's path (default: still). ``tasks``: robot name -> timed joint
-    waypoints, starting from the robot's initial joints at t = 0. ``joint_noise_std``: standard
-    deviation of the measured joints (rad or m). ``render_size``: (width, height) of the
+    waypoints, starting from the robot's initial joints at t = 0. ``errors``: how the world
+    departs from an ideal one over time and in its sensors
+    (:class:`~cellsight.world.imperfections.Imperfections`; its geometry's errors are in
+    ``cell``, the world's own). ``render_size``: (width, height) of the
     rendered images (default: each camera's own size). ``initial_joints``: robot name -> joint
     vector at t = 0 (default HOME). ``grasp_poses``: workpiece name -> ``T_part_tcp`` of its
     grasp (default: the cell file's ``grasp``, else
@@ -107,7 +163,8 @@ class World:
     largest TCP position (m) and rotation (rad) error for a grasp to engage. ``jaw_speed``: rate
     of change of the jaw opening (m/s).
 
-    Its parts are attributes: ``scene``, ``robots``, ``parts``, ``grippers``, ``truth``.
+    Its parts are attributes: ``scene``, ``robots``, ``parts``, ``grippers``, ``intruders``,
+    ``contacts`` (the collisions so far), ``truth``.
     """
 
     dt_control = 1.0 / CONTROL_HZ
@@ -120,31 +177,34 @@ class World:
         seed: int = 0,
         conveyor: ConveyorPath | None = None,
         tasks: Mapping[str, Sequence[Waypoint]] | None = None,
-        joint_noise_std: float = 1e-4,
+        errors: Imperfections = IDEAL,
         render_size: tuple[int, int] | None = None,
         initial_joints: Mapping[str, np.ndarray] | None = None,
         grasp_poses: Mapping[str, np.ndarray] | None = None,
         grasp_tolerance: tuple[float, float] = (0.01, math.radians(10.0)),
         jaw_speed: float = 0.2,
     ) -> None:
-        self.cell = cell
-        self.joint_noise_std = float(joint_noise_std)
+        self.cell, self.errors = cell, errors
         self._rng = np.random.default_rng(seed)
-        model = mujoco.MjModel.from_xml_string(cell_mjcf(cell, render_size))
+        model = mujoco.MjModel.from_xml_string(cell_mjcf(cell, render_size, errors.intruders))
         self.scene = Scene(model, mujoco.MjData(model))
-        self.robots = RobotJoints(self.scene, cell, initial_joints or {}, tasks or {})
-        self.parts = PartMotion(self.scene, cell, conveyor or ConveyorPath.still())
+        self.robots = RobotJoints(self.scene, cell, initial_joints or {}, tasks or {}, errors,
+                                  self.dt_control)
+        self.parts = PartMotion(self.scene, cell, conveyor or ConveyorPath.still(),
+                                errors.grasp_seat, errors.slip_m_s)
         self.grippers = Grippers(self.scene, cell, self.parts, grasp_poses or {},
                                  grasp_tolerance, jaw_speed, self.dt_control)
+        self.intruders = Intruders(self.scene, errors.intruders)
+        self.contacts = ContactMonitor(
+            self.scene, cell, errors.collision_depth_m,
+            lambda robot: self.grippers.holding(robot) or self.grippers.clamped(robot))
         self.truth = RayTruth(self.scene, cell)
         self._render_size = render_size
         self._renderer: GrayRenderer | None = None
+        self._imager = None if errors.images is None else Imager(errors.images, [seed, 2])
         self._steps = 0
-
-    @property
-    def time(self) -> float:
+        self.time = 0.0
         """Simulated time (s)."""
-        return self._steps * self.dt_control
 
     def step(
         self,
@@ -158,12 +218,15 @@ class World:
         stays in force until the next one.
         """
         self._steps += 1
-        t = self.time
+        self.time = t = self._steps * self.dt_control
         self.robots.drive(setpoints or {})
         self.robots.follow_tasks(t)
+        self.robots.advance()
+        self.intruders.step(t)
         self.grippers.command(gripper or {})
         self.parts.step(t, self.dt_control)
         self.grippers.step()
+        self.contacts.check(t)
 
     def place_part(self, name: str, T_base_part: np.ndarray) -> None:
         """Put a workpiece at a pose, resting there (off the conveyor, out of any gripper)."""
@@ -171,20 +234,14 @@ class World:
         self.grippers.let_go(name)
         self.parts.place(name, T_base_part)
 
-    def grasp_pose(self, name: str) -> np.ndarray:
-        """``T_part_tcp`` of the grasp that engages for this workpiece."""
-        return self.grippers.grasp_pose(self.cell.workpiece(name).name)
-
     def true_joints(self) -> dict[str, np.ndarray]:
         """Joint values of every robot (rad, m), read from MuJoCo."""
         return self.robots.true()
 
     def measured_joints(self) -> dict[str, np.ndarray]:
-        """Joint values with Gaussian noise of ``joint_noise_std`` (seeded)."""
-        return {
-            name: q + self._rng.normal(0.0, self.joint_noise_std, q.shape)
-            for name, q in self.true_joints().items()
-        }
+        """Joint values as the encoders read them (offsets, resolution and seeded noise of
+        ``errors``)."""
+        return self.robots.measured(self._rng)
 
     def jaw_openings(self) -> dict[str, float]:
         """Jaw opening (m) of every robot with a gripper, read from MuJoCo."""
@@ -213,12 +270,24 @@ class World:
         (``cell.cameras`` order), as the predictors answer (:mod:`cellsight.world.truth`)."""
         return self.truth.views(self.true_part_poses())
 
+    def true_corners(self) -> list[np.ndarray]:
+        """Per camera (``cell.cameras`` order), the pixels (N, 2) of every solid's vertices in
+        front of it, as it truly sees them: where a corner extractor could latch on
+        (:meth:`RayTruth.corner_pixels <cellsight.world.truth.RayTruth.corner_pixels>`)."""
+        return self.truth.corner_pixels(self.intruders)
+
+    def collisions(self) -> list[dict]:
+        """Every collision so far (:mod:`cellsight.world.contacts`), as plain data."""
+        return self.contacts.report()
+
     def render(self) -> list[np.ndarray]:
-        """One (H, W) uint8 grayscale image per camera, in ``cell.cameras`` order."""
+        """One (H, W) uint8 grayscale image per camera, in ``cell.cameras`` order, as the
+        cameras grab it (``errors.images``)."""
         self.scene.sync()
         if self._renderer is None:
             self._renderer = GrayRenderer(self.scene.model, self.cell.cameras, self._render_size)
-        return self._renderer.render(self.scene.data)
+        images = self._renderer.render(self.scene.data)
+        return images if self._imager is None else self._imager.apply(images, self.time)
 
     def close(self) -> None:
         """Free the renderer's OpenGL context."""

@@ -1,0 +1,200 @@
+"""One run's draws from a realism profile: the world's cell, its imperfections, the scenario.
+
+Every knob draws from its own random stream, seeded by the run's seed and the knob's name, so
+that a knob draws the same values for a seed whichever other knobs are on (a fault alone and
+in the whole profile are the same fault). Same seed and profile, same draws. Every draw is
+recorded (:attr:`WorldDraws.record`, in the knobs' own units) for ``metrics.json``.
+"""
+
+from __future__ import annotations
+
+import math
+import zlib
+from dataclasses import dataclass
+
+import numpy as np
+
+from cellsight.model import Cell
+from cellsight.realism.perturb import (
+    CameraError,
+    PartError,
+    RobotError,
+    cell_as_built,
+    size_scale,
+    small_pose,
+)
+from cellsight.realism.profile import Distribution, Profile, load_profile
+from cellsight.realism.unknown import forearm, table_box
+from cellsight.world.images import ImageEffects
+from cellsight.world.imperfections import Imperfections
+from cellsight.world.servo import ServoParams
+
+
+@dataclass(frozen=True)
+class ScenarioShift:
+    """What the seed changes in an experiment: the part's start ``shift`` (2,) m and ``yaw``
+    (rad), the conveyor's ``speed_scale`` and ``turn`` (rad, its path turned about its first
+    point), the crossing robot's waypoints' ``crossing_dt`` (s) and ``crossing_dq`` (rad per
+    joint, None: no crossing robot)."""
+
+    shift: np.ndarray
+    yaw: float = 0.0
+    speed_scale: float = 1.0
+    turn: float = 0.0
+    crossing_dt: float = 0.0
+    crossing_dq: np.ndarray | None = None
+
+
+@dataclass(frozen=True)
+class WorldDraws:
+    """The profile, the world's ``cell``, its ``errors``, the ``scenario`` shift and the
+    ``record`` of every draw."""
+
+    profile: Profile
+    cell: Cell
+    errors: Imperfections
+    scenario: ScenarioShift
+    record: dict
+
+
+class _Knobs:
+    """Draws knobs from per-knob streams (module docstring) and records them."""
+
+    def __init__(self, seed: int) -> None:
+        self.seed, self.record = int(seed), {}
+
+    def draw(self, name: str, knob: Distribution, size: int | tuple = (), scale: float = 1.0,
+             key: str | None = None) -> np.ndarray:
+        """``knob`` drawn for ``name`` (a dotted knob path; ``key`` distinguishes its uses),
+        recorded, and returned times ``scale`` (to SI units)."""
+        label = name if key is None else f"{name}[{key}]"
+        rng = np.random.default_rng([self.seed, zlib.crc32(label.encode())])
+        value = np.asarray(knob.draw(rng, size), dtype=float)
+        if not knob.zero:
+            self.record[label] = np.round(value, 6).tolist()
+        return value * scale
+
+    def event(self, name: str, probability: float) -> bool:
+        rng = np.random.default_rng([self.seed, zlib.crc32(name.encode())])
+        happens = bool(rng.random() < probability)
+        if probability > 0:
+            self.record[name] = happens
+        return happens
+
+
+def draw_world(profile: Profile | str, cell: Cell, seed: int) -> WorldDraws:
+    """The world of run ``seed`` on the nominal ``cell`` under ``profile`` (module doc)."""
+    profile = load_profile(profile)
+    k = _Knobs(seed)
+    cameras = {c.name: _camera_error(k, profile, c.name) for c in cell.cameras}
+    robots = {r.name: _robot_error(k, profile, r) for r in cell.robots}
+    parts = {p.name: _part_error(k, profile, p) for p in cell.workpieces}
+    world_cell = cell_as_built(cell, cameras, robots, parts)
+    errors = _imperfections(k, profile, cell, world_cell, seed)
+    shift = _scenario(k, profile, cell, parts)
+    return WorldDraws(profile, world_cell, errors, shift, k.record)
+
+
+def _camera_error(k: _Knobs, p: Profile, name: str) -> CameraError:
+    c = p.cameras
+    pose = small_pose(k.draw("cameras.position_mm", c.position_mm, 3, 1e-3, name),
+                      k.draw("cameras.rotation_deg", c.rotation_deg, 3, math.pi / 180, name))
+    return CameraError(pose, float(k.draw("cameras.focal_percent", c.focal_percent, (), 0.01,
+                                          name)),
+                       k.draw("cameras.principal_point_px", c.principal_point_px, 2, 1.0, name),
+                       float(k.draw("cameras.distortion_k1", c.distortion_k1, (), 1.0, name)))
+
+
+def _robot_error(k: _Knobs, p: Profile, robot) -> RobotError:
+    r, n = p.robots, robot.n_joints
+    base = small_pose(k.draw("robots.base_position_mm", r.base_position_mm, 3, 1e-3, robot.name),
+                      k.draw("robots.base_rotation_deg", r.base_rotation_deg, 3, math.pi / 180,
+                             robot.name))
+    links = k.draw("robots.link_length_mm", r.link_length_mm, (n, 3), 1e-3, robot.name)
+    grip = np.ones(3)
+    if robot.tool is not None:
+        change = k.draw("geometry.gripper_size_mm", p.geometry.gripper_size_mm, 3, 1e-3,
+                        robot.name)
+        grip = size_scale(robot.tool.jaw, change)
+    return RobotError(base, links, grip)
+
+
+def _part_error(k: _Knobs, p: Profile, part) -> PartError:
+    s = p.scenario
+    return PartError(k.draw("geometry.part_size_mm", p.geometry.part_size_mm, 3, 1e-3, part.name),
+                     k.draw("scenario.part_position_mm", s.part_position_mm, 2, 1e-3, part.name),
+                     float(k.draw("scenario.part_yaw_deg", s.part_yaw_deg, (), math.pi / 180,
+                                  part.name)))
+
+
+def _encoder_offsets(k: _Knobs, p: Profile, cell: Cell) -> dict[str, np.ndarray]:
+    out = {}
+    for robot in cell.robots:
+        deg = k.draw("robots.encoder_offset_deg", p.robots.encoder_offset_deg, robot.n_joints,
+                     math.pi / 180, robot.name)
+        mm = k.draw("robots.encoder_offset_mm", p.robots.encoder_offset_mm, robot.n_joints,
+                    1e-3, robot.name)
+        out[robot.name] = np.where(robot.chain.prismatic, mm, deg)
+    return out
+
+
+def _imperfections(k: _Knobs, p: Profile, cell: Cell, world_cell: Cell, seed: int
+                   ) -> Imperfections:
+    g, r, s, im = p.geometry, p.robots, p.servo, p.images
+    seat = small_pose(k.draw("geometry.grasp_seat_mm", g.grasp_seat_mm, 3, 1e-3),
+                      k.draw("geometry.grasp_seat_deg", g.grasp_seat_deg, 3, math.pi / 180))
+    slip = abs(float(k.draw("geometry.slip_mm_s", g.slip_mm_s, (), 1e-3)))
+    images = None
+    if im != type(im)():
+        images = ImageEffects(im.read_noise_dn, im.shot_dn_per_e, im.gain_drift_percent / 100,
+                              im.gain_period_s,
+                              float(k.draw("images.gain_phase",
+                                           Distribution(dist="uniform", high=2 * math.pi))),
+                              im.defocus_px, im.vignetting, im.jpeg_quality)
+    servo = ServoParams(s.bandwidth_hz, s.damping, math.radians(s.max_velocity_deg_s),
+                        math.radians(s.max_acceleration_deg_s2))
+    return Imperfections(
+        encoder_offsets=_encoder_offsets(k, p, cell),
+        quantum_rad=math.radians(r.encoder_resolution_deg), quantum_m=r.encoder_resolution_mm / 1e3,
+        noise_rad=r.joint_noise_rad, noise_m=r.joint_noise_m, servo=servo,
+        grasp_seat=seat, slip_m_s=slip, intruders=_intruders(k, p, world_cell), images=images)
+
+
+def _intruders(k: _Knobs, p: Profile, cell: Cell) -> tuple:
+    u, out = p.unmodelled, []
+    if not cell.workpieces or not cell.cameras:
+        return ()
+    part = cell.workpieces[0]
+    cams = len(cell.cameras)
+    if k.event("unmodelled.box", u.box_probability):
+        size = k.draw("unmodelled.box_size_mm", u.box_size_mm, 3, 1e-3)
+        which = int(k.draw("unmodelled.box_camera", Distribution(dist="uniform", high=cams)))
+        out.append(table_box(part, cell.cameras[min(which, cams - 1)], size,
+                             k.draw("unmodelled.box_place", Distribution(dist="uniform", high=1),
+                                    2)))
+    if k.event("unmodelled.forearm", u.forearm_probability):
+        which = int(k.draw("unmodelled.forearm_camera", Distribution(dist="uniform", high=cams)))
+        t_in = float(k.draw("unmodelled.forearm_start_s", u.forearm_start_s))
+        stay = float(k.draw("unmodelled.forearm_duration_s", u.forearm_duration_s))
+        where = float(k.draw("unmodelled.forearm_place", Distribution(dist="uniform", high=1)))
+        out.append(forearm(part, cell.cameras[min(which, cams - 1)], t_in, t_in + stay, where))
+    return tuple(out)
+
+
+def _scenario(k: _Knobs, p: Profile, cell: Cell, parts: dict[str, PartError]) -> ScenarioShift:
+    s = p.scenario
+    setup = cell.experiments
+    moved = parts.get(setup.workpiece or (cell.workpieces[0].name if cell.workpieces else ""))
+    dq = None
+    if setup.crossing_robot is not None:
+        n = cell.robot(setup.crossing_robot).n_joints
+        dq = k.draw("scenario.crossing_joint_deg", s.crossing_joint_deg, n, math.pi / 180)
+    return ScenarioShift(
+        shift=moved.shift if moved is not None else np.zeros(2),
+        yaw=moved.yaw if moved is not None else 0.0,
+        speed_scale=1.0 + float(k.draw("scenario.conveyor_speed_percent",
+                                       s.conveyor_speed_percent, (), 0.01)),
+        turn=float(k.draw("scenario.conveyor_direction_deg", s.conveyor_direction_deg, (),
+                          math.pi / 180)),
+        crossing_dt=float(k.draw("scenario.crossing_time_s", s.crossing_time_s)),
+        crossing_dq=dq)

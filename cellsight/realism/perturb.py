@@ -1,0 +1,131 @@
+"""The world's own cell: the cell file's, with the errors a real cell has against its model.
+
+Pure functions of a nominal :class:`~cellsight.model.Cell` and drawn numbers (SI units: m, rad):
+the cameras' extrinsics and intrinsics, the robots' bases and link lengths, the gripper's and
+the part's sizes (each solid scaled along its own axes about its frame's origin, so that faces
+stay planar), and the part's start pose. The nominal cell is never changed.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, replace
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from cellsight.camera import Camera
+from cellsight.geometry.polyhedron import Polyhedron
+from cellsight.geometry.transforms import make_pose
+from cellsight.kinematics import DHChain, KinematicChain, SerialChain
+from cellsight.model import Cell
+from cellsight.model.cell import Workpiece
+from cellsight.model.robot import Robot
+
+
+def small_pose(position: np.ndarray, rotvec: np.ndarray) -> np.ndarray:
+    """A pose from a translation (3,) m and a rotation vector (3,) rad."""
+    return make_pose(Rotation.from_rotvec(rotvec).as_matrix(), position)
+
+
+@dataclass(frozen=True)
+class CameraError:
+    """One camera's errors: ``pose`` (4x4, in the camera frame: ``T_base_cam @ pose``),
+    ``focal`` (relative, fx and fy), ``principal`` (2,) px, ``k1`` added to its distortion."""
+
+    pose: np.ndarray
+    focal: float
+    principal: np.ndarray
+    k1: float
+
+
+def camera_as_built(camera: Camera, err: CameraError) -> Camera:
+    K = camera.K.copy()
+    K[0, 0] *= 1.0 + err.focal
+    K[1, 1] *= 1.0 + err.focal
+    K[0, 2] += err.principal[0]
+    K[1, 2] += err.principal[1]
+    dist = camera.dist
+    if err.k1 != 0.0:
+        dist = np.zeros(5) if dist is None else np.array(dist, dtype=float)
+        dist[0] += err.k1
+    return Camera(K, camera.width, camera.height, camera.T_base_cam @ err.pose, dist, camera.name)
+
+
+@dataclass(frozen=True)
+class RobotError:
+    """One robot's errors: ``base`` (4x4, in its own frame 0: ``T_base_robot @ base``),
+    ``links`` (n, 3) m: per joint, the DH (a, d, -) changes or the URDF origin's shift, and
+    ``gripper_scale`` (3,) relative sizes of its palm and jaws."""
+
+    base: np.ndarray
+    links: np.ndarray
+    gripper_scale: np.ndarray
+
+
+def chain_as_built(chain: KinematicChain, links: np.ndarray) -> KinematicChain:
+    """The chain with its link lengths changed by ``links`` (n, 3) m (:class:`RobotError`)."""
+    if isinstance(chain, DHChain):
+        return DHChain([replace(lk, a=lk.a + dl[0], d=lk.d + dl[1])
+                        for lk, dl in zip(chain.links, links, strict=True)], chain.name)
+    if isinstance(chain, SerialChain):
+        origins = chain.origins.copy()
+        origins[:, :3, 3] += links
+        return SerialChain(origins, chain.axes, chain.kinds, chain.qlim, chain.name,
+                           chain.link_names)
+    raise TypeError(f"no link errors for a {type(chain).__name__}")
+
+
+def scaled(solid: Polyhedron, scale: np.ndarray) -> Polyhedron:
+    """The solid scaled by ``scale`` (3,) along its own axes (validated again)."""
+    if np.all(scale == 1.0):
+        return solid
+    return solid.transformed(np.diag([*scale, 1.0]))
+
+
+def robot_as_built(robot: Robot, err: RobotError) -> Robot:
+    tool = robot.tool
+    if tool is not None:
+        tool = replace(tool, palm=tuple(scaled(s, err.gripper_scale) for s in tool.palm),
+                       jaw=scaled(tool.jaw, err.gripper_scale))
+    return replace(robot, T_base_robot=robot.T_base_robot @ err.base,
+                   chain=chain_as_built(robot.chain, err.links), tool=tool)
+
+
+def size_scale(solid: Polyhedron, change_m: np.ndarray) -> np.ndarray:
+    """Per-axis scale that changes the solid's extent along its axes by ``change_m`` (3,) m."""
+    extent = np.ptp(solid.vertices, axis=0)
+    return 1.0 + np.divide(change_m, extent, out=np.zeros(3), where=extent > 0)
+
+
+@dataclass(frozen=True)
+class PartError:
+    """A workpiece's errors: ``size_m`` (3,) changes of its extents, and where it starts:
+    ``shift`` (2,) m in the base x-y plane, ``yaw`` rad about the base z axis through its
+    origin."""
+
+    size_m: np.ndarray
+    shift: np.ndarray
+    yaw: float
+
+
+def part_as_built(part: Workpiece, err: PartError) -> Workpiece:
+    T = part.T_base_part.copy()
+    if err.yaw != 0.0:
+        T[:3, :3] = Rotation.from_rotvec([0.0, 0.0, err.yaw]).as_matrix() @ T[:3, :3]
+    T[:2, 3] += err.shift
+    return replace(part, solid=scaled(part.solid, size_scale(part.solid, err.size_m)),
+                   T_base_part=T)
+
+
+def cell_as_built(cell: Cell, cameras: Mapping[str, CameraError],
+                  robots: Mapping[str, RobotError], parts: Mapping[str, PartError]) -> Cell:
+    """The world's cell: ``cell`` with the errors of each named camera, robot and workpiece
+    (the others as they are)."""
+    return Cell(
+        cell.name,
+        [robot_as_built(r, robots[r.name]) if r.name in robots else r for r in cell.robots],
+        [part_as_built(p, parts[p.name]) if p.name in parts else p for p in cell.workpieces],
+        cell.static,
+        [camera_as_built(c, cameras[c.name]) if c.name in cameras else c for c in cell.cameras],
+        cell.source, cell.experiments)

@@ -1,0 +1,256 @@
+"""Realism profiles: the knobs of the world's departures from the cell file, read from YAML.
+
+The built-in profiles (``exact``, ``lab``, ``harsh``) are in ``cellsight/data/realism.yaml``,
+which documents the format; a user's file has the same shape (one profile at the top level, or
+several under ``profiles:``, chosen as ``FILE:NAME``). Every knob's unit is in its name, its
+default is the ``exact`` world's value, and a drawn knob states its distribution
+(:class:`Distribution`). Any error (unknown knob, negative sigma, NaN, unknown distribution,
+a missing profile) is a :class:`ProfileError` naming the file, the field and the value.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Annotated, Literal
+
+import numpy as np
+from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, ValidationError, model_validator
+
+from cellsight.errors import CellFileError
+from cellsight.model.yaml_input import load_yaml, read_cell_text
+
+BUILTIN_FILE = Path(__file__).resolve().parent.parent / "data" / "realism.yaml"
+BUILTIN = ("exact", "lab", "harsh")
+
+
+class ProfileError(CellFileError):
+    """A realism profile that cannot be used: names the file, the field and the value."""
+
+
+def _no_bool(value: object) -> object:
+    if isinstance(value, bool):
+        raise ValueError("a number, not a boolean")
+    return value
+
+
+Finite = Annotated[float, BeforeValidator(_no_bool), Field(allow_inf_nan=False)]
+NonNegative = Annotated[float, BeforeValidator(_no_bool), Field(ge=0, allow_inf_nan=False)]
+Probability = Annotated[float, BeforeValidator(_no_bool), Field(ge=0, le=1, allow_inf_nan=False)]
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class Distribution(_Strict):
+    """How a knob is drawn: ``fixed`` (``value``), ``normal`` (``mean``, ``sigma`` >= 0) or
+    ``uniform`` (``low`` <= ``high``)."""
+
+    dist: Literal["fixed", "normal", "uniform"]
+    value: Finite = 0.0
+    mean: Finite = 0.0
+    sigma: NonNegative = 0.0
+    low: Finite = 0.0
+    high: Finite = 0.0
+
+    @model_validator(mode="after")
+    def _ordered(self) -> Distribution:
+        if self.dist == "uniform" and self.low > self.high:
+            raise ValueError(f"uniform needs low <= high, got low {self.low}, high {self.high}")
+        return self
+
+    def draw(self, rng: np.random.Generator, size: int | tuple[int, ...] = ()) -> np.ndarray:
+        """Values of shape ``size`` (always drawn from ``rng``, so that the stream of draws
+        does not depend on the values)."""
+        u = rng.standard_normal(size) if self.dist == "normal" else rng.random(size)
+        if self.dist == "normal":
+            return self.mean + self.sigma * u
+        if self.dist == "uniform":
+            return self.low + (self.high - self.low) * u
+        return np.full(size, self.value) if size != () else np.float64(self.value)
+
+    @property
+    def zero(self) -> bool:
+        """Always 0: the knob changes nothing."""
+        if self.dist == "normal":
+            return self.mean == 0 and self.sigma == 0
+        if self.dist == "uniform":
+            return self.low == 0 and self.high == 0
+        return self.value == 0
+
+
+def _knob(value: object) -> object:
+    if isinstance(value, bool):
+        raise ValueError("a number or a distribution {dist: ...}, not a boolean")
+    if isinstance(value, int | float):
+        return {"dist": "fixed", "value": value}
+    return value
+
+
+Knob = Annotated[Distribution, BeforeValidator(_knob)]
+ZERO = Distribution(dist="fixed")
+
+
+class CameraKnobs(_Strict):
+    """Per camera and axis: extrinsic position (mm, camera frame) and rotation (deg, about the
+    camera axes); focal length (%, fx and fy together); principal point (px, per axis); radial
+    distortion k1 added to the camera's own."""
+
+    position_mm: Knob = ZERO
+    rotation_deg: Knob = ZERO
+    focal_percent: Knob = ZERO
+    principal_point_px: Knob = ZERO
+    distortion_k1: Knob = ZERO
+
+
+class RobotKnobs(_Strict):
+    """Per joint: encoder zero offsets (deg revolute, mm prismatic); per link: errors of the DH
+    lengths a and d, or of a URDF joint origin per axis (mm); the base pose's position (mm, per
+    axis) and rotation (deg, per axis); the measurement noise's standard deviation (rad, m) and
+    the encoders' resolution (deg, mm; 0: none)."""
+
+    encoder_offset_deg: Knob = ZERO
+    encoder_offset_mm: Knob = ZERO
+    link_length_mm: Knob = ZERO
+    base_position_mm: Knob = ZERO
+    base_rotation_deg: Knob = ZERO
+    joint_noise_rad: NonNegative = 1e-4
+    joint_noise_m: NonNegative = 1e-4
+    encoder_resolution_deg: NonNegative = 0.0
+    encoder_resolution_mm: NonNegative = 0.0
+
+
+class ServoKnobs(_Strict):
+    """Every joint's position servo: bandwidth (Hz; 0: ideal, no lag), damping ratio, velocity
+    (deg/s, also mm/s for a prismatic joint) and acceleration (deg/s^2, mm/s^2) limits."""
+
+    bandwidth_hz: NonNegative = 0.0
+    damping: Annotated[float, BeforeValidator(_no_bool), Field(gt=0, allow_inf_nan=False)] = 1.0
+    max_velocity_deg_s: Annotated[float, Field(gt=0)] = math.inf
+    max_acceleration_deg_s2: Annotated[float, Field(gt=0)] = math.inf
+
+
+class GeometryKnobs(_Strict):
+    """Size errors of the part and of the gripper's palm and jaws (mm, per axis of their own
+    frames); where the part settles in the jaws when they clamp (mm along, deg about the TCP
+    axes); the speed it then slips along the tool's approach axis (mm/s, absolute value)."""
+
+    part_size_mm: Knob = ZERO
+    gripper_size_mm: Knob = ZERO
+    grasp_seat_mm: Knob = ZERO
+    grasp_seat_deg: Knob = ZERO
+    slip_mm_s: Knob = ZERO
+
+
+class UnmodelledKnobs(_Strict):
+    """Bodies the cell file does not know: a box left near the part (its probability per run,
+    its size per axis, mm) and an operator's forearm reaching across a camera's line of sight to
+    the part (probability per run, when it arrives and how long it stays, s)."""
+
+    box_probability: Probability = 0.0
+    box_size_mm: Knob = Distribution(dist="uniform", low=40.0, high=120.0)
+    forearm_probability: Probability = 0.0
+    forearm_start_s: Knob = Distribution(dist="uniform", low=5.0, high=40.0)
+    forearm_duration_s: Knob = Distribution(dist="uniform", low=1.0, high=4.0)
+
+
+class ImageKnobs(_Strict):
+    """What the camera does to the image (:mod:`cellsight.world.images`): read noise (grey
+    levels), conversion gain for shot noise (DN per electron), slow gain drift (% amplitude,
+    period s), defocus blur (px), vignetting (fraction lost in the corners), JPEG quality (0:
+    none)."""
+
+    read_noise_dn: NonNegative = 0.0
+    shot_dn_per_e: NonNegative = 0.0
+    gain_drift_percent: NonNegative = 0.0
+    gain_period_s: Annotated[float, Field(gt=0, allow_inf_nan=False)] = 30.0
+    defocus_px: NonNegative = 0.0
+    vignetting: Annotated[float, Field(ge=0, lt=1)] = 0.0
+    jpeg_quality: Annotated[int, Field(strict=True, ge=0, le=100)] = 0
+
+
+class TimingKnobs(_Strict):
+    """From exposure to the planner: latency (ms) with Gaussian jitter per frame (ms), and the
+    share of frames lost (%)."""
+
+    latency_ms: NonNegative = 0.0
+    latency_jitter_ms: NonNegative = 0.0
+    drop_percent: Annotated[float, BeforeValidator(_no_bool), Field(ge=0, le=100)] = 0.0
+
+
+class ScenarioKnobs(_Strict):
+    """What the seed draws of the experiment itself: the part's start position (mm, x and y)
+    and yaw (deg), the conveyor's speed (% of the cell file's) and direction (deg), and, in
+    experiment 3, the crossing robot's timing (s, all waypoints together) and poses (deg, per
+    joint, all waypoints together)."""
+
+    part_position_mm: Knob = ZERO
+    part_yaw_deg: Knob = ZERO
+    conveyor_speed_percent: Knob = ZERO
+    conveyor_direction_deg: Knob = ZERO
+    crossing_time_s: Knob = ZERO
+    crossing_joint_deg: Knob = ZERO
+
+
+class Profile(_Strict):
+    """One realism profile (module docstring). ``name`` and ``file`` say where it came from."""
+
+    name: str = "exact"
+    file: str = "<built-in>"
+    description: str = ""
+    sources: list[str] = Field(default_factory=list)
+    cameras: CameraKnobs = CameraKnobs()
+    robots: RobotKnobs = RobotKnobs()
+    servo: ServoKnobs = ServoKnobs()
+    geometry: GeometryKnobs = GeometryKnobs()
+    unmodelled: UnmodelledKnobs = UnmodelledKnobs()
+    images: ImageKnobs = ImageKnobs()
+    timing: TimingKnobs = TimingKnobs()
+    scenario: ScenarioKnobs = ScenarioKnobs()
+
+
+def load_profile(spec: str | Path | Profile = "exact") -> Profile:
+    """A built-in profile by name (:data:`BUILTIN`), a YAML file holding one profile, or
+    ``FILE:NAME`` for one of several under ``profiles:``."""
+    if isinstance(spec, Profile):
+        return spec
+    text = str(spec)
+    if text in BUILTIN:
+        return _from_file(BUILTIN_FILE, text)
+    path, _, name = text.rpartition(":") if ":" in text and not Path(text).exists() else (
+        text, "", "")
+    if not Path(path).is_file():
+        raise ProfileError(text, "<file>", text, f"a built-in profile ({', '.join(BUILTIN)}) or "
+                           "an existing YAML file (FILE or FILE:NAME)")
+    return _from_file(Path(path), name or None)
+
+
+def _from_file(path: Path, name: str | None) -> Profile:
+    file = str(path)
+    raw = load_yaml(read_cell_text(path), file)
+    if not isinstance(raw, dict):
+        raise ProfileError(file, "<root>", raw, "a mapping: one profile, or profiles: {NAME: ...}")
+    field = "<root>"
+    if "profiles" in raw:
+        profiles = raw["profiles"]
+        if not isinstance(profiles, dict) or not profiles:
+            raise ProfileError(file, "profiles", profiles, "a mapping of profile names")
+        if name is None and len(profiles) != 1:
+            raise ProfileError(file, "profiles", sorted(profiles),
+                               "one profile, or FILE:NAME to choose one")
+        name = name or next(iter(profiles))
+        if name not in profiles:
+            raise ProfileError(file, "profiles", name, f"one of {', '.join(map(str, profiles))}")
+        raw, field = profiles[name] or {}, f"profiles.{name}"
+    elif name is not None:
+        raise ProfileError(file, "profiles", name, "a profiles: mapping to choose NAME from")
+    if not isinstance(raw, dict):
+        raise ProfileError(file, field, raw, "a mapping of knob groups")
+    try:
+        return Profile.model_validate({**raw, "name": name or path.stem, "file": file})
+    except ValidationError as exc:
+        err = exc.errors()[0]
+        loc = ".".join(str(p) for p in err["loc"] if not str(p).startswith("function-"))
+        where = f"{field}.{loc}" if field != "<root>" else loc
+        raise ProfileError(file, where, err.get("input"), err["msg"]) from exc

@@ -1,0 +1,121 @@
+"""Collisions in the simulated cell: every contact that is not the grasp is an event, never silent.
+
+After each control step MuJoCo's collision detection (``mj_collision``, meshes as their convex
+hulls) lists the geoms in contact. A contact counts when the geoms overlap by more than
+``depth_m`` and it is none of these:
+
+- two solids of the same robot (its links overlap at the joints by construction, and its own
+  controller keeps it clear of itself);
+- a pair of objects already touching at the start (a robot's base on the floor, a carriage in
+  its track: mounts, not collisions);
+- a gripper's palm and the workpiece its jaws clamp or hold (the grasp);
+- a gripper's jaw and any workpiece: the jaws straddle and clamp parts, and MuJoCo's convex
+  hull of a non-convex part swallows them (so a jaw hitting a part is not detected; the palm
+  hitting one is).
+
+Each counted pair of objects (named by their labels: ``R6AX.link4``, ``table``, ``part``,
+``unknown.forearm``) gives one :class:`Collision` per episode of contact: when it began and
+ended (s) and its deepest overlap (m).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import mujoco
+
+from cellsight.model import Cell
+from cellsight.world.scene import Scene
+
+
+@dataclass
+class Collision:
+    """One episode of contact between two objects (module docstring); ``end`` None while it
+    lasts."""
+
+    bodies: tuple[str, str]
+    start: float
+    depth_m: float
+    end: float | None = None
+
+    def as_dict(self) -> dict:
+        return {"bodies": list(self.bodies), "t_start_s": round(self.start, 3),
+                "t_end_s": None if self.end is None else round(self.end, 3),
+                "depth_mm": round(1e3 * self.depth_m, 2)}
+
+
+class ContactMonitor:
+    """Finds the collisions of the module docstring. ``grasps``: robot name -> the workpiece
+    its gripper clamps or holds (None), asked at each check."""
+
+    def __init__(self, scene: Scene, cell: Cell, depth_m: float,
+                 grasps: Callable[[str], str | None]) -> None:
+        self.scene, self.depth_m, self._grasps = scene, float(depth_m), grasps
+        model = scene.model
+        index = {o.name: i for i, o in enumerate(cell.objects)}
+        self._label, self._robot, self._tool, self._jaw, self._part = [], [], [], [], []
+        for g in range(model.ngeom):
+            i = index.get(model.geom(g).name)
+            obj = None if i is None else cell.objects[i]
+            self._label.append(obj.label if obj else model.geom(g).name)
+            self._robot.append(obj.robot if obj else None)
+            self._tool.append(obj is not None and obj.kind == "tool")
+            self._jaw.append(i is not None and cell.frames[i].kind == "jaw")
+            self._part.append(obj is not None and obj.kind == "workpiece")
+        self._tool_robots = [r.name for r in cell.robots if r.tool is not None]
+        self._open: dict[tuple[str, str], Collision] = {}
+        self.collisions: list[Collision] = []
+        self._mounts = {pair for pair, _ in self._touching(self._geom_pairs(0.0))}
+
+    def check(self, t: float) -> None:
+        """Record the contacts at time ``t`` (s) into :attr:`collisions`."""
+        held = {robot: self._grasps(robot) for robot in self._tool_robots}
+        now: dict[tuple[str, str], float] = {}
+        for key, depth in self._touching(self._geom_pairs(self.depth_m)):
+            if key in self._mounts or self._is_grasp(*key, held):
+                continue
+            names = self._names(key)
+            now[names] = max(depth, now.get(names, 0.0))
+        for pair, depth in now.items():
+            if pair in self._open:
+                self._open[pair].depth_m = max(self._open[pair].depth_m, depth)
+            else:
+                self._open[pair] = Collision(pair, t, depth)
+                self.collisions.append(self._open[pair])
+        for pair in [p for p in self._open if p not in now]:
+            self._open.pop(pair).end = t
+
+    def _geom_pairs(self, depth: float) -> list[tuple[int, int, float]]:
+        """(geom, geom, overlap m) of every contact deeper than ``depth`` (m)."""
+        self.scene.sync()
+        model, data = self.scene.model, self.scene.data
+        mujoco.mj_collision(model, data)
+        return [(int(c.geom1), int(c.geom2), -float(c.dist))
+                for c in data.contact[:data.ncon] if -c.dist > depth]
+
+    def _touching(self, pairs) -> list[tuple[tuple[int, int], float]]:
+        """The geom pairs as ordered (geom, geom) keys of different robots (or none)."""
+        out = []
+        for g1, g2, depth in pairs:
+            r1, r2 = self._robot[g1], self._robot[g2]
+            if r1 is not None and r1 == r2:
+                continue
+            key = (min(g1, g2), max(g1, g2))
+            out.append((key, depth))
+        return out
+
+    def _is_grasp(self, g1: int, g2: int, held: dict[str, str | None]) -> bool:
+        if (self._jaw[g1] and self._part[g2]) or (self._jaw[g2] and self._part[g1]):
+            return True
+        for tool, other in ((g1, g2), (g2, g1)):
+            if self._tool[tool] and held.get(self._robot[tool]) == self._label[other]:
+                return True
+        return False
+
+    def _names(self, pair: tuple[int, int]) -> tuple[str, str]:
+        return tuple(sorted((self._label[pair[0]], self._label[pair[1]])))
+
+    def report(self) -> list[dict]:
+        """Every collision so far, as plain data for ``metrics.json``."""
+        return [c.as_dict() for c in self.collisions]

@@ -1,0 +1,314 @@
+"""The realistic world (issue 21): each knob changes the world and not the model, against an
+independent oracle (rendered images, forward kinematics, the servo's analytic response,
+MuJoCo's contacts); bad profiles are refused with one line naming the file and the field."""
+
+from __future__ import annotations
+
+import math
+import subprocess
+import sys
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+import yaml
+
+from cellsight import load_cell
+from cellsight.experiments.scenario import scenario
+from cellsight.experiments.sensors import IdealExtractor
+from cellsight.occlusion.predictor import VisibilityPredictor
+from cellsight.realism import FrameClock, ProfileError, draw_world, load_profile
+from cellsight.realism.profile import Profile, TimingKnobs
+from cellsight.world import World
+from cellsight.world.images import ImageEffects, Imager
+from cellsight.world.imperfections import IDEAL, Imperfections
+from cellsight.world.servo import JointServo, ServoParams
+
+
+@pytest.fixture(scope="module")
+def cell():
+    return load_cell()
+
+
+def _profile(tmp_path: Path, body: dict, name: str = "p.yaml") -> Path:
+    path = tmp_path / name
+    path.write_text(yaml.safe_dump(body))
+    return path
+
+
+# ---- the exact world is the model --------------------------------------------------------
+
+
+def test_exact_world_is_the_cell_file(cell):
+    d = draw_world("exact", cell, 7)
+    assert d.record == {} and d.errors == IDEAL or _same_errors(d.errors, IDEAL)
+    for a, b in zip(d.cell.cameras, cell.cameras, strict=True):
+        np.testing.assert_array_equal(a.K, b.K)
+        np.testing.assert_array_equal(a.T_base_cam, b.T_base_cam)
+        assert a.dist is None and b.dist is None
+    for a, b in zip(d.cell.robots, cell.robots, strict=True):
+        q = a.home
+        np.testing.assert_array_equal(a.tcp_pose(q), b.tcp_pose(q))
+    np.testing.assert_array_equal(d.cell.workpieces[0].solid.vertices,
+                                  cell.workpieces[0].solid.vertices)
+    base = scenario(cell, 3)
+    shifted = scenario(cell, 3, d.scenario)
+    np.testing.assert_array_equal(base.conveyor.points, shifted.conveyor.points)
+    assert base.conveyor.speed == shifted.conveyor.speed
+
+
+def _same_errors(a: Imperfections, b: Imperfections) -> bool:
+    return (all(not np.any(v) for v in a.encoder_offsets.values()) and a.servo == b.servo
+            and a.noise_rad == b.noise_rad and a.images is None and not a.intruders
+            and np.array_equal(a.grasp_seat, b.grasp_seat) and a.slip_m_s == 0)
+
+
+def test_same_seed_same_draws_other_seed_other_scenario(cell):
+    a, b, c = (draw_world("lab", cell, s) for s in (4, 4, 5))
+    assert a.record == b.record and a.record != c.record
+    assert "scenario.part_position_mm[part]" in a.record
+    assert not np.allclose(a.scenario.shift, c.scenario.shift)
+    sa, sc = scenario(cell, 3, a.scenario), scenario(cell, 3, c.scenario)
+    assert sa.conveyor.speed != sc.conveyor.speed
+    assert not np.allclose(sa.conveyor.points, sc.conveyor.points)
+    np.testing.assert_allclose(sa.conveyor.points[0],
+                               cell.experiments.conveyor_points[0] + a.scenario.shift)
+
+
+def test_a_knob_draws_the_same_alone_and_in_the_whole_profile(cell, tmp_path):
+    alone = _profile(tmp_path, {"cameras": {"position_mm": {"dist": "normal", "sigma": 3.0}}})
+    one = draw_world(load_profile(alone), cell, 11).record
+    whole = draw_world("harsh", cell, 11).record
+    for key, value in one.items():
+        assert whole[key] == value
+
+
+# ---- each knob moves the world, never the model --------------------------------------------
+
+
+def _bright_centroid(image: np.ndarray, centre: np.ndarray, half: int = 70) -> np.ndarray:
+    """Centroid (u, v) of the bright part's pixels in a window around ``centre``."""
+    u, v = np.round(centre).astype(int)
+    window = image[v - half:v + half, u - half:u + half]
+    rows, cols = np.nonzero(window > 200)
+    return np.array([cols.mean() + u - half, rows.mean() + v - half])
+
+
+def test_camera_extrinsic_error_moves_the_rendered_part_by_its_projection(cell, tmp_path):
+    """2 mm along each camera axis: the part's blob in the rendered image moves by the pinhole
+    projection of that shift (written out here, not the camera code), while the tracker's
+    camera stays the cell file's."""
+    path = _profile(tmp_path, {"cameras": {"position_mm": 2.0}})
+    d = draw_world(load_profile(path), cell, 0)
+    cam, built = cell.cameras[0], d.cell.cameras[0]
+    np.testing.assert_allclose(np.linalg.inv(cam.T_base_cam) @ built.T_base_cam[:, 3],
+                               [2e-3, 2e-3, 2e-3, 1.0], atol=1e-12)
+    np.testing.assert_array_equal(load_cell().cameras[0].T_base_cam, cam.T_base_cam)
+    part = cell.workpieces[0]
+    points = part.feature_points @ part.T_base_part[:3, :3].T + part.T_base_part[:3, 3]
+    p = (np.linalg.inv(cam.T_base_cam) @ np.c_[points, np.ones(len(points))].T)[:3].T
+    fx, fy, cx, cy = cam.K[0, 0], cam.K[1, 1], cam.K[0, 2], cam.K[1, 2]
+
+    def pinhole(q):
+        return np.c_[fx * q[:, 0] / q[:, 2] + cx, fy * q[:, 1] / q[:, 2] + cy]
+
+    expected = (pinhole(p - 2e-3) - pinhole(p)).mean(axis=0)
+    centre = pinhole(p).mean(axis=0)
+    before = _bright_centroid(World(cell).render()[0], centre)
+    after = _bright_centroid(World(d.cell).render()[0], centre)
+    assert np.linalg.norm(expected) > 2.0
+    np.testing.assert_allclose(after - before, expected, atol=0.25)
+
+
+def test_encoder_offsets_and_resolution_are_in_the_readings_not_the_motion(cell):
+    offset = np.radians([0.5, -0.2, 0.1, 0.0, 0.3, -0.4, 0.2])
+    offset[0] = 0.002  # the track is prismatic: m
+    errors = Imperfections(encoder_offsets={"R7AX": offset}, noise_rad=0.0, noise_m=0.0,
+                           quantum_rad=math.radians(0.01))
+    world = World(cell, errors=errors)
+    robot = cell.robot("R7AX")
+    np.testing.assert_allclose(world.true_joints()["R7AX"], robot.home - offset, atol=1e-12)
+    reading = world.measured_joints()["R7AX"]
+    assert np.all(np.abs(reading - robot.home) <= math.radians(0.01) / 2 + 1e-12)
+    revolute = ~robot.chain.prismatic
+    steps = reading[revolute] / math.radians(0.01)
+    np.testing.assert_allclose(steps, np.round(steps), atol=1e-9)
+    target = robot.home + 0.05
+    world.step({"R7AX": target})
+    np.testing.assert_allclose(world.true_joints()["R7AX"], target - offset, atol=1e-12)
+
+
+def test_link_and_base_errors_move_the_world_robot_only(cell, tmp_path):
+    path = _profile(tmp_path, {"robots": {"link_length_mm": 1.0, "base_position_mm": 2.0}})
+    d = draw_world(load_profile(path), cell, 3)
+    robot, built = cell.robot("R6AX"), d.cell.robot("R6AX")
+    np.testing.assert_allclose(built.T_base_robot[:3, 3] - robot.T_base_robot[:3, 3],
+                               robot.T_base_robot[:3, :3] @ np.full(3, 2e-3), atol=1e-12)
+    for a, b in zip(built.chain.links, robot.chain.links, strict=True):
+        assert a.a == pytest.approx(b.a + 1e-3) and a.d == pytest.approx(b.d + 1e-3)
+    world = World(d.cell)
+    T = world.scene.body_pose(world.scene.model.body("R6AX/6").id)
+    np.testing.assert_allclose(T, built.link_poses(built.home)[-1], atol=1e-9)
+    assert np.linalg.norm(T[:3, 3] - robot.link_poses(robot.home)[-1][:3, 3]) > 2e-3
+
+
+def test_part_size_tolerance_changes_the_world_part(cell, tmp_path):
+    path = _profile(tmp_path, {"geometry": {"part_size_mm": 0.5}})
+    d = draw_world(load_profile(path), cell, 1)
+    nominal, built = cell.workpieces[0].solid, d.cell.workpieces[0].solid
+    np.testing.assert_allclose(np.ptp(built.vertices, axis=0) - np.ptp(nominal.vertices, axis=0),
+                               5e-4, atol=1e-12)
+    assert built.faces == nominal.faces and built.feature_names == nominal.feature_names
+
+
+def test_unknown_forearm_hides_features_the_predictor_thinks_visible(cell, tmp_path):
+    """harsh puts a forearm across a camera's line of sight: during its stay the ray-cast
+    truth blames ``unknown.forearm`` for features the nominal predictor calls visible."""
+    d = draw_world("harsh", cell, 0)
+    arm = next(i for i in d.errors.intruders if i.name == "unknown.forearm")
+    world = World(d.cell, errors=d.errors)
+    while world.time < arm.t_in + 0.2:
+        world.step()
+    truth = world.true_views()["part"]
+    blamed = [v for v in truth if "unknown.forearm" in v.reason]
+    assert blamed, "the forearm hides nothing"
+    predicted = VisibilityPredictor(cell).predict(world.true_joints(), world.true_part_poses())
+    c = next(i for i, v in enumerate(truth) if "unknown.forearm" in v.reason)
+    hidden = np.array([r == "unknown.forearm" for r in truth[c].reason])
+    assert predicted["part"][c].visible[hidden].any()
+
+
+def test_image_noise_matches_its_model_and_jpeg_and_vignetting_act():
+    flat = np.full((200, 300), 128, np.uint8)
+    effects = ImageEffects(read_noise_dn=1.5, shot_dn_per_e=0.05)
+    out = Imager(effects, 0).apply([flat], 0.0)[0].astype(float)
+    assert out.std() == pytest.approx(math.sqrt(1.5 ** 2 + 128 * 0.05 + 1 / 12), rel=0.05)
+    dark = Imager(ImageEffects(vignetting=0.3), 0).apply([flat], 0.0)[0]
+    assert dark[0, 0] == pytest.approx(128 * 0.7, abs=1) and dark[100, 150] >= 127
+    jpeg = Imager(ImageEffects(jpeg_quality=30), 0).apply([np.tile(np.arange(300) % 256, (200, 1))
+                                                          .astype(np.uint8)], 0.0)[0]
+    assert 0 < np.abs(jpeg.astype(int) - np.arange(300) % 256).mean() < 10
+
+
+def test_frame_clock_drops_and_delays_as_stated():
+    clock = FrameClock(TimingKnobs(latency_ms=40, latency_jitter_ms=2, drop_percent=5), 3)
+    frames = [clock.next() for _ in range(20000)]
+    assert np.mean([f.dropped for f in frames]) == pytest.approx(0.05, abs=0.005)
+    lat = np.array([f.latency_s for f in frames])
+    assert lat.mean() == pytest.approx(0.040, abs=2e-4) and lat.std() == pytest.approx(0.002,
+                                                                                        rel=0.05)
+    assert FrameClock(TimingKnobs(), 3).ideal
+
+
+# ---- the servo against its analytic response -----------------------------------------------
+
+
+def test_servo_step_and_ramp_follow_the_second_order_response():
+    dt, f = 1 / 500, 8.0
+    wn = 2 * math.pi * f
+    servo = JointServo(ServoParams(bandwidth_hz=f), np.zeros(1), dt)
+    servo.target = np.ones(1)
+    t = np.arange(1, 201) * dt
+    q = np.array([servo.step()[0] for _ in t])
+    analytic = 1 - (1 + wn * t) * np.exp(-wn * t)
+    np.testing.assert_allclose(q, analytic, atol=1e-9)
+    ramp = JointServo(ServoParams(bandwidth_hz=f), np.zeros(1), dt)
+    v = 0.5
+    for k in range(1, 1001):
+        ramp.target = np.array([v * k * dt])
+        ramp.step()
+    assert v * 1000 * dt - ramp.q[0] == pytest.approx(2 * v / wn, rel=0.03)
+    limited = JointServo(ServoParams(bandwidth_hz=f, max_velocity=0.1), np.zeros(1), dt)
+    limited.target = np.ones(1)
+    qs = np.array([limited.step()[0] for _ in range(500)])
+    assert np.max(np.diff(qs)) <= 0.1 * dt + 1e-12
+
+
+def test_world_arm_lags_its_setpoints(cell):
+    world = World(cell, errors=Imperfections(servo=ServoParams(bandwidth_hz=5.0), noise_rad=0.0,
+                                             noise_m=0.0))
+    home = cell.robot("R7AX").home
+    target = home + 0.1
+    world.step({"R7AX": target})
+    lag = target - world.true_joints()["R7AX"]
+    assert np.all(lag > 0.09)
+    for _ in range(500):
+        world.step({"R7AX": target})
+    np.testing.assert_allclose(world.true_joints()["R7AX"], target, atol=1e-4)
+
+
+# ---- collisions ----------------------------------------------------------------------------
+
+
+def test_staged_crash_is_reported_and_a_quiet_cell_reports_none(cell):
+    quiet = World(cell)
+    for _ in range(50):
+        quiet.step()
+    assert quiet.collisions() == []
+    world = World(cell)
+    down = cell.robot("R6AX").home.copy()
+    down[1] += 1.2  # shoulder forward and down: the arm into the table
+    for _ in range(200):
+        world.step({"R6AX": down})
+    hits = world.collisions()
+    assert hits and any(b.startswith("R6AX") for h in hits for b in h["bodies"])
+    assert all(h["depth_mm"] > 1.0 for h in hits)
+
+
+# ---- the honest ideal sensor ---------------------------------------------------------------
+
+
+def test_ideal_sensor_returns_a_corner_or_nothing_for_a_hidden_feature():
+    pixels = np.array([[[100.0, 100.0], [300.0, 300.0]]])
+    visible = np.array([[False, True]])
+    sensor = IdealExtractor(0.0, 0)
+    plan = SimpleNamespace(features=np.array([0, 1]),  # the two fields the extractor reads
+                           boxes=np.array([[84, 84, 117, 117], [284, 284, 317, 317]]))
+    sensor.set_truth(pixels, visible, [np.array([[100.0, 100.0], [108.0, 95.0], [400.0, 5.0]])])
+    found = sensor.extract(0, None, plan)
+    np.testing.assert_allclose(found[0], [108.0, 95.0])  # the occluder's corner, not its own
+    np.testing.assert_allclose(found[1], [300.0, 300.0])
+    sensor.set_truth(pixels, visible, [np.array([[100.0, 100.0]])])
+    assert 0 not in sensor.extract(0, None, plan)
+    sensor.set_truth(None, None)
+    assert sensor.extract(0, None, plan) == {}
+
+
+# ---- bad profiles --------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("body, field", [
+    ({"cameras": {"position_mmm": 1.0}}, "cameras.position_mmm"),
+    ({"cameras": {"position_mm": {"dist": "normal", "sigma": -1.0}}}, "cameras.position_mm"),
+    ({"robots": {"joint_noise_rad": float("nan")}}, "robots.joint_noise_rad"),
+    ({"images": {"read_noise_dn": {"dist": "cauchy", "sigma": 1.0}}}, "images.read_noise_dn"),
+    ({"geometry": {"part_size_mm": {"dist": "gamma"}}}, "geometry.part_size_mm"),
+    ({"timing": {"drop_percent": 150}}, "timing.drop_percent"),
+])
+def test_bad_profile_names_file_and_field(tmp_path, body, field):
+    path = _profile(tmp_path, body)
+    with pytest.raises(ProfileError) as err:
+        load_profile(path)
+    message = str(err.value)
+    assert str(path) in message and field in message and "\n" not in message
+
+
+def test_bad_profile_on_the_command_line_runs_nothing(tmp_path):
+    path = _profile(tmp_path, {"profiles": {"mine": {"servo": {"bandwidth": 3}}}})
+    out = tmp_path / "run"
+    done = subprocess.run([sys.executable, "-m", "cellsight.cli", "run", "1", "--realism",
+                           f"{path}:mine", "--out", str(out), "--quiet"],
+                          capture_output=True, text=True, timeout=120)
+    assert done.returncode == 2 and not out.exists()
+    lines = done.stderr.strip().splitlines()
+    assert len(lines) == 1 and "profiles.mine.servo.bandwidth" in lines[0]
+
+
+def test_builtin_profiles_load_and_lab_cites_its_sources():
+    profiles = {name: load_profile(name) for name in ("exact", "lab", "harsh")}
+    assert profiles["exact"] == Profile(name="exact", file=profiles["exact"].file,
+                                        description=profiles["exact"].description)
+    assert len(profiles["lab"].sources) >= 5
+    assert profiles["harsh"].unmodelled.forearm_probability == 1.0
+    assert profiles["harsh"].timing.drop_percent == 5.0
