@@ -26,15 +26,22 @@ lint: dev
 test: dev lint
 	$(PY) -m pytest
 
-# The main job: the paper's third experiment on the built-in cell (report in out/experiment3).
+# The main job: the paper's third experiment on the built-in cell, in a world with a well
+# calibrated lab cell's errors (report in out/experiment3).
 demo: venv
-	.venv/bin/cellsight run 3 --out out/experiment3 --overwrite
+	.venv/bin/cellsight run 3 --realism lab --out out/experiment3 --overwrite
 
-# The README's table: experiments 1-3 x sensors x seeds, with and without occlusion prediction
-# (the comparisons on the first seed), resumable: `cellsight sweep` (out/table/summary.*).
+# The README's tables, resumable (`cellsight sweep`; out/<table>/summary.*): experiments 1-3,
+# rendered, 20 seeds, occlusion prediction on and off paired on the same seeds, in the `lab`
+# world; the same in the `harsh` world (off on 5 seeds); the paper's per-frame BSP on 5 seeds.
+SEEDS20 := 0 1 2 3 4 5 6 7 8 9 10 11 12 13 14 15 16 17 18 19
+SWEEP   := .venv/bin/cellsight sweep --experiments 1 2 3 --sensors rendered --jobs 2
 experiments: venv
-	.venv/bin/cellsight sweep --out out/table --experiments 1 2 3 --sensors rendered ideal \
-		--variants pred nopred prior --seeds 0 1 2 --variant-seeds 1 --jobs 2
+	$(SWEEP) --out out/lab --realism lab --variants pred nopred --seeds $(SEEDS20)
+	$(SWEEP) --out out/harsh --realism harsh --variants pred nopred --seeds $(SEEDS20) \
+		--variant-seeds 5
+	$(SWEEP) --out out/structures --realism lab --structure object-bvh frame-bsp \
+		--seeds 0 1 2 3 4
 
 # Hostile and random input, 10^5 cases (a few thousand run in `make test`); tests/fuzzing.py.
 fuzz: dev

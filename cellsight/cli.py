@@ -25,6 +25,7 @@ from cellsight.errors import CellsightError
 from cellsight.export import command as export_command
 from cellsight.model.arguments import parse_joints, parse_part_poses
 from cellsight.placement import command as placement_command
+from cellsight.realism import command as realism_command
 from cellsight.sweep import command as sweep_command
 from cellsight.view import command as view_command
 
@@ -286,26 +287,8 @@ def cmd_cells(args: argparse.Namespace) -> int:
     return 0
 
 
-def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="cellsight", description=__doc__.splitlines()[0])
-    sub = parser.add_subparsers(dest="command", required=True)
-
-    def cell_args(p: argparse.ArgumentParser) -> None:
-        p.add_argument("--cell", help=CELL_HELP)
-        p.add_argument("--joints", help='JSON (or a JSON file): {"R7AX": [q1, ...], ...}; '
-                                         "robots left out stay at HOME")
-        p.add_argument("--part-pose", help='JSON (or file): {"part": {"xyz": [..], "rpy": [..]}}')
-
-    show = sub.add_parser("show", help="picture of the cell and each camera's projected view")
-    cell_args(show)
-    show.add_argument("--out", default="out/show", help="output folder (default out/show)")
-    show.set_defaults(func=cmd_show)
-
-    vis = sub.add_parser("visibility", help="which feature points each camera sees, and why not")
-    cell_args(vis)
-    vis.add_argument("--json", action="store_true", help="print JSON instead of tables")
-    vis.set_defaults(func=cmd_visibility)
-
+def _add_run(sub: argparse._SubParsersAction) -> None:
+    """``cellsight run``'s arguments."""
     run = sub.add_parser("run", help="run one of the paper's experiments end to end")
     run.add_argument("experiment", type=int, choices=(1, 2, 3),
                      help="1: part still; 2: part on the conveyor; 3: as 2, with R6AX crossing")
@@ -335,6 +318,29 @@ def build_parser() -> argparse.ArgumentParser:
                           "a non-empty --out is refused without it)")
     run.set_defaults(func=cmd_run)
 
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="cellsight", description=__doc__.splitlines()[0])
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    def cell_args(p: argparse.ArgumentParser) -> None:
+        p.add_argument("--cell", help=CELL_HELP)
+        p.add_argument("--joints", help='JSON (or a JSON file): {"R7AX": [q1, ...], ...}; '
+                                         "robots left out stay at HOME")
+        p.add_argument("--part-pose", help='JSON (or file): {"part": {"xyz": [..], "rpy": [..]}}')
+
+    show = sub.add_parser("show", help="picture of the cell and each camera's projected view")
+    cell_args(show)
+    show.add_argument("--out", default="out/show", help="output folder (default out/show)")
+    show.set_defaults(func=cmd_show)
+
+    vis = sub.add_parser("visibility", help="which feature points each camera sees, and why not")
+    cell_args(vis)
+    vis.add_argument("--json", action="store_true", help="print JSON instead of tables")
+    vis.set_defaults(func=cmd_visibility)
+
+    _add_run(sub)
+
     cells = sub.add_parser("cells", help="list the built-in cells (names for --cell)")
     cells.set_defaults(func=cmd_cells)
 
@@ -343,6 +349,7 @@ def build_parser() -> argparse.ArgumentParser:
     compare.add_argument("run_b", help="output folder of another run")
     compare.set_defaults(func=cmd_compare)
     sweep_command.register(sub)
+    realism_command.register(sub)
     placement_command.register(sub)
     export_command.register(sub)
     view_command.register(sub)

@@ -86,7 +86,8 @@ def draw_world(profile: Profile | str, cell: Cell, seed: int) -> WorldDraws:
     """The world of run ``seed`` on the nominal ``cell`` under ``profile`` (module doc)."""
     profile = load_profile(profile)
     k = _Knobs(seed)
-    cameras = {c.name: _camera_error(k, profile, c.name) for c in cell.cameras}
+    work = cell.workpieces[0].T_base_part[:3, 3] if cell.workpieces else None
+    cameras = {c.name: _camera_error(k, profile, c, work) for c in cell.cameras}
     robots = {r.name: _robot_error(k, profile, r) for r in cell.robots}
     parts = {p.name: _part_error(k, profile, p) for p in cell.workpieces}
     world_cell = cell_as_built(cell, cameras, robots, parts)
@@ -95,12 +96,15 @@ def draw_world(profile: Profile | str, cell: Cell, seed: int) -> WorldDraws:
     return WorldDraws(profile, world_cell, errors, shift, k.record)
 
 
-def _camera_error(k: _Knobs, p: Profile, name: str) -> CameraError:
-    c = p.cameras
-    pose = small_pose(k.draw("cameras.position_mm", c.position_mm, 3, 1e-3, name),
-                      k.draw("cameras.rotation_deg", c.rotation_deg, 3, math.pi / 180, name))
-    return CameraError(pose, float(k.draw("cameras.focal_percent", c.focal_percent, (), 0.01,
-                                          name)),
+def _camera_error(k: _Knobs, p: Profile, camera, work: np.ndarray | None) -> CameraError:
+    """The camera's errors; its work point is the part's start (else 1 m ahead of it)."""
+    c, name = p.cameras, camera.name
+    if work is None:
+        work = camera.T_base_cam[:3, 3] + camera.T_base_cam[:3, 2]
+    return CameraError(k.draw("cameras.position_mm", c.position_mm, 3, 1e-3, name),
+                       k.draw("cameras.rotation_deg", c.rotation_deg, 3, math.pi / 180, name),
+                       np.asarray(work, dtype=float),
+                       float(k.draw("cameras.focal_percent", c.focal_percent, (), 0.01, name)),
                        k.draw("cameras.principal_point_px", c.principal_point_px, 2, 1.0, name),
                        float(k.draw("cameras.distortion_k1", c.distortion_k1, (), 1.0, name)))
 

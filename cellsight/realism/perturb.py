@@ -30,13 +30,26 @@ def small_pose(position: np.ndarray, rotvec: np.ndarray) -> np.ndarray:
 
 @dataclass(frozen=True)
 class CameraError:
-    """One camera's errors: ``pose`` (4x4, in the camera frame: ``T_base_cam @ pose``),
-    ``focal`` (relative, fx and fy), ``principal`` (2,) px, ``k1`` added to its distortion."""
+    """One camera's errors. Extrinsics as a calibration leaves them: a hand-eye calibration
+    fits the camera to points in the work area, so its error is small there and grows away
+    from it. ``position`` (3,) m is the error at the ``work_point`` (base frame), along the
+    camera's axes; ``rotation`` (3,) rad, a rotation vector in the camera's axes, turns the
+    camera about that point. ``focal`` (relative, fx and fy), ``principal`` (2,) px, ``k1``
+    added to its distortion."""
 
-    pose: np.ndarray
+    position: np.ndarray
+    rotation: np.ndarray
+    work_point: np.ndarray
     focal: float
     principal: np.ndarray
     k1: float
+
+    def moved(self, T_base_cam: np.ndarray) -> np.ndarray:
+        """The camera's pose as built (``T_base_cam`` as calibrated)."""
+        R_cam = T_base_cam[:3, :3]
+        R = R_cam @ Rotation.from_rotvec(self.rotation).as_matrix() @ R_cam.T
+        c = self.work_point
+        return make_pose(R, c - R @ c + R_cam @ self.position) @ T_base_cam
 
 
 def camera_as_built(camera: Camera, err: CameraError) -> Camera:
@@ -49,7 +62,7 @@ def camera_as_built(camera: Camera, err: CameraError) -> Camera:
     if err.k1 != 0.0:
         dist = np.zeros(5) if dist is None else np.array(dist, dtype=float)
         dist[0] += err.k1
-    return Camera(K, camera.width, camera.height, camera.T_base_cam @ err.pose, dist, camera.name)
+    return Camera(K, camera.width, camera.height, err.moved(camera.T_base_cam), dist, camera.name)
 
 
 @dataclass(frozen=True)

@@ -93,9 +93,11 @@ ZERO = Distribution(dist="fixed")
 
 
 class CameraKnobs(_Strict):
-    """Per camera and axis: extrinsic position (mm, camera frame) and rotation (deg, about the
-    camera axes); focal length (%, fx and fy together); principal point (px, per axis); radial
-    distortion k1 added to the camera's own."""
+    """Per camera and axis: the extrinsic calibration's position error at the work area (mm,
+    along the camera's axes; the work area is the part's start) and its rotation error (deg,
+    about the camera's axes, turning the camera about the work area: a hand-eye calibration
+    fitted there is most accurate there); focal length (%, fx and fy together); principal point
+    (px, per axis); radial distortion k1 added to the camera's own."""
 
     position_mm: Knob = ZERO
     rotation_deg: Knob = ZERO

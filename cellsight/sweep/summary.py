@@ -1,5 +1,6 @@
 """A sweep's results as tables and plots: ``summary.csv`` (one row per run, every scalar
-metric and the per-phase errors), ``summary.md`` (the README's tables: the whole task, then
+metric and the per-phase errors), ``summary.md`` (the README's tables: each group of runs over
+its seeds (:mod:`.aggregate`), the paired comparisons, then every run's whole-task figures and
 the position error per phase) and ``summary.png`` (position RMSE and largest position error per
 experiment, sensor and variant, one dot per seed)."""
 
@@ -15,6 +16,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
 from cellsight.control import Phase  # noqa: E402
+from cellsight.sweep.aggregate import aggregate_markdown  # noqa: E402
 from cellsight.sweep.grid import RunSpec  # noqa: E402
 
 COLUMNS = (
@@ -49,8 +51,10 @@ def flat_row(spec: RunSpec, metrics: dict) -> dict[str, object]:
     per-phase ``<phase>_<metric>`` figures."""
     status = "failed" if metrics.get("error") else "done"
     row: dict[str, object] = {"cell": spec.folder.parent.name, "experiment": spec.experiment,
-                              "sensor": spec.sensor, "variant": spec.variant, "seed": spec.seed,
-                              "status": status, "error": metrics.get("error", "")}
+                              "sensor": spec.sensor, "variant": spec.variant,
+                              "realism": spec.realism, "structure": spec.structure,
+                              "seed": spec.seed, "status": status,
+                              "error": metrics.get("error", "")}
     row.update({k: v for k, v in metrics.items()
                 if k not in row and isinstance(v, int | float | str | bool | None)})
     for phase, figures in (metrics.get("phases") or {}).items():
@@ -73,8 +77,13 @@ def markdown(specs: Sequence[RunSpec], results: Sequence[dict]) -> str:
     lead = ["cell", "exp.", "sensor", "occlusion prediction", "seed"]
     phases = _phases()
 
+    worlds = any(s.realism != "exact" or s.structure != "object-bvh" for s in specs)
+    if worlds:
+        lead[2] = "sensor (realism, structure)"
+
     def cells(spec: RunSpec) -> list[str]:
-        return [spec.folder.parent.name, str(spec.experiment), spec.sensor,
+        sensor = f"{spec.sensor} ({spec.realism}, {spec.structure})" if worlds else spec.sensor
+        return [spec.folder.parent.name, str(spec.experiment), sensor,
                 VARIANT_NAMES[spec.variant], str(spec.seed)]
 
     lines = ["| " + " | ".join(lead + [c[1] for c in COLUMNS]) + " |",
@@ -124,6 +133,6 @@ def write_summary(out: Path, specs: Sequence[RunSpec], results: Sequence[dict]) 
     out = Path(out)
     paths = [out / "summary.csv", out / "summary.md", out / "summary.png"]
     write_csv(paths[0], [flat_row(s, m) for s, m in zip(specs, results, strict=True)])
-    paths[1].write_text(markdown(specs, results))
+    paths[1].write_text(aggregate_markdown(specs, results) + "\n" + markdown(specs, results))
     plot(paths[2], specs, results)
     return paths

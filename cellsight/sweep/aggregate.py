@@ -1,0 +1,146 @@
+"""A sweep's runs summed up over their seeds, and the paired comparisons of its variants.
+
+A *group* is every finished run with the same cell, experiment, realism profile, structure,
+sensor and variant. Per group (:func:`group_rows`): grasps that held, whole-task position RMSE
+(mean with its 95 % confidence interval (Student t), 95th percentile and worst seed), the 95th
+percentile and worst of the per-run largest errors, orientation RMSE (mean, worst), in-view
+visibility accuracy (mean and worst seed), time lost in view (worst), wrong corners accepted
+(mean, worst), collisions (all seeds) and, for experiment 3, how many seeds the crossing
+blinded as designed (:func:`crossing_as_designed`). Variants are compared on the seeds both ran
+(:func:`paired_rows`): on how many the first variant's RMSE is lower, and the mean difference
+with its 95 % interval.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+from scipy import stats
+
+from cellsight.sweep.grid import RunSpec
+
+GroupKey = tuple[str, int, str, str, str, str]
+
+
+def _key(spec: RunSpec) -> GroupKey:
+    return (spec.folder.parent.name, spec.experiment, spec.realism, spec.structure,
+            spec.sensor, spec.variant)
+
+
+def _values(runs: list[dict], key: str) -> np.ndarray:
+    return np.array([float(m[key]) for m in runs if m.get(key) is not None])
+
+
+def mean_ci(x: np.ndarray) -> tuple[float, float]:
+    """Mean and the half-width of its 95 % confidence interval (Student t; nan for n < 2)."""
+    if len(x) == 0:
+        return float("nan"), float("nan")
+    if len(x) < 2:
+        return float(x.mean()), float("nan")
+    half = stats.t.ppf(0.975, len(x) - 1) * x.std(ddof=1) / np.sqrt(len(x))
+    return float(x.mean()), float(half)
+
+
+def crossing_as_designed(metrics: dict) -> bool | None:
+    """Experiment 3's meaning on one run (None for other experiments or missing figures): the
+    crossing robot leaves at most two features visible in camera 2 during Approach or Grasp,
+    and none in camera 1 during Manipulate (``fewest_visible`` of ``metrics.json``)."""
+    fewest = metrics.get("fewest_visible") or {}
+    if metrics.get("experiment") != 3 or "manipulate" not in fewest:
+        return None
+    before = [fewest[p][1] for p in ("approach", "grasp") if p in fewest and len(fewest[p]) > 1]
+    return bool(before) and min(before) <= 2 and fewest["manipulate"][0] == 0
+
+
+def _groups(specs: Sequence[RunSpec], results: Sequence[dict]) -> dict[GroupKey, dict]:
+    groups: dict[GroupKey, dict] = {}
+    for spec, m in zip(specs, results, strict=True):
+        g = groups.setdefault(_key(spec), {"runs": [], "seeds": [], "failed": 0})
+        if m.get("error"):
+            g["failed"] += 1
+        else:
+            g["runs"].append(m)
+            g["seeds"].append(spec.seed)
+    return groups
+
+
+def _fmt(x: float, pattern: str = "{:.2f}") -> str:
+    return "–" if not np.isfinite(x) else pattern.format(x)
+
+
+def _group_row(key: GroupKey, g: dict) -> list[str]:
+    runs = g["runs"]
+    rmse, peak = _values(runs, "position_rmse_mm"), _values(runs, "max_position_error_mm")
+    orient, vis = _values(runs, "orientation_rmse_deg"), _values(runs, "visibility_accuracy")
+    lost, wrong = _values(runs, "lost_in_view_s"), _values(runs, "wrong_accepted")
+    mean, half = mean_ci(rmse)
+    held = sum(bool(m.get("grasp_success")) for m in runs)
+    crossing = [c for c in map(crossing_as_designed, runs) if c is not None]
+    pct = (lambda x: _fmt(float(np.percentile(x, 95)))) if len(runs) else (lambda x: "–")
+    worst = (lambda x: _fmt(float(np.max(x)))) if len(runs) else (lambda x: "–")
+    return [key[0], str(key[1]), key[2], key[3], key[4], key[5],
+            f"{len(runs)}" + (f" (+{g['failed']} failed)" if g["failed"] else ""),
+            f"{held}/{len(runs)}", f"{_fmt(mean)} ± {_fmt(half)}", pct(rmse), worst(rmse),
+            pct(peak), worst(peak), _fmt(float(orient.mean()) if len(orient) else np.nan),
+            worst(orient), _fmt(float(vis.mean()) if len(vis) else np.nan, "{:.4f}"),
+            _fmt(float(vis.min()) if len(vis) else np.nan, "{:.4f}"), worst(lost),
+            _fmt(float(wrong.mean()) if len(wrong) else np.nan, "{:.1f}"),
+            _fmt(float(wrong.max()) if len(wrong) else np.nan, "{:.0f}"),
+            str(sum(int(m.get("collision_count") or 0) for m in runs)),
+            f"{sum(crossing)}/{len(crossing)}" if crossing else "–"]
+
+
+GROUP_HEADER = ["cell", "exp.", "realism", "structure", "sensor", "variant", "seeds", "grasps",
+                "pos. RMSE mm, mean ± 95% CI", "p95", "worst", "max err. mm p95", "worst",
+                "orient. RMSE deg mean", "worst", "vis. acc. mean", "worst seed",
+                "lost in view s, worst", "wrong accepted mean", "worst", "collisions",
+                "crossing as designed"]
+
+
+def group_rows(specs: Sequence[RunSpec], results: Sequence[dict]) -> list[list[str]]:
+    """One row of :data:`GROUP_HEADER` per group of runs (module docstring)."""
+    return [_group_row(k, g) for k, g in _groups(specs, results).items()]
+
+
+def paired_rows(specs: Sequence[RunSpec], results: Sequence[dict]) -> list[list[str]]:
+    """Per group and variant after the first: the first variant against it on their common
+    seeds (module docstring)."""
+    groups = _groups(specs, results)
+    rows = []
+    for key, g in groups.items():
+        others = [(k, o) for k, o in groups.items() if k[:5] == key[:5] and k[5] != key[5]]
+        for other_key, other in others if key[5] == "pred" else []:
+            a = {s: m.get("position_rmse_mm") for s, m in zip(g["seeds"], g["runs"],
+                                                              strict=True)}
+            b = {s: m.get("position_rmse_mm") for s, m in zip(other["seeds"], other["runs"],
+                                                              strict=True)}
+            seeds = [s for s in a if s in b and a[s] is not None and b[s] is not None]
+            diff = np.array([b[s] - a[s] for s in seeds])
+            better = int(np.sum(diff > 0))
+            mean, half = mean_ci(diff)
+            rows.append([key[0], str(key[1]), key[2], key[3], key[4],
+                         f"{key[5]} vs {other_key[5]}", f"{better}/{len(seeds)}",
+                         f"{_fmt(mean)} ± {_fmt(half)}"])
+    return rows
+
+
+PAIRED_HEADER = ["cell", "exp.", "realism", "structure", "sensor", "comparison",
+                 "seeds where pred has the lower RMSE",
+                 "RMSE gain mm (other - pred), mean ± 95% CI"]
+
+
+def _table(header: list[str], rows: list[list[str]]) -> list[str]:
+    return ["| " + " | ".join(header) + " |", "|" + "---|" * len(header),
+            *["| " + " | ".join(r) + " |" for r in rows]]
+
+
+def aggregate_markdown(specs: Sequence[RunSpec], results: Sequence[dict]) -> str:
+    """The group table and, when the sweep has them, the paired comparisons (Markdown)."""
+    lines = ["Over the seeds of each group (whole task, every frame in view):", "",
+             *_table(GROUP_HEADER, group_rows(specs, results))]
+    paired = paired_rows(specs, results)
+    if paired:
+        lines += ["", "Paired on the same seeds (occlusion prediction on against off):", "",
+                  *_table(PAIRED_HEADER, paired)]
+    return "\n".join(lines) + "\n"
