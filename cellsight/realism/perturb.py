@@ -30,12 +30,14 @@ def small_pose(position: np.ndarray, rotvec: np.ndarray) -> np.ndarray:
 
 @dataclass(frozen=True)
 class CameraError:
-    """One camera's errors. Extrinsics as a calibration leaves them: a hand-eye calibration
-    fits the camera to points in the work area, so its error is small there and grows away
-    from it. ``position`` (3,) m is the error at the ``work_point`` (base frame), along the
-    camera's axes; ``rotation`` (3,) rad, a rotation vector in the camera's axes, turns the
-    camera about that point. ``focal`` (relative, fx and fy), ``principal`` (2,) px, ``k1``
-    added to its distortion."""
+    """One camera's errors, as a calibration leaves them. The intrinsics are off by ``focal``
+    (relative, fx and fy), ``principal`` (2,) px and ``k1`` (added to its distortion); the
+    hand-eye calibration, done with those intrinsics and fitted to points in the work area,
+    turns the camera about its optical centre so that the ``work_point`` (base frame) still
+    projects where the cell file says, and leaves its own error: ``position`` (3,) m at the work
+    point, along the camera's axes, and ``rotation`` (3,) rad, a rotation vector in the
+    camera's axes turning the camera about the work point. So the error is smallest in the work
+    area and grows away from it, as a calibration's does."""
 
     position: np.ndarray
     rotation: np.ndarray
@@ -44,12 +46,26 @@ class CameraError:
     principal: np.ndarray
     k1: float
 
-    def moved(self, T_base_cam: np.ndarray) -> np.ndarray:
-        """The camera's pose as built (``T_base_cam`` as calibrated)."""
+    def moved(self, T_base_cam: np.ndarray, K: np.ndarray, K_built: np.ndarray) -> np.ndarray:
+        """The camera's pose as built (``T_base_cam`` as calibrated, with intrinsics ``K``;
+        ``K_built`` the camera's own)."""
+        T_base_cam = T_base_cam @ make_pose(_absorbing(T_base_cam, K, K_built, self.work_point))
         R_cam = T_base_cam[:3, :3]
         R = R_cam @ Rotation.from_rotvec(self.rotation).as_matrix() @ R_cam.T
         c = self.work_point
         return make_pose(R, c - R @ c + R_cam @ self.position) @ T_base_cam
+
+
+def _absorbing(T_base_cam: np.ndarray, K: np.ndarray, K_built: np.ndarray,
+               work_point: np.ndarray) -> np.ndarray:
+    """The rotation (camera frame) that makes a camera with intrinsics ``K_built`` see the
+    work point where one with ``K`` at ``T_base_cam`` sees it (what a calibration with the
+    wrong intrinsics does to the extrinsics)."""
+    p = np.linalg.inv(T_base_cam)[:3] @ np.append(work_point, 1.0)
+    pixel = K @ (p / p[2])
+    seen = np.linalg.solve(K_built, pixel)
+    R, _ = Rotation.align_vectors([p / np.linalg.norm(p)], [seen / np.linalg.norm(seen)])
+    return R.as_matrix()
 
 
 def camera_as_built(camera: Camera, err: CameraError) -> Camera:
@@ -62,7 +78,8 @@ def camera_as_built(camera: Camera, err: CameraError) -> Camera:
     if err.k1 != 0.0:
         dist = np.zeros(5) if dist is None else np.array(dist, dtype=float)
         dist[0] += err.k1
-    return Camera(K, camera.width, camera.height, err.moved(camera.T_base_cam), dist, camera.name)
+    T = err.moved(camera.T_base_cam, camera.K, K)
+    return Camera(K, camera.width, camera.height, T, dist, camera.name)
 
 
 @dataclass(frozen=True)

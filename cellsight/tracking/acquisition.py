@@ -27,6 +27,19 @@ class PnPAcquisition:
     max_rms_px: float = 2.0
     velocity_std: tuple[float, float] = (0.2, 0.5)
     pose_inflation: float = 4.0
+    search_m: float = 0.015
+    search_step_m: float = 0.005
+
+    def guess(self, base: np.ndarray, attempt: int) -> np.ndarray:
+        """``base`` (``T_base_part``) moved by the ``attempt``-th offset of the search (module
+        docstring; it starts over after the last)."""
+        n = int(round(self.search_m / self.search_step_m)) if self.search_step_m > 0 else 0
+        steps = np.arange(-n, n + 1) * self.search_step_m
+        offsets = sorted(((x, y) for x in steps for y in steps),
+                         key=lambda o: (round(np.hypot(*o), 9), o))
+        T = np.array(base, dtype=float)
+        T[:2, 3] += offsets[attempt % len(offsets)]
+        return T
 
     def fix(self, observations: list[Observation], sigma_px: float) -> PoseFix | None:
         """The pose to start from, or None when the corners found do not give one."""

@@ -79,6 +79,8 @@ class _Track:
     guess: np.ndarray | None
     hold: NearOccluderHold
     ekf: PoseEKF | None = None
+    base_guess: np.ndarray | None = None
+    attempts: int = 0
     last_update: float = -np.inf
     lost: bool = False
     holder: np.ndarray | None = None
@@ -278,6 +280,11 @@ class Tracker:
         obs = self._measure(rec, track, crowd, images, timer, covariance, windows)
         with timer("ekf"):
             fix = acquisition.fix(obs, self.config.sigma_px)
+            if fix is None and track.ekf is None and track.guess is not None:
+                if track.base_guess is None:
+                    track.base_guess = track.guess
+                track.attempts += 1
+                track.guess = acquisition.guess(track.base_guess, track.attempts)
             if fix is not None:
                 self.initialise(rec.name, fix.T_base_part, t, acquisition.start(fix))
                 rec.status = TrackStatus.ACQUIRED

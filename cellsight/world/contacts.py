@@ -24,6 +24,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import mujoco
+import numpy as np
 
 from cellsight.model import Cell
 from cellsight.world.scene import Scene
@@ -64,6 +65,8 @@ class ContactMonitor:
             self._jaw.append(i is not None and cell.frames[i].kind == "jaw")
             self._part.append(obj is not None and obj.kind == "workpiece")
         self._tool_robots = [r.name for r in cell.robots if r.tool is not None]
+        robots = {r.name: i for i, r in enumerate(cell.robots)}
+        self._robot_of = np.array([robots.get(r, -1) for r in self._robot])  # -1: no robot
         self._open: dict[tuple[str, str], Collision] = {}
         self.collisions: list[Collision] = []
         self._mounts = {pair for pair, _ in self._touching(self._geom_pairs(0.0))}
@@ -91,8 +94,13 @@ class ContactMonitor:
         self.scene.sync()
         model, data = self.scene.model, self.scene.data
         mujoco.mj_collision(model, data)
-        return [(int(c.geom1), int(c.geom2), -float(c.dist))
-                for c in data.contact[:data.ncon] if -c.dist > depth]
+        contacts = data.contact
+        deep = np.flatnonzero(-contacts.dist > depth)
+        geoms = contacts.geom[deep]
+        keep = self._robot_of[geoms[:, 0]] != self._robot_of[geoms[:, 1]]
+        keep |= self._robot_of[geoms[:, 0]] < 0
+        return [(int(a), int(b), -float(d)) for (a, b), d in
+                zip(geoms[keep], contacts.dist[deep][keep], strict=True)]
 
     def _touching(self, pairs) -> list[tuple[tuple[int, int], float]]:
         """The geom pairs as ordered (geom, geom) keys of different robots (or none)."""
