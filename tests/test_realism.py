@@ -377,3 +377,31 @@ def test_held_part_predictor_agrees_with_the_ray_truth_from_every_side():
             np.testing.assert_array_equal(p.visible[inside], t.visible[inside])
             checked += inside.sum()
     assert checked > 3000
+
+
+def test_intrinsic_errors_are_absorbed_at_the_work_area_not_elsewhere(cell, tmp_path):
+    """Calibrated with wrong intrinsics, the hand-eye result turns the camera so that the work
+    area still projects right; 20 cm away the focal error shows."""
+    path = _profile(tmp_path, {"cameras": {"principal_point_px": 5.0, "focal_percent": 1.0}})
+    d = draw_world(load_profile(path), cell, 0)
+    work = cell.workpieces[0].T_base_part[:3, 3]
+    away = work + [0.2, 0.0, 0.1]
+    for cam, built in zip(cell.cameras, d.cell.cameras, strict=True):
+        assert built.K[0, 2] == cam.K[0, 2] + 5.0 and built.K[0, 0] == pytest.approx(
+            1.01 * cam.K[0, 0])
+        np.testing.assert_allclose(built.project(work[None]), cam.project(work[None]), atol=1e-6)
+        assert np.linalg.norm(built.project(away[None]) - cam.project(away[None])) > 1.0
+        np.testing.assert_allclose(built.center, cam.center, atol=1e-12)
+
+
+def test_acquisition_search_visits_the_nominal_first_then_rings_outwards():
+    from cellsight.tracking.acquisition import PnPAcquisition
+
+    acq = PnPAcquisition(search_m=0.01, search_step_m=0.005)
+    base = np.eye(4)
+    offsets = [acq.guess(base, k)[:2, 3] for k in range(25)]
+    np.testing.assert_array_equal(offsets[0], [0.0, 0.0])
+    radii = [np.hypot(*o) for o in offsets]
+    assert radii == sorted(radii) and len({tuple(np.round(o, 9)) for o in offsets}) == 25
+    np.testing.assert_array_equal(acq.guess(base, 25), acq.guess(base, 0))
+    assert max(radii) == pytest.approx(0.01 * math.sqrt(2))

@@ -116,3 +116,46 @@ def test_a_run_on_a_cell_file_changed_since_is_run_again(tmp_path):
     cell.write_text(cell.read_text() + "\n# moved a camera\n")
     again = run_sweep(specs, tmp_path / "out", jobs=1, progress=False)[0]
     assert not again.get("reused") and not again.get("error")
+
+
+def test_groups_over_seeds_and_paired_comparison_against_numpy():
+    import numpy as np
+    from scipy import stats
+
+    from cellsight.sweep.aggregate import group_rows, mean_ci, paired_rows
+
+    rng = np.random.default_rng(5)
+    on, off = rng.uniform(0.5, 1.5, 8), rng.uniform(0.8, 2.0, 8)
+    specs, results = [], []
+    for variant, values in (("pred", on), ("nopred", off)):
+        for seed, v in enumerate(values):
+            specs.append(RunSpec("dual-arm", 3, "rendered", variant, seed, realism="lab"))
+            results.append({"experiment": 3, "position_rmse_mm": v, "grasp_success": seed != 2,
+                            "max_position_error_mm": 3 * v, "visibility_accuracy": 1 - v / 100,
+                            "collision_count": 1 if seed == 4 else 0,
+                            "fewest_visible": {"approach": [9, 1], "manipulate": [seed % 2, 5]}})
+    specs.append(RunSpec("dual-arm", 3, "rendered", "pred", 9, realism="lab"))
+    results.append({"error": "RuntimeError: boom"})
+    rows = {r[5]: r for r in group_rows(specs, results)}
+    mean, half = mean_ci(on)
+    t = stats.t.ppf(0.975, 7) * on.std(ddof=1) / np.sqrt(8)
+    assert half == pytest.approx(t) and mean == pytest.approx(on.mean())
+    pred = rows["pred"]
+    assert pred[6] == "8 (+1 failed)" and pred[7] == "7/8"
+    assert pred[8] == f"{on.mean():.2f} ± {t:.2f}"
+    assert pred[9] == f"{np.percentile(on, 95):.2f}" and pred[10] == f"{on.max():.2f}"
+    assert pred[16] == f"{(1 - on / 100).min():.4f}" and pred[20] == "1"
+    assert pred[21] == "4/8"  # camera 1 left with nothing in Manipulate on the even seeds
+    (paired,) = paired_rows(specs, results)
+    assert paired[6] == f"{int(np.sum(off > on))}/8"
+    assert paired[7] == f"{(off - on).mean():.2f} ± {mean_ci(off - on)[1]:.2f}"
+
+
+def test_realism_and_structure_name_their_folders_and_bad_profiles_stop_the_grid(tmp_path):
+    spec = RunSpec("dual-arm", 3, "rendered", "pred", 4, realism="lab", structure="frame-bsp")
+    assert str(spec.folder) == "dual-arm/e3_rendered_pred_lab_frame-bsp_s4"
+    assert str(RunSpec("dual-arm", 3, "ideal", "pred", 4).folder) == "dual-arm/e3_ideal_pred_s4"
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("timing: {latency_ms: -3}\n")
+    with pytest.raises(CellsightError, match="timing.latency_ms"):
+        sweep_grid(["dual-arm"], [1], ["ideal"], ["pred"], [0], realisms=[str(bad)])

@@ -69,6 +69,15 @@ def _fmt(x: float, pattern: str = "{:.2f}") -> str:
     return "–" if not np.isfinite(x) else pattern.format(x)
 
 
+def _stat(x: np.ndarray, how: str, pattern: str = "{:.2f}") -> str:
+    """``how`` (mean, p95, max, min) of ``x``, formatted; "–" when ``x`` is empty."""
+    if len(x) == 0:
+        return "–"
+    value = {"mean": np.mean, "max": np.max, "min": np.min,
+             "p95": lambda v: np.percentile(v, 95)}[how](x)
+    return _fmt(float(value), pattern)
+
+
 def _group_row(key: GroupKey, g: dict) -> list[str]:
     runs = g["runs"]
     rmse, peak = _values(runs, "position_rmse_mm"), _values(runs, "max_position_error_mm")
@@ -77,16 +86,12 @@ def _group_row(key: GroupKey, g: dict) -> list[str]:
     mean, half = mean_ci(rmse)
     held = sum(bool(m.get("grasp_success")) for m in runs)
     crossing = [c for c in map(crossing_as_designed, runs) if c is not None]
-    pct = (lambda x: _fmt(float(np.percentile(x, 95)))) if len(runs) else (lambda x: "–")
-    worst = (lambda x: _fmt(float(np.max(x)))) if len(runs) else (lambda x: "–")
     return [key[0], str(key[1]), key[2], key[3], key[4], key[5],
             f"{len(runs)}" + (f" (+{g['failed']} failed)" if g["failed"] else ""),
-            f"{held}/{len(runs)}", f"{_fmt(mean)} ± {_fmt(half)}", pct(rmse), worst(rmse),
-            pct(peak), worst(peak), _fmt(float(orient.mean()) if len(orient) else np.nan),
-            worst(orient), _fmt(float(vis.mean()) if len(vis) else np.nan, "{:.4f}"),
-            _fmt(float(vis.min()) if len(vis) else np.nan, "{:.4f}"), worst(lost),
-            _fmt(float(wrong.mean()) if len(wrong) else np.nan, "{:.1f}"),
-            _fmt(float(wrong.max()) if len(wrong) else np.nan, "{:.0f}"),
+            f"{held}/{len(runs)}", f"{_fmt(mean)} ± {_fmt(half)}", _stat(rmse, "p95"),
+            _stat(rmse, "max"), _stat(peak, "p95"), _stat(peak, "max"), _stat(orient, "mean"),
+            _stat(orient, "max"), _stat(vis, "mean", "{:.4f}"), _stat(vis, "min", "{:.4f}"),
+            _stat(lost, "max"), _stat(wrong, "mean", "{:.1f}"), _stat(wrong, "max", "{:.0f}"),
             str(sum(int(m.get("collision_count") or 0) for m in runs)),
             f"{sum(crossing)}/{len(crossing)}" if crossing else "–"]
 
