@@ -405,3 +405,16 @@ def test_acquisition_search_visits_the_nominal_first_then_rings_outwards():
     assert radii == sorted(radii) and len({tuple(np.round(o, 9)) for o in offsets}) == 25
     np.testing.assert_array_equal(acq.guess(base, 25), acq.guess(base, 0))
     assert max(radii) == pytest.approx(0.01 * math.sqrt(2))
+
+
+def test_same_seed_and_profile_give_identical_metrics(tmp_path):
+    from cellsight.experiments import RunConfig, run_experiment
+
+    def run(folder: str, seed: int) -> dict:
+        m = run_experiment(RunConfig(3, tmp_path / folder, sensor="ideal", seed=seed,
+                                     realism="harsh", duration=1.0, progress=False))
+        return {k: v for k, v in m.items() if k not in ("wall_s", "timing_ms")}
+
+    a, b, c = run("a", 6), run("b", 6), run("c", 7)
+    assert a == b and a["draws"] and a["realism"] == "harsh"
+    assert c["draws"] != a["draws"]

@@ -32,6 +32,8 @@ occluder's corner), ``wrong_accepted`` (wrong and not rejected). ``pixels_grabbe
 mean over frames and cameras of the fraction of pixels grabbed. ``extraction_error_px_median``:
 median over frames and cameras of each frame's median extraction error (px); None when no frame
 has one (ideal sensor). ``timing_ms``: median per stage (ms) over the frames.
+``fewest_visible``: per working phase, per camera, the fewest features truly visible in any
+frame of it (how deeply the occluders blinded each camera: experiment 3's meaning, per seed).
 """
 
 from __future__ import annotations

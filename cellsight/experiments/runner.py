@@ -4,7 +4,11 @@ The loop only wires them. Per vision frame (``VISION_HZ``): the world's images (
 ideal sensor, the true projections), joint measurements and jaw openings ->
 :class:`~cellsight.tracking.Tracker` (BSP occlusion prediction at the predicted pose, selection,
 windows, extraction, EKF) -> the grasping task's trajectory planner; between frames, the
-``CONTROL_HZ`` control loop (interpolating filter + CLIK) drives the world. The world is seen
+``CONTROL_HZ`` control loop (interpolating filter + CLIK) drives the world. The world departs
+from the cell file by the run's realism profile (:mod:`cellsight.realism`: its own cell and
+imperfections, drawn from the seed): a frame may be dropped (no images) and its estimate
+reaches the planner after the frame's latency (:mod:`.latency`), stamped with its exposure
+time. The world is seen
 through :class:`~cellsight.experiments.plant.SimulatedCell` (the simulated
 :class:`~cellsight.world.World` by default).
 
@@ -13,7 +17,8 @@ rows from :mod:`.rows`, with the PnP baseline of :mod:`.baseline`), ``run.log`` 
 transitions, occlusion events and the grasp: :mod:`.monitors`; the summary), ``keyframes.json``
 + ``keyframes/*.png`` (:mod:`.keyframes`), ``views.mp4`` (rendered sensor). After the loop (also
 when interrupted or failed), two steps that read the log: ``metrics.json``
-(:mod:`cellsight.experiments.metrics` plus the run's facts) and ``report.html``
+(:mod:`cellsight.experiments.metrics` plus the run's facts: the realism profile and every
+draw, the structure, the collisions, the dropped frames) and ``report.html``
 (:mod:`cellsight.report.run_report`).
 
 The output folder must be new or empty; with ``overwrite`` it is cleared first, but only when it
