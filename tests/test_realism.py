@@ -418,3 +418,26 @@ def test_same_seed_and_profile_give_identical_metrics(tmp_path):
     a, b, c = run("a", 6), run("b", 6), run("c", 7)
     assert a == b and a["draws"] and a["realism"] == "harsh"
     assert c["draws"] != a["draws"]
+
+
+def test_a_skewed_camera_is_exposed_before_the_frame(cell):
+    """Camera 2 triggered 10 ms early sees the moving part where it was 10 ms before the
+    frame (the ray-cast truth of that instant), camera 1 where it is at the frame."""
+    from cellsight.experiments.exposure import Exposures
+    from cellsight.experiments.rows import PartTruth
+    from cellsight.world import ConveyorPath
+
+    path = ConveyorPath([(0.55, 0.0), (0.85, 0.0)], speed=0.2)
+    world = World(cell, conveyor=path)
+    exposures = Exposures(world, np.array([0.0, 0.010]), True, "part")
+    t_frame, seen = 0.1, {}
+    while world.time < t_frame - 1e-9:
+        exposures.before_step(t_frame)
+        if abs(world.time - (t_frame - 0.010)) < 1e-9:
+            seen["early"] = PartTruth.of(world, "part").pixels[1].copy()
+        world.step()
+    out = exposures.frame()
+    now = PartTruth.of(world, "part").pixels
+    np.testing.assert_array_equal(out[0][0], now[0])
+    np.testing.assert_array_equal(out[1][0], seen["early"])
+    assert np.abs(out[1][0] - now[1]).max() > 1.0  # 2 mm of conveyor travel

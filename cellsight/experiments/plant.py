@@ -10,7 +10,7 @@ gripper commands, joint measurements, the jaws' opening and closed signal, camer
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from typing import Protocol
 
 import numpy as np
@@ -43,8 +43,9 @@ class Plant(Protocol):
         """The gripper's signal: its jaws closed on a part."""
         ...
 
-    def render(self) -> list[np.ndarray]:
-        """One image per camera, in the cell's camera order."""
+    def render(self, cameras: Sequence[int] | None = None) -> list[np.ndarray | None]:
+        """One image per camera, in the cell's camera order; with ``cameras`` (indices), only
+        theirs (None for the others)."""
         ...
 
     def close(self) -> None:

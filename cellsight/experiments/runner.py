@@ -6,10 +6,10 @@ ideal sensor, the true projections), joint measurements and jaw openings ->
 windows, extraction, EKF) -> the grasping task's trajectory planner; between frames, the
 ``CONTROL_HZ`` control loop (interpolating filter + CLIK) drives the world. The world departs
 from the cell file by the run's realism profile (:mod:`cellsight.realism`: its own cell and
-imperfections, drawn from the seed): a frame may be dropped (no images) and its estimate
-reaches the planner after the frame's latency (:mod:`.latency`), stamped with its exposure
-time. The world is seen
-through :class:`~cellsight.experiments.plant.SimulatedCell` (the simulated
+imperfections, drawn from the seed): a camera may be exposed before the frame's time (its
+trigger skew, :mod:`.exposure`), a frame may be dropped (no images), and its estimate reaches
+the planner after the frame's latency (:mod:`.latency`), stamped with its exposure time. The
+world is seen through :class:`~cellsight.experiments.plant.SimulatedCell` (the simulated
 :class:`~cellsight.world.World` by default).
 
 Written into the output directory as the run goes: ``frames.csv`` (:mod:`cellsight.framelog`,
@@ -47,6 +47,7 @@ from rich.progress import BarColumn, Progress, TextColumn
 from cellsight.control import GraspTask, Phase
 from cellsight.errors import CellsightError
 from cellsight.experiments.baseline import PnPBaseline
+from cellsight.experiments.exposure import Exposures
 from cellsight.experiments.keyframes import KeyFrames, draw_frame
 from cellsight.experiments.latency import Deliveries, Estimate
 from cellsight.experiments.metrics import frame_metrics
@@ -227,6 +228,8 @@ class ExperimentRun:
         self.clock = FrameClock(self.draws.profile.timing, config.seed)
         self.deliveries = Deliveries()
         self.frames_dropped = 0
+        self.exposures = Exposures(self.world, self.draws.trigger_skew_s, config.sensor == "ideal",
+                                   self.part.name)
         self.ideal = (IdealExtractor(config.ideal_sigma_px, config.seed)
                       if config.sensor == "ideal" else None)
         tracking = TrackerConfig()
@@ -326,6 +329,7 @@ class ExperimentRun:
         planner when their latency is over."""
         world, name = self.world, self.robot.name
         while world.time < t_next - 1e-9:
+            self.exposures.before_step(t_next)
             for estimate in self.deliveries.due(world.time):
                 self._plan(world.time, estimate, world.measured_joints()[name])
             q, opening = self.task.step_control(world.time, world.measured_joints()[name])
@@ -367,16 +371,19 @@ class ExperimentRun:
 
     def _grab(self, dropped: bool, truth: PartTruth) -> list | None:
         """The frame's images (rendered sensor; None per camera when the frame is dropped), or
-        the ideal sensor's truth set (nothing when dropped)."""
+        the ideal sensor's truths set (nothing when dropped), each camera's as it was exposed
+        (:mod:`.exposure`)."""
         n = len(self.cell.cameras)
         self.frames_dropped += dropped
-        if self.ideal is not None:
-            if dropped:
-                self.ideal.set_truth(None, None)
-            else:
-                self.ideal.set_truth(truth.pixels, truth.visible, self.world.true_corners())
-            return None
-        return [None] * n if dropped else self.world.render()
+        exposed = self.exposures.frame(truth)
+        if self.ideal is None:
+            return [None] * n if dropped else exposed
+        if dropped:
+            self.ideal.set_truth(None, None)
+        else:
+            pixels, visible, corners = zip(*exposed, strict=True)
+            self.ideal.set_truth(np.stack(pixels), np.stack(visible), list(corners))
+        return None
 
     def _plan(self, t: float, estimate: Estimate, joints: np.ndarray) -> None:
         """The task's vision update at time ``t`` with the tracker's ``estimate`` (pose and

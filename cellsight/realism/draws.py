@@ -15,6 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from cellsight.model import Cell
+from cellsight.rates import CONTROL_HZ, VISION_HZ
 from cellsight.realism.perturb import (
     CameraError,
     PartError,
@@ -47,13 +48,14 @@ class ScenarioShift:
 
 @dataclass(frozen=True)
 class WorldDraws:
-    """The profile, the world's ``cell``, its ``errors``, the ``scenario`` shift and the
-    ``record`` of every draw."""
+    """The profile, the world's ``cell``, its ``errors``, the ``scenario`` shift, each camera's
+    ``trigger_skew_s`` (s before the frame's time, >= 0) and the ``record`` of every draw."""
 
     profile: Profile
     cell: Cell
     errors: Imperfections
     scenario: ScenarioShift
+    trigger_skew_s: np.ndarray
     record: dict
 
 
@@ -93,7 +95,10 @@ def draw_world(profile: Profile | str, cell: Cell, seed: int) -> WorldDraws:
     world_cell = cell_as_built(cell, cameras, robots, parts)
     errors = _imperfections(k, profile, cell, world_cell, seed)
     shift = _scenario(k, profile, cell, parts)
-    return WorldDraws(profile, world_cell, errors, shift, k.record)
+    latest = 1.0 / VISION_HZ - 1.0 / CONTROL_HZ
+    skew = np.array([min(abs(float(k.draw("timing.trigger_skew_ms", profile.timing.trigger_skew_ms,
+                                           (), 1e-3, c.name))), latest) for c in cell.cameras])
+    return WorldDraws(profile, world_cell, errors, shift, skew, k.record)
 
 
 def _camera_error(k: _Knobs, p: Profile, camera, work: np.ndarray | None) -> CameraError:

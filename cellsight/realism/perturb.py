@@ -69,6 +69,10 @@ def _absorbing(T_base_cam: np.ndarray, K: np.ndarray, K_built: np.ndarray,
 
 
 def camera_as_built(camera: Camera, err: CameraError) -> Camera:
+    """The camera as the world has it (the camera itself when ``err`` is all zero)."""
+    if not (np.any(err.position) or np.any(err.rotation) or err.focal or np.any(err.principal)
+            or err.k1):
+        return camera
     K = camera.K.copy()
     K[0, 0] *= 1.0 + err.focal
     K[1, 1] *= 1.0 + err.focal
@@ -114,6 +118,10 @@ def scaled(solid: Polyhedron, scale: np.ndarray) -> Polyhedron:
 
 
 def robot_as_built(robot: Robot, err: RobotError) -> Robot:
+    """The robot as the world has it (the robot itself when ``err`` is all zero)."""
+    if (np.array_equal(err.base, np.eye(4)) and not np.any(err.links)
+            and np.all(err.gripper_scale == 1.0)):
+        return robot
     tool = robot.tool
     if tool is not None:
         tool = replace(tool, palm=tuple(scaled(s, err.gripper_scale) for s in tool.palm),
@@ -140,6 +148,9 @@ class PartError:
 
 
 def part_as_built(part: Workpiece, err: PartError) -> Workpiece:
+    """The workpiece as the world has it (itself when ``err`` is all zero)."""
+    if not (np.any(err.size_m) or np.any(err.shift) or err.yaw):
+        return part
     T = part.T_base_part.copy()
     if err.yaw != 0.0:
         T[:3, :3] = Rotation.from_rotvec([0.0, 0.0, err.yaw]).as_matrix() @ T[:3, :3]

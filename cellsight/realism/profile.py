@@ -174,11 +174,14 @@ class ImageKnobs(_Strict):
 
 class TimingKnobs(_Strict):
     """From exposure to the planner: latency (ms) with Gaussian jitter per frame (ms), and the
-    share of frames lost (%)."""
+    share of frames lost (%); each camera's trigger skew (ms, drawn once per camera; its
+    absolute value, at most a vision period less a control step: that camera exposes this long
+    before the frame's time, as unsynchronised cameras do)."""
 
     latency_ms: NonNegative = 0.0
     latency_jitter_ms: NonNegative = 0.0
     drop_percent: Annotated[float, BeforeValidator(_no_bool), Field(ge=0, le=100)] = 0.0
+    trigger_skew_ms: Knob = ZERO
 
 
 class ScenarioKnobs(_Strict):

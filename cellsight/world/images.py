@@ -42,9 +42,9 @@ class Imager:
         self._rng = np.random.default_rng(seed)
         self._falloff: dict[tuple[int, int], np.ndarray] = {}
 
-    def apply(self, images: list[np.ndarray], t: float) -> list[np.ndarray]:
-        """The images (H, W) uint8 as grabbed at time ``t`` (s)."""
-        return [self._one(img, t) for img in images]
+    def apply(self, images: list[np.ndarray | None], t: float) -> list[np.ndarray | None]:
+        """The images (H, W) uint8 as grabbed at time ``t`` (s); None stays None."""
+        return [None if img is None else self._one(img, t) for img in images]
 
     def _one(self, image: np.ndarray, t: float) -> np.ndarray:
         e = self.effects

@@ -9,6 +9,7 @@ image warped by the camera's distortion maps (:meth:`Camera.distortion_maps
 from __future__ import annotations
 
 import os
+from collections.abc import Sequence
 
 import cv2
 import mujoco
@@ -34,9 +35,15 @@ class GrayRenderer:
             ) from exc
         self._rgb = {s: np.empty((s[1], s[0], 3), np.uint8) for s in self._renderers}
 
-    def render(self, data) -> list[np.ndarray]:
-        images = []
-        for name, size, maps in zip(self._names, self._sizes, self._maps, strict=True):
+    def render(self, data, cameras: Sequence[int] | None = None) -> list[np.ndarray | None]:
+        """Every camera's image, in camera order; with ``cameras`` (indices), only theirs (None
+        for the others)."""
+        images: list[np.ndarray | None] = []
+        for c, (name, size, maps) in enumerate(zip(self._names, self._sizes, self._maps,
+                                                   strict=True)):
+            if cameras is not None and c not in cameras:
+                images.append(None)
+                continue
             renderer = self._renderers[size]
             renderer.update_scene(data, camera=name)
             rgb = renderer.render(out=self._rgb[size])

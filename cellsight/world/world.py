@@ -280,13 +280,14 @@ class World:
         """Every collision so far (:mod:`cellsight.world.contacts`), as plain data."""
         return self.contacts.report()
 
-    def render(self) -> list[np.ndarray]:
+    def render(self, cameras: Sequence[int] | None = None) -> list[np.ndarray | None]:
         """One (H, W) uint8 grayscale image per camera, in ``cell.cameras`` order, as the
-        cameras grab it (``errors.images``)."""
+        cameras grab it (``errors.images``); with ``cameras`` (indices), only theirs (None for
+        the others: a camera triggered at another time)."""
         self.scene.sync()
         if self._renderer is None:
             self._renderer = GrayRenderer(self.scene.model, self.cell.cameras, self._render_size)
-        images = self._renderer.render(self.scene.data)
+        images = self._renderer.render(self.scene.data, cameras)
         return images if self._imager is None else self._imager.apply(images, self.time)
 
     def close(self) -> None:

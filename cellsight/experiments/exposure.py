@@ -1,0 +1,49 @@
+"""When each camera exposes the frame: at the frame's time, or earlier by its trigger skew.
+
+Unsynchronised cameras are exposed at different instants. A camera with a skew ``s`` (s, less
+than a vision period) is exposed during the control steps before the frame, at the first step
+at or after ``t_frame - s`` (:meth:`Exposures.before_step`); the others at the frame's time
+(:meth:`Exposures.frame`). For the rendered sensor an exposure is that camera's image; for the
+ideal sensor it is that camera's true pixels, visibility and corners.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from cellsight.experiments.plant import SimulatedCell
+from cellsight.experiments.rows import PartTruth
+
+
+class Exposures:
+    """Exposures of one run's frames (module docstring). ``skews`` (C,) s; ``ideal``: expose
+    truths (ideal sensor) instead of images; ``part``: the workpiece whose truth is exposed."""
+
+    def __init__(self, world: SimulatedCell, skews: np.ndarray, ideal: bool, part: str) -> None:
+        self.world, self.ideal, self.part = world, ideal, part
+        self.skews = np.asarray(skews, dtype=float)
+        self._early: dict[int, object] = {}
+
+    def before_step(self, t_frame: float) -> None:
+        """Expose each skewed camera whose instant for the frame at ``t_frame`` has come."""
+        now = self.world.time
+        for c in np.flatnonzero(self.skews > 0):
+            if int(c) not in self._early and now >= t_frame - self.skews[c] - 1e-9:
+                self._early[int(c)] = self._expose([int(c)])[int(c)]
+
+    def frame(self, truth: PartTruth | None = None) -> list:
+        """Every camera's exposure for the frame now (the skewed ones taken earlier);
+        ``truth``: the part's truth now, when the caller has it (ideal sensor)."""
+        rest = [c for c in range(len(self.skews)) if c not in self._early]
+        now = self._expose(rest, truth) if rest else [None] * len(self.skews)
+        out = [self._early.get(c, now[c]) for c in range(len(self.skews))]
+        self._early = {}
+        return out
+
+    def _expose(self, cameras: list[int], truth: PartTruth | None = None) -> list:
+        if not self.ideal:
+            return self.world.render(cameras)
+        truth = truth or PartTruth.of(self.world, self.part)
+        corners = self.world.true_corners()
+        return [(truth.pixels[c], truth.visible[c], corners[c]) if c in cameras else None
+                for c in range(len(self.skews))]
