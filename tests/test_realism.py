@@ -441,3 +441,14 @@ def test_a_skewed_camera_is_exposed_before_the_frame(cell):
     np.testing.assert_array_equal(out[0][0], now[0])
     np.testing.assert_array_equal(out[1][0], seen["early"])
     assert np.abs(out[1][0] - now[1]).max() > 1.0  # 2 mm of conveyor travel
+
+
+def test_one_knob_group_alone_keeps_its_harsh_strength_and_nothing_else(cell):
+    alone = load_profile("harsh/timing")
+    harsh = load_profile("harsh")
+    assert alone.timing == harsh.timing and alone.cameras == Profile().cameras
+    d, whole = draw_world(alone, cell, 3), draw_world(harsh, cell, 3)
+    assert d.record and all(k.startswith("timing.") for k in d.record)
+    assert all(whole.record[k] == v for k, v in d.record.items())
+    with pytest.raises(ProfileError, match="lighting"):
+        load_profile("harsh/lighting")

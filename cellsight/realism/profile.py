@@ -215,12 +215,26 @@ class Profile(_Strict):
     scenario: ScenarioKnobs = ScenarioKnobs()
 
 
+GROUPS = ("cameras", "robots", "servo", "geometry", "unmodelled", "images", "timing",
+          "scenario")
+"""The knob groups; ``PROFILE/GROUP`` keeps only that group of a profile (a fault alone)."""
+
+
 def load_profile(spec: str | Path | Profile = "exact") -> Profile:
     """A built-in profile by name (:data:`BUILTIN`), a YAML file holding one profile, or
-    ``FILE:NAME`` for one of several under ``profiles:``."""
+    ``FILE:NAME`` for one of several under ``profiles:``; ``PROFILE/GROUP`` (``harsh/cameras``)
+    keeps only that knob group of a built-in profile, the rest ``exact`` (one fault alone)."""
     if isinstance(spec, Profile):
         return spec
     text = str(spec)
+    base, _, group = text.partition("/")
+    if base in BUILTIN and group:
+        if group not in GROUPS:
+            raise ProfileError(text, "<group>", group, f"one of {', '.join(GROUPS)}")
+        whole = _from_file(BUILTIN_FILE, base)
+        return Profile(name=f"{base}-{group}", file=whole.file,
+                       description=f"only the {group} of {base}", sources=whole.sources,
+                       **{group: getattr(whole, group)})
     if text in BUILTIN:
         return _from_file(BUILTIN_FILE, text)
     path, _, name = text.rpartition(":") if ":" in text and not Path(text).exists() else (

@@ -57,7 +57,7 @@ class RunSpec:
         stem = Path(self.cell).stem if self.cell.endswith((".yaml", ".yml")) else self.cell
         name = f"e{self.experiment}_{self.sensor}_{self.variant}"
         if self.realism != "exact":
-            name += "_" + Path(self.realism.replace(":", "_")).stem
+            name += "_" + Path(self.realism.replace(":", "_").replace("/", "-")).stem
         if self.structure != STRUCTURES[0]:
             name += "_" + self.structure
         return Path(stem) / f"{name}_s{self.seed}"
