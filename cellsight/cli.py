@@ -305,8 +305,8 @@ def _add_run(sub: argparse._SubParsersAction) -> None:
                           "motion (off by default: the paper tracks from images alone)")
     run.add_argument("--realism", default="exact", metavar="PROFILE",
                      help="how the simulated world departs from the cell file: exact (default: "
-                          "it is the cell file), lab, harsh, or a YAML file (FILE or FILE:NAME; "
-                          "see cellsight/data/realism.yaml)")
+                          "it is the cell file), lab, harsh, one knob group alone (harsh/cameras), "
+                          "or a YAML file (FILE or FILE:NAME; see cellsight/data/realism.yaml)")
     run.add_argument("--structure", choices=("object-bvh", "frame-bsp"), default="object-bvh",
                      help="occlusion predictor: per-object hierarchies (default) or the "
                           "paper's per-frame BSP tree")

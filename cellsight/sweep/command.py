@@ -26,8 +26,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--variants", nargs="+", default=["pred"],
                    help="tracker options: " + ", ".join(VARIANTS) + " (default pred)")
     p.add_argument("--realism", nargs="+", default=["exact"], metavar="PROFILE",
-                   help="the world's realism profiles: exact, lab, harsh, or YAML files "
-                        "(FILE or FILE:NAME; default exact)")
+                   help="the world's realism profiles: exact, lab, harsh, one knob group "
+                        "alone (harsh/cameras), or YAML files (FILE or FILE:NAME; default exact)")
     p.add_argument("--structure", nargs="+", default=["object-bvh"], metavar="STRUCTURE",
                    help="the occlusion predictor's structures: object-bvh (default) and/or the "
                         "paper's per-frame frame-bsp")

@@ -69,13 +69,13 @@ class ContactMonitor:
         self._robot_of = np.array([robots.get(r, -1) for r in self._robot])  # -1: no robot
         self._open: dict[tuple[str, str], Collision] = {}
         self.collisions: list[Collision] = []
-        self._mounts = {pair for pair, _ in self._touching(self._geom_pairs(0.0))}
+        self._mounts = {pair for pair, _ in self._geom_pairs(0.0)}
 
     def check(self, t: float) -> None:
         """Record the contacts at time ``t`` (s) into :attr:`collisions`."""
         held = {robot: self._grasps(robot) for robot in self._tool_robots}
         now: dict[tuple[str, str], float] = {}
-        for key, depth in self._touching(self._geom_pairs(self.depth_m)):
+        for key, depth in self._geom_pairs(self.depth_m):
             if key in self._mounts or self._is_grasp(*key, held):
                 continue
             names = self._names(key)
@@ -89,29 +89,19 @@ class ContactMonitor:
         for pair in [p for p in self._open if p not in now]:
             self._open.pop(pair).end = t
 
-    def _geom_pairs(self, depth: float) -> list[tuple[int, int, float]]:
-        """(geom, geom, overlap m) of every contact deeper than ``depth`` (m)."""
+    def _geom_pairs(self, depth: float) -> list[tuple[tuple[int, int], float]]:
+        """((geom, geom) in increasing order, overlap m) of every contact deeper than ``depth``
+        (m) between geoms of different robots (or of no robot)."""
         self.scene.sync()
         model, data = self.scene.model, self.scene.data
         mujoco.mj_collision(model, data)
         contacts = data.contact
         deep = np.flatnonzero(-contacts.dist > depth)
-        geoms = contacts.geom[deep]
-        keep = self._robot_of[geoms[:, 0]] != self._robot_of[geoms[:, 1]]
-        keep |= self._robot_of[geoms[:, 0]] < 0
-        return [(int(a), int(b), -float(d)) for (a, b), d in
+        geoms = np.sort(contacts.geom[deep], axis=1)
+        robot = self._robot_of[geoms]
+        keep = (robot[:, 0] != robot[:, 1]) | (robot[:, 0] < 0)
+        return [((int(a), int(b)), -float(d)) for (a, b), d in
                 zip(geoms[keep], contacts.dist[deep][keep], strict=True)]
-
-    def _touching(self, pairs) -> list[tuple[tuple[int, int], float]]:
-        """The geom pairs as ordered (geom, geom) keys of different robots (or none)."""
-        out = []
-        for g1, g2, depth in pairs:
-            r1, r2 = self._robot[g1], self._robot[g2]
-            if r1 is not None and r1 == r2:
-                continue
-            key = (min(g1, g2), max(g1, g2))
-            out.append((key, depth))
-        return out
 
     def _is_grasp(self, g1: int, g2: int, held: dict[str, str | None]) -> bool:
         if (self._jaw[g1] and self._part[g2]) or (self._jaw[g2] and self._part[g1]):
