@@ -54,6 +54,18 @@ class RunData:
     def n(self) -> int:
         return len(self.t)
 
+    def world_cell(self) -> Cell:
+        """The cell the run's world was: its realism profile's draws for its seed
+        (``realism_spec`` and ``seed`` of ``metrics.json``), or the cell file's when the world
+        was ``exact`` (or the profile is not known). Images re-rendered of the run come from it;
+        a profile file edited since the run draws another world."""
+        spec = self.metrics.get("realism_spec")
+        if not isinstance(spec, str) or spec == "exact":
+            return self.cell
+        from cellsight.realism import draw_world
+
+        return draw_world(spec, self.cell, int(self.metrics.get("seed") or 0)).cell
+
     def bits(self, name: str) -> np.ndarray:
         """(N, C, F) bool of the per-camera 0/1 column ``name`` (``vis_pred``, ``vis_true``,
         ``sel``, ``meas``, ``rej``, ``wrong``); rows without a value are all False."""

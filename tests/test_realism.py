@@ -452,3 +452,18 @@ def test_one_knob_group_alone_keeps_its_harsh_strength_and_nothing_else(cell):
     assert all(whole.record[k] == v for k, v in d.record.items())
     with pytest.raises(ProfileError, match="lighting"):
         load_profile("harsh/lighting")
+
+
+def test_a_run_folder_replays_the_world_its_profile_drew(tmp_path):
+    from cellsight.experiments import RunConfig, run_experiment
+    from cellsight.runfolder import load_run
+
+    for realism in ("lab", "exact"):
+        run_experiment(RunConfig(1, tmp_path / realism, sensor="ideal", seed=4, realism=realism,
+                                 duration=0.2, progress=False))
+    lab, exact = load_run(tmp_path / "lab"), load_run(tmp_path / "exact")
+    drawn = draw_world("lab", lab.cell, 4).cell
+    for a, b in zip(lab.world_cell().cameras, drawn.cameras, strict=True):
+        np.testing.assert_array_equal(a.T_base_cam, b.T_base_cam)
+        assert not np.array_equal(a.T_base_cam, lab.cell.camera(a.name).T_base_cam)
+    assert exact.world_cell() is exact.cell

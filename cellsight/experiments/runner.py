@@ -413,6 +413,7 @@ class ExperimentRun:
             "structure": cfg.structure,
             "realism": self.draws.profile.name,
             "realism_file": self.draws.profile.file,
+            "realism_spec": None if isinstance(cfg.realism, Profile) else str(cfg.realism),
             "draws": self.draws.record,
             "collisions": collisions,
             "collision_count": len(collisions),

@@ -107,7 +107,8 @@ def check_output(path: str | Path, overwrite: bool, run_folder: Path) -> Path:
 
 class _Images:
     """The cameras' images re-rendered at logged states by a :class:`~cellsight.world.ReplayWorld`
-    of the run's cell without tasks (made on first use)."""
+    of the run's world (its cell as the realism profile drew it) without tasks (made on first
+    use)."""
 
     def __init__(self, run: RunData) -> None:
         self.run = run
@@ -121,7 +122,7 @@ class _Images:
 
         run = self.run
         if self._world is None:
-            self._world = ReplayWorld(run.cell)
+            self._world = ReplayWorld(run.world_cell())
         openings = ({self._gripper: float(run.opening[k])}
                     if self._gripper and np.isfinite(run.opening[k]) else {})
         self._world.show_state({r: q[k] for r, q in run.joints.items()},

@@ -75,7 +75,7 @@ class ViewApp:
         if replay is not None:
             self.timeline = Timeline(self.server.gui, replay.t, self.show_frame, start)
         self._gui()
-        self.images = CameraImages(cell)
+        self.images = CameraImages(replay.run.world_cell() if replay else cell)
         self.worker = ImageWorker(self.images.draw, self._publish, image_interval,
                                   close=self.images.close, on_error=self._image_error)
         self._show(self.state)
