@@ -103,14 +103,17 @@ def markdown(specs: Sequence[RunSpec], results: Sequence[dict]) -> str:
 
 
 def plot(path: Path, specs: Sequence[RunSpec], results: Sequence[dict]) -> None:
-    """``summary.png``: per (cell, experiment, sensor, variant) group, position RMSE and the
-    largest position error (mm, whole task), one dot per seed and a bar at their mean."""
+    """``summary.png``: per (cell, experiment, sensor, variant, realism, structure) group,
+    position RMSE and the largest position error (mm, whole task), one dot per seed and a bar
+    at their mean."""
     groups: dict[tuple, list[dict]] = {}
     for spec, m in zip(specs, results, strict=True):
         if not m.get("error"):
-            key = (spec.folder.parent.name, spec.experiment, spec.sensor, spec.variant)
+            key = (spec.folder.parent.name, spec.experiment, spec.sensor, spec.variant,
+                   spec.realism, spec.structure)
             groups.setdefault(key, []).append(m)
-    names = [f"{c} e{e}\n{s} {v}" for c, e, s, v in groups]
+    names = [f"{c} e{e}\n{s} {v}" + (f"\n{r} {b}" if r != "exact" or b != "object-bvh" else "")
+             for c, e, s, v, r, b in groups]
     fig, axes = plt.subplots(2, 1, figsize=(max(6.0, 0.9 * len(groups) + 2), 6.5), sharex=True)
     for ax, key, label in ((axes[0], "position_rmse_mm", "position RMSE (mm)"),
                            (axes[1], "max_position_error_mm", "largest position error (mm)")):
