@@ -467,3 +467,19 @@ def test_a_run_folder_replays_the_world_its_profile_drew(tmp_path):
         np.testing.assert_array_equal(a.T_base_cam, b.T_base_cam)
         assert not np.array_equal(a.T_base_cam, lab.cell.camera(a.name).T_base_cam)
     assert exact.world_cell() is exact.cell
+
+
+def test_a_joint_at_its_limit_read_through_an_offset_encoder_is_accepted(cell):
+    """An encoder offset on a joint standing at its limit reads beyond it: the model takes the
+    reading (as read, not clipped); far beyond, it is still bad input."""
+    from cellsight.errors import KinematicsError
+    from cellsight.model.cell import JOINT_LIMIT_TOL
+
+    robot = cell.robot("R7AX")
+    q = robot.home.copy()
+    q[5] = robot.chain.qlim[5, 1] + math.radians(0.1)
+    snap = cell.snapshot({"R7AX": q})
+    np.testing.assert_array_equal(snap.joints["R7AX"], q)
+    q[5] = robot.chain.qlim[5, 1] + 2 * JOINT_LIMIT_TOL
+    with pytest.raises(KinematicsError, match="joint 6"):
+        cell.snapshot({"R7AX": q})

@@ -135,6 +135,8 @@ class Snapshot:
 
 
 OPENING_TOL = 1e-4  # m; a jaw opening this far outside [0, max] is numerical noise, clipped
+JOINT_LIMIT_TOL = 0.01  # rad or m; a joint reading this far beyond its limit is a real encoder's
+# offset and noise on a joint at its limit (used as read), not an error
 
 
 def _opening(robot: Robot, value: object) -> float:
@@ -255,7 +257,8 @@ class Cell:
         """Pose of every object in the base frame (paper, III-A).
 
         ``joints``: robot name -> joint vector (a robot left out stays at HOME); checked for
-        length, finiteness and limits. ``part_poses``: workpiece name -> ``T_base_part`` (left
+        length, finiteness and limits (within ``JOINT_LIMIT_TOL``: a measured joint at its limit
+        reads a little beyond it). ``part_poses``: workpiece name -> ``T_base_part`` (left
         out: its nominal pose). ``openings``: robot name -> jaw opening in metres (default: open), a
         finite number in ``[0, max_opening]`` (within ``OPENING_TOL``); checked.
         """
@@ -287,7 +290,8 @@ class Cell:
         keyed by ``(kind, index)`` of :class:`ObjectFrame` (links, palm, jaws)."""
         used_q, used_open, frames = {}, {}, {}
         for robot in self.robots:
-            q = robot.chain.check_q(joints.get(robot.name, robot.home), check_limits=True)
+            q = robot.chain.check_q(joints.get(robot.name, robot.home), check_limits=True,
+                                    tol=JOINT_LIMIT_TOL)
             used_q[robot.name] = q
             links = robot.link_poses(q)
             poses = {("link", i): T for i, T in enumerate(links)}
