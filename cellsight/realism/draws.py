@@ -93,7 +93,7 @@ def draw_world(profile: Profile | str, cell: Cell, seed: int) -> WorldDraws:
     robots = {r.name: _robot_error(k, profile, r) for r in cell.robots}
     parts = {p.name: _part_error(k, profile, p) for p in cell.workpieces}
     world_cell = cell_as_built(cell, cameras, robots, parts)
-    errors = _imperfections(k, profile, cell, world_cell, seed)
+    errors = _imperfections(k, profile, cell, world_cell)
     shift = _scenario(k, profile, cell, parts)
     latest = 1.0 / VISION_HZ - 1.0 / CONTROL_HZ
     skew = np.array([min(abs(float(k.draw("timing.trigger_skew_ms", profile.timing.trigger_skew_ms,
@@ -147,8 +147,7 @@ def _encoder_offsets(k: _Knobs, p: Profile, cell: Cell) -> dict[str, np.ndarray]
     return out
 
 
-def _imperfections(k: _Knobs, p: Profile, cell: Cell, world_cell: Cell, seed: int
-                   ) -> Imperfections:
+def _imperfections(k: _Knobs, p: Profile, cell: Cell, world_cell: Cell) -> Imperfections:
     g, r, s, im = p.geometry, p.robots, p.servo, p.images
     seat = small_pose(k.draw("geometry.grasp_seat_mm", g.grasp_seat_mm, 3, 1e-3),
                       k.draw("geometry.grasp_seat_deg", g.grasp_seat_deg, 3, math.pi / 180))
