@@ -28,6 +28,7 @@ from cellsight.placement import command as placement_command
 from cellsight.realism import command as realism_command
 from cellsight.sweep import command as sweep_command
 from cellsight.view import command as view_command
+from cellsight.visibility import OBJECT_BVH, STRUCTURES
 
 
 def _debug() -> bool:
@@ -307,7 +308,7 @@ def _add_run(sub: argparse._SubParsersAction) -> None:
                      help="how the simulated world departs from the cell file: exact (default: "
                           "it is the cell file), lab, harsh, one knob group alone (harsh/cameras), "
                           "or a YAML file (FILE or FILE:NAME; see cellsight/data/realism.yaml)")
-    run.add_argument("--structure", choices=("object-bvh", "frame-bsp"), default="object-bvh",
+    run.add_argument("--structure", choices=STRUCTURES, default=OBJECT_BVH,
                      help="occlusion predictor: per-object hierarchies (default) or the "
                           "paper's per-frame BSP tree")
     run.add_argument("--duration", type=float,

@@ -19,6 +19,12 @@ from typing import Protocol
 import numpy as np
 
 BEHIND, OUTSIDE, SELF = "behind", "outside", "self"
+#: The predictor's structures (:class:`cellsight.occlusion.predictor.VisibilityPredictor`):
+#: static per-object hierarchies built once in each object's frame (the default), or the paper's
+#: one BSP tree of the culled surfaces per frame. Here, so that the command line can name them
+#: without importing the predictor.
+OBJECT_BVH, FRAME_BSP = "object-bvh", "frame-bsp"
+STRUCTURES = (OBJECT_BVH, FRAME_BSP)
 STATUS_INSIDE, STATUS_BEHIND, STATUS_OUTSIDE = 0, 1, 2  # codes of CameraVisibility.status
 
 

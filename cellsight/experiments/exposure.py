@@ -22,14 +22,15 @@ class Exposures:
     def __init__(self, world: SimulatedCell, skews: np.ndarray, ideal: bool, part: str) -> None:
         self.world, self.ideal, self.part = world, ideal, part
         self.skews = np.asarray(skews, dtype=float)
+        self._skewed = [int(c) for c in np.flatnonzero(self.skews > 0)]
         self._early: dict[int, object] = {}
 
     def before_step(self, t_frame: float) -> None:
         """Expose each skewed camera whose instant for the frame at ``t_frame`` has come."""
         now = self.world.time
-        for c in np.flatnonzero(self.skews > 0):
-            if int(c) not in self._early and now >= t_frame - self.skews[c] - 1e-9:
-                self._early[int(c)] = self._expose([int(c)])[int(c)]
+        for c in self._skewed:
+            if c not in self._early and now >= t_frame - self.skews[c] - 1e-9:
+                self._early[c] = self._expose([c])[c]
 
     def frame(self, truth: PartTruth | None = None) -> list:
         """Every camera's exposure for the frame now (the skewed ones taken earlier);

@@ -59,17 +59,20 @@ from cellsight.occlusion._cull_kernel import (
 from cellsight.occlusion.bsp import BSPTree
 from cellsight.occlusion.forest import ObjectForest
 from cellsight.occlusion.soup import PolygonSoup
-from cellsight.visibility import STATUS_INSIDE, CameraVisibility, Views
+from cellsight.visibility import (  # noqa: F401 - the structures, also named from here
+    FRAME_BSP,
+    OBJECT_BVH,
+    STATUS_INSIDE,
+    STRUCTURES,
+    CameraVisibility,
+    Views,
+)
 
 CULL_MARGIN_PX = 2.0  # safety margin of the image-box overlap test, pixels
 NEAR_SAMPLES = 8  # points on the ring around a feature for the near-occluder test
 NEAR_DEPTH = 0.01  # m: a silhouette counts when at least this much nearer than the feature
 CONTAIN_MARGIN = 1e-3  # m: growth of a solid's box in the camera-inside test (any >= 0 is exact)
 CLUSTER_SIZE = 16  # polygons: most per cluster (a box culled as a whole before its polygons)
-#: Structures: static per-object hierarchies built once in each object's frame
-#: (:mod:`.forest`, the default), or the paper's one BSP tree of the culled surfaces per frame.
-OBJECT_BVH, FRAME_BSP = "object-bvh", "frame-bsp"
-STRUCTURES = (OBJECT_BVH, FRAME_BSP)
 
 
 class VisibilityPredictor:

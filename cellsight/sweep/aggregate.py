@@ -114,8 +114,10 @@ def paired_rows(specs: Sequence[RunSpec], results: Sequence[dict]) -> list[list[
     groups = _groups(specs, results)
     rows = []
     for key, g in groups.items():
+        if key[5] != "pred":
+            continue
         others = [(k, o) for k, o in groups.items() if k[:5] == key[:5] and k[5] != key[5]]
-        for other_key, other in others if key[5] == "pred" else []:
+        for other_key, other in others:
             a = {s: m.get("position_rmse_mm") for s, m in zip(g["seeds"], g["runs"],
                                                               strict=True)}
             b = {s: m.get("position_rmse_mm") for s, m in zip(other["seeds"], other["runs"],

@@ -10,6 +10,7 @@ import sys
 from pathlib import Path
 
 from cellsight.sweep.grid import SENSORS, VARIANTS, RunSpec, sweep_grid
+from cellsight.visibility import OBJECT_BVH, STRUCTURES
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -28,9 +29,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--realism", nargs="+", default=["exact"], metavar="PROFILE",
                    help="the world's realism profiles: exact, lab, harsh, one knob group "
                         "alone (harsh/cameras), or YAML files (FILE or FILE:NAME; default exact)")
-    p.add_argument("--structure", nargs="+", default=["object-bvh"], metavar="STRUCTURE",
-                   help="the occlusion predictor's structures: object-bvh (default) and/or the "
-                        "paper's per-frame frame-bsp")
+    p.add_argument("--structure", nargs="+", default=[OBJECT_BVH], metavar="STRUCTURE",
+                   help=f"the occlusion predictor's structures: {' and/or '.join(STRUCTURES)} "
+                        "(the paper's per-frame BSP; default object-bvh)")
     p.add_argument("--seeds", type=int, nargs="+", default=[0])
     p.add_argument("--variant-seeds", type=int,
                    help="run the variants after the first on the first N seeds only")

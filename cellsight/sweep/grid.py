@@ -20,6 +20,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from cellsight.errors import CellsightError
+from cellsight.visibility import OBJECT_BVH, STRUCTURES
 
 if TYPE_CHECKING:
     from cellsight.experiments import RunConfig
@@ -34,7 +35,6 @@ VARIANTS: dict[str, dict[str, bool]] = {
 prior while it holds the part."""
 
 SENSORS = ("rendered", "ideal")
-STRUCTURES = ("object-bvh", "frame-bsp")  # cellsight.occlusion.predictor's, not imported here
 
 
 @dataclass(frozen=True)
@@ -49,7 +49,7 @@ class RunSpec:
     seed: int
     duration: float | None = None
     realism: str = "exact"
-    structure: str = STRUCTURES[0]
+    structure: str = OBJECT_BVH
 
     @property
     def folder(self) -> Path:
@@ -58,7 +58,7 @@ class RunSpec:
         name = f"e{self.experiment}_{self.sensor}_{self.variant}"
         if self.realism != "exact":
             name += "_" + Path(self.realism.replace(":", "_").replace("/", "-")).stem
-        if self.structure != STRUCTURES[0]:
+        if self.structure != OBJECT_BVH:
             name += "_" + self.structure
         return Path(stem) / f"{name}_s{self.seed}"
 
@@ -75,7 +75,7 @@ class RunSpec:
 def sweep_grid(cells: Sequence[str], experiments: Sequence[int], sensors: Sequence[str],
                variants: Sequence[str], seeds: Sequence[int], variant_seeds: int | None = None,
                duration: float | None = None, realisms: Sequence[str] = ("exact",),
-               structures: Sequence[str] = STRUCTURES[:1]) -> list[RunSpec]:
+               structures: Sequence[str] = (OBJECT_BVH,)) -> list[RunSpec]:
     """Every combination, in that order; variants other than the first run on the first
     ``variant_seeds`` seeds only (None: on all), as comparisons. Every realism profile is
     loaded (and so checked) before anything runs."""

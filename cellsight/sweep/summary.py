@@ -18,6 +18,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 from cellsight.control import Phase  # noqa: E402
 from cellsight.sweep.aggregate import aggregate_markdown  # noqa: E402
 from cellsight.sweep.grid import RunSpec  # noqa: E402
+from cellsight.visibility import OBJECT_BVH  # noqa: E402
 
 COLUMNS = (
     ("grasp_success", "grasp", "{}"),
@@ -77,7 +78,7 @@ def markdown(specs: Sequence[RunSpec], results: Sequence[dict]) -> str:
     lead = ["cell", "exp.", "sensor", "occlusion prediction", "seed"]
     phases = _phases()
 
-    worlds = any(s.realism != "exact" or s.structure != "object-bvh" for s in specs)
+    worlds = any(s.realism != "exact" or s.structure != OBJECT_BVH for s in specs)
     if worlds:
         lead[2] = "sensor (realism, structure)"
 
@@ -112,7 +113,7 @@ def plot(path: Path, specs: Sequence[RunSpec], results: Sequence[dict]) -> None:
             key = (spec.folder.parent.name, spec.experiment, spec.sensor, spec.variant,
                    spec.realism, spec.structure)
             groups.setdefault(key, []).append(m)
-    names = [f"{c} e{e}\n{s} {v}" + (f"\n{r} {b}" if r != "exact" or b != "object-bvh" else "")
+    names = [f"{c} e{e}\n{s} {v}" + (f"\n{r} {b}" if r != "exact" or b != OBJECT_BVH else "")
              for c, e, s, v, r, b in groups]
     fig, axes = plt.subplots(2, 1, figsize=(max(6.0, 0.9 * len(groups) + 2), 6.5), sharex=True)
     for ax, key, label in ((axes[0], "position_rmse_mm", "position RMSE (mm)"),

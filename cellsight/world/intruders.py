@@ -53,11 +53,12 @@ class Intruders:
         self.scene, self.intruders = scene, tuple(intruders)
         model = scene.model
         self.bodies = [model.body(i.name).id for i in self.intruders]
-        self._mocap = [int(model.body_mocapid[b]) for b in self.bodies]
-        self.step(0.0)
+        self._moving = [(i, int(model.body_mocapid[b]))
+                        for i, b in zip(self.intruders, self.bodies, strict=True)
+                        if i.T_out is not None]
 
     def step(self, t: float) -> None:
-        """Put every moving intruder where it is at time ``t`` (s)."""
-        for intruder, mocap in zip(self.intruders, self._mocap, strict=True):
-            if intruder.T_out is not None or t == 0.0:
-                self.scene.set_mocap(mocap, intruder.pose(t))
+        """Put every moving intruder where it is at time ``t`` (s); the others stay where the
+        model put them (:func:`cellsight.world.mjcf.cell_mjcf`, at their pose at t = 0)."""
+        for intruder, mocap in self._moving:
+            self.scene.set_mocap(mocap, intruder.pose(t))

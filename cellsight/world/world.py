@@ -63,7 +63,7 @@ class RobotJoints:
     def __init__(self, scene: Scene, cell: Cell, initial_joints: Mapping[str, np.ndarray],
                  tasks: Mapping[str, Sequence[Waypoint]], errors: Imperfections,
                  dt: float) -> None:
-        self.scene, self.cell, self.errors = scene, cell, errors
+        self.scene, self.cell = scene, cell
         m = scene.model
         self._qadr = {
             r.name: np.array([m.jnt_qposadr[m.joint(joint_name(r.name, i)).id]
