@@ -41,6 +41,10 @@ class Exposures:
         self._early = {}
         return out
 
+    def drop(self) -> None:
+        """The frame is lost: nothing more is exposed for it (the early exposures go too)."""
+        self._early = {}
+
     def _expose(self, cameras: list[int], truth: PartTruth | None = None) -> list:
         if not self.ideal:
             return self.world.render(cameras)

@@ -373,16 +373,17 @@ class ExperimentRun:
         """The frame's images (rendered sensor; None per camera when the frame is dropped), or
         the ideal sensor's truths set (nothing when dropped), each camera's as it was exposed
         (:mod:`.exposure`)."""
-        n = len(self.cell.cameras)
         self.frames_dropped += dropped
+        if dropped:
+            self.exposures.drop()
+            if self.ideal is not None:
+                self.ideal.set_truth(None, None)
+            return None if self.ideal is not None else [None] * len(self.cell.cameras)
         exposed = self.exposures.frame(truth)
         if self.ideal is None:
-            return [None] * n if dropped else exposed
-        if dropped:
-            self.ideal.set_truth(None, None)
-        else:
-            pixels, visible, corners = zip(*exposed, strict=True)
-            self.ideal.set_truth(np.stack(pixels), np.stack(visible), list(corners))
+            return exposed
+        pixels, visible, corners = zip(*exposed, strict=True)
+        self.ideal.set_truth(np.stack(pixels), np.stack(visible), list(corners))
         return None
 
     def _plan(self, t: float, estimate: Estimate, joints: np.ndarray) -> None:
