@@ -156,6 +156,8 @@ def _opening(robot: Robot, value: object) -> float:
 class Cell:
     """A robot cell: robots with tools, workpieces, static objects and calibrated cameras,
     and the cell file's optional set-up of the paper's experiments (``experiments``).
+    ``source`` is the cell file; ``files`` the other files it was built from (meshes, URDFs
+    and their meshes, calibration files), in the order the loader read them.
 
     ``objects`` lists every solid once, in a fixed order: each robot's links (DH frame order),
     gripper palm and two jaws; the workpieces; the static objects' solids. ``frames[i]`` says
@@ -172,8 +174,10 @@ class Cell:
         cameras: list[Camera],
         source: str = "<memory>",
         experiments: ExperimentSetup | None = None,
+        files: tuple[str, ...] = (),
     ) -> None:
         self.name = name
+        self.files = tuple(files)
         self.experiments = experiments or ExperimentSetup(source=source)
         self.robots = list(robots)
         self.workpieces = list(workpieces)

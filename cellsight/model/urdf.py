@@ -280,6 +280,20 @@ def _flange(walk: _Walk, flange: str | None, path: Path) -> tuple[str, np.ndarra
     return name, where[1]
 
 
+def urdf_files(path: Path, geometry: str = "collision",
+               packages: Mapping[str, Path] | None = None) -> list[Path]:
+    """The URDF file in ``path`` and the mesh files of its ``geometry`` (``collision`` or
+    ``visual``) elements, in link order: what a robot built from it was read from."""
+    robot = _parse(path)
+    files = [path]
+    for link in robot.links:
+        for element in (link.collisions if geometry == "collision" else link.visuals):
+            mesh = element.geometry.mesh if element.geometry is not None else None
+            if mesh is not None:
+                files.append(resolve_uri(mesh.filename, dict(packages or {}), path.parent))
+    return files
+
+
 def load_urdf_robot(path: Path, robot_name: str, geometry: str = "collision",
                     flange: str | None = None,
                     packages: Mapping[str, Path] | None = None) -> UrdfRobot:
