@@ -39,9 +39,9 @@ PEER_TOLERANCE = 1e-4  # m: about where the peers' rays end short of a feature 1
 def _triangles(predictor: VisibilityPredictor) -> np.ndarray:
     """Triangles over the predictor's flat vertex array (each face's vertices in order)."""
     tris = []
-    for k, (obj_index, face_index) in enumerate(predictor.poly_source):
+    for k, (obj_index, face_index) in enumerate(predictor.surfaces.poly_source):
         solid = predictor.cell.objects[obj_index].solid
-        tris.append(predictor.offsets[k] + solid.face_triangles(face_index))
+        tris.append(predictor.surfaces.offsets[k] + solid.face_triangles(face_index))
     return np.concatenate(tris)
 
 

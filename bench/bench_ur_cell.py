@@ -56,9 +56,9 @@ def ur_cell(path: Path | None = None):
 def _triangles(predictor: VisibilityPredictor) -> np.ndarray:
     """Triangles over the predictor's flat vertex array (each face's vertices in order)."""
     tris = []
-    for k, (obj_index, face_index) in enumerate(predictor.poly_source):
+    for k, (obj_index, face_index) in enumerate(predictor.surfaces.poly_source):
         solid = predictor.cell.objects[obj_index].solid
-        tris.append(predictor.offsets[k] + solid.face_triangles(face_index))
+        tris.append(predictor.surfaces.offsets[k] + solid.face_triangles(face_index))
     return np.concatenate(tris).astype(np.uint32)
 
 
@@ -89,8 +89,8 @@ def open3d_fn(predictor: VisibilityPredictor):
 
     def fn(s):
         scene = o3d.t.geometry.RaycastingScene()
-        scene.add_triangles(o3d.core.Tensor(predictor.world_vertices(s).astype(np.float32)),
-                            tris)
+        vertices = predictor.surfaces.world_vertices(s).astype(np.float32)
+        scene.add_triangles(o3d.core.Tensor(vertices), tris)
         pts = _features(predictor, s)
         rays = np.concatenate([np.hstack([np.repeat(c[None], len(pts), 0), pts - c])
                                for c in centres]).astype(np.float32)

@@ -36,16 +36,16 @@ def ur_scene_polygons() -> tuple[list[np.ndarray], np.ndarray, np.ndarray]:
     from cellsight.occlusion.predictor import VisibilityPredictor
 
     cell = cellsight.load_cell("ur-cell")
-    predictor = VisibilityPredictor(cell)
-    vertices = predictor.world_vertices(cell.snapshot())
+    surfaces = VisibilityPredictor(cell).surfaces
+    vertices = surfaces.world_vertices(cell.snapshot())
     triangles = np.concatenate([
-        predictor.offsets[k] + cell.objects[obj].solid.face_triangles(face)
-        for k, (obj, face) in enumerate(predictor.poly_source)
+        surfaces.offsets[k] + cell.objects[obj].solid.face_triangles(face)
+        for k, (obj, face) in enumerate(surfaces.poly_source)
     ])
     polygons = [vertices[t] for t in triangles]
     robots = [k for k, o in enumerate(cell.objects) if o.name.startswith("UR5")]
-    used = np.concatenate([np.arange(predictor.offsets[k], predictor.offsets[k + 1])
-                           for k, (obj, _) in enumerate(predictor.poly_source) if obj in robots])
+    used = np.concatenate([np.arange(surfaces.offsets[k], surfaces.offsets[k + 1])
+                           for k, (obj, _) in enumerate(surfaces.poly_source) if obj in robots])
     lo, hi = vertices[used].min(axis=0), vertices[used].max(axis=0)
     points = np.random.default_rng(3).uniform(lo, hi, (16, 3))
     return polygons, points, np.asarray(cell.cameras[0].center, dtype=np.float64)

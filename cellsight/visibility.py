@@ -1,13 +1,20 @@
 """What every visibility source answers: which feature points of a workpiece a camera sees,
 and why the others are hidden.
 
-Three sources give this answer, behind one interface (:class:`VisibilitySource`):
+These sources give this answer, one class each, behind one interface
+(:class:`VisibilitySource`):
 
-- :class:`cellsight.occlusion.predictor.VisibilityPredictor`: the paper's BSP prediction;
+- the occlusion predictor's back-ends, one per structure (:data:`STRUCTURES`), on a shared
+  base that projects the features, tests the near-occluder ring and labels the answers
+  (:class:`cellsight.occlusion.predictor.VisibilityPredictor`; ``VisibilityPredictor(cell,
+  structure=name)`` builds the one of that name): per-object hierarchies
+  (:class:`cellsight.occlusion.object_bvh.ObjectBVH`) and the paper's per-frame BSP tree
+  (:class:`cellsight.occlusion.frame_bsp.FrameBSP`);
 - :class:`cellsight.occlusion.projection.ProjectionOnly`: in front of the camera and inside the
   image, occlusions ignored (the ``--no-occlusion-prediction`` baseline);
 - the simulator's truth (:meth:`cellsight.world.World.true_views`, MuJoCo ray casts at the true
-  state; it answers for the world's own state rather than for given joints and poses).
+  state; it answers for the world's own state rather than for given joints and poses, so it is
+  not a :class:`VisibilitySource`, but its answers have the same type).
 """
 
 from __future__ import annotations
@@ -19,10 +26,11 @@ from typing import Protocol
 import numpy as np
 
 BEHIND, OUTSIDE, SELF = "behind", "outside", "self"
-#: The predictor's structures (:class:`cellsight.occlusion.predictor.VisibilityPredictor`):
-#: static per-object hierarchies built once in each object's frame (the default), or the paper's
-#: one BSP tree of the culled surfaces per frame. Here, so that the command line can name them
-#: without importing the predictor.
+#: The predictor's structures, one back-end class each
+#: (:class:`cellsight.occlusion.predictor.VisibilityPredictor`): static per-object hierarchies
+#: built once in each object's frame (the default), or the paper's one BSP tree of the culled
+#: surfaces per frame. Here, so that the command line can name them without importing the
+#: predictor.
 OBJECT_BVH, FRAME_BSP = "object-bvh", "frame-bsp"
 STRUCTURES = (OBJECT_BVH, FRAME_BSP)
 STATUS_INSIDE, STATUS_BEHIND, STATUS_OUTSIDE = 0, 1, 2  # codes of CameraVisibility.status
@@ -38,7 +46,7 @@ class CameraVisibility:
     ``STATUS_BEHIND`` (1) behind the camera, ``STATUS_OUTSIDE`` (2) outside the image;
     ``part_object``: the workpiece's own index into ``object_labels``. :attr:`reason` names why
     each feature is hidden. ``near_occluder`` (F,) bool: visible, but another object's
-    silhouette passes within a few pixels of its projection (the BSP predictor's ring test;
+    silhouette passes within a few pixels of its projection (the occlusion predictor's ring test;
     all False for the other sources).
     """
 

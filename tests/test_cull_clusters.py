@@ -17,13 +17,8 @@ import pytest
 from cellsight import load_cell
 from cellsight.errors import GeometryError
 from cellsight.occlusion.bsp import BSPTree
-from cellsight.occlusion.predictor import (
-    CLUSTER_SIZE,
-    FRAME_BSP,
-    VisibilityPredictor,
-    camera_bit,
-    polygon_clusters,
-)
+from cellsight.occlusion.frame_bsp import CLUSTER_SIZE, camera_bit, polygon_clusters
+from cellsight.occlusion.predictor import FRAME_BSP, VisibilityPredictor
 from cellsight.occlusion.scenarios import random_snapshots
 from cellsight.occlusion.soup import PolygonSoup
 
@@ -40,8 +35,9 @@ def cell(request):
 def _triangles(predictor: VisibilityPredictor) -> tuple[np.ndarray, np.ndarray]:
     """Triangles (T, 3) over the predictor's flat vertex array and their polygon (T,)."""
     tris, owner = [], []
-    for k, (obj, face) in enumerate(predictor.poly_source):
-        t = predictor.offsets[k] + predictor.cell.objects[obj].solid.face_triangles(face)
+    surfaces = predictor.surfaces
+    for k, (obj, face) in enumerate(surfaces.poly_source):
+        t = surfaces.offsets[k] + predictor.cell.objects[obj].solid.face_triangles(face)
         tris.append(t)
         owner.append(np.full(len(t), k))
     return np.concatenate(tris), np.concatenate(owner)
@@ -70,11 +66,12 @@ def _crossed(a, b, c, view, points) -> np.ndarray:
 def test_every_polygon_that_can_hide_a_feature_is_kept(cell, near_px) -> None:
     predictor = VisibilityPredictor(cell, near_px=near_px, structure=FRAME_BSP)
     tris, tri_poly = _triangles(predictor)
-    closed = predictor.object_closed[predictor.poly_owner[tri_poly]]
+    closed = predictor.surfaces.object_closed[predictor.surfaces.poly_owner[tri_poly]]
     checked = needed = 0
     for snapshot in random_snapshots(cell, 30, seed=5):
-        points, views, _, keep = predictor._cull(snapshot)
-        verts = predictor.world_vertices(snapshot)
+        points, views = predictor._project(snapshot)
+        _, keep = predictor._cull(snapshot, points, views)
+        verts = predictor.surfaces.world_vertices(snapshot)
         a, b, c = verts[tris[:, 0]], verts[tris[:, 1]], verts[tris[:, 2]]
         normal = np.cross(b - a, c - a)
         for k, (cam, (_, status)) in enumerate(zip(predictor.cameras, views, strict=True)):
@@ -105,17 +102,17 @@ def test_culled_answers_equal_unculled_ones(cell) -> None:
 
 
 def test_clusters_partition_each_object_within_their_boxes(cell) -> None:
-    predictor = VisibilityPredictor(cell)
+    surfaces = VisibilityPredictor(cell).surfaces
     polys, start, box, object_clusters, object_box = polygon_clusters(
-        predictor.local_vertices, predictor.offsets, predictor.object_polys, CLUSTER_SIZE)
-    assert np.array_equal(np.sort(polys), np.arange(len(predictor.poly_owner)))
+        surfaces.local_vertices, surfaces.offsets, surfaces.object_polys, CLUSTER_SIZE)
+    assert np.array_equal(np.sort(polys), np.arange(len(surfaces)))
     assert np.diff(start).max() <= CLUSTER_SIZE and np.diff(start).min() >= 1
     for k in range(len(cell.objects)):
         for c in range(object_clusters[k], object_clusters[k + 1]):
             members = polys[start[c]:start[c + 1]]
-            assert np.all(predictor.poly_owner[members] == k)
+            assert np.all(surfaces.poly_owner[members] == k)
             for p in members:
-                v = predictor.local_vertices[predictor.offsets[p]:predictor.offsets[p + 1]]
+                v = surfaces.local_vertices[surfaces.offsets[p]:surfaces.offsets[p + 1]]
                 assert np.all(v >= box[c, :3]) and np.all(v <= box[c, 3:])
                 assert np.all(v >= object_box[k, :3]) and np.all(v <= object_box[k, 3:])
 

@@ -68,8 +68,8 @@ def test_forest_matches_the_oracle_on_random_objects_in_random_poses(seed) -> No
 def test_every_node_box_holds_its_polygons_and_leaves_partition_each_object() -> None:
     cell = load_cell(ROOT / "bench" / "ur2_cell.yaml")
     predictor = VisibilityPredictor(cell)
-    forest = predictor._forest
-    verts, offsets = predictor.local_vertices, predictor.offsets
+    forest, surfaces = predictor.forest, predictor.surfaces
+    verts, offsets = surfaces.local_vertices, surfaces.offsets
     for k, root in enumerate(forest.object_root):
         seen, todo = [], [root]
         while todo:
@@ -87,7 +87,7 @@ def test_every_node_box_holds_its_polygons_and_leaves_partition_each_object() ->
                 assert np.all(forest.node_box[child, :3] >= box[:3])
                 assert np.all(forest.node_box[child, 3:] <= box[3:])
                 todo.append(child)
-        a, b = predictor.object_polys[k], predictor.object_polys[k + 1]
+        a, b = surfaces.object_polys[k], surfaces.object_polys[k + 1]
         assert sorted(seen) == list(range(a, b))
 
 

@@ -1,9 +1,11 @@
 """Occlusion prediction core: a BSP tree of the cell's polygons visited back to front.
 
 ``PolygonSoup`` holds the polygons in flat arrays, ``BSPTree`` builds the tree and answers
-``visibility(points, viewpoint)``; ``visible_mask`` does all three in one call.
+``visibility(points, viewpoint)``; ``visible_mask`` does all three in one call. The cell-level
+back-ends (:mod:`.predictor`) register themselves when their modules are imported, here.
 """
 
+from cellsight.occlusion import frame_bsp, object_bvh  # noqa: F401 - registers the back-ends
 from cellsight.occlusion.bsp import BSPTree, visible_mask
 from cellsight.occlusion.soup import PolygonSoup
 

@@ -116,12 +116,14 @@ def _set_fragment(frag, poly, start, k, fv, fint, fsphere) -> None:
 
 
 @njit(cache=True)
-def _split(frag, plane, eps, fv, n_verts, new, fint, fsphere, dist) -> int:
+def _split(frag, plane, eps, fragments, n_verts, new, dist) -> int:
     """Split a SPANNING fragment into fragments ``new`` (front) and ``new + 1`` (back).
 
-    Capacities must already hold ``4 * k`` more vertices and 2 more fragments, ``dist`` k
-    values. Returns the new vertex count.
+    ``fragments`` = ``(fv, fint, fsphere)`` (see :func:`build_tree`). Capacities must already
+    hold ``4 * k`` more vertices and 2 more fragments, ``dist`` k values. Returns the new
+    vertex count.
     """
+    fv, fint, fsphere = fragments
     first, k, poly = fint[frag, 0], fint[frag, 1], fint[frag, 2]
     for i in range(k):
         j = first + i
@@ -250,8 +252,8 @@ def build_tree(vertices, offsets, planes, spheres, poly_eps, n_candidates, weigh
                     fint, fsphere = _grown(fint, n_frags + 2), _grown(fsphere, n_frags + 2)
                 if k > dist.shape[0]:
                     dist = _grown(dist, k)
-                n_verts = _split(frag, node_planes[node], eps, fv, n_verts, n_frags, fint,
-                                 fsphere, dist)
+                n_verts = _split(frag, node_planes[node], eps, (fv, fint, fsphere), n_verts,
+                                 n_frags, dist)
                 front_tmp[n_front] = n_frags
                 back_tmp[n_back] = n_frags + 1
                 n_front += 1

@@ -2,25 +2,28 @@
 camera's optical centre to query points, tested against every object's bounding-volume
 hierarchy in the object's own frame (see :mod:`.forest`).
 
-Lengths in metres. The crossing test of a segment ``v -> p`` and polygon ``q`` is the BSP
-visit's (:mod:`._visit_kernel`, module doc) and the direct test's (:mod:`._segment_kernel`),
-done in ``q``'s object frame: ``q`` hides ``p`` iff ``|sv| > eps`` (else seen edge-on),
-``sv`` and ``sp`` have opposite signs with ``|sp| > max(eps, tol)``, and the crossing at
-``t = sv / (sv - sp)`` lies in ``q``'s box grown by ``eps`` and inside ``q``. The nearest
-crossing (smallest ``t``) names the occluder, as in the visit; coincident surfaces crossed at
-the same ``t`` (within ``TIE``) name the one listed first.
+Lengths in metres. The crossing test of a segment ``v -> p`` and polygon ``q`` is the one of
+:mod:`._crossing` (the BSP visit's and the direct test's), done in ``q``'s object frame. The
+nearest crossing (smallest ``t``) names the occluder, as in the visit; coincident surfaces
+crossed at the same ``t`` (within ``TIE``) name the one listed first.
 """
 
 from __future__ import annotations
 
 import warnings
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit, prange
 from numba.core.errors import NumbaWarning
 
-from cellsight.occlusion._soup_kernels import drop_axis
-from cellsight.occlusion._visit_kernel import _inside
+from cellsight.occlusion._crossing import (
+    NO_CROSSING,
+    crossing,
+    on_polygon,
+    plane_distance,
+    polygon,
+)
 
 # numba tries its TBB threading layer first and warns when the installed TBB is too old, then
 # uses another layer (OpenMP or its own): nothing for a user to act on.
@@ -32,6 +35,26 @@ SLACK = 1e-9  # m: rounding allowance of the box tests (moving a point to a fram
 #: the table's top: the lower polygon index wins, as in the oracle (objects in cell order).
 TIE = 1e-12
 STACK = 128  # deepest traversal stack (a hierarchy is at most ~64 levels deep)
+
+
+class ForestArrays(NamedTuple):
+    """The per-object hierarchies as :func:`forest_occluders` reads them (one argument; built
+    by :meth:`~cellsight.occlusion.forest.ObjectForest.arrays`). Object k's hierarchy starts at
+    node ``object_root[k]`` (-1: none) and lies in the ball ``object_sphere[k]`` (object-frame
+    centre, radius, m); a node is ``node_box`` (min xyz, max xyz, its polygons' boxes grown by
+    their eps, m) and ``node_links`` = (first child, second child, first polygon, polygon
+    count): a leaf has count > 0 and lists ``node_polys[first:first + count]``.
+    ``cull_backs[k]``: object k is a closed solid whose back faces are skipped when the camera
+    is outside its root box grown by ``contain_margin`` (m): a line of sight entering it
+    crosses a front face first."""
+
+    node_box: np.ndarray
+    node_links: np.ndarray
+    node_polys: np.ndarray
+    object_root: np.ndarray
+    object_sphere: np.ndarray
+    cull_backs: np.ndarray
+    contain_margin: float
 
 
 @njit(cache=True)
@@ -108,26 +131,21 @@ def _sphere_misses_cone(x, y, z, r, axis, cos_half, sin_half, length):  # pragma
 
 
 @njit(cache=True, parallel=True)
-def forest_occluders(vertices, offsets, planes, poly_eps, boxes, node_box, node_links,
-                     node_polys, object_root, object_sphere, cull_backs, contain_margin,
-                     poses, views, starts, points, tol):  # pragma: no cover - jit
+def forest_occluders(polys, forest, poses, views, starts, points, tol):  # pragma: no cover - jit
     """Nearest occluding polygon (Q,) int32 (-1: visible) of every query point.
 
-    Polygons (``vertices``, ``offsets``, ``planes``, ``poly_eps``, ``boxes``) are in their
-    object's frame; object k's hierarchy starts at node ``object_root[k]`` (-1: none) and
-    lies in the ball ``object_sphere[k]`` (object-frame centre, radius); a node is
-    ``node_box`` (min xyz, max xyz, its polygons' boxes grown by their eps) and
-    ``node_links`` = (first child, second child, first polygon, polygon count): a leaf has
-    count > 0 and lists ``node_polys[first:first + count]``. ``poses`` (K, 4, 4): object ->
-    base frame. Camera c at ``views[c]`` (base frame) asks for ``points[starts[c]:starts[c +
-    1]]`` (base frame). ``cull_backs[k]``: object k is a closed solid whose back faces are
-    skipped when the camera is outside its root box (grown by ``contain_margin``): a line of
-    sight entering it crosses a front face first.
+    Polygons ``polys`` (:class:`~._crossing.PolygonArrays`) are in their object's frame and
+    ``forest`` (:class:`ForestArrays`) holds each object's hierarchy of them. ``poses`` (K, 4,
+    4): object -> base frame. Camera c at ``views[c]`` (base frame) asks for
+    ``points[starts[c]:starts[c + 1]]`` (base frame); ``tol`` (m): the surface tolerance.
 
     Per camera (in parallel): an object whose ball misses the cone from the camera through
     its points is skipped; per point, an object whose ball misses the segment is skipped;
     else the segment, moved to the object's frame, descends the hierarchy.
     """
+    node_box, node_links, node_polys = forest.node_box, forest.node_links, forest.node_polys
+    object_root, object_sphere = forest.object_root, forest.object_sphere
+    cull_backs, contain_margin = forest.cull_backs, forest.contain_margin
     n_points = points.shape[0]
     occluder = np.full(n_points, -1, np.int32)
     best = np.ones(n_points)
@@ -169,6 +187,12 @@ def forest_occluders(vertices, offsets, planes, poly_eps, boxes, node_box, node_
                 p1 = T[0, 1] * wx + T[1, 1] * wy + T[2, 1] * wz
                 p2 = T[0, 2] * wx + T[1, 2] * wy + T[2, 2] * wz
                 d0, d1, d2 = p0 - v0, p1 - v1, p2 - v2
+                view, point = (v0, v1, v2), (p0, p1, p2)
+                # a crossing counts when nearer than the best, or as near (within TIE) and of a
+                # lower index: before ``later`` for a polygon listed after the best, else at most
+                # best + TIE (before the next float)
+                later = best[i] - TIE
+                sooner = np.nextafter(best[i] + TIE, np.inf)
                 stack[0] = root
                 n_stack = 1
                 while n_stack > 0:
@@ -185,27 +209,15 @@ def forest_occluders(vertices, offsets, planes, poly_eps, boxes, node_box, node_
                     first = node_links[node, 2]
                     for j in range(first, first + count):
                         q = node_polys[j]
-                        eps = poly_eps[q]
-                        nx, ny, nz, dq = planes[q, 0], planes[q, 1], planes[q, 2], planes[q, 3]
-                        sv = nx * v0 + ny * v1 + nz * v2 - dq
-                        if sv <= eps and (not backs or sv >= -eps):
+                        poly = polygon(polys, q)
+                        sv = plane_distance(poly, v0, v1, v2)
+                        if sv <= poly.eps and (not backs or sv >= -poly.eps):
                             continue  # edge-on, or a closed solid's back face seen from outside
-                        sp = nx * p0 + ny * p1 + nz * p2 - dq
-                        on_plane = max(eps, tol)
-                        if (sv > 0.0 and sp >= -on_plane) or (sv < 0.0 and sp <= on_plane):
-                            continue  # same side as the viewpoint, or on the plane
-                        t = sv / (sv - sp)
-                        if t > best[i] + TIE or (t >= best[i] - TIE and q >= occluder[i] >= 0):
-                            continue  # a nearer occluder is known (on a tie: a lower index)
-                        x0, x1, x2 = v0 + t * d0, v1 + t * d1, v2 + t * d2
-                        if (x0 < boxes[q, 0] - eps or x0 > boxes[q, 3] + eps
-                                or x1 < boxes[q, 1] - eps or x1 > boxes[q, 4] + eps
-                                or x2 < boxes[q, 2] - eps or x2 > boxes[q, 5] + eps):
-                            continue
-                        a0, a1 = drop_axis(nx, ny, nz)
-                        u = x0 if a0 == 0 else (x1 if a0 == 1 else x2)
-                        w = x0 if a1 == 0 else (x1 if a1 == 1 else x2)
-                        if _inside(u, w, q, a0, a1, vertices, offsets):
+                        t = crossing(poly, sv, view, point, tol,
+                                     later if q >= occluder[i] >= 0 else sooner)
+                        if t != NO_CROSSING and on_polygon(polys, q, t, view, point):
                             best[i] = t
                             occluder[i] = q
+                            later = best[i] - TIE
+                            sooner = np.nextafter(best[i] + TIE, np.inf)
     return occluder

@@ -1,7 +1,8 @@
 """Numba kernel of the paper's ``not_occluded`` visit (Section III-B) for many points at once.
 
 Every plane comes with its own thickness ``eps`` (its polygon's, local: see :mod:`.soup`):
-``node_eps`` for a node's partition plane, ``poly_eps`` for a surface's plane.
+:attr:`TreeArrays.eps` for a node's partition plane, that of
+:class:`~._crossing.PolygonArrays` for a surface's plane.
 
 Points are first located in the tree: pushed down FRONT (n.x - d > eps) or BACK (< -eps); a point
 within ``eps`` of a node's plane stays at that node, and a point reaching an empty child stays at
@@ -17,17 +18,11 @@ with ``s`` the viewpoint's signed distance to its plane and ``eps`` that plane's
   seen edge-on and hide nothing, and the points on the plane join before both subtrees.
 
 Visiting a slot adds its points to the active set (visible). ``process_surfaces`` first skips a
-surface whose box misses the box of the viewpoint and the active points (cheap bounding test),
-then tests each active point against the surface ``q``, on the original polygon: ``q`` hides the
-point ``p`` when the segment from the viewpoint ``v`` crosses ``q`` strictly before ``p``. With
-``sv``/``sp`` the signed distances of ``v``/``p`` to ``q``'s plane and ``eps`` its thickness:
-``|sv| > eps`` (else edge-on), ``sv`` and ``sp`` of opposite signs with ``|sp| > max(eps, tol)``
-(a point on the polygon, e.g. a vertex of its own face, is not hidden by it; ``tol``, the
-caller's surface tolerance, extends this to points resting on a surface, such as a part's
-bottom corners on its support), i.e. the crossing parameter ``t = sv / (sv - sp)`` satisfies
-``t < 1 - eps / (|sv| + |sp|)``; then the crossing ``v + t (p - v)`` must fall in ``q``'s box
-(grown by ``eps``) and inside ``q`` (even-odd rule in the coordinate plane most parallel to
-``q``: any simple polygon, convex or not).
+surface whose box misses the box of the viewpoint and the active points (cheap bounding test)
+or that is seen edge-on, then tests each active point against the surface ``q``, on the
+original polygon, by the crossing test of :mod:`._crossing`: ``q`` hides the point ``p`` when
+the segment from the viewpoint crosses ``q`` strictly before ``p`` (within the thicknesses and
+the caller's surface tolerance ``tol`` described there).
 
 A hidden point stays in the active set so that the nearest occluder (smallest ``t``, the surface
 the camera actually sees along that line of sight) is kept; a polygon only needs testing when it
@@ -40,14 +35,36 @@ the viewpoint in the back-to-front order, so it is visited after the point was a
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 from numba import njit
 
-from cellsight.occlusion._soup_kernels import drop_axis
+from cellsight.occlusion._crossing import (
+    NO_CROSSING,
+    crossing,
+    on_polygon,
+    plane_distance,
+    polygon,
+)
 
 _VISIT, _SURFACES, _SLOT = 0, 1, 2
 #: ``bad`` answers of :func:`visit_tree`: all finite, or the viewpoint is not (else: a point).
 NO_BAD_INPUT, BAD_VIEWPOINT = -1, -2
+
+
+class TreeArrays(NamedTuple):
+    """A BSP tree's flat arrays as :func:`visit_tree` reads them (one argument; see
+    :class:`~cellsight.occlusion.bsp.BSPTree`): per node its partition plane ``planes`` (M, 4),
+    thickness ``eps`` (M,) and ``links`` (M, 4) = (front child, back child, first surface,
+    surface count); ``surfaces``: the polygon indices stored in the nodes; ``depth``: nodes on
+    the longest root-leaf path."""
+
+    planes: np.ndarray
+    eps: np.ndarray
+    links: np.ndarray
+    surfaces: np.ndarray
+    depth: int
 
 
 @njit(cache=True)
@@ -65,8 +82,9 @@ def _first_non_finite(points, view) -> int:
 
 
 @njit(cache=True)
-def _locate(points, node_planes, node_eps, node_links):
+def _locate(points, tree):
     """Slot of every point, as linked lists: ``head[slot]`` and ``following[point]``."""
+    node_planes, node_eps, node_links = tree.planes, tree.eps, tree.links
     n_nodes = node_planes.shape[0]
     head = np.full(3 * n_nodes, -1, np.int64)
     following = np.empty(points.shape[0], np.int64)
@@ -91,34 +109,22 @@ def _locate(points, node_planes, node_eps, node_links):
 
 
 @njit(cache=True)
-def _inside(x0, x1, q, a0, a1, vertices, offsets) -> bool:
-    """Even-odd test of the 2D point (x0, x1) against polygon ``q`` projected on axes a0, a1."""
-    inside = False
-    start, stop = offsets[q], offsets[q + 1]
-    j = stop - 1
-    for i in range(start, stop):
-        yi, yj = vertices[i, a1], vertices[j, a1]
-        if (yi > x1) != (yj > x1):
-            xi, xj = vertices[i, a0], vertices[j, a0]
-            if x0 < xi + (xj - xi) * (x1 - yi) / (yj - yi):
-                inside = not inside
-        j = i
-    return inside
-
-
-@njit(cache=True)
-def visit_tree(vertices, offsets, planes, poly_eps, boxes, node_planes, node_eps, node_links,
-               surfaces, depth, tol, points, view, relevant):
-    """Visible flags (N,), nearest occluder indices (N,) int32 (-1 if visible) and ``bad``.
+def visit_tree(polys, tree, points, view, tol, relevant):
+    """Visible flags (N,), nearest occluder indices (N,) int32 (-1 if visible) and ``bad`` of
+    ``points`` (N, 3) seen from ``view`` (3,) among the polygons ``polys``
+    (:class:`~._crossing.PolygonArrays`) partitioned by ``tree`` (:class:`TreeArrays`).
 
     ``bad`` is ``NO_BAD_INPUT``, ``BAD_VIEWPOINT`` or the first point with a non-finite
-    coordinate (then nothing is computed). ``relevant`` (P,) bool: the polygons that may hide a
-    point (the caller's exact cull, e.g. per camera); the others are skipped.
+    coordinate (then nothing is computed). ``tol``: the surface tolerance (:mod:`._crossing`).
+    ``relevant`` (P,) bool: the polygons that may hide a point (the caller's exact cull, e.g.
+    per camera); the others are skipped.
 
-    The per-node and per-(surface, point) work is written inline: numba keeps reference-count
-    updates of every array passed to a call that LLVM does not inline, which would cost more
-    than the geometry itself. Only the (rare) point-in-polygon test is a call.
+    The per-node and per-(surface, point) work passes no array to a function (the crossing
+    test's per-pair stage is inlined and takes scalars): numba updates the reference counts of
+    every array a function receives, which would cost more than the geometry itself. Only the
+    rare point-in-polygon stage is a call (:mod:`._crossing`).
     """
+    node_planes, node_eps, node_links, surfaces = tree.planes, tree.eps, tree.links, tree.surfaces
     n_points = points.shape[0]
     visible = np.zeros(n_points, np.bool_)
     occluder = np.full(n_points, -1, np.int32)
@@ -127,13 +133,14 @@ def visit_tree(vertices, offsets, planes, poly_eps, boxes, node_planes, node_eps
         visible[:] = bad == NO_BAD_INPUT
         return visible, occluder, bad
     best_t = np.full(n_points, np.inf)
-    head, following = _locate(points, node_planes, node_eps, node_links)
+    head, following = _locate(points, tree)
     active = np.empty(n_points, np.int64)
     n_active = 0
-    stack = np.empty(3 * depth + 4, np.int64)  # codes (index << 2) | action
+    stack = np.empty(3 * tree.depth + 4, np.int64)  # codes (index << 2) | action
     stack[0] = _VISIT
     n_stack = 1
     vx, vy, vz = view[0], view[1], view[2]
+    view3 = (vx, vy, vz)
     reach = np.empty(6)  # box of the viewpoint and the active points
     for a in range(3):
         reach[a], reach[3 + a] = view[a], view[a]
@@ -173,34 +180,20 @@ def visit_tree(vertices, offsets, planes, poly_eps, boxes, node_planes, node_eps
                 q = surfaces[k]
                 if not relevant[q]:
                     continue
-                eps = poly_eps[q]
-                if (boxes[q, 0] - eps > reach[3] or boxes[q, 3] + eps < reach[0]
-                        or boxes[q, 1] - eps > reach[4] or boxes[q, 4] + eps < reach[1]
-                        or boxes[q, 2] - eps > reach[5] or boxes[q, 5] + eps < reach[2]):
+                poly = polygon(polys, q)
+                eps = poly.eps
+                if (poly.xmin - eps > reach[3] or poly.xmax + eps < reach[0]
+                        or poly.ymin - eps > reach[4] or poly.ymax + eps < reach[1]
+                        or poly.zmin - eps > reach[5] or poly.zmax + eps < reach[2]):
                     continue  # the polygon's box misses the box of every active segment
-                nx, ny, nz, dq = planes[q, 0], planes[q, 1], planes[q, 2], planes[q, 3]
-                sv = nx * vx + ny * vy + nz * vz - dq
+                sv = plane_distance(poly, vx, vy, vz)
                 if abs(sv) <= eps:  # seen edge-on: hides nothing
                     continue
-                a0, a1 = drop_axis(nx, ny, nz)
-                on_plane = max(eps, tol)
                 for i in range(n_active):
                     p = active[i]
-                    px, py, pz = points[p, 0], points[p, 1], points[p, 2]
-                    sp = nx * px + ny * py + nz * pz - dq
-                    if (sv > 0.0 and sp >= -on_plane) or (sv < 0.0 and sp <= on_plane):
-                        continue  # same side as the viewpoint, or on the plane
-                    t = sv / (sv - sp)
-                    if t >= best_t[p]:
-                        continue  # a nearer occluder is known
-                    x0, x1, x2 = vx + t * (px - vx), vy + t * (py - vy), vz + t * (pz - vz)
-                    if (x0 < boxes[q, 0] - eps or x0 > boxes[q, 3] + eps
-                            or x1 < boxes[q, 1] - eps or x1 > boxes[q, 4] + eps
-                            or x2 < boxes[q, 2] - eps or x2 > boxes[q, 5] + eps):
-                        continue
-                    u = x0 if a0 == 0 else (x1 if a0 == 1 else x2)
-                    w = x0 if a1 == 0 else (x1 if a1 == 1 else x2)
-                    if _inside(u, w, q, a0, a1, vertices, offsets):
+                    point = (points[p, 0], points[p, 1], points[p, 2])
+                    t = crossing(poly, sv, view3, point, tol, best_t[p])
+                    if t != NO_CROSSING and on_polygon(polys, q, t, view3, point):
                         best_t[p] = t
                         occluder[p] = q
                         visible[p] = False

@@ -33,7 +33,12 @@ from cellsight.errors import GeometryError
 from cellsight.occlusion._build_kernel import build_tree
 from cellsight.occlusion._cull_kernel import gather_polygons
 from cellsight.occlusion._segment_kernel import cull_segments, segment_visible
-from cellsight.occlusion._visit_kernel import BAD_VIEWPOINT, NO_BAD_INPUT, visit_tree
+from cellsight.occlusion._visit_kernel import (
+    BAD_VIEWPOINT,
+    NO_BAD_INPUT,
+    TreeArrays,
+    visit_tree,
+)
 from cellsight.occlusion.soup import PolygonSoup
 
 #: Candidate splitters tested per node (all of them when a node has no more fragments).
@@ -128,16 +133,18 @@ class BSPTree:
                 f"relevant must be a bool array of {len(soup)} polygons, got {relevant.dtype} "
                 f"{relevant.shape}"
             )
-        visible, occluder, bad = visit_tree(
-            soup.vertices, soup.offsets, soup.planes, soup.eps, soup.boxes, self.node_planes,
-            self.node_eps, self.node_links, self.surfaces, self.stats["depth"],
-            float(surface_tolerance), points, viewpoint, relevant,
-        )
+        visible, occluder, bad = visit_tree(soup.arrays(), self.arrays(), points, viewpoint,
+                                            float(surface_tolerance), relevant)
         if bad == BAD_VIEWPOINT:
             raise GeometryError(f"viewpoint has a non-finite coordinate: {viewpoint.tolist()}")
         if bad != NO_BAD_INPUT:
             raise GeometryError(f"point {bad} has a non-finite coordinate: {points[bad].tolist()}")
         return visible, occluder
+
+    def arrays(self) -> TreeArrays:
+        """The tree as the compiled visit reads it, as one argument."""
+        return TreeArrays(self.node_planes, self.node_eps, self.node_links, self.surfaces,
+                          self.stats["depth"])
 
 
 #: The direct (point, polygon) test is used when points * kept polygons is at most this many
@@ -170,12 +177,11 @@ def visible_mask(
     if _method == "full":
         return BSPTree.build(soup).visibility(points, viewpoint)[0]
     points, viewpoint = _checked_query(points, viewpoint)
-    kept = cull_segments(soup.planes, soup.eps, soup.boxes, soup.spheres, points, viewpoint)
+    kept = cull_segments(soup.arrays(), soup.spheres, points, viewpoint)
     n_pairs = points.shape[0] * kept.shape[0]
     direct = points.shape[0] <= DIRECT_POINTS and n_pairs <= DIRECT_PAIRS
     if _method == "direct" or (_method == "auto" and direct):
-        return segment_visible(soup.vertices, soup.offsets, soup.planes, soup.eps, soup.boxes,
-                               kept, 0.0, points, viewpoint)
+        return segment_visible(soup.arrays(), kept, points, viewpoint, 0.0)
     if kept.shape[0] == 0:
         return np.ones(points.shape[0], dtype=np.bool_)
     sub = PolygonSoup.from_arrays(*gather_polygons(soup.vertices, soup.offsets, kept))

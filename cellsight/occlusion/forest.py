@@ -1,24 +1,24 @@
 """Static structure per rigid object (issue 12): one bounding-volume hierarchy (BVH) of each
 object's surfaces, built once, offline, in the object's own frame; per frame only the queries
-(the optical centre and the points) move, into each object's frame.
+(the optical centre and the points) move, into each object's frame (the ``object-bvh``
+back-end, :class:`~cellsight.occlusion.object_bvh.ObjectBVH`).
 
 The paper keeps every object's surfaces in its own frame and builds one BSP tree of all of
-them per frame (:class:`~cellsight.occlusion.predictor.VisibilityPredictor`'s ``"frame-bsp"``
-mode). Here nothing is rebuilt: a link's hierarchy stays valid however the arm moves, because
-a rigid move changes no distance. A hierarchy node holds the box (object frame) of its
-polygons, each grown by its plane thickness ``eps``; a node of more than ``LEAF_SIZE``
-polygons is split at the median of their centroids along the box's longest axis. A segment
-(camera -> point, moved to the object's frame) descends into the nodes whose box it meets up
-to the nearest crossing found so far; the leaves' polygons get the exact crossing test
-(:mod:`._forest_kernel`), so the answers are the BSP visit's: same test, same nearest
-occluder.
+them per frame (the ``frame-bsp`` back-end, :class:`~cellsight.occlusion.frame_bsp.FrameBSP`).
+Here nothing is rebuilt: a link's hierarchy stays valid however the arm moves, because a rigid
+move changes no distance. A hierarchy node holds the box (object frame) of its polygons, each
+grown by its plane thickness ``eps``; a node of more than ``LEAF_SIZE`` polygons is split at the
+median of their centroids along the box's longest axis. A segment (camera -> point, moved to
+the object's frame) descends into the nodes whose box it meets up to the nearest crossing found
+so far; the leaves' polygons get the exact crossing test (:mod:`._crossing`, in
+:mod:`._forest_kernel`), so the answers are the BSP visit's: same test, same nearest occluder.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from cellsight.occlusion._forest_kernel import forest_occluders
+from cellsight.occlusion._forest_kernel import ForestArrays, forest_occluders
 from cellsight.occlusion.soup import PolygonSoup
 
 LEAF_SIZE = 4  # polygons at most per leaf
@@ -67,11 +67,13 @@ class ObjectForest:
         base frame, m), those of camera c (optical centre ``views[c]``) being
         ``points[starts[c]:starts[c + 1]]``; ``poses`` (K, 4, 4) object -> base; ``tol`` (m):
         the surface tolerance (a point this near a polygon's plane is not hidden by it)."""
-        s = self.soup
-        return forest_occluders(s.vertices, s.offsets, s.planes, s.eps, s.boxes, self.node_box,
-                                self.node_links, self.node_polys, self.object_root,
-                                self.object_sphere, self.cull_backs, self.contain_margin, poses,
-                                views, starts, points, float(tol))
+        return forest_occluders(self.soup.arrays(), self.arrays(), poses, views, starts, points,
+                                float(tol))
+
+    def arrays(self) -> ForestArrays:
+        """The hierarchies as the compiled kernel reads them, as one argument."""
+        return ForestArrays(self.node_box, self.node_links, self.node_polys, self.object_root,
+                            self.object_sphere, self.cull_backs, self.contain_margin)
 
     @property
     def stats(self) -> dict[str, int]:

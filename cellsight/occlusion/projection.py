@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from cellsight.camera import MIN_DEPTH_M
 from cellsight.model.cell import Cell
 from cellsight.visibility import (
     STATUS_BEHIND,
@@ -36,7 +37,7 @@ class ProjectionOnly:
             points = part.feature_points @ T[:3, :3].T + T[:3, 3]
             out[part.name] = []
             for cam in self.cell.cameras:
-                front = cam.in_front(points)
+                front = cam.depth(points) > MIN_DEPTH_M
                 pixels = cam.project(points)
                 inside = front & cam.in_image(np.nan_to_num(pixels, nan=-1e9))
                 status = np.where(~front, STATUS_BEHIND,

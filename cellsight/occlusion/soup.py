@@ -26,6 +26,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from cellsight.errors import GeometryError
+from cellsight.occlusion._crossing import PolygonArrays
 from cellsight.occlusion._soup_kernels import (
     STATUS_BAD_OFFSETS,
     STATUS_FEW_VERTICES,
@@ -73,6 +74,10 @@ class PolygonSoup:
 
     def __len__(self) -> int:
         return self.offsets.shape[0] - 1
+
+    def arrays(self) -> PolygonArrays:
+        """The arrays the compiled kernels read, as one argument."""
+        return PolygonArrays(self.vertices, self.offsets, self.planes, self.eps, self.boxes)
 
     @classmethod
     def from_arrays(cls, vertices: np.ndarray, offsets: np.ndarray) -> PolygonSoup:

@@ -4,7 +4,7 @@ and how much they tell about the part's pose.
 Per frame, all candidates at once: the features are moved to the base frame, projected into
 every candidate (the template's lens model), and those in the image are tested against the
 cell's solids with the predictor's static object hierarchies
-(:meth:`~cellsight.occlusion.predictor.VisibilityPredictor.occluders`; self-, mutual and
+(:meth:`~cellsight.occlusion.object_bvh.ObjectBVH.occluders`; self-, mutual and
 robot occlusions, exact). The pose information of candidate c at frame k is the Fisher
 information of the part's pose (base-frame translation, m, and a small rotation about the
 part's origin, rad) from its visible features, each measured with ``sigma_px`` (px) of noise
