@@ -24,9 +24,11 @@ from cellsight import load_cell
 from cellsight.geometry.transforms import pose_from_xyz_rpy
 from cellsight.tracking import (
     Observation,
+    OptimalSelector,
     PinholeMeasurement,
     Tracker,
     TrackerConfig,
+    TrackerParts,
     estimate_pose,
 )
 from cellsight.tracking.loss import LossRule
@@ -40,7 +42,7 @@ class Run:
     """One synthetic run of the tracker on the built-in cell along the known trajectory."""
 
     def __init__(self, seed: int = 0, config: TrackerConfig | None = None, sway: float = 1.0,
-                 held: bool = False):
+                 held: bool = False, components: TrackerParts | None = None):
         self.cell = load_cell()
         self.part = self.cell.workpieces[0]
         self.cams = self.cell.cameras
@@ -52,7 +54,7 @@ class Run:
         guess = T0 @ pose_from_xyz_rpy([0.006, -0.004, 0.003], [0.02, -0.01, 0.03])
         self.tracker = Tracker(
             self.cams, {self.part.name: self.part.feature_points}, self.predictor,
-            self.extractor, config, {self.part.name: guess},
+            self.extractor, config, {self.part.name: guess}, components,
         )
         self.frames, self.truth = [], []
         self.held = held  # a gripper holds the part: its pose goes to the tracker each frame
@@ -147,9 +149,9 @@ def test_a_held_part_follows_its_holder_where_one_camera_sees_it():
 def test_a_feature_flagged_near_an_occluder_stays_out_for_the_hold_time():
     """Flagged for one frame only, a feature is not selected for ``near_occluder_hold_s``
     (a flag flickering at the ring's edge keeps it out), then comes back."""
-    config = TrackerConfig(selection=SelectionConfig(max_points=32),  # every usable point
-                           near_occluder_hold_s=0.5)
-    run = Run(seed=6, config=config)
+    config = TrackerConfig(near_occluder_hold_s=0.5)
+    every_usable = TrackerParts(selector=OptimalSelector(SelectionConfig(max_points=32)))
+    run = Run(seed=6, config=config, components=every_usable)
     hold = int(np.ceil(config.near_occluder_hold_s / VISION_PERIOD))
     k0 = 40
     for k in range(k0 + 2 * hold):
@@ -182,7 +184,7 @@ def test_both_cameras_occluded_predicts_then_reacquires(blackout_s, sway):
         assert err @ np.linalg.solve(rec.covariance[:3, :3], err) < 16.27  # chi2(3) 0.999
     after = [run.frames[k].status for k in range(stop, stop + 5)]
     assert "tracking" in after or "acquired" in after
-    if blackout_s > TrackerConfig().loss.lost_after_s:
+    if blackout_s > LossRule().lost_after_s:
         assert "lost" in during and "acquired" in after
     else:
         assert "lost" not in during
@@ -224,7 +226,7 @@ def test_frame_record_holds_what_a_user_plots():
     assert rec.visible.shape == rec.selected.shape == rec.rejected.shape == (C, F)
     assert rec.pixels.shape == rec.measured.shape == rec.innovation.shape == (C, F, 2)
     assert not np.any(rec.selected & ~rec.visible)
-    assert rec.selected.sum() <= TrackerConfig().selection.max_points
+    assert rec.selected.sum() <= SelectionConfig().max_points
     measured = np.isfinite(rec.measured[:, :, 0])
     assert np.all(measured <= rec.selected)
     assert np.all(np.isfinite(rec.innovation[measured]))
@@ -270,8 +272,7 @@ def test_closed_loop_on_rendered_images():
 def test_a_part_gone_for_good_stops_coasting():
     """Both cameras blind for good: the prediction coasts on the last velocity for ``coast_s``
     seconds after the last measurement, then stays put (it would otherwise drift for ever)."""
-    config = TrackerConfig(loss=LossRule(coast_s=1.0))
-    run = Run(seed=2, config=config, sway=0.0)
+    run = Run(seed=2, components=TrackerParts(loss=LossRule(coast_s=1.0)), sway=0.0)
     start = int(2.0 / VISION_PERIOD)
     for k in range(start + int(3.0 / VISION_PERIOD)):
         run.predictor.blind = run.truth_vis.blind = {0, 1} if k >= start else set()

@@ -1,7 +1,9 @@
 """The ``--sensor ideal`` extractor the experiment runner plugs into the tracker instead of the
 corner extractor: it measures the *selected* features as a perfect corner extractor would.
 
-For each window the tracker plans:
+What it measures is its input, like the images of the corner extractor: the run gives
+:meth:`Tracker.step <cellsight.tracking.Tracker.step>` one :class:`IdealView` per camera (the
+truth as that camera was exposed) instead of an image. For each window the tracker plans:
 
 - a feature the world's truth says is visible, whose true projection (plus Gaussian pixel
   noise) lies in its window, is measured there;
@@ -11,11 +13,13 @@ For each window the tracker plans:
   window's centre, plus the same noise, or nothing when no corner lies in the window. Its own
   hidden vertex (within ``OWN_PX`` of its true projection) is not a candidate.
 
-So a wrong prediction costs what it would cost a real extractor. A dropped frame (no truth set)
+So a wrong prediction costs what it would cost a real extractor. A dropped frame (no view)
 measures nothing. Whether a candidate corner is itself hidden is not checked.
 """
 
 from __future__ import annotations
+
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -24,58 +28,58 @@ from cellsight.tracking.windowing import WindowPlan
 OWN_PX = 0.5  # px: a corner this close to a hidden feature's projection is that feature
 
 
+@dataclass(frozen=True)
+class IdealView:
+    """What the ideal sensor takes of the tracked workpiece in one camera at one frame:
+    ``pixels`` (F, 2) true projections (px, distorted; NaN behind the camera), ``visible`` (F,)
+    true labels, ``corners`` (N, 2) px: every corner in view (none by default)."""
+
+    pixels: np.ndarray
+    visible: np.ndarray
+    corners: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+
+
 class IdealExtractor:
     """Extractor of the ideal sensor (module docstring). ``sigma_px``: noise per coordinate
-    (px); ``seed`` seeds the noise; call :meth:`set_truth` before each step."""
+    (px); ``seed`` seeds the noise."""
 
     def __init__(self, sigma_px: float, seed: int) -> None:
         self.sigma_px = float(sigma_px)
         self._rng = np.random.default_rng(seed)
-        self._pixels: np.ndarray | None = None
-        self._visible: np.ndarray | None = None
-        self._corners: list[np.ndarray] = []
 
-    def set_truth(self, pixels: np.ndarray | None, visible: np.ndarray | None,
-                  corners: list[np.ndarray] | None = None) -> None:
-        """``pixels`` (C, F, 2) true distorted projections, ``visible`` (C, F) true labels,
-        ``corners`` per camera (N, 2) pixels of every corner in view; None: the frame was
-        dropped."""
-        self._pixels, self._visible = pixels, visible
-        self._corners = corners if corners is not None else []
-
-    def extract(self, camera_index: int, image, plan: WindowPlan) -> dict[int, np.ndarray]:
-        """Feature index -> measured pixel (2,) for camera ``camera_index``'s windows; the
-        image is ignored."""
+    def extract(self, camera_index: int, view: IdealView | None,
+                plan: WindowPlan) -> dict[int, np.ndarray]:
+        """Feature index -> measured pixel (2,) px in the windows of ``plan``, from ``view``,
+        camera ``camera_index``'s truth (None: the frame was dropped, nothing is measured)."""
         out: dict[int, np.ndarray] = {}
-        if self._pixels is None:
+        if view is None:
             return out
         for f, box in zip(plan.features, plan.boxes, strict=True):
-            true_px = self._pixels[camera_index, f]
-            visible = bool(self._visible[camera_index, f])
+            true_px = view.pixels[f]
+            visible = bool(view.visible[f])
             if visible:
                 px = true_px + self._rng.normal(0.0, self.sigma_px, 2)
                 if _inside(px, box):
                     out[int(f)] = px
                     continue
-            corner = self._corner_in(camera_index, box, None if visible else true_px)
+            corner = _corner_in(view.corners, box, None if visible else true_px)
             if corner is not None:
                 out[int(f)] = corner + self._rng.normal(0.0, self.sigma_px, 2)
         return out
 
-    def _corner_in(self, c: int, box, own: np.ndarray | None) -> np.ndarray | None:
-        """The corner nearest the centre of ``box`` inside it, not within ``OWN_PX`` of
-        ``own``; None when there is none."""
-        if c >= len(self._corners):
-            return None
-        pts = self._corners[c]
-        pts = pts[_inside(pts.T, box)]
-        if own is not None and np.all(np.isfinite(own)):
-            pts = pts[np.linalg.norm(pts - own, axis=1) > OWN_PX]
-        if len(pts) == 0:
-            return None
-        u0, v0, u1, v1 = box
-        centre = np.array([(u0 + u1 - 1) / 2, (v0 + v1 - 1) / 2])
-        return pts[np.argmin(np.linalg.norm(pts - centre, axis=1))].copy()
+
+def _corner_in(corners: np.ndarray, box, own: np.ndarray | None) -> np.ndarray | None:
+    """The corner of ``corners`` (N, 2) px nearest the centre of ``box`` inside it, not within
+    ``OWN_PX`` of ``own``; None when there is none."""
+    pts = np.asarray(corners, dtype=float).reshape(-1, 2)
+    pts = pts[_inside(pts.T, box)]
+    if own is not None and np.all(np.isfinite(own)):
+        pts = pts[np.linalg.norm(pts - own, axis=1) > OWN_PX]
+    if len(pts) == 0:
+        return None
+    u0, v0, u1, v1 = box
+    centre = np.array([(u0 + u1 - 1) / 2, (v0 + v1 - 1) / 2])
+    return pts[np.argmin(np.linalg.norm(pts - centre, axis=1))].copy()
 
 
 def _inside(px: np.ndarray, box) -> np.ndarray | bool:

@@ -6,13 +6,25 @@ loss and coasting (:mod:`.loss`), usable features (:mod:`.eligibility`), optimal
 selection (:mod:`.selection`), image windows (:mod:`.windowing`), sub-pixel corner extraction
 (:mod:`.extraction`); the tracker (:mod:`.tracker`) only wires them, with the occlusion
 predictor, into the paper's loop; it reports :mod:`.records` with a :mod:`.status` and
-:mod:`.timing` per stage.
+:mod:`.timing` per stage. Each part is a protocol (:mod:`.interfaces`) with its default; the
+tracker takes its parts and its numbers apart (:mod:`.config`).
 """
 
 from cellsight.tracking.acquisition import PnPAcquisition
+from cellsight.tracking.config import TrackerConfig, TrackerParts
 from cellsight.tracking.ekf import AdaptiveNoise, PoseEKF, UpdateReport
 from cellsight.tracking.extraction import CornerExtractor, ExtractionConfig, extract_corner
 from cellsight.tracking.gate import ChiSquareGate
+from cellsight.tracking.interfaces import (
+    Acquisition,
+    Extractor,
+    Gate,
+    MeasurementModel,
+    MotionModel,
+    Selector,
+    TrackHealth,
+    WindowPlanner,
+)
 from cellsight.tracking.loss import LossRule
 from cellsight.tracking.measurement import Observation, PinholeMeasurement
 from cellsight.tracking.motion import ConstantVelocity
@@ -25,6 +37,7 @@ from cellsight.tracking.pnp import (
 )
 from cellsight.tracking.records import PartFrame, TrackerFrame
 from cellsight.tracking.selection import (
+    OptimalSelector,
     Selection,
     SelectionConfig,
     select_features,
@@ -32,18 +45,25 @@ from cellsight.tracking.selection import (
 )
 from cellsight.tracking.status import TrackStatus
 from cellsight.tracking.timing import STAGES
-from cellsight.tracking.tracker import Tracker, TrackerConfig
-from cellsight.tracking.windowing import WindowConfig, WindowPlan, plan_windows
+from cellsight.tracking.tracker import StepContext, Tracker
+from cellsight.tracking.windowing import CovarianceWindows, WindowConfig, WindowPlan, plan_windows
 
 __all__ = [
     "STAGES",
+    "Acquisition",
     "AdaptiveNoise",
     "ChiSquareGate",
     "ConstantVelocity",
     "CornerExtractor",
+    "CovarianceWindows",
     "ExtractionConfig",
+    "Extractor",
+    "Gate",
     "LossRule",
+    "MeasurementModel",
+    "MotionModel",
     "Observation",
+    "OptimalSelector",
     "PartFrame",
     "PinholeMeasurement",
     "PnPAcquisition",
@@ -51,11 +71,16 @@ __all__ = [
     "PoseFix",
     "Selection",
     "SelectionConfig",
+    "Selector",
+    "StepContext",
+    "TrackHealth",
     "Tracker",
     "TrackerConfig",
     "TrackerFrame",
+    "TrackerParts",
     "TrackStatus",
     "UpdateReport",
+    "WindowPlanner",
     "WindowConfig",
     "WindowPlan",
     "estimate_pose",

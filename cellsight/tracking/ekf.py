@@ -32,9 +32,10 @@ import numba
 import numpy as np
 
 from cellsight.geometry.transforms import make_pose, xyz_rpy_from_pose
-from cellsight.tracking.gate import ChiSquareGate, mahalanobis2
+from cellsight.tracking.gate import mahalanobis2
+from cellsight.tracking.interfaces import Gate, MotionModel
 from cellsight.tracking.measurement import Observation, PinholeMeasurement, rotation_of_state
-from cellsight.tracking.motion import POSE_DIM, STATE_DIM, ConstantVelocity
+from cellsight.tracking.motion import POSE_DIM, STATE_DIM
 
 
 @dataclass(frozen=True)
@@ -93,7 +94,8 @@ class AdaptiveNoise:
 
 
 class PoseEKF:
-    """EKF of one workpiece: constant-velocity motion, stacked pinhole measurements.
+    """EKF of one workpiece: a motion model (constant velocity by default), stacked pinhole
+    measurements.
 
     ``state`` (12,) and ``covariance`` (12x12) at time ``t`` (s). ``adaptive`` enables the
     per-camera noise estimate. The gate is the caller's (:meth:`update`).
@@ -101,7 +103,7 @@ class PoseEKF:
 
     def __init__(
         self,
-        motion: ConstantVelocity,
+        motion: MotionModel,
         state: np.ndarray,
         covariance: np.ndarray,
         t: float,
@@ -174,7 +176,7 @@ class PoseEKF:
         return pixels, _blocks(H, self.covariance, sigma2)
 
     def update(
-        self, observations: list[Observation], gate: ChiSquareGate | None = None
+        self, observations: list[Observation], gate: Gate | None = None
     ) -> UpdateReport:
         """Gate the observations of all cameras, then fuse the accepted features in one
         Joseph-form update. ``gate`` None accepts every feature.

@@ -1,6 +1,27 @@
 """The parts a :class:`~cellsight.tracking.Tracker` is wired from, as protocols: any object
-with these methods plugs in (the visibility source is
-:class:`cellsight.visibility.VisibilitySource`)."""
+with these methods plugs in (:class:`~cellsight.tracking.config.TrackerParts`; the visibility
+source is :class:`cellsight.visibility.VisibilitySource`, the extractor a separate argument of
+the tracker).
+
+Each protocol has its default implementation:
+
+============================  ===========================================================
+protocol                      default
+============================  ===========================================================
+:class:`Selector`             :class:`~cellsight.tracking.selection.OptimalSelector`
+:class:`WindowPlanner`        :class:`~cellsight.tracking.windowing.CovarianceWindows`
+:class:`Extractor`            :class:`~cellsight.tracking.extraction.CornerExtractor`
+:class:`Gate`                 :class:`~cellsight.tracking.gate.ChiSquareGate`
+:class:`MotionModel`          :class:`~cellsight.tracking.motion.ConstantVelocity`
+:class:`MeasurementModel`     :class:`~cellsight.tracking.measurement.PinholeMeasurement`
+:class:`Acquisition`          :class:`~cellsight.tracking.acquisition.PnPAcquisition`
+:class:`TrackHealth`          :class:`~cellsight.tracking.loss.LossRule`
+============================  ===========================================================
+
+Conventions: C cameras in the tracker's order, F features of one workpiece, pixels ``(u, v)``
+as in the image (with distortion) unless said otherwise, times in s; state layout and units in
+:mod:`cellsight.tracking.motion`.
+"""
 
 from __future__ import annotations
 
@@ -9,14 +30,71 @@ from typing import Any, Protocol
 import numpy as np
 
 from cellsight.camera import Camera
+from cellsight.tracking.measurement import Observation
+from cellsight.tracking.pnp import PoseFix
+from cellsight.tracking.selection import Selection
 from cellsight.tracking.windowing import WindowPlan
 
 
-class Extractor(Protocol):
-    """Finds the features in one camera's image windows: feature index -> pixel (2,) as in
-    the image (with distortion)."""
+class Selector(Protocol):
+    """Chooses, per frame, which features of a part to measure."""
 
-    def extract(self, camera_index: int, image: Any, plan: WindowPlan) -> dict[int, np.ndarray]: ...
+    def select(self, pixels: np.ndarray, usable: np.ndarray, resolution: np.ndarray) -> Selection:
+        """The chosen features among the ``usable`` ones (C, F) bool (predicted visible, not
+        next to an occluder), with their predicted pixels ``pixels`` (C, F, 2) px; ``resolution``
+        (C,) px/m: each camera's focal length over the part's depth. A choice outside ``usable``
+        is measured all the same; :meth:`Selection.of` wraps a plain mask."""
+        ...
+
+
+class WindowPlanner(Protocol):
+    """Places the image windows of one camera around the selected features."""
+
+    def plan(self, camera: Camera, centers: np.ndarray, features: np.ndarray,
+             covariance: np.ndarray, crowd: np.ndarray, own: np.ndarray,
+             size_px: float | None = None) -> WindowPlan:
+        """Windows in ``camera``'s image for ``features`` (n,) predicted at ``centers`` (n, 2) px
+        with innovation covariances ``covariance`` (n, 2, 2) px^2; ``crowd`` (m, 2) px: every
+        predicted-visible feature in this camera (any part), ``own`` (n,) the row of ``crowd``
+        that is each window's own feature; ``size_px``: fixed full width and height (px) of
+        every window (acquisition, where there is no covariance yet), None: the planner's."""
+        ...
+
+
+class Extractor(Protocol):
+    """The sensor: finds the features in one camera's image windows."""
+
+    def extract(self, camera_index: int, observed: Any, plan: WindowPlan) -> dict[int, np.ndarray]:
+        """Feature index -> measured pixel (2,) px as in the image (with distortion), for the
+        windows of ``plan``; a feature not found is missing. ``observed``: what this camera's
+        sensor took this frame, as passed to :meth:`Tracker.step` (an image for the corner
+        extractor; None when the camera gave nothing)."""
+        ...
+
+
+class Gate(Protocol):
+    """Validation gate of the EKF update (:mod:`cellsight.tracking.gate`)."""
+
+    def accepts(self, mahalanobis2: np.ndarray) -> np.ndarray:
+        """Boolean mask (m,): which squared Mahalanobis distances (m,) of the innovations
+        pass."""
+        ...
+
+
+class MotionModel(Protocol):
+    """Transition model of a part's state (12,) (:mod:`cellsight.tracking.motion`)."""
+
+    def matrix(self, dt: float) -> np.ndarray:
+        """Transition matrix (12x12) over ``dt`` seconds."""
+        ...
+
+    def covar(self, dt: float) -> np.ndarray:
+        """Process noise covariance (12x12) over ``dt`` seconds."""
+        ...
+
+    def function(self, state: np.ndarray, dt: float) -> np.ndarray:
+        """The state (12,) propagated over ``dt`` seconds without noise."""
+        ...
 
 
 class MeasurementModel(Protocol):
@@ -30,3 +108,43 @@ class MeasurementModel(Protocol):
     def evaluate(
         self, state: np.ndarray, points_model: np.ndarray, rotation: np.ndarray | None = None
     ) -> tuple[np.ndarray, np.ndarray]: ...
+
+
+class Acquisition(Protocol):
+    """Starts the filter of a part not tracked yet, or lost, from one frame's measurements
+    (:mod:`cellsight.tracking.acquisition`)."""
+
+    @property
+    def window_px(self) -> float:
+        """Full width and height (px) of the window around every usable feature."""
+        ...
+
+    def guess(self, base: np.ndarray, attempt: int) -> np.ndarray:
+        """Where to look (``T_base_part``) at the ``attempt``-th try around ``base``, while a
+        part never acquired is not found."""
+        ...
+
+    def fix(self, observations: list[Observation], sigma_px: float) -> PoseFix | None:
+        """The pose to start from (ideal pixels with noise ``sigma_px`` px), or None."""
+        ...
+
+    def covariance(self, pose_covariance: np.ndarray) -> np.ndarray:
+        """Initial state covariance (12x12) from a pose covariance (6x6, xyz + rpy)."""
+        ...
+
+    def start(self, fix: PoseFix) -> np.ndarray:
+        """Initial state covariance (12x12) from a fix."""
+        ...
+
+
+class TrackHealth(Protocol):
+    """When a track coasts and when it is lost (:mod:`cellsight.tracking.loss`)."""
+
+    def coasts(self, t: float, last_update: float) -> bool:
+        """The motion model still propagates the estimate at time ``t`` (s), the last accepted
+        measurement being at ``last_update`` (s)."""
+        ...
+
+    def lost(self, t: float, last_update: float) -> bool:
+        """The track is lost at time ``t`` (s) (the tracker then re-acquires it)."""
+        ...

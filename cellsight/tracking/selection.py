@@ -18,10 +18,10 @@ their centroid ``xbar``:
 
   1 when the directions are evenly spread (``m_1 = m_2 = 0``), 0 when the points all lie on one
   side (``m_1 = 1``) or on one line through the centroid (``m_2 = 1``); a point on the centroid
-  has no direction and adds nothing to the moments. (The circular-statistics
-  form replaces the sorted-gap index of METHOD-NOTES: it needs no sorting and no ``atan2``, so
-  the search runs at frame rate, and it rates collinear points 0 where the gap index gives
-  ``1/3``.)
+  has no direction and adds nothing to the moments. (The circular-statistics form replaces a
+  sorted-gap index (the largest gap between sorted directions): it needs no sorting and no
+  ``atan2``, so the search runs at frame rate, and it rates collinear points 0 where the gap
+  index gives ``1/3``.)
 * per camera ``Q_c = Q_s,c Q_a,c`` (0 for a camera with fewer than two selected points);
 * balance between cameras, weighted by resolution. A camera is *eligible* when at least
   ``min_per_camera`` of its points are visible. ``rho_c = f_c / z_c`` (px/m) is its resolution at
@@ -120,6 +120,16 @@ class Selection:
     def cost(self) -> float:
         """The minimised cost ``1 - J``."""
         return 1.0 - self.quality
+
+    @classmethod
+    def of(cls, selected: np.ndarray) -> Selection:
+        """A selection made by another rule than :func:`select_features` (a custom
+        :class:`~cellsight.tracking.interfaces.Selector`): the mask ``selected`` (C, F) bool and
+        its counts; the quality indexes and targets unknown (NaN)."""
+        selected = np.asarray(selected, dtype=bool)
+        unknown = np.full(len(selected), np.nan)
+        return cls(selected, float("nan"), unknown, unknown.copy(), float("nan"),
+                   selected.sum(axis=1), unknown.copy(), False)
 
 
 @numba.njit(cache=True)
@@ -547,3 +557,16 @@ def selection_quality(
         return -np.inf
     qs, qa = _final_indexes(pixels, selected, radius)
     return float(np.sum(weights * qs * qa) * _balance(counts, weights, eligible, k))
+
+
+@dataclass(frozen=True)
+class OptimalSelector:
+    """The tracker's default :class:`~cellsight.tracking.interfaces.Selector`: the optimal
+    selection of the module docstring (:func:`select_features`) with ``config``."""
+
+    config: SelectionConfig = SelectionConfig()
+
+    def select(self, pixels: np.ndarray, usable: np.ndarray, resolution: np.ndarray) -> Selection:
+        """Select among the ``usable`` (C, F) features with predicted pixels ``pixels``
+        (C, F, 2) px, cameras weighted by ``resolution`` (C,) px/m."""
+        return select_features(pixels, usable, resolution, self.config)

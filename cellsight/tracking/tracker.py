@@ -1,73 +1,51 @@
 """The closed visual tracking loop of the paper's Fig. 5, one :meth:`Tracker.step` per frame.
 
-The tracker only wires its parts, each in its own module:
+The tracker only wires its parts (:class:`~cellsight.tracking.config.TrackerParts`, each a
+protocol of :mod:`.interfaces` with its default in its own module):
 
-1. motion model (:mod:`.motion`; or the holder's measured motion with the kinematic prior)
-   predicts every tracked part (:class:`~cellsight.tracking.ekf.PoseEKF`), within the
-   :class:`~cellsight.tracking.loss.LossRule`'s coasting time;
+1. the motion model (:mod:`.motion`; or the holder's measured motion with the kinematic prior)
+   predicts every tracked part (:class:`~cellsight.tracking.ekf.PoseEKF`), within the track
+   health rule's coasting time (:mod:`.loss`);
 2. the visibility source (:class:`cellsight.visibility.VisibilitySource`: the BSP predictor)
    predicts, at the predicted poses, which features each camera sees; every tracked part is
    passed, so parts can hide each other;
 3. per part: a part not tracked yet, or lost, is acquired (:mod:`.acquisition`); otherwise
-   the usable features (:mod:`.eligibility`) are selected (:mod:`.selection`), windows are
-   planned around them (:mod:`.windowing`), the extractor finds them in the images
-   (:mod:`.extraction`), the gate (:mod:`.gate`) screens the innovations and the EKF updates
-   with the accepted ones (:mod:`.measurement`, :mod:`.ekf`).
+   the selector chooses among the usable features (:mod:`.eligibility`, :mod:`.selection`),
+   the window planner places their windows (:mod:`.windowing`), the extractor finds them in
+   what the sensors took (:mod:`.extraction`), the gate (:mod:`.gate`) screens the innovations
+   and the EKF updates with the accepted ones (:mod:`.measurement`, :mod:`.ekf`).
 
-Measured pixels are as in the image (distorted); the camera undistorts them before the update.
-Stage times: :mod:`.timing`; statuses: :mod:`.status`; records: :mod:`.records`.
+Within a step, each part's work carries one :class:`StepContext`. Measured pixels are as in the
+image (distorted); the camera undistorts them before the update. Stage times: :mod:`.timing`;
+statuses: :mod:`.status`; records: :mod:`.records`.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from cellsight.camera import Camera
 from cellsight.geometry.transforms import invert_pose, xyz_rpy_from_pose
-from cellsight.tracking.acquisition import PnPAcquisition
-from cellsight.tracking.ekf import AdaptiveNoise, PoseEKF
+from cellsight.tracking.config import TrackerConfig, TrackerParts
+from cellsight.tracking.ekf import AdaptiveNoise, PoseEKF, UpdateReport
 from cellsight.tracking.eligibility import NearOccluderHold
 from cellsight.tracking.extraction import CornerExtractor
-from cellsight.tracking.gate import ChiSquareGate
-from cellsight.tracking.interfaces import Extractor, MeasurementModel
-from cellsight.tracking.loss import LossRule
-from cellsight.tracking.measurement import Observation, PinholeMeasurement
-from cellsight.tracking.motion import POSE_DIM, ConstantVelocity
+from cellsight.tracking.interfaces import Acquisition, Extractor
+from cellsight.tracking.measurement import Observation
+from cellsight.tracking.motion import POSE_DIM
 from cellsight.tracking.records import PartFrame, TrackerFrame
-from cellsight.tracking.selection import SelectionConfig, camera_resolution, select_features
+from cellsight.tracking.selection import camera_resolution
 from cellsight.tracking.status import TrackStatus
 from cellsight.tracking.timing import StageTimer
-from cellsight.tracking.windowing import WindowConfig, plan_windows
 from cellsight.visibility import CameraVisibility, Views, VisibilitySource
 
-
-@dataclass(frozen=True)
-class TrackerConfig:
-    """The tracker's parts and parameters. Units: s, px, m^2/s, rad^2/s.
-
-    ``sigma_px``: pixel noise of the measurement model; ``gate``: None accepts every
-    measurement; ``carried_noise``: random-walk densities of a held part's pose relative to its
-    holder, with the kinematic prior (``holders`` in :meth:`Tracker.step`);
-    ``near_occluder_hold_s``: how long a feature stays unusable after it was last flagged
-    ``near_occluder``; ``measurement``: builds a camera's measurement model from the camera and
-    ``sigma_px``.
-    """
-
-    motion: ConstantVelocity = ConstantVelocity()
-    sigma_px: float = 0.5
-    adaptive_noise: bool = False
-    gate: ChiSquareGate | None = ChiSquareGate(0.999)
-    selection: SelectionConfig = SelectionConfig()
-    windows: WindowConfig = WindowConfig()
-    acquisition: PnPAcquisition = PnPAcquisition()
-    loss: LossRule = LossRule()
-    carried_noise: tuple[float, float] = (1e-6, 1e-5)
-    near_occluder_hold_s: float = 0.5
-    measurement: Callable[[Camera, float], MeasurementModel] = PinholeMeasurement
+Crowd = list[tuple[np.ndarray, dict[str, tuple[int, np.ndarray]]]]
+"""Per camera: (M, 2) predicted pixels of every visible feature of every part (what the windows
+must avoid), and each part's (first row, its visible feature indices) in them."""
 
 
 @dataclass
@@ -85,21 +63,52 @@ class _Track:
     lost: bool = False
     holder: np.ndarray | None = None
 
+    @property
+    def acquiring(self) -> bool:
+        """The part is to be acquired this frame: never acquired, or lost."""
+        return self.ekf is None or self.lost
+
     def empty_record(self, name: str, status: TrackStatus, n_cameras: int) -> PartFrame:
+        """A record of this track with nothing predicted or measured (:meth:`PartFrame.empty`)."""
         ekf = self.ekf
         return PartFrame.empty(name, status, n_cameras, len(self.points),
                                None if ekf is None else ekf.state,
                                None if ekf is None else ekf.covariance,
                                None if ekf is None else ekf.pose)
 
+    def search_on(self, acquisition: Acquisition) -> None:
+        """No fix this frame: a part never acquired is looked for at the next guess."""
+        if self.ekf is None and self.guess is not None:
+            if self.base_guess is None:
+                self.base_guess = self.guess
+            self.attempts += 1
+            self.guess = acquisition.guess(self.base_guess, self.attempts)
+
+
+@dataclass(frozen=True)
+class StepContext:
+    """One part's work in one :meth:`Tracker.step`: the frame's time ``t`` (s), what the
+    sensors took (``observed``, as given to the step), the ``crowd`` of predicted pixels
+    (:data:`Crowd`), the stage ``timer``, the part's ``track`` and its ``rec`` being filled."""
+
+    t: float
+    observed: Any
+    crowd: Crowd
+    timer: StageTimer
+    track: _Track
+    rec: PartFrame
+
 
 class Tracker:
     """Occlusion-aware multi-camera tracker of one or more workpieces (module docstring).
 
     ``cameras`` in the order the visibility source reports them; ``parts``: workpiece name ->
-    feature points (F, 3) in the part frame (m); ``initial_poses``: name -> guessed
-    ``T_base_part`` for acquisition (a part without one waits for :meth:`initialise`).
-    ``extractor`` defaults to :class:`~cellsight.tracking.extraction.CornerExtractor`.
+    feature points (F, 3) in the part frame (m); ``predictor``: the visibility source;
+    ``extractor``: the sensor, fed what :meth:`step` is given (default
+    :class:`~cellsight.tracking.extraction.CornerExtractor`, on images); ``config``: the plain
+    numbers; ``initial_poses``: name -> guessed ``T_base_part`` for acquisition (a part without
+    one waits for :meth:`initialise`); ``components``: the other parts (selector, window
+    planner, gate, motion, acquisition, loss, measurement model).
     """
 
     def __init__(
@@ -110,12 +119,15 @@ class Tracker:
         extractor: Extractor | None = None,
         config: TrackerConfig | None = None,
         initial_poses: Mapping[str, np.ndarray] | None = None,
+        components: TrackerParts | None = None,
     ) -> None:
         self.config = config or TrackerConfig()
+        self.components = components or TrackerParts()
         self.cameras = list(cameras)
         self.predictor = predictor
         self.extractor = extractor or CornerExtractor()
-        self._models = [self.config.measurement(c, self.config.sigma_px) for c in self.cameras]
+        self._models = [self.components.measurement(c, self.config.sigma_px)
+                        for c in self.cameras]
         guesses = dict(initial_poses or {})
         self.tracks = {
             name: _Track(np.asarray(pts, dtype=float).reshape(-1, 3), guesses.get(name),
@@ -130,6 +142,7 @@ class Tracker:
         predictor: VisibilitySource,
         extractor: Extractor | None = None,
         config: TrackerConfig | None = None,
+        components: TrackerParts | None = None,
     ) -> Tracker:
         """Tracker of every workpiece of a :class:`~cellsight.model.cell.Cell`, acquiring each
         around its nominal pose."""
@@ -140,6 +153,7 @@ class Tracker:
             extractor,
             config,
             {p.name: p.T_base_part for p in cell.workpieces},
+            components,
         )
 
     def initialise(
@@ -151,19 +165,19 @@ class Tracker:
         velocity uncertainty.
         """
         if covariance is None:
-            covariance = self.config.acquisition.covariance(
+            covariance = self.components.acquisition.covariance(
                 np.diag([0.005**2] * 3 + [0.05**2] * 3))
         track = self.tracks[name]
         xyz, rpy = xyz_rpy_from_pose(np.asarray(T_base_part, dtype=float))
         state = np.concatenate([xyz, rpy, np.zeros(POSE_DIM)])
         adaptive = AdaptiveNoise() if self.config.adaptive_noise else None
-        track.ekf = PoseEKF(self.config.motion, state, covariance, t, adaptive)
+        track.ekf = PoseEKF(self.components.motion, state, covariance, t, adaptive)
         track.last_update = float(t)
         track.lost = False
 
     def step(
         self,
-        images: Any,
+        observed: Any,
         joints: Mapping[str, np.ndarray] | None,
         t: float,
         openings: Mapping[str, float] | None = None,
@@ -171,35 +185,37 @@ class Tracker:
     ) -> TrackerFrame:
         """Process one vision frame at time ``t`` (s): the paper's Fig. 5 (module docstring).
 
-        ``images``: one image per camera (sequence in camera order, or mapping by camera name;
-        None for a missing image), passed to the extractor; ``joints``: robot name -> joint
-        vector (m, rad) and ``openings``: robot name -> jaw opening (m), for the visibility
-        source; ``holders`` (the kinematic prior, optional): part name -> measured pose
-        ``T_base_holder`` of what holds the part rigidly this frame (a gripper's TCP from the
-        joint measurements); a part held at this frame and the last one is predicted by the
-        holder's motion (:meth:`PoseEKF.predict_carried`) instead of its motion model.
+        ``observed``: what the sensors took, one entry per camera (sequence in camera order, or
+        mapping by camera name; None for a camera that gave nothing, or for the whole frame),
+        each passed to the extractor: an image for the corner extractor, or whatever the
+        extractor measures; ``joints``: robot name -> joint vector (m, rad) and ``openings``:
+        robot name -> jaw opening (m), for the visibility source; ``holders`` (the kinematic
+        prior, optional): part name -> measured pose ``T_base_holder`` of what holds the part
+        rigidly this frame (a gripper's TCP from the joint measurements); a part held at this
+        frame and the last one is predicted by the holder's motion
+        (:meth:`PoseEKF.predict_carried`) instead of its motion model.
         """
         timer = StageTimer()
+        records = {}
         with timer("total"):
             with timer("ekf"):
                 poses = self._predict(t, holders or {})
             with timer("occlusion"):
                 views = self.predictor.predict(joints, poses, openings) if poses else {}
             crowd = _visible_pixels(views, len(self.cameras))
-            records = {name: self._part(name, track, views.get(name), crowd, images, t, timer)
-                       for name, track in self.tracks.items()}
-        grabbed = np.zeros(len(self.cameras))
-        for rec in records.values():
-            for c, plan in enumerate(rec.windows):
-                if plan is not None:
-                    grabbed[c] += plan.fraction
-        return TrackerFrame(float(t), records, timer.seconds, grabbed)
+            for name, track in self.tracks.items():
+                part_views = views.get(name)
+                rec = records[name] = self._record(name, track, part_views)
+                if part_views is not None:
+                    context = StepContext(t, observed, crowd, timer, track, rec)
+                    (self._acquire if track.acquiring else self._track)(context)
+        return TrackerFrame(float(t), records, timer.seconds, _grabbed(records, len(self.cameras)))
 
     def _predict(self, t: float, holders: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
         """Predict every tracked part to time ``t``; the pose each is looked for at (the
         prediction, or the acquisition guess of a part never acquired)."""
         poses = {}
-        loss = self.config.loss
+        loss = self.components.loss
         for name, track in self.tracks.items():
             holder = holders.get(name)
             if track.ekf is not None:
@@ -215,49 +231,41 @@ class Tracker:
             track.holder = None if holder is None else np.asarray(holder, dtype=float)
         return poses
 
-    def _part(self, name: str, track: _Track, views: list[CameraVisibility] | None,
-              crowd, images: Any, t: float, timer: StageTimer) -> PartFrame:
-        """One part's record this frame: waiting, acquired/lost, or tracked."""
+    def _record(self, name: str, track: _Track,
+                views: list[CameraVisibility] | None) -> PartFrame:
+        """One part's record before its measurements: waiting (nothing predicted), to be
+        acquired (waiting or lost) or predicting, with the visibility source's answer."""
         C = len(self.cameras)
         if views is None:
             return track.empty_record(name, TrackStatus.WAITING, C)
-        if track.ekf is None or track.lost:
+        if track.acquiring:
             status = TrackStatus.LOST if track.ekf is not None else TrackStatus.WAITING
-            rec = track.empty_record(name, status, C)
-            rec.set_views(views)
-            self._acquire(rec, track, crowd, images, t, timer)
         else:
-            rec = track.empty_record(name, TrackStatus.PREDICTING, C)
-            rec.set_views(views)
-            self._track(rec, track, crowd, images, timer)
+            status = TrackStatus.PREDICTING
+        rec = track.empty_record(name, status, C)
+        rec.set_views(views)
         return rec
 
-    def _track(self, rec: PartFrame, track: _Track, crowd, images: Any,
-               timer: StageTimer) -> None:
+    def _track(self, context: StepContext) -> None:
         """Select, window, extract, gate and update (the paper's loop)."""
+        rec, track, timer = context.rec, context.track, context.timer
         ekf = track.ekf
         with timer("selection"):
             usable = track.hold.usable(rec.visible, rec.near_occluder, ekf.t)
-            sel = select_features(rec.pixels, usable, self._resolution(track),
-                                  self.config.selection)
+            sel = self.components.selector.select(rec.pixels, usable, self._resolution(track))
             rec.selection, rec.selected = sel, sel.selected
 
         def covariance(c: int, idx: np.ndarray) -> np.ndarray:
             return ekf.innovation_covariance(self._models[c], c, track.points[idx])[1]
 
-        obs = self._measure(rec, track, crowd, images, timer, covariance, self.config.windows)
+        obs = self._measure(context, covariance)
         with timer("ekf"):
-            report = ekf.update(obs, self.config.gate)
-        if len(report.accepted):
-            c, f = report.camera_index, report.feature_ids
-            rec.innovation[c, f] = report.innovation
-            rec.mahalanobis2[c, f] = report.mahalanobis2
-            rec.rejected[c, f] = ~report.accepted
+            report = ekf.update(obs, self.components.gate)
+        _record_update(rec, report)
         if report.n_accepted:
             track.last_update = ekf.t
             rec.status = TrackStatus.TRACKING
-        rec.state, rec.covariance = ekf.state.copy(), ekf.covariance.copy()
-        rec.T_base_part = ekf.pose
+        _record_estimate(rec, ekf)
 
     def _resolution(self, track: _Track) -> np.ndarray:
         """Per camera: pixels per metre at the estimated part's centroid (focal / depth), the
@@ -266,50 +274,46 @@ class Tracker:
         return camera_resolution(self.cameras, track.points.mean(axis=0) @ T[:3, :3].T
                                  + T[:3, 3])
 
-    def _acquire(self, rec: PartFrame, track: _Track, crowd, images: Any, t: float,
-                 timer: StageTimer) -> None:
-        """Windows of a fixed size on every usable feature, then PnP (:mod:`.acquisition`)."""
-        acquisition = self.config.acquisition
-        size = acquisition.window_px
-        windows = replace(self.config.windows, min_size_px=size, max_size_px=size)
-        rec.selected = track.hold.usable(rec.visible, rec.near_occluder, t)
+    def _acquire(self, context: StepContext) -> None:
+        """Windows of a fixed size on every usable feature, then a fix (:mod:`.acquisition`)."""
+        rec, track = context.rec, context.track
+        acquisition = self.components.acquisition
+        rec.selected = track.hold.usable(rec.visible, rec.near_occluder, context.t)
 
         def covariance(c: int, idx: np.ndarray) -> np.ndarray:
             return np.zeros((len(idx), 2, 2))
 
-        obs = self._measure(rec, track, crowd, images, timer, covariance, windows)
-        with timer("ekf"):
+        obs = self._measure(context, covariance, acquisition.window_px)
+        with context.timer("ekf"):
             fix = acquisition.fix(obs, self.config.sigma_px)
-            if fix is None and track.ekf is None and track.guess is not None:
-                if track.base_guess is None:
-                    track.base_guess = track.guess
-                track.attempts += 1
-                track.guess = acquisition.guess(track.base_guess, track.attempts)
-            if fix is not None:
-                self.initialise(rec.name, fix.T_base_part, t, acquisition.start(fix))
+            if fix is None:
+                track.search_on(acquisition)
+            else:
+                self.initialise(rec.name, fix.T_base_part, context.t, acquisition.start(fix))
                 rec.status = TrackStatus.ACQUIRED
-                ekf = track.ekf
-                rec.state, rec.covariance = ekf.state.copy(), ekf.covariance.copy()
-                rec.T_base_part = ekf.pose
+                _record_estimate(rec, track.ekf)
 
-    def _measure(self, rec: PartFrame, track: _Track, crowd, images: Any, timer: StageTimer,
+    def _measure(self, context: StepContext,
                  covariance: Callable[[int, np.ndarray], np.ndarray],
-                 windows: WindowConfig) -> list[Observation]:
-        """Plan the windows of the selected features, extract, build the observations."""
+                 size_px: float | None = None) -> list[Observation]:
+        """Plan the windows of the selected features (``covariance(c, idx)``: their innovation
+        covariances (n, 2, 2) px^2 in camera ``c``; ``size_px``: fixed window size, px),
+        extract, build the observations."""
+        rec, timer, track = context.rec, context.timer, context.track
         observations = []
         for c, cam in enumerate(self.cameras):
             idx = np.flatnonzero(rec.selected[c])
             if len(idx) == 0:
                 continue
             with timer("windowing"):
-                others, offsets = crowd[c]
-                start, vis_idx = offsets[rec.name]
-                own = start + np.searchsorted(vis_idx, idx)
-                plan = plan_windows(rec.pixels[c, idx], idx, covariance(c, idx), cam.width,
-                                    cam.height, others, own, windows)
+                crowd, offsets = context.crowd[c]
+                own = _own_rows(*offsets[rec.name], idx)
+                plan = self.components.windows.plan(cam, rec.pixels[c, idx], idx,
+                                                    covariance(c, idx), crowd, own, size_px)
                 rec.windows[c] = plan
             with timer("extraction"):
-                found = self.extractor.extract(c, _image(images, self.cameras, c), plan)
+                found = self.extractor.extract(c, _observed(context.observed, self.cameras, c),
+                                               plan)
             if not found:
                 continue
             ids = np.array(sorted(found), dtype=np.int64)
@@ -320,18 +324,52 @@ class Tracker:
         return observations
 
 
-def _image(images: Any, cameras: Sequence[Camera], c: int) -> Any:
-    """Camera ``c``'s image from a sequence in camera order or a mapping by camera name."""
-    if images is None:
+def _record_update(rec: PartFrame, report: UpdateReport) -> None:
+    """Record an update's per-feature innovations, distances and rejections."""
+    if len(report.accepted):
+        c, f = report.camera_index, report.feature_ids
+        rec.innovation[c, f] = report.innovation
+        rec.mahalanobis2[c, f] = report.mahalanobis2
+        rec.rejected[c, f] = ~report.accepted
+
+
+def _record_estimate(rec: PartFrame, ekf: PoseEKF) -> None:
+    """Record the filter's state, covariance and pose."""
+    rec.state, rec.covariance = ekf.state.copy(), ekf.covariance.copy()
+    rec.T_base_part = ekf.pose
+
+
+def _observed(observed: Any, cameras: Sequence[Camera], c: int) -> Any:
+    """Camera ``c``'s entry of what the sensors took: from a sequence in camera order or a
+    mapping by camera name (None when there is none)."""
+    if observed is None:
         return None
-    if isinstance(images, Mapping):
-        return images.get(cameras[c].name)
-    return images[c] if c < len(images) else None
+    if isinstance(observed, Mapping):
+        return observed.get(cameras[c].name)
+    return observed[c] if c < len(observed) else None
 
 
-def _visible_pixels(views: Views, n_cameras: int) -> list[tuple[np.ndarray, dict]]:
-    """Per camera: (M, 2) predicted pixels of every visible feature of every part (the
-    crowd the windows must avoid), and each part's (row offset, visible feature indices)."""
+def _own_rows(start: int, visible: np.ndarray, idx: np.ndarray) -> np.ndarray:
+    """Rows of the crowd (:data:`Crowd`) of the features ``idx`` of a part whose rows start at
+    ``start`` for its visible features ``visible`` (sorted); -1 for a feature not among them."""
+    pos = np.searchsorted(visible, idx)
+    inside = pos < len(visible)
+    inside[inside] = visible[pos[inside]] == idx[inside]
+    return np.where(inside, start + pos, -1)
+
+
+def _grabbed(records: Mapping[str, PartFrame], n_cameras: int) -> np.ndarray:
+    """Per camera, the fraction of its pixels grabbed by every part's windows."""
+    grabbed = np.zeros(n_cameras)
+    for rec in records.values():
+        for c, plan in enumerate(rec.windows):
+            if plan is not None:
+                grabbed[c] += plan.fraction
+    return grabbed
+
+
+def _visible_pixels(views: Views, n_cameras: int) -> Crowd:
+    """The crowd (:data:`Crowd`) of the visibility source's answer ``views``."""
     out = []
     for c in range(n_cameras):
         rows, offsets, start = [], {}, 0

@@ -24,10 +24,12 @@ The fraction of the image grabbed is ``sum(region pixels) / (width height)``.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numba
 import numpy as np
+
+from cellsight.camera import Camera
 
 OK, SHRUNK, DROPPED = 0, 1, 2
 _EMPTY_POINTS = np.zeros((0, 2))
@@ -327,3 +329,22 @@ def plan_windows(
         grabbed_px=grabbed,
         fraction=grabbed / float(width * height),
     )
+
+
+@dataclass(frozen=True)
+class CovarianceWindows:
+    """The tracker's default :class:`~cellsight.tracking.interfaces.WindowPlanner`: windows
+    sized by the innovation covariance and kept clear of the other predicted features
+    (:func:`plan_windows`, module docstring) with ``config``."""
+
+    config: WindowConfig = WindowConfig()
+
+    def plan(self, camera: Camera, centers: np.ndarray, features: np.ndarray,
+             covariance: np.ndarray, crowd: np.ndarray, own: np.ndarray,
+             size_px: float | None = None) -> WindowPlan:
+        """:func:`plan_windows` in ``camera``'s image; ``size_px`` (px): every window that full
+        width and height whatever the covariance (acquisition), None: sized by it."""
+        cfg = (self.config if size_px is None
+               else replace(self.config, min_size_px=size_px, max_size_px=size_px))
+        return plan_windows(centers, features, covariance, camera.width, camera.height, crowd,
+                            own, cfg)

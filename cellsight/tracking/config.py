@@ -1,0 +1,66 @@
+"""What a :class:`~cellsight.tracking.Tracker` is made of: its parts (:class:`TrackerParts`,
+each a protocol of :mod:`.interfaces` with its default implementation) and its plain numbers
+(:class:`TrackerConfig`). The defaults are the paper's tracker with this package's additions
+(gate, acquisition, loss, near-occluder hold)."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+from cellsight.camera import Camera
+from cellsight.tracking.acquisition import PnPAcquisition
+from cellsight.tracking.gate import ChiSquareGate
+from cellsight.tracking.interfaces import (
+    Acquisition,
+    Gate,
+    MeasurementModel,
+    MotionModel,
+    Selector,
+    TrackHealth,
+    WindowPlanner,
+)
+from cellsight.tracking.loss import LossRule
+from cellsight.tracking.measurement import PinholeMeasurement
+from cellsight.tracking.motion import ConstantVelocity
+from cellsight.tracking.selection import OptimalSelector
+from cellsight.tracking.windowing import CovarianceWindows
+
+
+@dataclass(frozen=True)
+class TrackerParts:
+    """The tracker's swappable parts, in the order of one step (:mod:`.tracker`).
+
+    ``motion`` predicts each filter; ``loss`` says when a track coasts and when it is lost;
+    ``selector`` chooses the features to measure; ``windows`` plans their image windows;
+    ``gate`` screens the innovations (None accepts every measurement); ``acquisition`` starts a
+    filter from one frame's measurements; ``measurement`` builds a camera's measurement model
+    from the camera and the pixel noise ``TrackerConfig.sigma_px`` (px). The extractor (the
+    sensor) is the tracker's own argument: it goes with what :meth:`Tracker.step` is given.
+    """
+
+    motion: MotionModel = ConstantVelocity()
+    loss: TrackHealth = LossRule()
+    selector: Selector = OptimalSelector()
+    windows: WindowPlanner = CovarianceWindows()
+    gate: Gate | None = ChiSquareGate(0.999)
+    acquisition: Acquisition = PnPAcquisition()
+    measurement: Callable[[Camera, float], MeasurementModel] = PinholeMeasurement
+
+
+@dataclass(frozen=True)
+class TrackerConfig:
+    """The tracker's plain numbers. Units: px, s, m^2/s, rad^2/s.
+
+    ``sigma_px``: pixel noise of the measurement model and of acquisition's fix;
+    ``adaptive_noise``: re-estimate it per camera from the innovations
+    (:class:`~cellsight.tracking.ekf.AdaptiveNoise`); ``carried_noise``: random-walk densities of
+    a held part's pose relative to its holder, with the kinematic prior (``holders`` in
+    :meth:`Tracker.step`); ``near_occluder_hold_s``: how long a feature stays unusable after it
+    was last flagged ``near_occluder`` (:mod:`.eligibility`).
+    """
+
+    sigma_px: float = 0.5
+    adaptive_noise: bool = False
+    carried_noise: tuple[float, float] = (1e-6, 1e-5)
+    near_occluder_hold_s: float = 0.5
