@@ -34,7 +34,7 @@ from cellsight.model.loader import load_cell
 from cellsight.placement.candidates import shell_candidates
 from cellsight.placement.scoring import score_candidates
 from cellsight.placement.task import TaskFrames
-from cellsight.sweep.grid import finished_metrics
+from cellsight.runfolder import finished_metrics
 from cellsight.world import ReplayWorld
 
 OUT = Path(__file__).resolve().parent.parent / "out" / "bench"

@@ -23,6 +23,7 @@ from cellsight._camera_kernel import pinhole_jacobians
 from cellsight.errors import CameraError
 from cellsight.geometry.transforms import invert_pose, transform_points
 
+MIN_DEPTH_M = 1e-6  # m: a point is in front of a camera when its depth exceeds this
 UNDISTORT_TOL_PX = 1e-6  # px: convergence of the fixed-point undistortion of the pixel maps
 UNDISTORT_MAX_ITER = 200
 
@@ -238,10 +239,6 @@ class Camera:
         """Project base-frame points to pixels ``(u, v)``, shape (N, 2); NaN behind the camera."""
         return self.project_camera(self.to_camera(points_base))
 
-    def in_front(self, points_base: np.ndarray, min_depth: float = 1e-6) -> np.ndarray:
-        """Boolean mask: the point lies in front of the camera (depth > ``min_depth`` m)."""
-        return self.to_camera(points_base)[:, 2] > min_depth
-
     def in_image(self, pixels: np.ndarray, margin: float = 0.0) -> np.ndarray:
         """Boolean mask: the pixel lies inside the image, at least ``margin`` px from its border.
 
@@ -258,8 +255,10 @@ class Camera:
             )
 
     def sees(self, points_base: np.ndarray, margin: float = 0.0) -> np.ndarray:
-        """Boolean mask: in front of the camera and projecting inside the image."""
-        return self.in_front(points_base) & self.in_image(self.project(points_base), margin)
+        """Boolean mask: in front of the camera (depth > :data:`MIN_DEPTH_M`) and projecting
+        inside the image."""
+        return (self.depth(points_base) > MIN_DEPTH_M) & self.in_image(self.project(points_base),
+                                                                        margin)
 
     def depth(self, points_base: np.ndarray) -> np.ndarray:
         """Depth along the optical axis (m) of base-frame points."""

@@ -27,7 +27,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from cellsight.camera import Camera
-from cellsight.cameras_cli import register, write_cameras
+from cellsight.commands.cameras import register, write_cameras
 from cellsight.errors import CellFileError, CellsightError
 from cellsight.geometry.transforms import look_at
 from cellsight.model.calibration import (

@@ -11,7 +11,7 @@ from cellsight._camera_kernel import pinhole_jacobian, project_point, to_camera
 from cellsight.camera import Camera, intrinsics
 from cellsight.errors import CameraError
 from cellsight.geometry.transforms import invert_pose, look_at, make_pose
-from cellsight.occlusion._cull_kernel import project_points
+from cellsight.occlusion._frame_kernel import project_points
 
 
 def test_project_matches_opencv_with_distortion() -> None:
@@ -38,9 +38,9 @@ def test_center_front_and_image_helpers() -> None:
     np.testing.assert_allclose(cam.center, [0, -2, 1])
     target = np.array([[0.0, 0.0, 0.0]])
     np.testing.assert_allclose(cam.project(target), [[383.5, 287.5]], atol=1e-9)
-    assert cam.in_front(target).all()
+    assert cam.depth(target)[0] > 0 and cam.sees(target).all()
     behind = np.array([[0.0, -4.0, 2.0]])
-    assert not cam.in_front(behind).any()
+    assert cam.depth(behind)[0] < 0
     assert np.isnan(cam.project(behind)).all()
     assert not cam.sees(behind).any()
     assert cam.in_image(np.array([[0.0, 0.0], [767.4, 575.4]])).all()

@@ -600,7 +600,7 @@ def _world_run(speed: float, world_grasp: bool, t_end: float = 40.0):
         q, opening = task.step_control(t, q_meas)
         q_record.append(q)
         world.step({name: q}, {name: opening})
-        if grasped_at is None and world.grasped(name):
+        if grasped_at is None and world.grasp(name) is not None:
             grasped_at = world.time
     return task, world, T_part_tcp, grasped_at, np.array(q_record)
 
@@ -622,6 +622,6 @@ def test_task_grasps_and_delivers_in_the_mujoco_world(speed: float, world_grasp:
     grip_point = (world.true_part_poses()[PART.name] @ T_part_tcp)[:2, 3]
     T_final = ROBOT.tcp_pose(ROBOT.final)
     assert np.linalg.norm(grip_point - T_final[:2, 3]) < tolerance  # released under FINAL
-    assert not world.grasped(ROBOT.name)
+    assert world.grasp(ROBOT.name) is None
     v, a = _derivatives(q)
     assert np.all(np.abs(v) <= V_MAX * (1 + 1e-9)) and np.all(np.abs(a) <= A_MAX)

@@ -18,12 +18,12 @@ from cellsight.errors import CellFileError
 from cellsight.experiments import RunConfig, scenario
 from cellsight.experiments.plant import SimulatedCell
 from cellsight.experiments.runner import ExperimentRun
-from cellsight.experiments.sensors import IdealExtractor
-from cellsight.framelog import columns
+from cellsight.experiments.sensors import IdealExtractor, IdealView
 from cellsight.model.loader import builtin_cell_path
 from cellsight.occlusion.predictor import VisibilityPredictor
 from cellsight.occlusion.projection import ProjectionOnly
 from cellsight.rates import CONTROL_HZ, VISION_HZ
+from cellsight.runfolder.framelog import columns
 from cellsight.tracking.windowing import plan_windows
 from cellsight.world import World
 
@@ -247,8 +247,7 @@ def test_ideal_extractor_measures_truly_visible_features_in_their_windows() -> N
     plan = plan_windows(pixels[0, :5], np.arange(5), np.zeros((5, 2, 2)), 768, 576)
     pixels[0, 4] += 200  # the truth is far from where the window was planned
     extractor = IdealExtractor(0.3, seed=1)
-    extractor.set_truth(pixels, visible)
-    found = extractor.extract(0, None, plan)
+    found = extractor.extract(0, IdealView(pixels[0], visible[0]), plan)
     assert set(found) == set(plan.features.tolist()) - {2, 4}
     for f, px in found.items():
         assert np.linalg.norm(px - pixels[0, f]) < 2.0

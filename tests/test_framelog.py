@@ -1,5 +1,5 @@
-"""The frames.csv schema (cellsight.framelog): the exact format of the files already written
-(header, quoting, empty fields), rows written and read back with the same values, the 0/1
+"""The frames.csv schema (cellsight.runfolder.framelog): the exact format of the files already
+written (header, quoting, empty fields), rows written and read back with the same values, the 0/1
 coding, and a cut-off last line."""
 
 from __future__ import annotations
@@ -9,7 +9,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from cellsight.framelog import (
+from cellsight.geometry.transforms import pose_from_xyz_rpy
+from cellsight.rates import VISION_HZ
+from cellsight.runfolder.framelog import (
     POSE,
     FrameLog,
     FrameWriter,
@@ -21,8 +23,6 @@ from cellsight.framelog import (
     pose_fields,
     timing_fields,
 )
-from cellsight.geometry.transforms import pose_from_xyz_rpy
-from cellsight.rates import VISION_HZ
 from cellsight.tracking.timing import STAGES
 
 # The header of the runs written before the schema had its own module: the format may not

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from cellsight.experiments.metrics import evaluated_frames, frame_metrics
-from cellsight.framelog import FrameLog, FrameWriter, pose_fields, timing_fields
 from cellsight.geometry.transforms import pose_from_xyz_rpy
+from cellsight.runfolder.framelog import FrameLog, FrameWriter, pose_fields, timing_fields
 from cellsight.tracking.timing import STAGES
 
 PERIOD = 0.04  # s

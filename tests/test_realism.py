@@ -17,7 +17,7 @@ import yaml
 from cellsight import load_cell
 from cellsight.camera import Camera
 from cellsight.experiments.scenario import scenario
-from cellsight.experiments.sensors import IdealExtractor
+from cellsight.experiments.sensors import IdealExtractor, IdealView
 from cellsight.occlusion.predictor import VisibilityPredictor
 from cellsight.realism import FrameClock, ProfileError, draw_world, load_profile
 from cellsight.realism.profile import Profile, TimingKnobs
@@ -266,13 +266,11 @@ def test_ideal_sensor_returns_a_corner_or_nothing_for_a_hidden_feature():
     sensor = IdealExtractor(0.0, 0)
     plan = SimpleNamespace(features=np.array([0, 1]),  # the two fields the extractor reads
                            boxes=np.array([[84, 84, 117, 117], [284, 284, 317, 317]]))
-    sensor.set_truth(pixels, visible, [np.array([[100.0, 100.0], [108.0, 95.0], [400.0, 5.0]])])
-    found = sensor.extract(0, None, plan)
+    corners = np.array([[100.0, 100.0], [108.0, 95.0], [400.0, 5.0]])
+    found = sensor.extract(0, IdealView(pixels[0], visible[0], corners), plan)
     np.testing.assert_allclose(found[0], [108.0, 95.0])  # the occluder's corner, not its own
     np.testing.assert_allclose(found[1], [300.0, 300.0])
-    sensor.set_truth(pixels, visible, [np.array([[100.0, 100.0]])])
-    assert 0 not in sensor.extract(0, None, plan)
-    sensor.set_truth(None, None)
+    assert 0 not in sensor.extract(0, IdealView(pixels[0], visible[0], corners[:1]), plan)
     assert sensor.extract(0, None, plan) == {}
 
 
@@ -362,7 +360,7 @@ def test_held_part_predictor_agrees_with_the_ray_truth_from_every_side():
     world.place_part("part", T)
     while world.time < 0.4:
         world.step({"R7AX": robot.home}, {"R7AX": 0.0})
-    assert world.grasped("R7AX")
+    assert world.grasp("R7AX") is not None
     predictor = VisibilityPredictor(cell)
     checked = 0
     for k in range(8):

@@ -14,7 +14,6 @@ import imageio_ffmpeg
 import numpy as np
 import pytest
 
-from cellsight.framelog import POSE, FrameLog
 from cellsight.rates import VISION_HZ
 from cellsight.report import overlay
 from cellsight.report.overlay import compose_views, draw_camera_overlay
@@ -27,6 +26,7 @@ from cellsight.report.run_report import (
     write_report,
 )
 from cellsight.report.video import VideoWriter
+from cellsight.runfolder.framelog import POSE, FrameLog
 from cellsight.tracking.timing import STAGES
 
 F = 16

@@ -19,8 +19,8 @@ import cellsight.experiments
 from cellsight import load_cell
 from cellsight.cli import main
 from cellsight.experiments import ExperimentRun, RunConfig, scenario
-from cellsight.experiments.runner import RunFolderError
-from cellsight.framelog import columns
+from cellsight.runfolder import RunFolderError
+from cellsight.runfolder.framelog import columns
 from cellsight.world import World
 
 IDEAL = ["--sensor", "ideal", "--quiet"]

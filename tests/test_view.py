@@ -32,10 +32,10 @@ from websockets.sync.client import connect
 from cellsight.cli import main
 from cellsight.errors import CellsightError
 from cellsight.experiments import RunConfig, run_experiment
-from cellsight.framelog import FrameLog
 from cellsight.geometry.transforms import pose_from_xyz_rpy, transform_points
 from cellsight.model.loader import load_cell
 from cellsight.occlusion.predictor import VisibilityPredictor
+from cellsight.runfolder.framelog import FrameLog
 from cellsight.view.app import ViewApp
 from cellsight.view.replay import RunReplay
 

@@ -396,7 +396,7 @@ def test_grasp_engages_at_the_grasp_pose_carries_and_releases_the_part(cell):
     robot = cell.robot("R7AX")
     placed = _part_in_gripper(world, cell, np.eye(4))
     _close(world)
-    assert world.jaws_closed_on_part("R7AX") and world.grasped("R7AX")
+    assert world.jaws_closed_on_part("R7AX") and world.grasp("R7AX") is not None
     np.testing.assert_allclose(world.true_part_poses()["part"], placed, atol=1e-12)  # no push
     width = world.jaw_openings()["R7AX"]
     assert 0.02 < width < robot.tool.max_opening
@@ -408,7 +408,7 @@ def test_grasp_engages_at_the_grasp_pose_carries_and_releases_the_part(cell):
                                    invert_pose(robot.tcp_pose(robot.home)) @ placed, atol=1e-9)
     assert world.jaw_openings()["R7AX"] == width
     world.step({"R7AX": q}, {"R7AX": robot.tool.max_opening})
-    assert not world.grasped("R7AX") and not world.jaws_closed_on_part("R7AX")
+    assert world.grasp("R7AX") is None and not world.jaws_closed_on_part("R7AX")
     released = world.true_part_poses()["part"]
     _run_until(world, world.time + 1.0, setpoints={"R7AX": q})
     rest = world.true_part_poses()["part"]
@@ -428,7 +428,7 @@ def test_jaws_centre_a_slightly_offset_part_and_grasp_it(cell):
     world = World(cell)
     placed = _part_in_gripper(world, cell, make_pose(None, (0.0, 0.005, 0.0)))
     _close(world)
-    assert world.grasped("R7AX")
+    assert world.grasp("R7AX") is not None
     robot = cell.robot("R7AX")
     centred = robot.tcp_pose(robot.home) @ invert_pose(world.grippers.grasp_pose("part"))
     moved = world.true_part_poses()["part"]
@@ -445,7 +445,7 @@ def test_grasp_does_not_engage_out_of_tolerance(cell, offset):
     world = World(cell)
     _part_in_gripper(world, cell, offset)
     _close(world)
-    assert world.jaws_closed_on_part("R7AX") and not world.grasped("R7AX")
+    assert world.jaws_closed_on_part("R7AX") and world.grasp("R7AX") is None
     before = world.true_part_poses()["part"]
     robot = cell.robot("R7AX")
     away = robot.home + 0.1 * np.eye(7)[0]  # 10 cm along the track, jaws still closed
@@ -460,7 +460,7 @@ def test_jaws_move_at_finite_speed_and_close_fully_on_nothing(cell):
     assert not world.jaws_closed_on_part("R7AX")
     _run_until(world, 0.6)
     assert world.jaw_openings()["R7AX"] == pytest.approx(0.0, abs=1e-12)
-    assert not world.jaws_closed_on_part("R7AX") and not world.grasped("R7AX")
+    assert not world.jaws_closed_on_part("R7AX") and world.grasp("R7AX") is None
 
 
 # --- the second arm's task, joint measurements -------------------------------------------------

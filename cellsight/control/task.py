@@ -182,8 +182,8 @@ class GraspTask:
         self._handlers = {
             Phase.WAITING: self._waiting, Phase.APPROACH: self._approach, Phase.GRASP: self._grasp,
             Phase.MANIPULATE: self._manipulate, Phase.RELEASE: self._release,
-            Phase.DONE: self._done, Phase.FAILED: self._failed,
-        }
+            Phase.FAILED: self._failed,
+        }  # DONE: nothing left to do, the robot holds HOME
 
     # ---- rates -------------------------------------------------------------------------------
 
@@ -198,7 +198,8 @@ class GraspTask:
         if self.phase in (Phase.WAITING, Phase.APPROACH, Phase.GRASP):
             self.planner.part.update(t if stamp is None else stamp, part_pose, part_velocity)
         T_meas = self.robot.tcp_pose(joints_measured)
-        self._handlers[self.phase](t, T_meas, bool(jaws_closed))
+        if handler := self._handlers.get(self.phase):
+            handler(t, T_meas, bool(jaws_closed))
         self.servo.new_target(t)
 
     def step_control(self, t: float, q_measured: np.ndarray) -> tuple[np.ndarray, float]:
@@ -287,9 +288,6 @@ class GraspTask:
         elif self.stage == "home" and (note := self._arrived(t, T_meas)):
             self._go(t, Phase.DONE, f"HOME {note}")
             self._set_stage(t, "hold", "task complete")
-
-    def _done(self, t: float, T_meas: np.ndarray, jaws_closed: bool) -> None:
-        """Nothing left to do: hold HOME."""
 
     def _failed(self, t: float, T_meas: np.ndarray, jaws_closed: bool) -> None:
         """Grasp given up: the robot returns HOME with the jaws open and stays there."""

@@ -27,13 +27,14 @@ predicted visible but truly hidden, ``false_hidden`` the reverse, over every lab
 
 Measurements, over all frames: ``measurements`` (features measured), ``rejected_measurements``
 (of those, rejected by the EKF's gate), ``wrong_measurements`` (measured more than
-:data:`~cellsight.framelog.WRONG_PX` from the true projection: another image point, such as an
-occluder's corner), ``wrong_accepted`` (wrong and not rejected). ``pixels_grabbed_fraction``:
-mean over frames and cameras of the fraction of pixels grabbed. ``extraction_error_px_median``:
-median over frames and cameras of each frame's median extraction error (px); None when no frame
-has one (ideal sensor). ``timing_ms``: median per stage (ms) over the frames.
-``fewest_visible``: per working phase, per camera, the fewest features truly visible in any
-frame of it (how deeply the occluders blinded each camera: experiment 3's meaning, per seed).
+:data:`~cellsight.runfolder.framelog.WRONG_PX` from the true projection: another image point,
+such as an occluder's corner), ``wrong_accepted`` (wrong and not rejected).
+``pixels_grabbed_fraction``: mean over frames and cameras of the fraction of pixels grabbed.
+``extraction_error_px_median``: median over frames and cameras of each frame's median extraction
+error (px); None when no frame has one (ideal sensor). ``timing_ms``: median per stage (ms)
+over the frames. ``fewest_visible``: per working phase, per camera, the fewest features truly
+visible in any frame of it (how deeply the occluders blinded each camera: experiment 3's
+meaning, per seed).
 """
 
 from __future__ import annotations
@@ -41,8 +42,8 @@ from __future__ import annotations
 import numpy as np
 
 from cellsight.control import Phase
-from cellsight.framelog import FrameLog, camera_column, timing_column
 from cellsight.geometry.transforms import pose_errors
+from cellsight.runfolder.framelog import FrameLog, camera_column, timing_column
 from cellsight.tracking.timing import STAGES
 from cellsight.visibility import BEHIND, OUTSIDE
 

@@ -17,7 +17,7 @@ log = logging.getLogger(__name__)
 
 class GraspMonitor:
     """The grasping robot's grasp: the TCP's error from the grasp pose when the grasp first
-    engages (the world's own figure, :meth:`GroundTruth.grasp_error`), and whether the part is
+    engages (the world's own figure, :meth:`GroundTruth.grasp`), and whether the part is
     really held when the task enters Manipulate (the grasp's success)."""
 
     def __init__(self, world: GroundTruth, robot: str) -> None:
@@ -28,20 +28,17 @@ class GraspMonitor:
 
     def after_control_step(self, t: float) -> None:
         """Call after each control step (``t``: the world's time, s): logs the engagement."""
-        if self.error_mm is not None or not self.world.grasped(self.robot):
+        grasp = self.world.grasp(self.robot) if self.error_mm is None else None
+        if grasp is None:
             return
-        error = self.world.grasp_error(self.robot)
-        if error is None:
-            return
-        position, angle = error
-        self.error_mm = 1e3 * position
+        self.error_mm = 1e3 * grasp.position_error_m
         log.info("t=%6.2f s grasp engaged: TCP %.1f mm, %.1f deg from the grasp pose",
-                 t, self.error_mm, np.degrees(angle))
+                 t, self.error_mm, np.degrees(grasp.angle_error_rad))
 
     def after_vision(self, before: Phase, after: Phase) -> None:
         """Call after the task's vision update, with its phase before and after."""
         if before == Phase.GRASP and after == Phase.MANIPULATE:
-            self.held_at_manipulate = self.world.grasped(self.robot)
+            self.held_at_manipulate = self.world.grasp(self.robot) is not None
 
 
 class OcclusionEvents:

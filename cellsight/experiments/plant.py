@@ -11,11 +11,14 @@ gripper commands, joint measurements, the jaws' opening and closed signal, camer
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from typing import Protocol
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 
 from cellsight.visibility import Views
+
+if TYPE_CHECKING:
+    from cellsight.world.grasp import Grasp
 
 
 class Plant(Protocol):
@@ -77,13 +80,9 @@ class GroundTruth(Protocol):
         """Every contact so far that is not the grasp: bodies, start and end (s), depth (mm)."""
         ...
 
-    def grasped(self, robot: str) -> bool:
-        """The robot really holds a workpiece."""
-        ...
-
-    def grasp_error(self, robot: str) -> tuple[float, float] | None:
-        """Position (m) and rotation (rad) error of the TCP from the held workpiece's grasp
-        pose when the grasp engaged; None while the robot holds nothing."""
+    def grasp(self, robot: str) -> Grasp | None:
+        """The grasp the robot really holds a workpiece with (the part, and the TCP's error
+        from its grasp pose when the grasp engaged), or None while it holds nothing."""
         ...
 
 

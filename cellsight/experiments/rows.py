@@ -1,6 +1,6 @@
-"""Each vision frame's row of ``frames.csv`` (columns: :mod:`cellsight.framelog`), from what
-the run loop has at hand: the tracker's record, the simulator's truth, the PnP baseline, the
-task and the gripper."""
+"""Each vision frame's row of ``frames.csv`` (columns: :mod:`cellsight.runfolder.framelog`),
+from what the run loop has at hand: the tracker's record, the simulator's truth (read once per
+frame: :class:`FrameTruth`), the PnP baseline and the task."""
 
 from __future__ import annotations
 
@@ -10,7 +10,8 @@ import numpy as np
 
 from cellsight.control import GraspTask
 from cellsight.experiments.plant import GroundTruth, SimulatedCell
-from cellsight.framelog import (
+from cellsight.model.robot import Robot
+from cellsight.runfolder.framelog import (
     WRONG_PX,
     camera_column,
     encode_bits,
@@ -19,7 +20,6 @@ from cellsight.framelog import (
     pose_fields,
     timing_fields,
 )
-from cellsight.model.robot import Robot
 from cellsight.tracking.records import PartFrame, TrackerFrame
 from cellsight.visibility import CameraVisibility
 
@@ -47,6 +47,25 @@ class PartTruth:
         return np.stack([v.visible for v in self.views])
 
 
+@dataclass(frozen=True)
+class FrameTruth:
+    """The simulator's truth at one vision frame, read once: the workpiece's (``part``), every
+    robot's true ``joints`` (rad, m), and of the grasping robot: its jaw opening (m), its jaws
+    closed on the part, the grasp engaged."""
+
+    part: PartTruth
+    joints: dict[str, np.ndarray]
+    jaw_opening: float
+    jaws_closed: bool
+    grasped: bool
+
+    @classmethod
+    def of(cls, world: SimulatedCell, part: str, robot: str) -> FrameTruth:
+        """The truth now about workpiece ``part`` and robot ``robot``."""
+        return cls(PartTruth.of(world, part), world.true_joints(), world.jaw_openings()[robot],
+                   world.jaws_closed_on_part(robot), world.grasp(robot) is not None)
+
+
 class FrameRows:
     """Builds the rows for one workpiece grasped by ``robot``. ``pixel_errors``: log the
     extraction error (``err_px_c*``; meaningless for the ideal sensor, which draws its
@@ -58,28 +77,27 @@ class FrameRows:
         self.pixel_errors = pixel_errors
 
     def row(self, t: float, task: GraspTask, frame: TrackerFrame, rec: PartFrame,
-            truth: PartTruth, pnp: np.ndarray | None, world: SimulatedCell) -> dict:
+            truth: FrameTruth, pnp: np.ndarray | None) -> dict:
         """The row of the frame at time ``t`` (s)."""
         row: dict[str, object] = {"t": round(t, 5), "phase": str(task.phase),
                                   "stage": task.stage, "status": str(rec.status)}
         estimate = rec.T_base_part if rec.status.has_estimate else None
-        for prefix, T in (("true", truth.T_base_part), ("est", estimate), ("pnp", pnp)):
+        for prefix, T in (("true", truth.part.T_base_part), ("est", estimate), ("pnp", pnp)):
             row.update(pose_fields(prefix, T))
-        row.update(self._gripper(world))
-        row.update(joint_fields(world.true_joints()))
+        row.update(self._gripper(truth))
+        row.update(joint_fields(truth.joints))
         reasons = rec.reasons
         for c in range(self.n_cameras):
-            row.update(self._camera(c, rec, truth, reasons[c] if reasons else None))
+            row.update(self._camera(c, rec, truth.part, reasons[c] if reasons else None))
         row.update(timing_fields(frame.timings))
         return row
 
-    def _gripper(self, world: SimulatedCell) -> dict:
-        name = self.robot.name
-        tcp = self.robot.tcp_pose(world.true_joints()[name])[:3, 3]
+    def _gripper(self, truth: FrameTruth) -> dict:
+        """The gripper's columns: its true TCP position (m, base frame) and its jaws."""
+        tcp = self.robot.tcp_pose(truth.joints[self.robot.name])[:3, 3]
         return {"gripper_x": tcp[0], "gripper_y": tcp[1], "gripper_z": tcp[2],
-                "jaw_opening": world.jaw_openings()[name],
-                "jaws_closed": int(world.jaws_closed_on_part(name)),
-                "grasped": int(world.grasped(name))}
+                "jaw_opening": truth.jaw_opening, "jaws_closed": int(truth.jaws_closed),
+                "grasped": int(truth.grasped)}
 
     def _camera(self, c: int, rec: PartFrame, truth: PartTruth,
                 reasons: list[str] | None) -> dict:

@@ -12,14 +12,14 @@ the planner after the frame's latency (:mod:`.latency`), stamped with its exposu
 world is seen through :class:`~cellsight.experiments.plant.SimulatedCell` (the simulated
 :class:`~cellsight.world.World` by default).
 
-Written into the output directory as the run goes: ``frames.csv`` (:mod:`cellsight.framelog`,
-rows from :mod:`.rows`, with the PnP baseline of :mod:`.baseline`), ``run.log`` (phase
-transitions, occlusion events and the grasp: :mod:`.monitors`; the summary), ``keyframes.json``
-+ ``keyframes/*.png`` (:mod:`.keyframes`), ``views.mp4`` (rendered sensor). After the loop (also
-when interrupted or failed), two steps that read the log: ``metrics.json``
-(:mod:`cellsight.experiments.metrics` plus the run's facts: the realism profile and every
-draw, the structure, the collisions, the dropped frames) and ``report.html``
-(:mod:`cellsight.report.run_report`).
+Written into the output directory (:mod:`cellsight.runfolder`) as the run goes:
+``frames.csv`` (:mod:`cellsight.runfolder.framelog`, rows from :mod:`.rows`, with the PnP
+baseline of :mod:`.baseline`), ``run.log`` (phase transitions, occlusion events and the grasp:
+:mod:`.monitors`; the summary), ``keyframes.json`` + ``keyframes/*.png`` (:mod:`.keyframes`),
+``views.mp4`` (rendered sensor). After the loop (also when interrupted or failed), two steps
+that read the log: ``metrics.json`` (:mod:`cellsight.experiments.metrics` plus the run's facts:
+the realism profile and every draw, the structure, the collisions, the dropped frames) and
+``report.html`` (:mod:`cellsight.report.run_report`).
 
 The output folder must be new or empty; with ``overwrite`` it is cleared first, but only when it
 holds nothing but an earlier run's outputs (:func:`check_out_folder`). SIGINT and SIGTERM end
@@ -29,11 +29,9 @@ the loop at the next frame boundary (:class:`StopSignals`): the metrics then say
 
 from __future__ import annotations
 
-import hashlib
 import json
 import logging
 import math
-import shutil
 import signal
 import threading
 import time
@@ -53,10 +51,9 @@ from cellsight.experiments.latency import Deliveries, Estimate
 from cellsight.experiments.metrics import frame_metrics
 from cellsight.experiments.monitors import GraspMonitor, OcclusionEvents
 from cellsight.experiments.plant import SimulatedCell
-from cellsight.experiments.rows import FrameRows, PartTruth
+from cellsight.experiments.rows import FrameRows, FrameTruth, PartTruth
 from cellsight.experiments.scenario import Scenario, scenario
-from cellsight.experiments.sensors import IdealExtractor
-from cellsight.framelog import FrameLog, FrameWriter
+from cellsight.experiments.sensors import IdealExtractor, IdealView
 from cellsight.model.cell import Cell
 from cellsight.model.loader import load_cell
 from cellsight.occlusion.predictor import OBJECT_BVH, STRUCTURES, VisibilityPredictor
@@ -65,7 +62,15 @@ from cellsight.rates import VISION_HZ
 from cellsight.realism import FrameClock, Profile, draw_world
 from cellsight.report.run_report import write_report
 from cellsight.report.video import VideoWriter
-from cellsight.tracking import Tracker, TrackerConfig
+from cellsight.runfolder import (
+    FrameLog,
+    FrameWriter,
+    cell_digest,
+    check_out_folder,
+    make_out_folder,
+    write_metrics,
+)
+from cellsight.tracking import Tracker, TrackerConfig, TrackerParts
 from cellsight.world import World
 
 log = logging.getLogger(__name__)
@@ -112,67 +117,6 @@ class RunConfig:
         if self.structure not in STRUCTURES:
             raise CellsightError(f"RunConfig.structure: expected one of {', '.join(STRUCTURES)}, "
                                  f"got {self.structure!r}")
-
-
-RUN_FILES = frozenset({"frames.csv", "metrics.json", "run.log", "report.html", "keyframes.json",
-                       "views.mp4"})
-"""The files a run writes into its folder, besides ``keyframes/*.png`` and ``fig_*.png``."""
-
-
-class RunFolderError(CellsightError, ValueError):
-    """The output folder cannot take a run: a file, under a file, or holding other things."""
-
-
-def _is_run_output(path: Path) -> bool:
-    """``path`` (in a run folder) is something a run writes: a file of :data:`RUN_FILES`, a
-    ``fig_*.png``, or the ``keyframes`` folder holding only ``*.png`` files (no links)."""
-    if path.is_symlink():
-        return False
-    if path.is_dir():
-        return path.name == "keyframes" and all(
-            p.suffix == ".png" and p.is_file() and not p.is_symlink() for p in path.iterdir())
-    return path.is_file() and (path.name in RUN_FILES
-                               or (path.name.startswith("fig_") and path.suffix == ".png"))
-
-
-def check_out_folder(out: Path, overwrite: bool, arg: str = "RunConfig.out",
-                     flag: str = "overwrite=True") -> list[Path]:
-    """Check, touching nothing, that the folder ``out`` can take a new run: absent (then
-    creatable: not under a file), empty, or, with ``overwrite``, holding only an earlier run's
-    outputs (:func:`_is_run_output`), which are returned for the caller to clear. Otherwise a
-    :class:`RunFolderError` naming ``arg`` (the option), the folder and, to pass, ``flag``."""
-    out = Path(out)
-    shown = repr(str(out)) if len(str(out)) <= 80 else repr(str(out)[:77] + "...")
-    try:
-        existing = next(p for p in (out, *out.parents) if p.exists() or p.is_symlink())
-        if not existing.is_dir():
-            where = "is not a folder" if existing == out else f"is under {str(existing)!r}, a file"
-            raise RunFolderError(f"{arg}: {shown} {where}; expected a folder")
-        entries = sorted(out.iterdir()) if existing == out else []
-        if entries and not overwrite:
-            raise RunFolderError(f"{arg}: {shown} is not empty ({len(entries)} entries); pass "
-                                 f"{flag} or choose another folder")
-        stranger = next((p for p in entries if not _is_run_output(p)), None)
-    except OSError as exc:
-        raise RunFolderError(f"{arg}: {shown}: not a usable folder ({exc.strerror})") from exc
-    if stranger is not None:
-        raise RunFolderError(f"{arg}: {shown} holds {stranger.name!r}, not a run's output; not "
-                             f"overwriting: move it or choose another folder")
-    return entries
-
-
-def _make_out_folder(out: Path, stale: list[Path], arg: str = "RunConfig.out") -> None:
-    """Remove ``stale`` (an earlier run's outputs, :func:`check_out_folder`), create ``out``."""
-    try:
-        for path in stale:
-            if path.is_dir():
-                shutil.rmtree(path)
-            else:
-                path.unlink()
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise RunFolderError(f"{arg}: {str(out)!r}: cannot clear or create it "
-                             f"({exc.strerror})") from exc
 
 
 class StopSignals:
@@ -232,16 +176,16 @@ class ExperimentRun:
                                    self.part.name)
         self.ideal = (IdealExtractor(config.ideal_sigma_px, config.seed)
                       if config.sensor == "ideal" else None)
-        tracking = TrackerConfig()
-        self.tracker = Tracker.from_cell(cell, predictor, self.ideal, tracking)
+        tracking, parts = TrackerConfig(), TrackerParts()
+        self.tracker = Tracker.from_cell(cell, predictor, self.ideal, tracking, parts)
         self.task = GraspTask(self.robot, self.part)
         self.baseline = PnPBaseline(cell.cameras, self.part.feature_points, tracking.sigma_px,
-                                    tracking.loss.lost_after_s)
+                                    parts.loss.lost_after_s)
         self.grasp = GraspMonitor(self.world, self.robot.name)
         self.events = OcclusionEvents([c.name for c in cell.cameras])
         self.rows = FrameRows(self.robot, len(cell.cameras), config.sensor == "rendered")
         self.crossing = next(iter(sc.tasks), None)
-        _make_out_folder(self.out, stale)
+        make_out_folder(self.out, stale)
 
     def run(self) -> dict:
         """Run the experiment; write everything; return the metrics. On SIGINT or SIGTERM the
@@ -343,12 +287,12 @@ class ExperimentRun:
         fate = self.clock.next()
         joints = world.measured_joints()
         openings = world.jaw_openings()
-        truth = PartTruth.of(world, self.part.name)
-        images = self._grab(fate.dropped, truth)
+        truth = FrameTruth.of(world, self.part.name, name)
+        observed = self._grab(fate.dropped, truth.part)
         holders = None
         if self.config.kinematic_prior and world.jaws_closed_on_part(name):
             holders = {self.part.name: self.robot.tcp_pose(joints[name])}
-        frame = self.tracker.step(images, joints, t, openings, holders)
+        frame = self.tracker.step(observed, joints, t, openings, holders)
         rec = frame.parts[self.part.name]
         estimate = Estimate.of(t, rec)
         if self.clock.ideal:
@@ -358,33 +302,29 @@ class ExperimentRun:
         phase = str(self.task.phase)
         self.events.update(t, phase, rec.reasons)
         pnp = self.baseline.update(t, rec.measured)
-        writer.write(self.rows.row(t, self.task, frame, rec, truth, pnp, world))
+        writer.write(self.rows.row(t, self.task, frame, rec, truth, pnp))
 
         def draw(caption: str, scale: float = 1.0) -> np.ndarray:
-            grabbed = images is not None and all(i is not None for i in images)
-            shown = images if grabbed else world.render()
-            return draw_frame(shown, rec, truth.visible, self.cell.cameras, caption, scale)
+            grabbed = self.ideal is None and all(i is not None for i in observed)
+            shown = observed if grabbed else world.render()
+            return draw_frame(shown, rec, truth.part.visible, self.cell.cameras, caption, scale)
 
         keys.offer_frame(t, phase, rec, draw)
         if video is not None and k % self.config.video_every == 0:
             video.add(draw(f"t = {t:5.2f} s   {phase}   tracker: {rec.status}", 0.5))
 
-    def _grab(self, dropped: bool, truth: PartTruth) -> list | None:
-        """The frame's images (rendered sensor; None per camera when the frame is dropped), or
-        the ideal sensor's truths set (nothing when dropped), each camera's as it was exposed
-        (:mod:`.exposure`)."""
+    def _grab(self, dropped: bool, truth: PartTruth) -> list:
+        """What the sensors take this frame, one entry per camera, each as it was exposed
+        (:mod:`.exposure`): an image (rendered sensor) or an :class:`IdealView` of ``truth``
+        (ideal sensor); None per camera when the frame is dropped."""
         self.frames_dropped += dropped
         if dropped:
             self.exposures.drop()
-            if self.ideal is not None:
-                self.ideal.set_truth(None, None)
-            return None if self.ideal is not None else [None] * len(self.cell.cameras)
+            return [None] * len(self.cell.cameras)
         exposed = self.exposures.frame(truth)
         if self.ideal is None:
             return exposed
-        pixels, visible, corners = zip(*exposed, strict=True)
-        self.ideal.set_truth(np.stack(pixels), np.stack(visible), list(corners))
-        return None
+        return [IdealView(pixels, visible, corners) for pixels, visible, corners in exposed]
 
     def _plan(self, t: float, estimate: Estimate, joints: np.ndarray) -> None:
         """The task's vision update at time ``t`` with the tracker's ``estimate`` (pose and
@@ -406,7 +346,7 @@ class ExperimentRun:
             "experiment": cfg.experiment,
             "description": self.scenario.description,
             "cell": self.cell.source,
-            "cell_sha256": cell_digest(self.cell.source),
+            "cell_sha256": cell_digest(self.cell),
             "seed": cfg.seed,
             "sensor": cfg.sensor,
             "occlusion_prediction": cfg.occlusion_prediction,
@@ -435,19 +375,10 @@ class ExperimentRun:
             "phase_intervals": [[str(p), round(a, 3), round(b, 3)]
                                 for p, a, b in self.task.phase_intervals(t_end)],
         }
-        (self.out / "metrics.json").write_text(json.dumps(metrics, indent=1))
+        metrics = write_metrics(self.out, metrics)
         log.info("metrics: %s", json.dumps({k: v for k, v in metrics.items()
                                             if not isinstance(v, list | dict)}))
         return metrics
-
-
-def cell_digest(source: str) -> str | None:
-    """SHA-256 (hex) of the cell file's bytes (None when it cannot be read): which cell a run
-    used, even when the file is later rewritten (a sweep reuses a run only for the same)."""
-    try:
-        return hashlib.sha256(Path(source).read_bytes()).hexdigest()
-    except OSError:
-        return None
 
 
 def _log_to(path: Path) -> logging.Handler:

@@ -38,7 +38,7 @@ from cellsight.export import frames as tf
 from cellsight.export import markers, ros
 from cellsight.export.msgdefs import msgdef, schema_name
 from cellsight.geometry.transforms import transform_points
-from cellsight.runfolder import RunData, load_run
+from cellsight.runfolder import RUN_FILES, RunData, load_run
 
 TF, POSE, CAMERA_INFO, IMAGE, MARKERS = (
     "tf2_msgs/TFMessage", "geometry_msgs/PoseStamped", "sensor_msgs/CameraInfo",
@@ -90,7 +90,6 @@ class _Bag:
 def check_output(path: str | Path, overwrite: bool, run_folder: Path) -> Path:
     """The output file, checked touching nothing: not a folder, not one of the run's own
     files, not existing unless ``overwrite``, its folder creatable."""
-    from cellsight.experiments.runner import RUN_FILES
 
     path = Path(path)
     if path.is_dir():

@@ -1,9 +1,9 @@
 """Polyhedral solids: vertices, polygonal faces and named feature points.
 
 Faces are lists of vertex indices, counter-clockwise seen from outside the solid (right-hand
-normal points out, DESIGN.md). Feature points are vertices with names; by default every vertex
-is a feature named ``f1``, ``f2``, ... in vertex order. Coordinates are metres in the solid's
-own frame.
+normal points out; docs/design.md, "Conventions"). Feature points are vertices with names; by
+default every vertex is a feature named ``f1``, ``f2``, ... in vertex order. Coordinates are
+metres in the solid's own frame.
 """
 
 from __future__ import annotations

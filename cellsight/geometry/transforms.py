@@ -1,7 +1,7 @@
 """Rigid transforms as 4x4 homogeneous matrices.
 
-Convention (DESIGN.md): ``T_a_b`` maps coordinates in frame ``b`` to frame ``a``; it is the pose
-of frame ``b`` expressed in frame ``a``. Composition reads left to right:
+Convention (docs/design.md, "Conventions"): ``T_a_b`` maps coordinates in frame ``b`` to frame
+``a``; it is the pose of frame ``b`` expressed in frame ``a``. Composition reads left to right:
 ``T_base_link = T_base_robot @ T_robot_link``. Units are metres and radians.
 
 Roll-pitch-yaw follows the paper: ``R = Rz(yaw) @ Ry(pitch) @ Rx(roll)`` (fixed-axis XYZ,

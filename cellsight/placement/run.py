@@ -24,7 +24,7 @@ from cellsight.placement.scoring import CandidateScores, score_candidates
 from cellsight.placement.task import TaskFrames
 from cellsight.runfolder import load_run
 from cellsight.sweep.command import run_sweep
-from cellsight.sweep.grid import SENSORS, RunSpec, finished_metrics
+from cellsight.sweep.grid import SENSORS, RunSpec, reusable_metrics
 
 VERIFY_KEYS = ("grasp_success", "position_rmse_mm", "max_position_error_mm",
                "orientation_rmse_deg", "lost_in_view_s", "pnp_position_rmse_mm",
@@ -53,7 +53,7 @@ def task_folder(args: argparse.Namespace) -> Path:
     """The run folder of ``--task``: as given, or OUT/task after running the experiment."""
     if args.task in ("1", "2", "3"):
         folder = args.out / "task"
-        if finished_metrics(folder, str(cell_path(args.cell))) is None:
+        if reusable_metrics(folder, str(cell_path(args.cell))) is None:
             run_experiment(RunConfig(int(args.task), folder, cell=args.cell, sensor="ideal",
                                      progress=not args.quiet, overwrite=True))
         return folder

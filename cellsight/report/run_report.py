@@ -1,7 +1,7 @@
 """Figures and a self-contained HTML report built from a run directory.
 
 A run directory (written by ``cellsight run``) holds ``frames.csv`` (one row per vision frame,
-read with :class:`cellsight.framelog.FrameLog`, whose module lists the columns),
+read with :class:`cellsight.runfolder.framelog.FrameLog`, whose module lists the columns),
 ``metrics.json`` and optionally ``keyframes.json`` with ``keyframes/*.png``, ``run.log`` and
 ``views.mp4``. :func:`write_report` writes the PNG figures next to them and ``report.html``
 with every figure, key frame and (if small enough) the video embedded as base64 data URIs, so
@@ -29,9 +29,10 @@ from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 from matplotlib.patches import Patch
 
-from cellsight.framelog import FrameLog, camera_column, timing_column
 from cellsight.geometry.transforms import pose_errors
 from cellsight.rates import VISION_HZ
+from cellsight.runfolder.framelog import FrameLog, camera_column, timing_column
+from cellsight.runfolder.metrics import read_metrics
 from cellsight.tracking.timing import STAGES
 
 PHASE_COLOURS = {
@@ -75,9 +76,8 @@ class Run:
 def load_run(run_dir: Path) -> Run:
     """Read ``frames.csv`` and ``metrics.json`` (either may be absent in a partial run)."""
     run_dir = Path(run_dir)
-    frames_path, metrics_path = run_dir / "frames.csv", run_dir / "metrics.json"
-    frames = FrameLog.read(frames_path)
-    metrics = json.loads(metrics_path.read_text()) if metrics_path.exists() else {}
+    frames = FrameLog.read(run_dir / "frames.csv")
+    metrics = read_metrics(run_dir, missing_ok=True)
     cameras = list(metrics.get("cameras") or
                    [f"cam{c}" for c in range(1, frames.n_cameras + 1)])
     n_features = metrics.get("features") or frames.n_features

@@ -16,6 +16,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from mpl_toolkits.mplot3d.art3d import Poly3DCollection  # noqa: E402
 
+from cellsight.camera import MIN_DEPTH_M  # noqa: E402
 from cellsight.geometry.transforms import transform_points  # noqa: E402
 from cellsight.model.cell import Snapshot  # noqa: E402
 
@@ -57,7 +58,7 @@ def draw_wireframe(ax, snapshot: Snapshot, camera: int) -> None:
         lw = 1.2 if obj.kind == "workpiece" else 0.6
         for poly in obj.solid.polygons():
             pts = transform_points(T, poly)
-            if not cam.in_front(pts).all():
+            if not (cam.depth(pts) > MIN_DEPTH_M).all():
                 continue
             uv = cam.project(pts)
             uv = np.vstack([uv, uv[:1]])

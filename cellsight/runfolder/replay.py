@@ -10,21 +10,17 @@ replayed: its robots' motion is not in the log, so neither their poses nor the c
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from cellsight.errors import CellsightError, short_repr
-from cellsight.framelog import POSE, FrameLog, camera_column
 from cellsight.geometry.transforms import pose_from_xyz_rpy
 from cellsight.model.cell import Cell, Workpiece
 from cellsight.model.loader import load_cell
-
-
-class RunDataError(CellsightError, ValueError):
-    """A run folder that cannot be replayed: missing, unreadable, or inconsistent."""
+from cellsight.runfolder.framelog import POSE, FrameLog, camera_column
+from cellsight.runfolder.metrics import RunDataError, read_metrics
 
 
 @dataclass
@@ -70,27 +66,6 @@ class RunData:
         """(N, C, F) bool of the per-camera 0/1 column ``name`` (``vis_pred``, ``vis_true``,
         ``sel``, ``meas``, ``rej``, ``wrong``); rows without a value are all False."""
         return np.stack(_visibility(self.frames, self.cell, self.part, name)[0], axis=1)
-
-
-def read_metrics(folder: Path) -> dict:
-    """``<folder>/metrics.json`` as a dict; a :class:`RunDataError` naming the folder or file."""
-    if not folder.is_dir():
-        what = "it does not exist" if not folder.exists() else "it is not a folder"
-        raise RunDataError(f"{folder}: no such run folder: {what}; expected a run's output "
-                           f"folder (cellsight run)")
-    path = folder / "metrics.json"
-    try:
-        data = json.loads(path.read_bytes().decode("utf-8"))
-    except FileNotFoundError as exc:
-        raise RunDataError(f"{path}: no metrics.json here (is {folder} a run's output "
-                           f"folder?)") from exc
-    except OSError as exc:
-        raise RunDataError(f"{path}: cannot read it ({exc.strerror or exc})") from exc
-    except (UnicodeDecodeError, ValueError, RecursionError) as exc:
-        raise RunDataError(f"{path}: not valid JSON ({' '.join(str(exc).split())[:80]})") from exc
-    if not isinstance(data, dict):
-        raise RunDataError(f"{path}: expected a JSON object, got {short_repr(data)}")
-    return data
 
 
 def _text_field(metrics: dict, key: str, path: Path, optional: bool = False) -> str | None:

@@ -13,7 +13,6 @@ interrupted nor failed, and run on the same cell file, by its SHA-256) and runs 
 from __future__ import annotations
 
 import itertools
-import json
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -104,21 +103,22 @@ def sweep_grid(cells: Sequence[str], experiments: Sequence[int], sensors: Sequen
             if variant == variants[0] or seed in compared]
 
 
-def finished_metrics(folder: Path, cell: str | None = None) -> dict | None:
+def reusable_metrics(folder: Path, cell: str | None = None) -> dict | None:
     """The metrics of a finished run in ``folder`` (neither interrupted nor failed; with
-    ``cell``, a cell name or file, run on that cell's file as it is now), else None."""
-    try:
-        metrics = json.loads((Path(folder) / "metrics.json").read_text())
-    except (OSError, ValueError):  # not run yet, or cut short while writing
-        return None
-    if not isinstance(metrics, dict) or metrics.get("interrupted") or metrics.get("error"):
-        return None
-    from cellsight.experiments.runner import cell_digest
-    from cellsight.model.loader import cell_path
+    ``cell``, a cell name or file, run on that cell as it is now: the cell file and every file
+    it points to unchanged), else None."""
+    from cellsight.model.loader import load_cell
+    from cellsight.runfolder import cell_digest, finished_metrics
 
-    if cell is not None and metrics.get("cell_sha256") != cell_digest(str(cell_path(cell))):
-        return None  # another cell, or the file changed since
-    return metrics
+    metrics = finished_metrics(folder)
+    if metrics is None or cell is None:
+        return metrics
+
+    try:
+        digest = cell_digest(load_cell(cell))
+    except CellsightError:  # the cell no longer loads: nothing to reuse
+        return None
+    return metrics if metrics.get("cell_sha256") == digest else None
 
 
 def run_spec(job: tuple[RunSpec, Path]) -> dict:
@@ -127,7 +127,7 @@ def run_spec(job: tuple[RunSpec, Path]) -> dict:
     from cellsight.experiments import run_experiment
 
     spec, out = job
-    done = finished_metrics(Path(out) / spec.folder, spec.cell)
+    done = reusable_metrics(Path(out) / spec.folder, spec.cell)
     if done is not None:
         return {**done, "reused": True}
     try:

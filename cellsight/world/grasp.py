@@ -127,6 +127,16 @@ def grasp_poses(cell: Cell, overrides: Mapping[str, np.ndarray]) -> dict[str, np
     return out
 
 
+@dataclass(frozen=True)
+class Grasp:
+    """A grasp that engaged: the ``part`` welded to the TCP and how far the TCP was from the
+    part's grasp pose at that instant (``position_error_m``, m; ``angle_error_rad``, rad)."""
+
+    part: str
+    position_error_m: float
+    angle_error_rad: float
+
+
 @dataclass
 class _Jaws:
     """One gripper: ``opening`` and ``command`` (m); the workpiece the jaws are closed on
@@ -208,15 +218,11 @@ class Grippers:
         """The workpiece the robot's jaws are closed on (both jaws touch it), or None."""
         return self._jaws[robot].clamped
 
-    def holding(self, robot: str) -> str | None:
-        """The workpiece the robot holds (grasp engaged), or None."""
-        return self._jaws[robot].holding
-
-    def grasp_error(self, robot: str) -> tuple[float, float] | None:
-        """Position (m) and rotation (rad) error of the TCP from the held part's grasp pose
-        when the grasp engaged (:func:`grasp_error`); None while the robot holds nothing."""
+    def grasp(self, robot: str) -> Grasp | None:
+        """The robot's engaged grasp (the part it holds and the TCP's error from its grasp pose
+        then, :func:`grasp_error`), or None while it holds nothing."""
         jaws = self._jaws[robot]
-        return None if jaws.holding is None else jaws.error
+        return None if jaws.holding is None else Grasp(jaws.holding, *jaws.error)
 
     def grasp_pose(self, name: str) -> np.ndarray:
         """``T_part_tcp`` of the grasp that engages for this workpiece."""

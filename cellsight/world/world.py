@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
+from functools import partial
 
 import mujoco
 import numpy as np
@@ -38,7 +39,7 @@ from cellsight.model import Cell
 from cellsight.rates import CONTROL_HZ, VISION_HZ
 from cellsight.visibility import Views
 from cellsight.world.contacts import ContactMonitor
-from cellsight.world.grasp import Grippers
+from cellsight.world.grasp import Grasp, Grippers
 from cellsight.world.images import Imager
 from cellsight.world.imperfections import IDEAL, Imperfections
 from cellsight.world.intruders import Intruders
@@ -148,6 +149,12 @@ class RobotJoints:
         self.scene.set_qpos(self._qadr[name], np.clip(self._servo[name].q, lim[:, 0], lim[:, 1]))
 
 
+
+def _in_hand(grippers: Grippers, robot: str) -> str | None:
+    """The workpiece the robot holds or has its jaws closed on, or None."""
+    grasp = grippers.grasp(robot)
+    return grasp.part if grasp is not None else grippers.clamped(robot)
+
 class World:
     """The simulated cell (see the module docstring).
 
@@ -197,7 +204,7 @@ class World:
         self.intruders = Intruders(self.scene, errors.intruders)
         self.contacts = ContactMonitor(
             self.scene, cell, errors.collision_depth_m,
-            lambda robot: self.grippers.holding(robot) or self.grippers.clamped(robot))
+            partial(_in_hand, self.grippers))
         self.truth = RayTruth(self.scene, cell)
         self._render_size = render_size
         self._renderer: GrayRenderer | None = None
@@ -251,14 +258,10 @@ class World:
         """Whether the robot's jaws are closed on a workpiece (both jaws touch it)."""
         return self.grippers.clamped(robot) is not None
 
-    def grasped(self, robot: str) -> bool:
-        """Whether the robot holds a workpiece (grasp engaged)."""
-        return self.grippers.holding(robot) is not None
-
-    def grasp_error(self, robot: str) -> tuple[float, float] | None:
-        """Position (m) and rotation (rad) error of the robot's TCP from the held workpiece's
-        grasp pose at the instant the grasp engaged; None while it holds nothing."""
-        return self.grippers.grasp_error(robot)
+    def grasp(self, robot: str) -> Grasp | None:
+        """The robot's engaged grasp: the workpiece it holds and its TCP's error from that
+        workpiece's grasp pose at the instant the grasp engaged; None while it holds nothing."""
+        return self.grippers.grasp(robot)
 
     def true_part_poses(self) -> dict[str, np.ndarray]:
         """``T_base_part`` of every workpiece, read from MuJoCo."""

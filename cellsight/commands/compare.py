@@ -1,0 +1,53 @@
+"""``cellsight compare A B``: two runs' metrics side by side, with their ratio B / A."""
+
+from __future__ import annotations
+
+import argparse
+
+from cellsight.commands.metric_rows import metric_rows
+from cellsight.commands.text import one_line
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    """Add ``cellsight compare`` to the sub-commands."""
+    compare = sub.add_parser("compare", help="two runs' metrics side by side")
+    compare.add_argument("run_a", help="output folder of a run")
+    compare.add_argument("run_b", help="output folder of another run")
+    compare.set_defaults(func=cmd_compare)
+
+
+def _ratio(a, b) -> str:
+    """``b / a`` to 3 digits for two numbers (not bools), else empty."""
+    numeric = all(isinstance(v, int | float) and not isinstance(v, bool) for v in (a, b))
+    try:
+        return f"{b / a:.3g}" if numeric and a else ""
+    except (OverflowError, ZeroDivisionError):
+        return ""
+
+
+def cmd_compare(args: argparse.Namespace) -> int:
+    from rich.console import Console
+    from rich.markup import escape
+    from rich.table import Table
+
+    from cellsight.report.run_report import format_value
+    from cellsight.runfolder import read_metrics
+
+    def cell(value) -> str:  # a metric as text, its brackets shown, not read as rich markup
+        try:
+            return escape(one_line(format_value(value), 80))
+        except ValueError:  # an integer too long to print
+            return "?"
+
+    a, b = read_metrics(args.run_a), read_metrics(args.run_b)
+    rows_a, rows_b = metric_rows(a), metric_rows(b)
+    table = Table(title="cellsight compare")
+    table.add_column("metric")
+    table.add_column(escape(args.run_a), justify="right")
+    table.add_column(escape(args.run_b), justify="right")
+    table.add_column("B / A", justify="right")
+    for key in list(rows_a) + [k for k in rows_b if k not in rows_a]:
+        va, vb = rows_a.get(key), rows_b.get(key)
+        table.add_row(escape(one_line(key, 80)), cell(va), cell(vb), _ratio(va, vb))
+    Console().print(table)
+    return 0

@@ -1,0 +1,25 @@
+"""Which cell a run used, as one digest (:func:`cell_digest`): the cell file and every file it
+points to (meshes, URDFs and their meshes, calibration files), so that a sweep reuses a run
+only for the same cell, even when a file the cell file names was rewritten since."""
+
+from __future__ import annotations
+
+import hashlib
+from pathlib import Path
+
+from cellsight.model.cell import Cell
+
+
+def cell_digest(cell: Cell) -> str | None:
+    """SHA-256 (hex) over the bytes of ``cell.source`` then of each of ``cell.files`` (in the
+    loader's order, each with its name); None when the cell is not from a file or a file
+    cannot be read."""
+    digest = hashlib.sha256()
+    try:
+        digest.update(Path(cell.source).read_bytes())
+        for path in cell.files:
+            digest.update(str(Path(path).name).encode())
+            digest.update(Path(path).read_bytes())
+    except OSError:
+        return None
+    return digest.hexdigest()

@@ -1,0 +1,70 @@
+"""The output folder of a run: which files a run writes (:data:`RUN_FILES`), and the check that
+a folder can take a new run without losing anything that is not a run's output
+(:func:`check_out_folder`, then :func:`make_out_folder`)."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+from cellsight.errors import CellsightError
+
+RUN_FILES = frozenset({"frames.csv", "metrics.json", "run.log", "report.html", "keyframes.json",
+                       "views.mp4"})
+"""The files a run writes into its folder, besides ``keyframes/*.png`` and ``fig_*.png``."""
+
+
+class RunFolderError(CellsightError, ValueError):
+    """The output folder cannot take a run: a file, under a file, or holding other things."""
+
+
+def is_run_output(path: Path) -> bool:
+    """``path`` (in a run folder) is something a run writes: a file of :data:`RUN_FILES`, a
+    ``fig_*.png``, or the ``keyframes`` folder holding only ``*.png`` files (no links)."""
+    if path.is_symlink():
+        return False
+    if path.is_dir():
+        return path.name == "keyframes" and all(
+            p.suffix == ".png" and p.is_file() and not p.is_symlink() for p in path.iterdir())
+    return path.is_file() and (path.name in RUN_FILES
+                               or (path.name.startswith("fig_") and path.suffix == ".png"))
+
+
+def check_out_folder(out: Path, overwrite: bool, arg: str = "RunConfig.out",
+                     flag: str = "overwrite=True") -> list[Path]:
+    """Check, touching nothing, that the folder ``out`` can take a new run: absent (then
+    creatable: not under a file), empty, or, with ``overwrite``, holding only an earlier run's
+    outputs (:func:`is_run_output`), which are returned for the caller to clear. Otherwise a
+    :class:`RunFolderError` naming ``arg`` (the option), the folder and, to pass, ``flag``."""
+    out = Path(out)
+    shown = repr(str(out)) if len(str(out)) <= 80 else repr(str(out)[:77] + "...")
+    try:
+        existing = next(p for p in (out, *out.parents) if p.exists() or p.is_symlink())
+        if not existing.is_dir():
+            where = "is not a folder" if existing == out else f"is under {str(existing)!r}, a file"
+            raise RunFolderError(f"{arg}: {shown} {where}; expected a folder")
+        entries = sorted(out.iterdir()) if existing == out else []
+        if entries and not overwrite:
+            raise RunFolderError(f"{arg}: {shown} is not empty ({len(entries)} entries); pass "
+                                 f"{flag} or choose another folder")
+        stranger = next((p for p in entries if not is_run_output(p)), None)
+    except OSError as exc:
+        raise RunFolderError(f"{arg}: {shown}: not a usable folder ({exc.strerror})") from exc
+    if stranger is not None:
+        raise RunFolderError(f"{arg}: {shown} holds {stranger.name!r}, not a run's output; not "
+                             f"overwriting: move it or choose another folder")
+    return entries
+
+
+def make_out_folder(out: Path, stale: list[Path], arg: str = "RunConfig.out") -> None:
+    """Remove ``stale`` (an earlier run's outputs, :func:`check_out_folder`), create ``out``."""
+    try:
+        for path in stale:
+            if path.is_dir():
+                shutil.rmtree(path)
+            else:
+                path.unlink()
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise RunFolderError(f"{arg}: {str(out)!r}: cannot clear or create it "
+                             f"({exc.strerror})") from exc

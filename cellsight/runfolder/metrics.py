@@ -1,0 +1,189 @@
+"""``metrics.json``, a run's facts and figures: its schema (:class:`RunMetrics`), its one writer
+(:func:`write_metrics`) and its one reader (:func:`read_metrics`).
+
+The file is a JSON object. ``metrics_version`` (:data:`METRICS_VERSION`) says which schema wrote
+it; a file without one was written before versions and reads the same. Every field is optional
+on reading (a run cut short writes what it has; ``cellsight compare`` takes any two), but a
+field that is there must have its type: a hand-edited ``"seed": "three"`` or ``"phases": [1]``
+is one :class:`~cellsight.runfolder.replay.RunDataError` naming the file and the field. Fields
+the schema does not know are kept as they are. The figures' meaning and units are those of
+:mod:`cellsight.experiments.metrics` (``*_mm`` in mm, ``*_deg`` in degrees, ``*_s`` in s).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+from pydantic import BaseModel, ConfigDict, ValidationError
+
+from cellsight.errors import CellsightError, short_repr
+
+METRICS_VERSION = 1
+"""Version of the schema :func:`write_metrics` writes (``metrics_version``)."""
+
+
+class RunDataError(CellsightError, ValueError):
+    """A run folder that cannot be read or replayed: missing, unreadable, or inconsistent."""
+
+
+Number = float | None  # JSON numbers (an int reads as a float); None where nothing was measured
+
+
+class RunMetrics(BaseModel):
+    """The typed fields of ``metrics.json`` (module docstring); others are kept as they are.
+    ``phases``: phase -> figures of that phase; ``timing_ms``: stage -> median ms."""
+
+    model_config = ConfigDict(extra="allow", strict=True)
+
+    metrics_version: int = 0
+    experiment: int | None = None
+    description: str | None = None
+    cell: str | None = None
+    cell_sha256: str | None = None
+    seed: int | None = None
+    sensor: str | None = None
+    occlusion_prediction: bool | None = None
+    kinematic_prior: bool | None = None
+    structure: str | None = None
+    realism: str | None = None
+    realism_file: str | None = None
+    realism_spec: str | None = None
+    draws: dict[str, Any] | None = None
+    collisions: list[dict[str, Any]] | None = None
+    collision_count: int | None = None
+    frames_dropped: int | None = None
+    grasp_success: bool | None = None
+    grasp_position_error_mm: Number = None
+    final_phase: str | None = None
+    failed_grasp_checks: int | None = None
+    frames: int | None = None
+    fewest_visible: dict[str, list[int]] | None = None
+    evaluated_frames: int | None = None
+    position_rmse_mm: Number = None
+    orientation_rmse_deg: Number = None
+    max_position_error_mm: Number = None
+    pnp_position_rmse_mm: Number = None
+    pnp_orientation_rmse_deg: Number = None
+    lost_in_view_s: Number = None
+    first_estimate_s: Number = None
+    in_view_fraction: Number = None
+    phases: dict[str, dict[str, Any]] | None = None
+    visibility_accuracy: Number = None
+    visibility_accuracy_all: Number = None
+    false_visible: int | None = None
+    false_hidden: int | None = None
+    measurements: int | None = None
+    rejected_measurements: int | None = None
+    wrong_measurements: int | None = None
+    wrong_accepted: int | None = None
+    pixels_grabbed_fraction: Number = None
+    extraction_error_px_median: Number = None
+    timing_ms: dict[str, Number] | None = None
+    wall_s: Number = None
+    interrupted: bool | None = None
+    signal: str | None = None
+    error: str | None = None
+    t_end_s: Number = None
+    cameras: list[str] | None = None
+    features: int | None = None
+    robot: str | None = None
+    workpiece: str | None = None
+    crossing_robot: str | None = None
+    phase_intervals: list[list[str | float]] | None = None
+
+
+_EXPECTED = {"dict_type": "expected an object", "int_type": "expected a whole number",
+             "float_type": "expected a number", "string_type": "expected text",
+             "bool_type": "expected true or false", "list_type": "expected a list"}
+"""What a pydantic error type expects, in the words of a JSON file."""
+
+
+def _located(data: dict, loc: tuple) -> tuple[str, object]:
+    """The dotted field name and value at a pydantic error's ``loc`` in ``data`` (the parts
+    naming union members rather than keys or indices are left out)."""
+    names, value = [], data
+    for part in loc:
+        if isinstance(value, dict) and part in value or (
+                isinstance(value, list) and isinstance(part, int) and part < len(value)):
+            names.append(str(part))
+            value = value[part]
+    return ".".join(names), value
+
+
+def _checked(data: object, path: Path) -> dict:
+    """``data`` checked against :class:`RunMetrics`: the fields as they were, or one
+    :class:`RunDataError` naming ``path`` and the first wrong field."""
+    if not isinstance(data, dict):
+        raise RunDataError(f"{path}: expected a JSON object of metrics, got "
+                           f"{type(data).__name__} {short_repr(data)}")
+    try:
+        RunMetrics.model_validate(data)
+    except ValidationError as exc:
+        first = exc.errors()[0]
+        field, value = _located(data, first["loc"])
+        expected = _EXPECTED.get(first["type"], first["msg"].lower())
+        raise RunDataError(f"{path}: field {field!r}: {expected}, got "
+                           f"{short_repr(value)}") from None
+    version = data.get("metrics_version", 0)
+    if version > METRICS_VERSION:
+        raise RunDataError(f"{path}: field 'metrics_version' is {version}: written by a newer "
+                           f"cellsight (this one reads up to {METRICS_VERSION})")
+    return data
+
+
+def _json_object(path: Path, folder: Path) -> object:
+    """The JSON value in ``path``; a :class:`RunDataError` naming it when it cannot be read."""
+    try:
+        text = path.read_bytes()
+    except (FileNotFoundError, NotADirectoryError) as exc:
+        raise RunDataError(f"{path}: no metrics.json here (is {folder} a run's output "
+                           f"folder?)") from exc
+    except (OSError, ValueError) as exc:  # a folder, unreadable, a NUL in the name
+        reason = getattr(exc, "strerror", None) or str(exc)
+        raise RunDataError(f"{path}: cannot read it ({reason})") from exc
+    try:
+        return json.loads(text.decode("utf-8"))
+    except UnicodeDecodeError as exc:
+        raise RunDataError(f"{path}: not UTF-8 text") from exc
+    except json.JSONDecodeError as exc:
+        raise RunDataError(f"{path}: not valid JSON ({exc.msg}, line {exc.lineno})") from exc
+    except (ValueError, RecursionError) as exc:  # a number too long, nested too deeply
+        shown = " ".join(str(exc).split())[:80]
+        raise RunDataError(f"{path}: not usable JSON ({shown})") from exc
+
+
+def read_metrics(folder: str | Path, missing_ok: bool = False) -> dict:
+    """``<folder>/metrics.json`` as a dict, checked (module docstring); ``missing_ok``: ``{}``
+    when the file is absent (a run cut short before writing it). Every problem is one
+    :class:`RunDataError` naming the folder or the file."""
+    folder = Path(folder)
+    path = folder / "metrics.json"
+    if missing_ok and not path.exists():
+        return {}
+    if not folder.is_dir():
+        what = "it does not exist" if not folder.exists() else "it is not a folder"
+        raise RunDataError(f"{folder}: no such run folder ({what}), so no metrics.json here; "
+                           f"expected a run's output folder (cellsight run)")
+    return _checked(_json_object(path, folder), path)
+
+
+def write_metrics(folder: Path, metrics: dict) -> dict:
+    """Write ``metrics`` as ``<folder>/metrics.json`` (with ``metrics_version``), checked
+    against :class:`RunMetrics` first; returns what was written."""
+    out = {"metrics_version": METRICS_VERSION, **metrics}
+    path = Path(folder) / "metrics.json"
+    _checked(out, path)
+    path.write_text(json.dumps(out, indent=1))
+    return out
+
+
+def finished_metrics(folder: Path) -> dict | None:
+    """The metrics of a finished run in ``folder`` (neither interrupted nor failed), else None:
+    not run yet, cut short while writing, or not a run's metrics."""
+    try:
+        metrics = read_metrics(folder)
+    except RunDataError:
+        return None
+    return None if metrics.get("interrupted") or metrics.get("error") else metrics
