@@ -67,6 +67,7 @@ from cellsight.runfolder import (
     FrameWriter,
     cell_digest,
     check_out_folder,
+    keep_cell,
     make_out_folder,
     write_metrics,
 )
@@ -186,6 +187,7 @@ class ExperimentRun:
         self.rows = FrameRows(self.robot, len(cell.cameras), config.sensor == "rendered")
         self.crossing = next(iter(sc.tasks), None)
         make_out_folder(self.out, stale)
+        self.cell_files = keep_cell(self.out, cell)
 
     def run(self) -> dict:
         """Run the experiment; write everything; return the metrics. On SIGINT or SIGTERM the
@@ -347,6 +349,7 @@ class ExperimentRun:
             "description": self.scenario.description,
             "cell": self.cell.source,
             "cell_sha256": cell_digest(self.cell),
+            "cell_files": self.cell_files,
             "seed": cfg.seed,
             "sensor": cfg.sensor,
             "occlusion_prediction": cfg.occlusion_prediction,

@@ -51,6 +51,17 @@ def pose_errors(estimate: np.ndarray, truth: np.ndarray) -> tuple[np.ndarray, np
     return pos, ang
 
 
+RIGID_TOL = 1e-6  # tolerance of R^T R = I and of the last row [0 0 0 1]
+
+
+def is_rigid(T: np.ndarray) -> bool:
+    """Whether the finite 4x4 matrix ``T`` is a rigid transform: a rotation (``R^T R = I``
+    within :data:`RIGID_TOL`, det +1: no scale, no mirror) and a last row ``0 0 0 1``."""
+    R = T[:3, :3]
+    return bool(np.allclose(R.T @ R, np.eye(3), atol=RIGID_TOL) and np.linalg.det(R) > 0
+                and np.allclose(T[3], [0, 0, 0, 1], atol=RIGID_TOL))
+
+
 def invert_pose(T: np.ndarray) -> np.ndarray:
     """Inverse of a rigid transform, using the transpose of its rotation."""
     R = T[:3, :3]

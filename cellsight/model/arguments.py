@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from cellsight.errors import CellsightError, short_repr
-from cellsight.geometry.transforms import pose_from_xyz_rpy
+from cellsight.geometry.transforms import is_rigid, pose_from_xyz_rpy
 
 
 def json_value(text: str | None, option: str):
@@ -77,9 +77,7 @@ def parse_part_poses(text: str | None) -> dict[str, np.ndarray]:
             poses[name] = pose_from_xyz_rpy(xyz, rpy)
             continue
         T = _numbers(value, what, (4, 4))
-        R = T[:3, :3]
-        if not (np.allclose(R.T @ R, np.eye(3), atol=1e-6) and np.linalg.det(R) > 0
-                and np.allclose(T[3], [0, 0, 0, 1])):
+        if not is_rigid(T):
             raise CellsightError(f"{what}: expected a rigid transform (rotation with det +1, "
                                  f"last row 0 0 0 1), got {short_repr(value)}")
         poses[name] = T

@@ -18,6 +18,7 @@ import numpy as np
 from cellsight.camera import Camera
 from cellsight.errors import CellsightError, short_repr
 from cellsight.geometry.polyhedron import Polyhedron
+from cellsight.geometry.transforms import is_rigid
 from cellsight.model.robot import Robot
 
 ObjectKind = Literal["link", "tool", "workpiece", "static"]
@@ -316,5 +317,9 @@ class Cell:
             T = np.asarray(part_poses.get(part.name, part.T_base_part), dtype=float)
             if T.shape != (4, 4) or not np.all(np.isfinite(T)):
                 raise CellsightError(f"workpiece {part.name}: pose must be a finite 4x4 matrix")
+            if not is_rigid(T):
+                raise CellsightError(f"workpiece {part.name}: pose must be a rigid transform "
+                                     f"(rotation with det +1: no scale, no mirror; last row "
+                                     f"0 0 0 1), got {short_repr(T.round(6).tolist())}")
             used_parts[part.name] = T
         return used_parts

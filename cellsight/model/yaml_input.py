@@ -154,8 +154,9 @@ def _absolute(value: str, folder: Path) -> str:
 
 
 def with_absolute_paths(raw: dict, folder: Path) -> dict:
-    """A copy of a cell file's mapping whose mesh files, URDF files and package folders are
-    absolute (so that the cell loads from any folder); shared (aliased) parts stay shared."""
+    """A copy of a cell file's mapping whose mesh, URDF, calibration and hand-eye files and
+    package folders are absolute (so that the cell loads from any folder); shared (aliased)
+    parts stay shared."""
     data = copy.deepcopy(raw)
     packages = data.get("packages") or {}
     for name, sub in packages.items():
@@ -169,8 +170,10 @@ def with_absolute_paths(raw: dict, folder: Path) -> dict:
         seen.add(id(node))
         children = node.values() if isinstance(node, dict) else node
         if isinstance(node, dict):
-            for key in ("mesh", "urdf"):
+            for key in ("mesh", "urdf", "calibration", "hand_eye"):
                 if isinstance(node.get(key), dict) and isinstance(node[key].get("file"), str):
                     node[key]["file"] = _absolute(node[key]["file"], folder)
+                elif key in ("calibration", "hand_eye") and isinstance(node.get(key), str):
+                    node[key] = _absolute(node[key], folder)
         todo.extend(children)
     return data

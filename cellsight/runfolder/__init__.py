@@ -6,6 +6,7 @@
   :class:`FrameLog`);
 - :mod:`.metrics`: ``metrics.json``, its schema, its one writer and its one reader;
 - :mod:`.digest`: which cell a run used (the cell file and the files it points to);
+- :mod:`.cell_copy`: the run's cell kept in its folder (``cell.yaml``), replayed from there;
 - :mod:`.replay`: a whole run read back and checked (:func:`load_run`), for the view, the
   export and camera placement.
 
@@ -13,6 +14,7 @@
 written by the run loop and the report; they are for people, and nothing reads them back.
 """
 
+from cellsight.runfolder.cell_copy import CELL_FILE, keep_cell, kept_cell
 from cellsight.runfolder.digest import cell_digest
 from cellsight.runfolder.folder import RUN_FILES, RunFolderError, check_out_folder, make_out_folder
 from cellsight.runfolder.framelog import FrameLog, FrameWriter
@@ -27,7 +29,8 @@ from cellsight.runfolder.metrics import (
 from cellsight.runfolder.replay import RunData, load_run
 
 __all__ = [
-    "METRICS_VERSION", "RUN_FILES", "FrameLog", "FrameWriter", "RunData", "RunDataError",
-    "RunFolderError", "RunMetrics", "cell_digest", "check_out_folder", "finished_metrics",
-    "load_run", "make_out_folder", "read_metrics", "write_metrics",
+    "CELL_FILE", "METRICS_VERSION", "RUN_FILES", "FrameLog", "FrameWriter", "RunData",
+    "RunDataError", "RunFolderError", "RunMetrics", "cell_digest", "check_out_folder",
+    "finished_metrics", "keep_cell", "kept_cell", "load_run", "make_out_folder", "read_metrics",
+    "write_metrics",
 ]

@@ -42,6 +42,7 @@ class RunMetrics(BaseModel):
     description: str | None = None
     cell: str | None = None
     cell_sha256: str | None = None
+    cell_files: dict[str, str | None] | None = None
     seed: int | None = None
     sensor: str | None = None
     occlusion_prediction: bool | None = None

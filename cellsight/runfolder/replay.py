@@ -19,6 +19,8 @@ from cellsight.errors import CellsightError, short_repr
 from cellsight.geometry.transforms import pose_from_xyz_rpy
 from cellsight.model.cell import Cell, Workpiece
 from cellsight.model.loader import load_cell
+from cellsight.runfolder.cell_copy import file_digest, kept_cell
+from cellsight.runfolder.digest import cell_digest
 from cellsight.runfolder.framelog import POSE, FrameLog, camera_column
 from cellsight.runfolder.metrics import RunDataError, read_metrics
 
@@ -78,16 +80,29 @@ def _text_field(metrics: dict, key: str, path: Path, optional: bool = False) -> 
 
 
 def run_cell(metrics: dict, folder: Path, cell: str | Path | None = None) -> Cell:
-    """The run's cell: ``cell`` if given (a name or a file), else metrics.json's ``cell``."""
+    """The run's cell: ``cell`` if given (a name or a file), else the cell kept in the run
+    folder (:func:`~cellsight.runfolder.cell_copy.kept_cell`), else, for a run from before
+    cells were kept, metrics.json's ``cell`` as long as it is the file the run used
+    (``cell_sha256``)."""
     if cell is not None:
         return load_cell(cell)
+    kept = kept_cell(folder, metrics)
+    if kept is not None:
+        return kept
     path = folder / "metrics.json"
     source = _text_field(metrics, "cell", path)
     try:
-        return load_cell(source)
+        the_cell = load_cell(source)
     except CellsightError as exc:
         raise RunDataError(f"{path}: field 'cell': {source!r} cannot be loaded ({exc}); pass "
                            f"--cell NAME|FILE to name the run's cell") from exc
+    recorded = metrics.get("cell_sha256")
+    now = cell_digest(the_cell) if metrics.get("metrics_version", 0) else file_digest(source)
+    if recorded is not None and recorded != now:
+        raise RunDataError(f"{path}: field 'cell': {source} has changed since the run (its "
+                           f"SHA-256 differs from cell_sha256); pass --cell NAME|FILE to "
+                           f"replay with it anyway")
+    return the_cell
 
 
 def _row_error(frames: FrameLog, t: np.ndarray, row: int, column: str) -> RunDataError:

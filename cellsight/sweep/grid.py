@@ -97,10 +97,31 @@ def sweep_grid(cells: Sequence[str], experiments: Sequence[int], sensors: Sequen
         raise CellsightError(f"--variant-seeds: expected a whole number >= 1, got "
                              f"{variant_seeds}")
     compared = set(seeds[:variant_seeds]) if variant_seeds is not None else set(seeds)
-    return [RunSpec(cell, e, sensor, variant, seed, duration, realism, structure)
+    specs = [RunSpec(cell, e, sensor, variant, seed, duration, realism, structure)
             for cell, e, realism, structure, sensor, variant, seed in itertools.product(
                 cells, experiments, realisms, structures, sensors, variants, seeds)
             if variant == variants[0] or seed in compared]
+    _check_one_folder_each(specs)
+    return specs
+
+
+def _check_one_folder_each(specs: list[RunSpec]) -> None:
+    """Refuse a grid where two runs would write into one folder: a value given twice
+    (``--seeds 0 0``) or two cell files of the same name in different folders."""
+    by_folder: dict[Path, RunSpec] = {}
+    for spec in specs:
+        other = by_folder.setdefault(spec.folder, spec)
+        if other is spec:
+            continue
+        if other == spec:
+            what = ("the same run twice (a value repeated in --cells, --experiments, --sensors, "
+                    "--variants, --realism, --structure or --seeds)")
+        elif other.cell != spec.cell:
+            what = f"cells {other.cell!r} and {spec.cell!r} (files of the same name: rename one)"
+        else:
+            what = f"realism {other.realism!r} and {spec.realism!r} (rename one)"
+        raise CellsightError(f"sweep: two runs would share the folder {str(spec.folder)!r}: "
+                             f"{what}")
 
 
 def reusable_metrics(folder: Path, cell: str | None = None) -> dict | None:

@@ -1,0 +1,125 @@
+"""Hostile input, second round (issue 23): the answers that were silently wrong. A part pose
+that is not rigid, two sweep runs sharing one folder, and a replay that used a cell file
+edited after the run."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from cellsight.cli import main
+from cellsight.errors import CellsightError
+from cellsight.experiments import RunConfig, run_experiment
+from cellsight.model.loader import load_cell
+from cellsight.occlusion.predictor import VisibilityPredictor
+from cellsight.runfolder import RunDataError, load_run
+
+CELL = load_cell()
+T_PART = CELL.workpiece("part").T_base_part
+
+
+@pytest.mark.parametrize(("name", "pose"), [
+    ("scaled x2", np.diag([2.0, 2.0, 2.0, 1.0]) @ T_PART),
+    ("mirrored", np.diag([1.0, 1.0, -1.0, 1.0]) @ T_PART),
+    ("last row 0 0 0 2", np.vstack([T_PART[:3], [0.0, 0.0, 0.0, 2.0]])),
+    ("sheared", T_PART @ np.array([[1, 0.1, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1.0]])),
+])
+def test_the_api_refuses_a_part_pose_that_is_not_rigid(name: str, pose: np.ndarray) -> None:
+    predictor = VisibilityPredictor(CELL)
+    with pytest.raises(CellsightError, match="workpiece part: pose must be a rigid transform"):
+        predictor.predict(None, {"part": pose})
+    with pytest.raises(CellsightError, match="rigid transform"):
+        CELL.snapshot(None, {"part": pose})
+
+
+def test_a_rigid_pose_within_rounding_is_taken() -> None:
+    rounded = T_PART.round(9)
+    assert VisibilityPredictor(CELL).predict(None, {"part": rounded})["part"][0].count > 0
+
+
+@pytest.mark.parametrize("args", [
+    ["--seeds", "0", "0"],
+    ["--sensors", "ideal", "ideal", "--seeds", "3"],
+])
+def test_sweep_refuses_two_runs_in_one_folder(args: list[str], tmp_path: Path, capsys) -> None:
+    out = tmp_path / "sweep"
+    assert main(["sweep", "--out", str(out), "--experiments", "1", "--sensors", "ideal",
+                 "--duration", "0.1", *args]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "two runs would share the folder" in err
+    assert not out.exists()
+
+
+def test_sweep_refuses_two_cell_files_of_the_same_name(tmp_path: Path, capsys) -> None:
+    for sub in ("a", "b"):
+        (tmp_path / sub).mkdir()
+        shutil.copy(CELL.source, tmp_path / sub / "cell.yaml")
+    out = tmp_path / "sweep"
+    assert main(["sweep", "--out", str(out), "--cells", str(tmp_path / "a" / "cell.yaml"),
+                 str(tmp_path / "b" / "cell.yaml"), "--experiments", "1", "--sensors", "ideal",
+                 "--seeds", "0", "--duration", "0.1"]) == 2
+    err = capsys.readouterr().err
+    assert "files of the same name" in err and str(tmp_path / "a" / "cell.yaml") in err
+    assert not out.exists()
+
+
+@pytest.fixture(scope="module")
+def calibrated_run(tmp_path_factory) -> tuple[Path, Path]:
+    """A short ideal run on a cell whose cameras come from calibration files, run from a
+    cell file that is then removed: (run folder, calibration folder)."""
+    root = tmp_path_factory.mktemp("kept")
+    assert main(["cameras", "--write", str(root / "cal")]) == 0
+    run = root / "run"
+    run_experiment(RunConfig(1, run, cell=root / "cal" / "cell.yaml", sensor="ideal",
+                             duration=0.3, progress=False, video_every=0))
+    (root / "cal" / "cell.yaml").unlink()
+    return run, root / "cal"
+
+
+def test_a_run_replays_from_its_own_cell_without_the_original_file(calibrated_run) -> None:
+    run, _ = calibrated_run
+    data = load_run(run)
+    assert data.cell.source == str(run / "cell.yaml")
+    assert [c.name for c in data.cell.cameras] == [c.name for c in CELL.cameras]
+    np.testing.assert_allclose(data.cell.cameras[0].K, CELL.cameras[0].K, atol=1e-9)
+    assert data.n > 0
+
+
+def test_a_run_whose_calibration_file_changed_is_refused(calibrated_run, tmp_path) -> None:
+    run, cal = calibrated_run
+    copy = tmp_path / "run"
+    shutil.copytree(run, copy)
+    intrinsics = sorted(cal.glob("*_intrinsics.yaml"))[0]
+    before = intrinsics.read_text()
+    intrinsics.write_text(before + "\n# re-calibrated\n")
+    try:
+        with pytest.raises(RunDataError, match=rf"{intrinsics.name}.*has changed since the run"):
+            load_run(copy)
+        assert load_run(copy, "dual-arm").n > 0  # --cell replays it with another cell
+    finally:
+        intrinsics.write_text(before)
+    assert load_run(copy).n > 0
+
+
+def test_an_older_run_is_refused_when_its_cell_file_changed(calibrated_run, tmp_path) -> None:
+    """A run folder without ``cell.yaml`` (written before cells were kept) replays from the
+    file its metrics.json names, only while that file is the one the run used."""
+    run, _ = calibrated_run
+    old = tmp_path / "old"
+    shutil.copytree(run, old)
+    (old / "cell.yaml").unlink()
+    cell_file = tmp_path / "cell.yaml"
+    shutil.copy(CELL.source, cell_file)
+    metrics = json.loads((old / "metrics.json").read_text())
+    metrics["cell"], metrics["cell_files"] = str(cell_file), {}
+    metrics["cell_sha256"] = hashlib.sha256(cell_file.read_bytes()).hexdigest()
+    (old / "metrics.json").write_text(json.dumps(metrics))
+    assert load_run(old).cell.source == str(cell_file)
+    cell_file.write_text(cell_file.read_text() + "\n# a camera moved by hand\n")
+    with pytest.raises(RunDataError, match="has changed since the run"):
+        load_run(old)
