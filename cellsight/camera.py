@@ -23,6 +23,7 @@ from cellsight._camera_kernel import pinhole_jacobians
 from cellsight.errors import CameraError
 from cellsight.geometry.transforms import invert_pose, transform_points
 
+MAX_IMAGE_PX = 8192  # px: the largest image side; beyond, offscreen framebuffers fail
 MIN_DEPTH_M = 1e-6  # m: a point is in front of a camera when its depth exceeds this
 UNDISTORT_TOL_PX = 1e-6  # px: convergence of the fixed-point undistortion of the pixel maps
 UNDISTORT_MAX_ITER = 200
@@ -92,9 +93,10 @@ class Camera:
                 f"camera {self.name}: K must be [[fx,s,cx],[0,fy,cy],[0,0,1]] with fx, fy > 0, "
                 f"got {K.tolist()}"
             )
-        if int(self.width) <= 0 or int(self.height) <= 0:
+        if not (0 < int(self.width) <= MAX_IMAGE_PX and 0 < int(self.height) <= MAX_IMAGE_PX):
             raise CameraError(
-                f"camera {self.name}: image size must be positive, got {self.width}x{self.height}"
+                f"camera {self.name}: image size must be 1 to {MAX_IMAGE_PX} px a side (what the "
+                f"renderer's framebuffer takes), got {self.width}x{self.height}"
             )
         if T.shape != (4, 4) or not np.all(np.isfinite(T)):
             raise CameraError(f"camera {self.name}: T_base_cam must be a finite 4x4 matrix")

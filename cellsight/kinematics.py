@@ -24,7 +24,7 @@ from typing import Literal, Protocol
 import numpy as np
 from numba import njit
 
-from cellsight.errors import KinematicsError
+from cellsight.errors import KinematicsError, short_repr
 
 JointKind = Literal["revolute", "prismatic"]
 
@@ -67,10 +67,18 @@ class KinematicChain(Protocol):
 
 def check_joint_vector(name: str, qlim: np.ndarray, q, check_limits: bool = False,
                        tol: float = 1e-9) -> np.ndarray:
-    """Validate a joint vector for the chain ``name`` with limits ``qlim`` (n, 2): length n,
-    finite, and (if asked) inside the limits within ``tol``; a :class:`KinematicsError`."""
+    """Validate a joint vector for the chain ``name`` with limits ``qlim`` (n, 2): real numbers
+    (not words, not complex), length n, finite, and (if asked) inside the limits within
+    ``tol``; a :class:`KinematicsError` naming the chain."""
     n = len(qlim)
-    q = np.asarray(q, dtype=float).ravel()
+    if np.iscomplexobj(q):
+        raise KinematicsError(f"{name}: joint values must be real numbers, got complex "
+                              f"{short_repr(q)}")
+    try:
+        q = np.asarray(q, dtype=float).ravel()
+    except (TypeError, ValueError) as exc:
+        raise KinematicsError(f"{name}: expected {n} joint values (numbers), got "
+                              f"{short_repr(q)}") from exc
     if q.shape != (n,):
         raise KinematicsError(f"{name}: expected {n} joint values, got {q.size}")
     bad = np.flatnonzero(~np.isfinite(q))

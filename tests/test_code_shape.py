@@ -94,9 +94,11 @@ OUTSIDE = re.compile(r"\.\./shared|METHOD-NOTES|METHOD_NOTES")
 def _cited(text: str) -> list[str]:
     """The documents ``text`` names that the repository does not hold (by path from its root,
     or by file name), and any name of the project's papers kept outside it."""
-    names = {p.name for p in REPO.rglob("*") if ".venv" not in p.parts and ".git" not in p.parts}
+    names = {p.name for top in ("cellsight", "docs", "tests", "bench", "scripts")
+             for p in (REPO / top).rglob("*")} | {p.name for p in REPO.iterdir()}
     missing = [d for d in DOCUMENT.findall(text)
-               if d not in WRITTEN and not (REPO / d).exists() and Path(d).name not in names]
+               if Path(d).name not in WRITTEN and not (REPO / d).exists()
+               and Path(d).name not in names]
     return missing + OUTSIDE.findall(text)
 
 

@@ -123,3 +123,71 @@ def test_an_older_run_is_refused_when_its_cell_file_changed(calibrated_run, tmp_
     cell_file.write_text(cell_file.read_text() + "\n# a camera moved by hand\n")
     with pytest.raises(RunDataError, match="has changed since the run"):
         load_run(old)
+
+
+def _edited_cell(tmp_path: Path, old: str, new: str) -> Path:
+    """The built-in cell file with ``old`` replaced by ``new`` (once), in ``tmp_path``."""
+    text = Path(CELL.source).read_text()
+    assert old in text
+    path = tmp_path / "cell.yaml"
+    path.write_text(text.replace(old, new, 1))
+    return path
+
+
+def test_the_loader_refuses_a_crossing_robot_that_grasps(tmp_path: Path) -> None:
+    path = _edited_cell(tmp_path, "  crossing:\n    robot: R6AX", "  crossing:\n    robot: R7AX")
+    with pytest.raises(CellsightError, match=r"experiments\.crossing\.robot.*R7AX.*grasping"):
+        load_cell(path)
+
+
+def test_the_loader_refuses_an_image_the_renderer_cannot_take(tmp_path: Path) -> None:
+    path = _edited_cell(tmp_path, "width: 768", "width: 100000")
+    with pytest.raises(CellsightError, match="image size must be 1 to 8192 px"):
+        load_cell(path)
+
+
+@pytest.mark.parametrize(("text", "message"), [
+    ('{"R7AX": [true, 0, 0, 0, 0, 0, 0]}', "expected finite numbers, got [True"),
+    ('{"R7AX": [0, 0, 0, 0, 0, 0, 0], "R7AX": [0, 0, 0, 0, 0, 0, 0]}', "'R7AX' given twice"),
+])
+def test_joints_on_the_command_line_refuse_booleans_and_repeated_robots(
+        text: str, message: str, capsys) -> None:
+    assert main(["visibility", "--joints", text]) == 2
+    assert message in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(("joints", "message"), [
+    ({"R7AX": ["a"] * 7}, "R7AX: expected 7 joint values"),
+    ({"R7AX": [1j] + [0.0] * 6}, "R7AX: joint values must be real numbers"),
+    ([0.1] * 7, "joints must map names to values"),
+])
+def test_the_api_names_the_robot_of_bad_joint_values(joints, message: str) -> None:
+    with pytest.raises(CellsightError, match=message):
+        VisibilityPredictor(CELL).predict(joints)
+
+
+def test_export_refuses_a_link_to_the_runs_own_file(calibrated_run, tmp_path) -> None:
+    from cellsight.export.mcap_run import check_output
+
+    run, _ = calibrated_run
+    link = tmp_path / "lnk.mcap"
+    link.symlink_to(run / "frames.csv")
+    before = (run / "frames.csv").read_bytes()
+    with pytest.raises(CellsightError, match="is the run's own frames.csv"):
+        check_output(link, True, run)
+    assert main(["export", str(run), "--mcap", str(link), "--overwrite"]) == 2
+    assert (run / "frames.csv").read_bytes() == before
+
+
+def test_compare_says_when_runs_are_not_like_for_like(tmp_path: Path, capsys) -> None:
+    from cellsight.runfolder import write_metrics
+
+    for name, t_end in (("a", 12.5), ("b", 48.0)):
+        (tmp_path / name).mkdir()
+        write_metrics(tmp_path / name, {"experiment": 3, "t_end_s": t_end, "cell_sha256": name})
+    assert main(["compare", str(tmp_path / "a"), str(tmp_path / "b")]) == 0
+    out = " ".join(capsys.readouterr().out.split())
+    assert "not like for like" in out and "cell a vs b" in out
+    assert "duration (s) 12.5 vs 48.0" in out
+    assert main(["compare", str(tmp_path / "a"), str(tmp_path / "a")]) == 0
+    assert "not like for like" not in capsys.readouterr().out

@@ -25,6 +25,19 @@ def _ratio(a, b) -> str:
         return ""
 
 
+SETTING = {"cell_sha256": "cell", "experiment": "experiment", "t_end_s": "duration (s)",
+           "realism": "realism profile", "structure": "structure"}
+"""metrics.json fields that say what was run (not how well): runs differing in one of them are
+not like for like, and compare says so above its table."""
+
+
+def differences(a: dict, b: dict) -> list[str]:
+    """What two runs' metrics say was run differently: ``"duration (s) 12.3 vs 48.5"`` per
+    :data:`SETTING` field present in both and different."""
+    return [f"{name} {one_line(a[key], 20)} vs {one_line(b[key], 20)}"
+            for key, name in SETTING.items() if key in a and key in b and a[key] != b[key]]
+
+
 def cmd_compare(args: argparse.Namespace) -> int:
     from rich.console import Console
     from rich.markup import escape
@@ -49,5 +62,9 @@ def cmd_compare(args: argparse.Namespace) -> int:
     for key in list(rows_a) + [k for k in rows_b if k not in rows_a]:
         va, vb = rows_a.get(key), rows_b.get(key)
         table.add_row(escape(one_line(key, 80)), cell(va), cell(vb), _ratio(va, vb))
-    Console().print(table)
+    console = Console()
+    if unlike := differences(a, b):
+        console.print(escape(f"note: the runs are not like for like: {'; '.join(unlike)}"),
+                      style="yellow")
+    console.print(table)
     return 0

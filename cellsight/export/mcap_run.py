@@ -89,13 +89,14 @@ class _Bag:
 
 def check_output(path: str | Path, overwrite: bool, run_folder: Path) -> Path:
     """The output file, checked touching nothing: not a folder, not one of the run's own
-    files, not existing unless ``overwrite``, its folder creatable."""
+    files (nor a link to one), not existing unless ``overwrite``, its folder creatable."""
 
     path = Path(path)
     if path.is_dir():
         raise CellsightError(f"--mcap: {str(path)!r} is a folder; expected a file name")
-    if path.name in RUN_FILES and path.resolve().parent == run_folder.resolve():
-        raise CellsightError(f"--mcap: {str(path)!r} is the run's own {path.name}")
+    target = path.resolve()  # through links: a link to frames.csv is frames.csv
+    if target.name in RUN_FILES and target.parent == run_folder.resolve():
+        raise CellsightError(f"--mcap: {str(path)!r} is the run's own {target.name}")
     if path.exists() and not overwrite:
         raise CellsightError(f"--mcap: {str(path)!r} exists; pass --overwrite to replace it")
     parent = next((p for p in path.absolute().parents if p.exists()), None)

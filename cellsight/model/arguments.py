@@ -31,16 +31,32 @@ def json_value(text: str | None, option: str):
             except UnicodeDecodeError as exc:
                 raise CellsightError(f"--{option}: {path}: not UTF-8 text") from exc
     try:
-        return json.loads(source)
+        return json.loads(source, object_pairs_hook=lambda pairs: _unique(pairs, option))
     except json.JSONDecodeError as exc:
         raise CellsightError(f"--{option}: not valid JSON ({exc.msg} at column {exc.colno})"
                              ) from exc
 
 
+def _unique(pairs: list[tuple[str, object]], option: str) -> dict:
+    """A JSON object's pairs as a dict; a key given twice is an error (as in a cell file)."""
+    out: dict = {}
+    for key, value in pairs:
+        if key in out:
+            raise CellsightError(f"--{option}: key {key!r} given twice")
+        out[key] = value
+    return out
+
+
+def _has_bool(value: object) -> bool:
+    """``value`` is, or nests in lists, a JSON ``true``/``false``."""
+    return isinstance(value, bool) or (isinstance(value, list) and any(map(_has_bool, value)))
+
+
 def _numbers(value, what: str, shape: tuple[int, ...] | None = None) -> np.ndarray:
-    """``value`` as finite floats (of ``shape`` if given), else an error naming ``what``."""
+    """``value`` as finite floats (of ``shape`` if given), else an error naming ``what``; a
+    ``true`` or ``false`` is not a number."""
     try:
-        array = np.asarray(value, dtype=float)
+        array = None if _has_bool(value) else np.asarray(value, dtype=float)
     except (TypeError, ValueError):
         array = None
     if (array is None or array.ndim == 0 or (shape is not None and array.shape != shape)

@@ -342,6 +342,13 @@ def _experiments(spec: ExperimentsSpec | None, robots: list[Robot], parts: list[
         if robot is None:
             raise CellFileError(file, f"{at}.robot", spec.crossing.robot,
                                 f"one of {sorted(by_name)}")
+        grasper = spec.robot or next((r.name for r in robots
+                                      if r.tool is not None and r.final is not None), None)
+        if robot.name == grasper:
+            raise CellFileError(file, f"{at}.robot", robot.name,
+                                f"a robot other than the grasping robot ({grasper}, "
+                                f"experiments.robot or the first with a tool and a FINAL "
+                                f"pose): one robot cannot grasp and cross at once")
         waypoints, last = [], 0.0
         for k, w in enumerate(spec.crossing.waypoints):
             if w.t <= last:

@@ -267,6 +267,11 @@ class Cell:
         out: its nominal pose). ``openings``: robot name -> jaw opening in metres (default: open), a
         finite number in ``[0, max_opening]`` (within ``OPENING_TOL``); checked.
         """
+        for arg, value in (("joints", joints), ("part_poses", part_poses),
+                           ("openings", openings)):
+            if value is not None and not isinstance(value, Mapping):
+                raise CellsightError(f"Cell.snapshot: {arg} must map names to values (a dict), "
+                                     f"got {short_repr(value)}")
         joints = dict(joints or {})
         part_poses = dict(part_poses or {})
         openings = dict(openings or {})
