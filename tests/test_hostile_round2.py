@@ -191,3 +191,18 @@ def test_compare_says_when_runs_are_not_like_for_like(tmp_path: Path, capsys) ->
     assert "duration (s) 12.5 vs 48.0" in out
     assert main(["compare", str(tmp_path / "a"), str(tmp_path / "a")]) == 0
     assert "not like for like" not in capsys.readouterr().out
+
+
+def test_show_keeps_the_users_files_without_overwrite(tmp_path: Path, capsys) -> None:
+    out = tmp_path / "pictures"
+    out.mkdir()
+    (out / "cell_3d.png").write_text("the user's own picture")
+    assert main(["show", "--out", str(out)]) == 2
+    assert "already holds cell_3d.png; pass --overwrite" in capsys.readouterr().err
+    assert (out / "cell_3d.png").read_text() == "the user's own picture"
+    assert sorted(p.name for p in out.iterdir()) == ["cell_3d.png"]
+    assert main(["show", "--out", str(out), "--overwrite"]) == 0
+    assert (out / "cell_3d.png").read_bytes()[:4] == b"\x89PNG"
+    assert {p.name for p in out.iterdir()} == {"cell_3d.png", "view_cam1.png", "view_cam2.png"}
+    assert main(["show", "--out", str(out / "cell_3d.png" / "x")]) == 2
+    assert "a file; expected a folder" in capsys.readouterr().err

@@ -18,7 +18,7 @@ from mpl_toolkits.mplot3d.art3d import Poly3DCollection  # noqa: E402
 
 from cellsight.camera import MIN_DEPTH_M  # noqa: E402
 from cellsight.geometry.transforms import transform_points  # noqa: E402
-from cellsight.model.cell import Snapshot  # noqa: E402
+from cellsight.model.cell import Cell, Snapshot  # noqa: E402
 
 KIND_COLOURS = {"link": "#f28e2b", "tool": "#4e79a7", "workpiece": "#e15759", "static": "#bab0ac"}
 
@@ -101,10 +101,17 @@ def plot_camera_view(snapshot: Snapshot, camera: int, path: Path, visibility=Non
     return path
 
 
+def show_files(cell: Cell) -> list[str]:
+    """The names of the files :func:`show_cell` writes for ``cell``."""
+    return ["cell_3d.png"] + [f"view_{cam.name}.png" for cam in cell.cameras]
+
+
 def show_cell(snapshot: Snapshot, out_dir: Path, visibility=None) -> list[Path]:
-    """Write the 3D view and one wireframe per camera into ``out_dir``; returns the paths."""
+    """Write the 3D view and one wireframe per camera (:func:`show_files`) into ``out_dir``;
+    returns the paths."""
     out_dir.mkdir(parents=True, exist_ok=True)
-    paths = [plot_cell_3d(snapshot, out_dir / "cell_3d.png")]
-    for k, cam in enumerate(snapshot.cell.cameras):
-        paths.append(plot_camera_view(snapshot, k, out_dir / f"view_{cam.name}.png", visibility))
+    names = show_files(snapshot.cell)
+    paths = [plot_cell_3d(snapshot, out_dir / names[0])]
+    for k, name in enumerate(names[1:]):
+        paths.append(plot_camera_view(snapshot, k, out_dir / name, visibility))
     return paths
