@@ -425,7 +425,7 @@ def test_a_bad_field_names_its_row_and_column(run_dir: Path, tmp_path: Path) -> 
     with pytest.raises(CellsightError, match=r"frames.csv row 5 \(t = .* s\): field "
                                              r"'q_R6AX_2' is empty"):
         export_mcap(bad, tmp_path / "x.mcap", progress=False)
-    (bad / "cell.yaml").unlink()  # a run from before cells were kept
+    (bad / "run_cell.yaml").unlink()  # a run from before cells were kept
     metrics = json.loads((bad / "metrics.json").read_text())
     metrics["cell"] = str(tmp_path / "gone.yaml")
     (bad / "metrics.json").write_text(json.dumps(metrics))

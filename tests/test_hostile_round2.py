@@ -84,7 +84,7 @@ def calibrated_run(tmp_path_factory) -> tuple[Path, Path]:
 def test_a_run_replays_from_its_own_cell_without_the_original_file(calibrated_run) -> None:
     run, _ = calibrated_run
     data = load_run(run)
-    assert data.cell.source == str(run / "cell.yaml")
+    assert data.cell.source == str(run / "run_cell.yaml")
     assert [c.name for c in data.cell.cameras] == [c.name for c in CELL.cameras]
     np.testing.assert_allclose(data.cell.cameras[0].K, CELL.cameras[0].K, atol=1e-9)
     assert data.n > 0
@@ -107,12 +107,12 @@ def test_a_run_whose_calibration_file_changed_is_refused(calibrated_run, tmp_pat
 
 
 def test_an_older_run_is_refused_when_its_cell_file_changed(calibrated_run, tmp_path) -> None:
-    """A run folder without ``cell.yaml`` (written before cells were kept) replays from the
+    """A run folder without ``run_cell.yaml`` (written before cells were kept) replays from the
     file its metrics.json names, only while that file is the one the run used."""
     run, _ = calibrated_run
     old = tmp_path / "old"
     shutil.copytree(run, old)
-    (old / "cell.yaml").unlink()
+    (old / "run_cell.yaml").unlink()
     cell_file = tmp_path / "cell.yaml"
     shutil.copy(CELL.source, cell_file)
     metrics = json.loads((old / "metrics.json").read_text())

@@ -294,7 +294,7 @@ def test_run_errors_name_the_file(run_dir, tmp_path):
     with pytest.raises(CellsightError, match="no metrics.json"):
         RunReplay(tmp_path)
     bad_cell = _copy_run(run_dir, tmp_path / "bad_cell")
-    (bad_cell / "cell.yaml").unlink()  # a run from before cells were kept
+    (bad_cell / "run_cell.yaml").unlink()  # a run from before cells were kept
     metrics = json.loads((bad_cell / "metrics.json").read_text())
     metrics["cell"] = str(tmp_path / "gone.yaml")
     (bad_cell / "metrics.json").write_text(json.dumps(metrics))

@@ -6,7 +6,7 @@
   :class:`FrameLog`);
 - :mod:`.metrics`: ``metrics.json``, its schema, its one writer and its one reader;
 - :mod:`.digest`: which cell a run used (the cell file and the files it points to);
-- :mod:`.cell_copy`: the run's cell kept in its folder (``cell.yaml``), replayed from there;
+- :mod:`.cell_copy`: the run's cell kept in its folder (``run_cell.yaml``), replayed from there;
 - :mod:`.replay`: a whole run read back and checked (:func:`load_run`), for the view, the
   export and camera placement.
 

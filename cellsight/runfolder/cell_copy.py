@@ -1,4 +1,4 @@
-"""The cell a run ran, kept in its folder: ``cell.yaml`` (:data:`CELL_FILE`), the cell file with
+"""The cell a run ran, kept in its folder: ``run_cell.yaml`` (:data:`CELL_FILE`), the cell file with
 every file it points to named by its absolute path, and in ``metrics.json`` the SHA-256 of each
 of those files (``cell_files``). A replay (:func:`kept_cell`) loads that copy, so it needs
 neither the original cell file nor the folder it was run from, and refuses, in one line, when
@@ -17,7 +17,7 @@ from cellsight.model.loader import load_cell
 from cellsight.model.yaml_input import load_yaml, read_cell_text, with_absolute_paths
 from cellsight.runfolder.metrics import RunDataError
 
-CELL_FILE = "cell.yaml"
+CELL_FILE = "run_cell.yaml"  # not cell.yaml: a user's own cell file may be called that
 
 
 def file_digest(path: str | Path) -> str | None:

@@ -10,7 +10,7 @@ from pathlib import Path
 from cellsight.errors import CellsightError
 
 RUN_FILES = frozenset({"frames.csv", "metrics.json", "run.log", "report.html", "keyframes.json",
-                       "views.mp4", "cell.yaml"})
+                       "views.mp4", "run_cell.yaml"})
 """The files a run writes into its folder, besides ``keyframes/*.png`` and ``fig_*.png``."""
 
 
