@@ -99,11 +99,9 @@ def write_cameras(cell_file: Path, raw: dict, cameras: list[Camera], out: Path, 
         raise CellsightError("--write: camera names that differ only in case would share "
                              f"files: {[c.name for c in cameras]}")
     names = [f for c in cameras for f in camera_files(c.name, fmt)] + [CAMERAS_FILE, CELL_FILE]
-    if out.exists() and not out.is_dir():
-        raise CellsightError(f"--write: {out} is not a folder")
-    if not overwrite and (there := [n for n in names if (out / n).exists()]):
-        raise CellsightError(f"--write: {out} already holds {', '.join(there)}; pass "
-                             "--overwrite to replace them")
+    from cellsight.runfolder.folder import check_new_files
+
+    check_new_files(out, names, overwrite, "--write")
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:

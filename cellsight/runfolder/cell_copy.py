@@ -6,7 +6,6 @@ a file the cell points to (a mesh, a URDF, a calibration file) has changed since
 
 from __future__ import annotations
 
-import hashlib
 from pathlib import Path
 
 import yaml
@@ -15,17 +14,10 @@ from cellsight.errors import CellsightError
 from cellsight.model.cell import Cell
 from cellsight.model.loader import load_cell
 from cellsight.model.yaml_input import load_yaml, read_cell_text, with_absolute_paths
+from cellsight.runfolder.digest import file_digest
 from cellsight.runfolder.metrics import RunDataError
 
 CELL_FILE = "run_cell.yaml"  # not cell.yaml: a user's own cell file may be called that
-
-
-def file_digest(path: str | Path) -> str | None:
-    """SHA-256 (hex) of a file's bytes; None when it cannot be read."""
-    try:
-        return hashlib.sha256(Path(path).read_bytes()).hexdigest()
-    except OSError:
-        return None
 
 
 def keep_cell(folder: Path, cell: Cell) -> dict[str, str | None]:

@@ -10,6 +10,14 @@ from pathlib import Path
 from cellsight.model.cell import Cell
 
 
+def file_digest(path: str | Path) -> str | None:
+    """SHA-256 (hex) of a file's bytes; None when it cannot be read."""
+    try:
+        return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+    except OSError:
+        return None
+
+
 def cell_digest(cell: Cell) -> str | None:
     """SHA-256 (hex) over the bytes of ``cell.source`` then of each of ``cell.files`` (in the
     loader's order, each with its name); None when the cell is not from a file or a file

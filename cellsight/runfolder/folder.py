@@ -5,6 +5,7 @@ a folder can take a new run without losing anything that is not a run's output
 from __future__ import annotations
 
 import shutil
+from collections.abc import Sequence
 from pathlib import Path
 
 from cellsight.errors import CellsightError
@@ -30,6 +31,30 @@ def is_run_output(path: Path) -> bool:
                                or (path.name.startswith("fig_") and path.suffix == ".png"))
 
 
+def _shown(out: Path) -> str:
+    """A folder's name for a message: quoted, cut to 80 characters."""
+    return repr(str(out)) if len(str(out)) <= 80 else repr(str(out)[:77] + "...")
+
+
+def check_folder(out: Path, arg: str) -> bool:
+    """Check that ``out`` is a folder, or can be made one (it is not a file and not under
+    one); returns whether it exists. A :class:`RunFolderError` naming ``arg`` (the option)."""
+    existing = next(p for p in (out, *out.parents) if p.exists() or p.is_symlink())
+    if not existing.is_dir():
+        where = "is not a folder" if existing == out else f"is under {str(existing)!r}, a file"
+        raise RunFolderError(f"{arg}: {_shown(out)} {where}; expected a folder")
+    return existing == out
+
+
+def check_new_files(out: Path, names: Sequence[str], overwrite: bool, arg: str) -> None:
+    """Check, touching nothing, that the folder ``out`` (:func:`check_folder`) can take the
+    files ``names``: it holds none of them, or ``overwrite`` replaces them."""
+    check_folder(Path(out), arg)
+    if not overwrite and (there := [n for n in names if (Path(out) / n).exists()]):
+        raise RunFolderError(f"{arg}: {_shown(out)} already holds {', '.join(there)}; pass "
+                             f"--overwrite to replace them")
+
+
 def check_out_folder(out: Path, overwrite: bool, arg: str = "RunConfig.out",
                      flag: str = "overwrite=True") -> list[Path]:
     """Check, touching nothing, that the folder ``out`` can take a new run: absent (then
@@ -37,13 +62,9 @@ def check_out_folder(out: Path, overwrite: bool, arg: str = "RunConfig.out",
     outputs (:func:`is_run_output`), which are returned for the caller to clear. Otherwise a
     :class:`RunFolderError` naming ``arg`` (the option), the folder and, to pass, ``flag``."""
     out = Path(out)
-    shown = repr(str(out)) if len(str(out)) <= 80 else repr(str(out)[:77] + "...")
+    shown = _shown(out)
     try:
-        existing = next(p for p in (out, *out.parents) if p.exists() or p.is_symlink())
-        if not existing.is_dir():
-            where = "is not a folder" if existing == out else f"is under {str(existing)!r}, a file"
-            raise RunFolderError(f"{arg}: {shown} {where}; expected a folder")
-        entries = sorted(out.iterdir()) if existing == out else []
+        entries = sorted(out.iterdir()) if check_folder(out, arg) else []
         if entries and not overwrite:
             raise RunFolderError(f"{arg}: {shown} is not empty ({len(entries)} entries); pass "
                                  f"{flag} or choose another folder")

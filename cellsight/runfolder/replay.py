@@ -19,8 +19,8 @@ from cellsight.errors import CellsightError, short_repr
 from cellsight.geometry.transforms import pose_from_xyz_rpy
 from cellsight.model.cell import Cell, Workpiece
 from cellsight.model.loader import load_cell
-from cellsight.runfolder.cell_copy import file_digest, kept_cell
-from cellsight.runfolder.digest import cell_digest
+from cellsight.runfolder.cell_copy import kept_cell
+from cellsight.runfolder.digest import cell_digest, file_digest
 from cellsight.runfolder.framelog import POSE, FrameLog, camera_column
 from cellsight.runfolder.metrics import RunDataError, read_metrics
 
