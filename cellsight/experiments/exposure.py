@@ -4,7 +4,8 @@ Unsynchronised cameras are exposed at different instants. A camera with a skew `
 than a vision period) is exposed during the control steps before the frame, at the first step
 at or after ``t_frame - s`` (:meth:`Exposures.before_step`); the others at the frame's time
 (:meth:`Exposures.frame`). For the rendered sensor an exposure is that camera's image; for the
-ideal sensor it is that camera's true pixels, visibility and corners.
+ideal sensor it is that camera's true pixels, visibility and corners (an
+:class:`~cellsight.experiments.sensors.IdealView`).
 """
 
 from __future__ import annotations
@@ -13,6 +14,7 @@ import numpy as np
 
 from cellsight.experiments.plant import SimulatedCell
 from cellsight.experiments.rows import PartTruth
+from cellsight.experiments.sensors import IdealView
 
 
 class Exposures:
@@ -50,5 +52,5 @@ class Exposures:
             return self.world.render(cameras)
         truth = truth or PartTruth.of(self.world, self.part)
         corners = self.world.true_corners()
-        return [(truth.pixels[c], truth.visible[c], corners[c]) if c in cameras else None
-                for c in range(len(self.skews))]
+        return [IdealView(truth.pixels[c], truth.visible[c], corners[c]) if c in cameras
+                else None for c in range(len(self.skews))]

@@ -53,7 +53,7 @@ from cellsight.experiments.monitors import GraspMonitor, OcclusionEvents
 from cellsight.experiments.plant import SimulatedCell
 from cellsight.experiments.rows import FrameRows, FrameTruth, PartTruth
 from cellsight.experiments.scenario import Scenario, scenario
-from cellsight.experiments.sensors import IdealExtractor, IdealView
+from cellsight.experiments.sensors import IdealExtractor
 from cellsight.model.cell import Cell
 from cellsight.model.loader import load_cell
 from cellsight.occlusion.predictor import OBJECT_BVH, STRUCTURES, VisibilityPredictor
@@ -317,16 +317,13 @@ class ExperimentRun:
 
     def _grab(self, dropped: bool, truth: PartTruth) -> list:
         """What the sensors take this frame, one entry per camera, each as it was exposed
-        (:mod:`.exposure`): an image (rendered sensor) or an :class:`IdealView` of ``truth``
+        (:mod:`.exposure`): an image (rendered sensor) or an :class:`.sensors.IdealView` of ``truth``
         (ideal sensor); None per camera when the frame is dropped."""
         self.frames_dropped += dropped
         if dropped:
             self.exposures.drop()
             return [None] * len(self.cell.cameras)
-        exposed = self.exposures.frame(truth)
-        if self.ideal is None:
-            return exposed
-        return [IdealView(pixels, visible, corners) for pixels, visible, corners in exposed]
+        return self.exposures.frame(truth)
 
     def _plan(self, t: float, estimate: Estimate, joints: np.ndarray) -> None:
         """The task's vision update at time ``t`` with the tracker's ``estimate`` (pose and
