@@ -317,8 +317,8 @@ class ExperimentRun:
 
     def _grab(self, dropped: bool, truth: PartTruth) -> list:
         """What the sensors take this frame, one entry per camera, each as it was exposed
-        (:mod:`.exposure`): an image (rendered sensor) or an :class:`.sensors.IdealView` of ``truth``
-        (ideal sensor); None per camera when the frame is dropped."""
+        (:mod:`.exposure`): an image (rendered sensor) or an :class:`.sensors.IdealView` of
+        ``truth`` (ideal sensor); None per camera when the frame is dropped."""
         self.frames_dropped += dropped
         if dropped:
             self.exposures.drop()
