@@ -24,6 +24,7 @@ from cellsight.errors import CameraError
 from cellsight.geometry.transforms import invert_pose, transform_points
 
 MAX_IMAGE_PX = 8192  # px: the largest image side; beyond, offscreen framebuffers fail
+FOV_DEG = (0.01, 179.0)  # deg: the field of view a pinhole camera may have along each image axis
 MIN_DEPTH_M = 1e-6  # m: a point is in front of a camera when its depth exceeds this
 UNDISTORT_TOL_PX = 1e-6  # px: convergence of the fixed-point undistortion of the pixel maps
 UNDISTORT_MAX_ITER = 200
@@ -98,6 +99,14 @@ class Camera:
                 f"camera {self.name}: image size must be 1 to {MAX_IMAGE_PX} px a side (what the "
                 f"renderer's framebuffer takes), got {self.width}x{self.height}"
             )
+        for axis, focal, side in (("x", K[0, 0], self.width), ("y", K[1, 1], self.height)):
+            fov_deg = np.degrees(2.0 * np.arctan2(0.5 * int(side), focal))
+            if not FOV_DEG[0] <= fov_deg <= FOV_DEG[1]:
+                raise CameraError(
+                    f"camera {self.name}: focal length f{axis} = {focal:.6g} px gives a "
+                    f"{fov_deg:.6g} deg field of view over {int(side)} px; expected "
+                    f"{FOV_DEG[0]:g} to {FOV_DEG[1]:g} deg (check lens_mm and pixel_mm units)"
+                )
         if T.shape != (4, 4) or not np.all(np.isfinite(T)):
             raise CameraError(f"camera {self.name}: T_base_cam must be a finite 4x4 matrix")
         R = T[:3, :3]

@@ -28,7 +28,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
 import fuzzing  # noqa: E402
 
 CASES = {"soup": 50_000, "hostile_soup": 30_000, "cell_file": 10_000, "cell_text": 10_000,
-         "cli": 5_000}  # about 15 minutes on 2 cores
+         "cli": 5_000, "out_folder": 3_000, "replay": 500, "write_failure": 200}
 
 
 def _run(kind: str, cases: int, seed: int, queue, failures: str) -> dict:

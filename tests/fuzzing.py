@@ -18,7 +18,11 @@ Each kind draws cases from a seeded generator and judges each one:
   YAML tags and aliases): the same rule;
 - ``cli``: ``cellsight visibility`` / ``compare`` / ``run`` with random, mostly hostile
   arguments (JSON values of every type, NaN, huge numbers, long strings, paths), run in
-  process: an exit status of 0, 1 or 2 and no traceback.
+  process: an exit status of 0, 1 or 2 and no traceback;
+- ``out_folder``, ``replay``, ``write_failure``: the run folder's families
+  (``tests/fuzz_folders.py``): a writing command refuses bad arguments and a taken ``--out``
+  before it changes anything, a replay refuses a changed cell, a failed write is never a
+  finished run.
 
 A failure is a disagreement or an unexpected exception; :func:`run_kind` returns them.
 """
@@ -39,11 +43,13 @@ from pathlib import Path
 
 import numpy as np
 import yaml
+from fuzz_folders import out_folder_case, replay_case, write_failure_case
 from oracle import random_convex_solid, random_prism, random_soup, segment_oracle
 
 from cellsight.errors import CellsightError, GeometryError
 
-KINDS = ("soup", "hostile_soup", "cell_file", "cell_text", "cli")
+KINDS = ("soup", "hostile_soup", "cell_file", "cell_text", "cli", "out_folder", "replay",
+         "write_failure")
 
 SMALL_CELL = {
     "name": "fuzz cell",
@@ -80,6 +86,9 @@ SMALL_CELL = {
                  "dist": [0.01, -0.02, 0.0, 0.0, 0.0],
                  "look_at": {"eye": [1.4, 1.1, 1.6], "target": [0.6, 0.0, 0.65]}}],
 }
+
+FOLDER_CASES = {"out_folder": out_folder_case, "replay": replay_case,
+                "write_failure": write_failure_case}  # tests/fuzz_folders.py
 
 HOSTILE_VALUES = (None, True, False, 0, -1, 1, 7, 1e300, -1e300, math.nan, math.inf, -math.inf,
                   "", "x", "nan", "a/b", "../../etc", "é" * 5, "x" * 300, [], {}, [0], [1, 2],
@@ -390,8 +399,10 @@ def run_kind(kind: str, cases: int, seed: int = 0,
                 cell_file_case(py_rng, case, tally, folder)
             elif kind == "cell_text":
                 cell_text_case(py_rng, case, tally, folder)
-            else:
+            elif kind == "cli":
                 cli_case(py_rng, case, tally, folder)
+            else:
+                FOLDER_CASES[kind](py_rng, case, tally, folder)
             tally.cases += 1
             if progress is not None:
                 progress(case + 1)

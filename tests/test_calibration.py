@@ -558,7 +558,7 @@ BAD_ENTRIES = [  # (case, the camera entry, field, what the message says)
                               "hand_eye": {"file": "he.yaml", "frame": "body"}},
      r"cameras\[0\]\.hand_eye\.frame", r"Extra inputs are not permitted"),
     ("number for a file", {"calibration": 7, "look_at": LOOK}, r"cameras\[0\]\.calibration",
-     r"got 7; expected Value error, a file name, or a mapping \{file, format, \.\.\.\}"),
+     r"got 7; expected a file name, or a mapping \{file, format, \.\.\.\}"),
     ("unknown robot", {"calibration": "ok.yaml", "hand_eye": {"file": "he.yaml", "robot": "R9"}},
      r"cameras\[0\]\.hand_eye\.robot", r"got 'R9'; expected one of the cell's robots "
                                        r"\['R6AX', 'R7AX'\]"),

@@ -124,3 +124,28 @@ def test_the_design_names_only_existing_files_and_every_module():
         n.endswith("/" + m) for n in named))
     assert not missing and not unnamed, f"docs/design.md names missing files {missing}; " \
                                         f"does not name {unnamed}"
+
+
+WRITES = re.compile(r"\.(write_text|write_bytes|savefig|imwrite)\("
+                    r"|\bopen\([^)]*[\"'][wax]b?\+?[\"']|\.open\([\"'][wax]")
+OWN_WRITERS = {
+    "runfolder/writes.py": "the one place",
+    "runfolder/framelog.py": "frames.csv, written row by row; its failures go to RunWrites",
+    "geometry/mesh_cache.py": "the mesh cache, outside any output folder, atomically",
+    "occlusion/scale_cells.py": "the benchmark's generated cells",
+    "model/calibration.py": "calibration files, written into cameras --write's staged folder",
+}
+
+
+def test_every_file_is_written_through_the_one_place():
+    """Output files go through runfolder/writes.py (whole or not at all, a failure named and
+    recorded in the run); the few modules that write on their own are listed with why."""
+    found = {}
+    for path in _sources():
+        name = str(path.relative_to(PACKAGE))
+        lines = [n for n, line in enumerate(path.read_text().splitlines(), 1)
+                 if WRITES.search(line)]
+        if lines and name not in OWN_WRITERS:
+            found[name] = lines
+    assert not found, f"files written outside cellsight/runfolder/writes.py: {found}"
+    assert all((PACKAGE / name).exists() for name in OWN_WRITERS)

@@ -428,6 +428,7 @@ def test_a_bad_field_names_its_row_and_column(run_dir: Path, tmp_path: Path) -> 
     (bad / "run_cell.yaml").unlink()  # a run from before cells were kept
     metrics = json.loads((bad / "metrics.json").read_text())
     metrics["cell"] = str(tmp_path / "gone.yaml")
+    metrics.pop("cell_files", None)
     (bad / "metrics.json").write_text(json.dumps(metrics))
     with pytest.raises(CellsightError, match=r"metrics.json: field 'cell': .*gone.yaml.*--cell"):
         export_mcap(bad, tmp_path / "x.mcap", progress=False)

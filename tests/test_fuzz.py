@@ -8,7 +8,8 @@ import warnings
 import fuzzing
 import pytest
 
-CASES = {"soup": 300, "hostile_soup": 1000, "cell_file": 300, "cell_text": 300, "cli": 100}
+CASES = {"soup": 300, "hostile_soup": 1000, "cell_file": 300, "cell_text": 300, "cli": 100,
+         "out_folder": 60, "replay": 20, "write_failure": 8}
 
 
 @pytest.mark.parametrize("kind", fuzzing.KINDS)

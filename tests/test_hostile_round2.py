@@ -106,6 +106,23 @@ def test_a_run_whose_calibration_file_changed_is_refused(calibrated_run, tmp_pat
     assert load_run(copy).n > 0
 
 
+@pytest.mark.parametrize("edit", ["camera moved", "deleted"])
+def test_a_run_whose_kept_cell_was_edited_is_refused(calibrated_run, tmp_path, edit) -> None:
+    run, _ = calibrated_run
+    copy = tmp_path / "run"
+    shutil.copytree(run, copy)
+    kept = copy / "run_cell.yaml"
+    if edit == "deleted":
+        kept.unlink()
+    else:
+        kept.write_text(kept.read_text() + "\n# moved by hand\n")
+    now = "is gone" if edit == "deleted" else "has changed"
+    with pytest.raises(RunDataError, match=f"run_cell.yaml: it {now} since the run"):
+        load_run(copy)
+    assert main(["export", str(copy), "--mcap", str(tmp_path / "x.mcap"), "--quiet"]) == 2
+    assert not (tmp_path / "x.mcap").exists()
+
+
 def test_an_older_run_is_refused_when_its_cell_file_changed(calibrated_run, tmp_path) -> None:
     """A run folder without ``run_cell.yaml`` (written before cells were kept) replays from the
     file its metrics.json names, only while that file is the one the run used."""
@@ -206,3 +223,42 @@ def test_show_keeps_the_users_files_without_overwrite(tmp_path: Path, capsys) ->
     assert {p.name for p in out.iterdir()} == {"cell_3d.png", "view_cam1.png", "view_cam2.png"}
     assert main(["show", "--out", str(out / "cell_3d.png" / "x")]) == 2
     assert "a file; expected a folder" in capsys.readouterr().err
+
+
+
+@pytest.mark.parametrize(("old", "new", "message"), [
+    ("points: [[0.55, 0.0], [0.85, 0.04]]", "points: [[0.55, 0.0], [0.55, 0.0]]",
+     r"experiments\.conveyor\.points': .*points 0 and 1 coincide"),
+    ("lens_mm: 16.0", "lens_mm: 1.0e-300",
+     r"cameras\[0\]'.*fx = 1.2\d*e-298 px gives a 180 deg field of view"),
+    ("lens_mm: 16.0", "lens_mm: 1.0e+9",
+     r"cameras\[0\]'.*field of view over 768 px; expected 0.01 to 179 deg"),
+])
+def test_the_loader_refuses_a_still_conveyor_and_an_absurd_lens(
+        old: str, new: str, message: str, tmp_path: Path, capsys) -> None:
+    path = _edited_cell(tmp_path, old, new)
+    with pytest.raises(CellsightError, match=message):
+        load_cell(path)
+    assert main(["visibility", "--cell", str(path)]) == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1, err  # one line: no numpy warning leaks
+
+
+def test_a_home_on_its_joint_limits_loads_and_runs(tmp_path: Path) -> None:
+    """The loader and the run agree on the limits: HOME exactly on them (every joint of the
+    grasping robot at a limit) loads and runs in a world with encoder offsets and noise; a
+    millionth beyond is refused by the loader, before anything runs."""
+    robot = CELL.robot("R7AX")
+    on_limits = np.where(np.arange(robot.n_joints) % 2 == 0, robot.chain.qlim[:, 0],
+                         robot.chain.qlim[:, 1])
+    home = "home: [0.499, -0.051, 0.259, 0.65, 0.0, 0.664, -0.051]"
+    path = _edited_cell(tmp_path, home, f"home: {on_limits.tolist()}")
+    np.testing.assert_array_equal(load_cell(path).robot("R7AX").home, on_limits)
+    metrics = run_experiment(RunConfig(experiment=1, sensor="ideal", duration=2.0, cell=path,
+                                       realism="lab", out=tmp_path / "run", progress=False))
+    assert "error" not in metrics and metrics["frames"] > 0
+    beyond = on_limits.copy()
+    beyond[1] += 1e-6
+    path = _edited_cell(tmp_path, home, f"home: {beyond.tolist()}")
+    with pytest.raises(CellsightError, match="joint 2 = .* outside its limits"):
+        load_cell(path)

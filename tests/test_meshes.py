@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import importlib.metadata
-import time
 
 import numpy as np
 import pytest
@@ -62,11 +61,9 @@ def test_robot_collision_mesh_loads(path) -> None:
 
 
 @needs_robots
-def test_a_whole_ur5_loads_in_a_few_seconds() -> None:
-    start = time.perf_counter()
+def test_a_whole_ur5_loads_as_closed_solids() -> None:
     solids = [load_mesh_solid(p) for p in COLLISION if "ur5" in p.parts]
     assert len(solids) == 7 and all(s.closed for s in solids)
-    assert time.perf_counter() - start < 10.0  # about 1 s on a laptop core
 
 
 def test_a_cube_of_twelve_triangles_becomes_six_quads(tmp_path) -> None:

@@ -297,6 +297,7 @@ def test_run_errors_name_the_file(run_dir, tmp_path):
     (bad_cell / "run_cell.yaml").unlink()  # a run from before cells were kept
     metrics = json.loads((bad_cell / "metrics.json").read_text())
     metrics["cell"] = str(tmp_path / "gone.yaml")
+    metrics.pop("cell_files", None)
     (bad_cell / "metrics.json").write_text(json.dumps(metrics))
     with pytest.raises(CellsightError, match=r"metrics.json: field 'cell': .*gone.yaml"):
         RunReplay(bad_cell)

@@ -16,7 +16,9 @@ writes, per camera, an intrinsics file and a hand-eye pose file in the chosen fo
 and, to load them back, ``cameras.yaml`` (the ``cameras:`` section that refers to them, to
 paste into a cell file) and ``cell.yaml`` (the whole cell with that section; its other files,
 meshes, URDFs and package folders, named by absolute paths so that it loads from ``DIR``).
-Files already in ``DIR`` are kept unless ``--overwrite`` is given.
+Files already in ``DIR`` are kept unless ``--overwrite`` is given. The files are written
+together (:func:`cellsight.runfolder.writes.staged`): all of them, or, when one cannot be written
+(a full disk), none (a folder made for them is removed again), so a second try is not refused.
 
 The command's ``register(sub)`` adds it to ``cellsight``'s sub-commands.
 """
@@ -92,7 +94,8 @@ def write_cameras(cell_file: Path, raw: dict, cameras: list[Camera], out: Path, 
                   overwrite: bool = False) -> list[Path]:
     """Every camera's files (:func:`write_camera`), ``cameras.yaml`` and ``cell.yaml`` (the
     cell file ``cell_file``, of mapping ``raw``, with its cameras from those files) in
-    ``out``; existing files are refused unless ``overwrite``. Returns the paths written."""
+    ``out``; existing files are refused unless ``overwrite``. Returns the paths written. All of
+    them are written, or none: a failure is one error naming the file and why."""
     if fmt not in FORMATS:
         raise CellsightError(f"--format: got {fmt!r}; expected one of {', '.join(FORMATS)}")
     if len({c.name.lower() for c in cameras}) != len(cameras):
@@ -102,23 +105,38 @@ def write_cameras(cell_file: Path, raw: dict, cameras: list[Camera], out: Path, 
     from cellsight.runfolder.folder import check_new_files
 
     check_new_files(out, names, overwrite, "--write")
+    from cellsight.runfolder.writes import make_folders, remove_folders
+
     try:
-        out.mkdir(parents=True, exist_ok=True)
+        made = make_folders(out)  # removed again when the files cannot be written
     except OSError as exc:
         raise CellsightError(f"--write: cannot make the folder {out} ({exc.strerror})") from exc
-    written = [p for camera in cameras for p in write_camera(camera, out, fmt)]
-    entries = camera_entries(cameras, fmt)
-    cell = with_absolute_paths(raw, cell_file.resolve().parent)
-    cell["cameras"] = entries
-    for name, data in ((CAMERAS_FILE, {"cameras": entries}), (CELL_FILE, cell)):
-        path = out / name
-        header = f"# {name} written by 'cellsight cameras' from {cell_file}\n"
+    try:
+        _write_files(cell_file, raw, cameras, out, fmt)
+    except BaseException:
+        remove_folders(made)
+        raise
+    return [out / name for name in names]
+
+
+def _write_files(cell_file: Path, raw: dict, cameras: list[Camera], out: Path,
+                 fmt: str) -> None:
+    """The files of :func:`write_cameras`, all written into a temporary folder in ``out``
+    first, then moved into ``out`` together (:func:`~cellsight.runfolder.writes.staged`)."""
+    from cellsight.runfolder.writes import staged, write_file
+
+    with staged(out) as stage:
         try:
-            path.write_text(header + _dump(data), encoding="utf-8")
-        except OSError as exc:
-            raise CellsightError(f"{path}: cannot write the file ({exc.strerror})") from exc
-        written.append(path)
-    return written
+            for camera in cameras:
+                write_camera(camera, stage, fmt)
+            entries = camera_entries(cameras, fmt)
+            cell = with_absolute_paths(raw, cell_file.resolve().parent)
+            cell["cameras"] = entries
+            for name, data in ((CAMERAS_FILE, {"cameras": entries}), (CELL_FILE, cell)):
+                header = f"# {name} written by 'cellsight cameras' from {cell_file}\n"
+                write_file(stage / name, header + _dump(data))
+        except CellsightError as exc:  # the file by the name it was to have, not the stage's
+            raise CellsightError(str(exc).replace(str(stage), str(out))) from exc
 
 
 def _distortion(camera: Camera) -> str:

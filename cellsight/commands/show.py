@@ -28,6 +28,7 @@ def cmd_show(args: argparse.Namespace) -> int:
     from cellsight.occlusion.predictor import VisibilityPredictor
     from cellsight.report.show import show_cell, show_files
     from cellsight.runfolder.folder import check_new_files
+    from cellsight.runfolder.writes import WriteError
 
     cell = load_cell(args.cell)
     snapshot = cell.snapshot(parse_joints(args.joints), parse_part_poses(args.part_pose))
@@ -36,9 +37,9 @@ def cmd_show(args: argparse.Namespace) -> int:
     visibility = VisibilityPredictor(cell).predict_snapshot(snapshot)
     try:
         paths = show_cell(snapshot, out, visibility)
-    except OSError as exc:
-        raise CellsightError(f"--out: {str(out)!r}: cannot write the pictures "
-                             f"({exc.strerror or exc})") from exc
+    except (OSError, WriteError) as exc:  # a WriteError names the staged file: say why only
+        why = exc.reason if isinstance(exc, WriteError) else exc.strerror or exc
+        raise CellsightError(f"--out: {str(out)!r}: cannot write the pictures ({why})") from exc
     console = Console()
     for path in paths:
         console.print(f"wrote [bold]{path}[/bold]")

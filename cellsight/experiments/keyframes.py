@@ -14,6 +14,7 @@ import numpy as np
 from cellsight.camera import Camera
 from cellsight.control import Phase
 from cellsight.report.overlay import compose_views, draw_camera_overlay
+from cellsight.runfolder.writes import WriteError, write_file
 from cellsight.tracking.records import PartFrame
 
 Draw = Callable[[str], np.ndarray]
@@ -82,8 +83,11 @@ class KeyFrames:
         save it and rewrite ``keyframes.json`` (ordered by time)."""
         if score <= 0 or score <= self.best.get(key, {}).get("score", 0):
             return
-        cv2.imwrite(str(self.folder / f"{key}.png"), cv2.cvtColor(draw(caption), cv2.COLOR_RGB2BGR))
+        ok, png = cv2.imencode(".png", cv2.cvtColor(draw(caption), cv2.COLOR_RGB2BGR))
+        if not ok:
+            raise WriteError(self.folder / f"{key}.png", "OpenCV could not encode the picture")
+        write_file(self.folder / f"{key}.png", png.tobytes())
         self.best[key] = {"name": key, "t": round(t, 3), "caption": caption,
                           "file": f"keyframes/{key}.png", "score": score}
         ordered = sorted(self.best.values(), key=lambda k: k["t"])
-        (self.out / "keyframes.json").write_text(json.dumps(ordered, indent=1))
+        write_file(self.out / "keyframes.json", json.dumps(ordered, indent=1))

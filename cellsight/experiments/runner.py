@@ -17,9 +17,16 @@ Written into the output directory (:mod:`cellsight.runfolder`) as the run goes:
 baseline of :mod:`.baseline`), ``run.log`` (phase transitions, occlusion events and the grasp:
 :mod:`.monitors`; the summary), ``keyframes.json`` + ``keyframes/*.png`` (:mod:`.keyframes`),
 ``views.mp4`` (rendered sensor). After the loop (also when interrupted or failed), two steps
-that read the log: ``metrics.json`` (:mod:`cellsight.experiments.metrics` plus the run's facts:
-the realism profile and every draw, the structure, the collisions, the dropped frames) and
-``report.html`` (:mod:`cellsight.report.run_report`).
+that read the log: ``report.html`` (:mod:`cellsight.report.run_report`), then, last and whole,
+``metrics.json`` (:mod:`cellsight.experiments.metrics` plus the run's facts: the realism
+profile and every draw, the structure, the collisions, the dropped frames).
+
+Every file goes through :class:`~cellsight.runfolder.writes.RunWrites`: a failed write (a full
+disk) ends the loop like any exception, or, for ``run.log``, a picture or the end of a file, is
+recorded; either way the metrics' ``error`` names the file and why, so that a sweep never
+reuses the run, and :meth:`ExperimentRun.run` raises the first failure
+(:class:`~cellsight.runfolder.writes.WriteError`) once it has written what it could. When
+``metrics.json`` itself cannot be written there is none: never one claiming success.
 
 The output folder must be new or empty; with ``overwrite`` it is cleared first, but only when it
 holds nothing but an earlier run's outputs (:func:`check_out_folder`). SIGINT and SIGTERM end
@@ -35,6 +42,7 @@ import math
 import signal
 import threading
 import time
+from contextlib import suppress
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
@@ -65,8 +73,11 @@ from cellsight.report.video import VideoWriter
 from cellsight.runfolder import (
     FrameLog,
     FrameWriter,
+    RunWrites,
+    WriteError,
     cell_digest,
     check_out_folder,
+    checked_metrics,
     keep_cell,
     make_out_folder,
     write_metrics,
@@ -186,6 +197,8 @@ class ExperimentRun:
         self.events = OcclusionEvents([c.name for c in cell.cameras])
         self.rows = FrameRows(self.robot, len(cell.cameras), config.sensor == "rendered")
         self.crossing = next(iter(sc.tasks), None)
+        self.writes = RunWrites(self.out)
+        self.metrics: dict | None = None  # made after the loop, written last (:meth:`_finish`)
         make_out_folder(self.out, stale)
         self.cell_files = keep_cell(self.out, cell)
 
@@ -193,20 +206,48 @@ class ExperimentRun:
         """Run the experiment; write everything; return the metrics. On SIGINT or SIGTERM the
         loop ends at the next frame boundary and the metrics say ``"interrupted": true`` and
         ``"signal"``; an exception is recorded (``"error"``) and then propagates. Either way
-        ``metrics.json`` and ``report.html`` are written, and signals during that are ignored."""
-        handler = _log_to(self.out / "run.log")
+        ``report.html`` and then ``metrics.json`` are written, and signals during that are
+        ignored. A failed write is recorded in the metrics and raised at the end (module
+        docstring)."""
+        handler = _log_to(self.writes)
         with self.stop:
             try:
-                metrics = self._run_logged()
+                self._run_logged()
             except BaseException:
-                _stop_logging_to(handler)
-                _report_anyway(self.out)
+                _stop_logging_to(handler, self.writes)
+                self._finish(failed=True)
                 raise
-            _stop_logging_to(handler)
-            write_report(self.out)
+            _stop_logging_to(handler, self.writes)
+            return self._finish(failed=False)
+
+    def _finish(self, failed: bool) -> dict | None:
+        """``report.html`` and its figures from the run's metrics, then ``metrics.json``, whole,
+        its ``error`` naming every write that failed; returns the metrics written. ``failed``:
+        the run ends by an exception, which the caller raises: nothing is raised here, a report
+        that cannot be made is only logged. Otherwise the first failure is raised."""
+        problem: Exception | None = None
+        try:
+            write_report(self.out, self.metrics)
+        except WriteError as exc:
+            self.writes.record(exc.path, exc)
+        except Exception as exc:  # the report's own failure: recorded, never over the first
+            self.writes.note(f"report.html: {type(exc).__name__}: {exc}")
+            problem = exc
+            if failed:
+                log.warning("no report.html for %s: %s: %s", self.out, type(exc).__name__, exc)
+        metrics = self.metrics
+        if metrics is not None:
+            error = self.writes.error(metrics.get("error"))
+            try:
+                metrics = write_metrics(self.out, {**metrics, "error": error} if error
+                                        else metrics)
+            except WriteError as exc:  # no metrics.json: the folder is not a finished run
+                self.writes.record(exc.path, exc)
+        if not failed and (problem or self.writes.first):
+            raise problem or self.writes.first
         return metrics
 
-    def _run_logged(self) -> dict:
+    def _run_logged(self) -> None:
         cfg = self.config
         log.info("experiment %d (%s) on %s; seed %d; sensor %s; occlusion prediction %s%s",
                  cfg.experiment, self.scenario.description, self.cell.source, cfg.seed,
@@ -217,8 +258,9 @@ class ExperimentRun:
         video = None
         if cfg.sensor == "rendered" and cfg.video_every > 0:
             video = VideoWriter(self.out / "views.mp4", fps=VISION_HZ / cfg.video_every)
-        keys = KeyFrames(self.out, [c.name for c in self.cell.cameras], self.robot.name,
-                         self.crossing)
+        with self.writes.guard(self.out / "keyframes"):
+            keys = KeyFrames(self.out, [c.name for c in self.cell.cameras], self.robot.name,
+                             self.crossing)
         wall = time.perf_counter()
         ending: dict = {"interrupted": True}
         try:
@@ -228,10 +270,10 @@ class ExperimentRun:
             ending = self._ending(exc)
             raise
         finally:
-            _close_all([writer.close, video.close if video is not None else None,
-                        self.world.close])
-            metrics = self._write_metrics(time.perf_counter() - wall, ending)
-        return metrics
+            _close_all(self.writes, [(writer.path, writer.close),
+                                     (video.path, video.close) if video is not None else None,
+                                     (None, self.world.close)])
+            self.metrics = self._metrics(time.perf_counter() - wall, ending)
 
     def _ending(self, exc: BaseException | None) -> dict:
         """How the loop ended, for the metrics: ``interrupted`` (bool), and the ``signal``'s
@@ -304,16 +346,20 @@ class ExperimentRun:
         phase = str(self.task.phase)
         self.events.update(t, phase, rec.reasons)
         pnp = self.baseline.update(t, rec.measured)
-        writer.write(self.rows.row(t, self.task, frame, rec, truth, pnp))
+        with self.writes.guard(writer.path):
+            writer.write(self.rows.row(t, self.task, frame, rec, truth, pnp))
 
         def draw(caption: str, scale: float = 1.0) -> np.ndarray:
             grabbed = self.ideal is None and all(i is not None for i in observed)
             shown = observed if grabbed else world.render()
             return draw_frame(shown, rec, truth.part.visible, self.cell.cameras, caption, scale)
 
-        keys.offer_frame(t, phase, rec, draw)
+        with suppress(WriteError), self.writes.guard(self.out / "keyframes.json"):
+            keys.offer_frame(t, phase, rec, draw)  # recorded; the run goes on without it
         if video is not None and k % self.config.video_every == 0:
-            video.add(draw(f"t = {t:5.2f} s   {phase}   tracker: {rec.status}", 0.5))
+            picture = draw(f"t = {t:5.2f} s   {phase}   tracker: {rec.status}", 0.5)
+            with self.writes.guard(video.path):
+                video.add(picture)
 
     def _grab(self, dropped: bool, truth: PartTruth) -> list:
         """What the sensors take this frame, one entry per camera, each as it was exposed
@@ -334,8 +380,9 @@ class ExperimentRun:
                                 estimate.velocity, stamp=estimate.t)
         self.grasp.after_vision(before, self.task.phase)
 
-    def _write_metrics(self, wall_s: float, ending: dict) -> dict:
-        """``metrics.json``: the run's facts, how it ended (``ending``: :meth:`_ending`),
+    def _metrics(self, wall_s: float, ending: dict) -> dict:
+        """The metrics for ``metrics.json`` (checked, not written yet): the run's facts, how it
+        ended (``ending``: :meth:`_ending`; its ``error`` with every failed write so far),
         ``t_end_s`` (s, its last frame) and :func:`frame_metrics` of its log."""
         cfg = self.config
         frames = FrameLog.read(self.out / "frames.csv")
@@ -375,15 +422,18 @@ class ExperimentRun:
             "phase_intervals": [[str(p), round(a, 3), round(b, 3)]
                                 for p, a, b in self.task.phase_intervals(t_end)],
         }
-        metrics = write_metrics(self.out, metrics)
+        if error := self.writes.error(metrics.get("error")):
+            metrics["error"] = error
+        metrics = checked_metrics(self.out, metrics)
         log.info("metrics: %s", json.dumps({k: v for k, v in metrics.items()
                                             if not isinstance(v, list | dict)}))
         return metrics
 
 
-def _log_to(path: Path) -> logging.Handler:
-    """Send the package's log (INFO and up) to ``path`` as it goes, one message per line."""
-    handler = logging.FileHandler(path, mode="w")
+def _log_to(writes: RunWrites) -> logging.Handler:
+    """Send the package's log (INFO and up) to the run's ``run.log`` as it goes, one message
+    per line; a failed write is recorded in ``writes``."""
+    handler = writes.log_file("run.log")
     handler.setFormatter(logging.Formatter("%(message)s"))
     root = logging.getLogger("cellsight")
     root.addHandler(handler)
@@ -391,30 +441,24 @@ def _log_to(path: Path) -> logging.Handler:
     return handler
 
 
-def _stop_logging_to(handler: logging.Handler) -> None:
+def _stop_logging_to(handler: logging.FileHandler, writes: RunWrites) -> None:
     logging.getLogger("cellsight").removeHandler(handler)
-    handler.close()
+    writes.close(handler.baseFilename, handler.close)
 
 
-def _close_all(closers: list) -> None:
-    """Call each of ``closers`` (None: skipped); a failure is logged, the others still run."""
-    for close in closers:
-        if close is None:
-            continue
+def _close_all(writes: RunWrites, closers: list) -> None:
+    """Call each of ``closers``, ``(file, close)`` (None: skipped; file None: not a file the run
+    writes): a failure to write a file's end is recorded in ``writes``, another one logged;
+    the others still run."""
+    for path, close in filter(None, closers):
         try:
-            close()
+            if path is None:
+                close()
+            else:
+                writes.close(path, close)
         except Exception as exc:  # e.g. ffmpeg killed by the same Ctrl-C: keep the rest
             log.warning("closing %s failed: %s: %s", getattr(close, "__qualname__", close),
                         type(exc).__name__, exc)
-
-
-def _report_anyway(out: Path) -> None:
-    """``report.html`` of a run that failed or was interrupted by an exception: its own
-    failure is logged (to the terminal: run.log is closed), never raised over the first."""
-    try:
-        write_report(out)
-    except Exception as exc:
-        log.warning("no report.html for %s: %s: %s", out, type(exc).__name__, exc)
 
 
 def _progress_bar(enabled: bool) -> Progress:

@@ -20,9 +20,13 @@ Topics (``<cam>``, ``<part>``: the camera's and the workpiece's names as ROS nam
   for either sensor; ``images=False`` leaves the images out (the camera info stays).
 
 Time: message stamps, log and publish times are all the frame's run time ``t`` from the Unix
-epoch (:data:`~cellsight.export.ros.EPOCH_NS`). The file is written as the frames go; when
-interrupted (SIGINT, or the caller's :class:`Stop`) or failing, it is closed properly with the
-frames written so far (its ``cellsight`` metadata then says ``complete: false``).
+epoch (:data:`~cellsight.export.ros.EPOCH_NS`). The file is written as the frames go, under a
+temporary name in its folder (:class:`~cellsight.runfolder.writes.AtomicFile`), and takes its
+name once closed properly; when interrupted (SIGINT, or the caller's :class:`Stop`) or failing,
+it is closed with the frames written so far (its ``cellsight`` metadata then says ``complete:
+false``). When writing the file itself fails (a full disk) nothing takes its name (a file there
+before, with ``overwrite``, is left as it was) and the failure is one
+:class:`~cellsight.errors.CellsightError` naming the file and why.
 """
 
 from __future__ import annotations
@@ -38,7 +42,8 @@ from cellsight.export import frames as tf
 from cellsight.export import markers, ros
 from cellsight.export.msgdefs import msgdef, schema_name
 from cellsight.geometry.transforms import transform_points
-from cellsight.runfolder import RUN_FILES, RunData, load_run
+from cellsight.runfolder import RUN_FILES, RunData, WriteError, load_run
+from cellsight.runfolder.writes import AtomicFile
 
 TF, POSE, CAMERA_INFO, IMAGE, MARKERS = (
     "tf2_msgs/TFMessage", "geometry_msgs/PoseStamped", "sensor_msgs/CameraInfo",
@@ -245,31 +250,39 @@ def export_mcap(run_dir: str | Path, out: str | Path, *, every: int = 1, images:
     renderer = _Images(run) if images else None
     source = _Frames(run, every, renderer)
     error: BaseException | None = None
-    with _open_output(path) as stream, _progress_bar(progress) as bar:
-        bag = _Bag(stream, result)
-        task = bar.add_task("exporting", total=run.n)
-        try:
-            _write_all(bag, source, result, lambda: bar.advance(task))
-        except (KeyboardInterrupt, Stop) as exc:
-            result.stopped_by = exc.args[0] if isinstance(exc, Stop) and exc.args else "SIGINT"
-        except BaseException as exc:
-            error = exc
-            raise
-        finally:
-            if renderer is not None:
-                renderer.close()
-            bag.close(_metadata(run, result, every, images, error))
+    try:
+        with _open_output(path) as file, _progress_bar(progress) as bar:
+            bag = _Bag(file, result)
+            task = bar.add_task("exporting", total=run.n)
+            try:
+                _write_all(bag, source, result, lambda: bar.advance(task))
+            except (KeyboardInterrupt, Stop) as exc:
+                result.stopped_by = (exc.args[0] if isinstance(exc, Stop) and exc.args
+                                     else "SIGINT")
+            except BaseException as exc:
+                error = exc
+                raise
+            finally:
+                if renderer is not None:
+                    renderer.close()
+                if not file.failed:  # a failed write leaves nothing to close: it is removed
+                    bag.close(_metadata(run, result, every, images, error))
+                    file.commit()
+    except WriteError as exc:
+        raise CellsightError(f"--mcap: cannot write {str(path)!r} ({exc.reason}); it is left as "
+                             f"it was") from exc
     return result
 
 
-def _open_output(path: Path):
-    """The output file opened for writing (its folder made), or a clear error naming it."""
+def _open_output(path: Path) -> AtomicFile:
+    """The output file opened for writing under a temporary name (its folder made), or a clear
+    error naming it."""
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        return path.open("wb")
-    except OSError as exc:
+        return AtomicFile(path)
+    except (OSError, WriteError) as exc:
         raise CellsightError(f"--mcap: cannot write {str(path)!r} "
-                             f"({exc.strerror or exc})") from exc
+                             f"({getattr(exc, 'reason', None) or exc.strerror or exc})") from exc
 
 
 def _write_all(bag: _Bag, source: _Frames, result: ExportResult,

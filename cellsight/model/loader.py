@@ -48,7 +48,8 @@ def parse_cell_text(text: str, file: str, folder: Path) -> tuple[CellSpec, dict]
         spec = CellSpec.model_validate(raw)
     except ValidationError as exc:
         err = exc.errors()[0]
-        raise CellFileError(file, _loc(err["loc"]), err.get("input"), err["msg"]) from exc
+        raise CellFileError(file, _loc(err["loc"]), err.get("input"),
+                            err["msg"].removeprefix("Value error, ")) from exc
     return spec, raw
 
 

@@ -26,10 +26,19 @@ import re
 from typing import Annotated, Literal
 
 import numpy as np
-from pydantic import AfterValidator, BaseModel, BeforeValidator, ConfigDict, Field, model_validator
+from pydantic import (
+    AfterValidator,
+    BaseModel,
+    BeforeValidator,
+    ConfigDict,
+    Field,
+    field_validator,
+    model_validator,
+)
 
 from cellsight.geometry.transforms import pose_from_xyz_rpy
 
+MIN_CONVEYOR_STEP_M = 1e-6  # m: the shortest leg of a conveyor path
 SAFE_NAME = re.compile(r"[A-Za-z0-9_-][A-Za-z0-9_.-]{0,63}")  # a camera name: part of file names
 
 
@@ -298,6 +307,15 @@ class ConveyorSpec(_Strict):
     points: Annotated[list[Vec2], Field(min_length=2)]
     speed: Positive
     t_start: Annotated[Number, Field(ge=0, allow_inf_nan=False)] = 0.0
+
+    @field_validator("points")
+    @classmethod
+    def _distinct(cls, points: list[Vec2]) -> list[Vec2]:
+        for i in range(1, len(points)):
+            if math.dist(points[i - 1], points[i]) < MIN_CONVEYOR_STEP_M:
+                raise ValueError(f"points {i - 1} and {i} coincide ({list(points[i])}): each "
+                                 f"point must be at least {MIN_CONVEYOR_STEP_M:g} m from the last")
+        return points
 
 
 class WaypointSpec(_Strict):

@@ -19,19 +19,34 @@ sphere (planar quads and cap triangles; radial error at most 1.9 % of r).
 installed package's share folder (``<prefix>/share/NAME``, also the ``cmeel.prefix`` of wheels
 such as ``example-robot-data``). Other relative paths are relative to the URDF file.
 Lengths in metres, angles in radians.
+
+Hostile input is refused before yourdfpy sees it (one :class:`UrdfError` line naming the URDF
+and the element): XML that is not well-formed (a file cut off, not XML, an undefined entity;
+yourdfpy would otherwise fall back on a recovering parser that drops what it cannot read), a
+``DOCTYPE`` (no entity is ever declared, so none expands), a number that is not finite or a
+list of the wrong length in an ``origin``, ``axis``, geometry size, mesh ``scale`` or joint
+``limit``, two links or two joints of one name, a cylinder or sphere not of positive size, and
+lengths that are not metres: a geometry element reaching over ``MAX_REACH`` from its link
+frame, or a link over ``MAX_REACH`` from the root link along the joint origins and prismatic
+travel (a URDF or a mesh in millimetres or inches).
 """
 
 from __future__ import annotations
 
+import io
+import logging
 import site
 import sys
-from collections.abc import Mapping
+import warnings
+from collections import Counter
+from collections.abc import Iterator, Mapping
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from cellsight.errors import CellsightError
+from cellsight.errors import CellsightError, GeometryError, short_repr
 from cellsight.geometry.meshes import load_mesh_solid
 from cellsight.geometry.polyhedron import Polyhedron, box, prism
 from cellsight.kinematics import JointKind, SerialChain
@@ -39,8 +54,20 @@ from cellsight.kinematics import JointKind, SerialChain
 CYLINDER_SIDES = 24
 SPHERE_BANDS, SPHERE_SECTORS = 8, 16
 CONTINUOUS_LIMIT = 2 * np.pi  # rad, limits given to a continuous joint: (-2 pi, 2 pi)
+MAX_REACH = 20.0  # m, farthest a link or a geometry may be: beyond, the lengths are not metres
 _KINDS: dict[str, JointKind] = {"revolute": "revolute", "continuous": "revolute",
                                 "prismatic": "prismatic"}
+# Numeric attributes checked in the XML: element tag -> (attribute, count (None: 1 or 3),
+# required). yourdfpy also takes commas as separators.
+_NUMBERS: dict[str, tuple[tuple[str, int | None, bool], ...]] = {
+    "origin": (("xyz", 3, False), ("rpy", 3, False)),
+    "axis": (("xyz", 3, False),),
+    "box": (("size", 3, True),),
+    "cylinder": (("radius", 1, True), ("length", 1, True)),
+    "sphere": (("radius", 1, True),),
+    "mesh": (("scale", None, False),),
+    "limit": (("lower", 1, False), ("upper", 1, False)),
+}
 
 
 class UrdfError(CellsightError, ValueError):
@@ -93,24 +120,108 @@ def resolve_uri(uri: str, packages: Mapping[str, Path], folder: Path) -> Path:
     return folder / uri
 
 
+def _where(element) -> str:
+    """Where an element sits in a URDF: ``link 'arm', collision 0, origin`` (link and joint by
+    name, collision and visual by index among their like, as in the geometry errors)."""
+    parts = []
+    while element.getparent() is not None:
+        tag, parent = element.tag, element.getparent()
+        if tag in ("link", "joint"):
+            parts.append(f"{tag} {element.get('name')!r}")
+        elif tag in ("collision", "visual"):
+            parts.append(f"{tag} {parent.findall(tag).index(element)}")
+        else:
+            parts.append(tag)
+        element = parent
+    return ", ".join(reversed(parts))
+
+
+def _check_numbers(root, path: Path) -> None:
+    """Refuses a non-finite number, or a list of the wrong length, in the ``_NUMBERS``
+    attributes of the links and joints."""
+    for top in root.iterchildren("link", "joint"):
+        for element in top.iter(*_NUMBERS):
+            for attr, count, required in _NUMBERS[element.tag]:
+                text = element.get(attr)
+                if text is None and not required:
+                    continue
+                words = (text or "").replace(",", " ").split()
+                try:
+                    values = np.array(words, dtype=float)
+                except ValueError:
+                    values = np.array([np.nan])
+                counts = (1, 3) if count is None else (count,)
+                if len(values) not in counts or not np.all(np.isfinite(values)):
+                    wanted = " or ".join(map(str, counts))
+                    raise UrdfError("file", f"URDF file {path}: {_where(element)} {attr}="
+                                    f"{short_repr(text)} is not {wanted} finite number(s)")
+
+
+def _read_xml(path: Path):
+    """The root element of a URDF file parsed strictly: well-formed XML, no ``DOCTYPE`` (so no
+    entity declared or expanded, no DTD or network read), finite numbers (``_NUMBERS``)."""
+    from lxml import etree
+
+    parser = etree.XMLParser(resolve_entities=False, load_dtd=False, no_network=True,
+                             remove_blank_text=True)
+    try:
+        tree = etree.parse(str(path), parser)
+    except etree.XMLSyntaxError as exc:
+        raise UrdfError("file", f"URDF file {path}: not well-formed XML ({exc.msg[:100]}); "
+                        f"a file cut off or not XML is refused") from exc
+    if tree.docinfo.doctype:
+        raise UrdfError("file", f"URDF file {path}: has a DOCTYPE "
+                        f"({short_repr(tree.docinfo.doctype)}); a URDF declares no DTD or "
+                        f"entity")
+    root = tree.getroot()
+    _check_numbers(root, path)
+    return root
+
+
+@contextmanager
+def _silenced() -> Iterator[None]:
+    """yourdfpy's log records and Python's warnings kept off stderr while yourdfpy reads a URDF
+    (its complaints come back as exceptions, reported as one line)."""
+    log = logging.getLogger("yourdfpy")
+    level = log.level
+    log.setLevel(logging.CRITICAL + 1)
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            yield
+    finally:
+        log.setLevel(level)
+
+
 def _parse(path: Path):
-    """The yourdfpy robot model of a URDF file (meshes not loaded)."""
+    """The yourdfpy robot model of a URDF file (meshes not loaded), read from the element tree
+    of :func:`_read_xml`."""
     import yourdfpy
+    from lxml import etree
 
     if not path.is_file():
         raise UrdfError("file", f"URDF file {path} does not exist (or is not a file)")
+    text = etree.tostring(_read_xml(path))
     try:
-        urdf = yourdfpy.URDF.load(str(path), build_scene_graph=False, load_meshes=False,
-                                  build_collision_scene_graph=False, load_collision_meshes=False)
-    except Exception as exc:  # yourdfpy and lxml raise anything on bad input
+        with _silenced():
+            urdf = yourdfpy.URDF.load(io.BytesIO(text), build_scene_graph=False,
+                                      load_meshes=False, build_collision_scene_graph=False,
+                                      load_collision_meshes=False)
+    except Exception as exc:  # yourdfpy raises anything on bad input
         detail = str(exc).splitlines()[0][:100] if str(exc) else type(exc).__name__
         raise UrdfError("file", f"URDF file {path}: not a readable URDF ({detail})") from exc
     return urdf.robot
 
 
 def _tree(robot, path: Path) -> tuple[str, dict[str, list]]:
-    """The root link and each link's child joints; refuses a URDF that is not one tree."""
+    """The root link and each link's child joints; refuses a URDF that is not one tree, or
+    two links (two joints) of one name."""
     names = [lk.name for lk in robot.links]
+    for kind, named in (("links", names), ("joints", [j.name for j in robot.joints])):
+        twice = sorted(n for n, k in Counter(named).items() if k > 1)
+        if twice:
+            raise UrdfError("file", f"URDF file {path}: two {kind} named {twice[0]!r}; "
+                            f"{kind} must have unique names")
     children: dict[str, list] = {n: [] for n in names}
     child_links = set()
     for j in robot.joints:
@@ -221,13 +332,22 @@ def sphere_solid(name: str, radius: float) -> Polyhedron:
     return _outward(name, v, faces)
 
 
+def _positive(name: str, what: str, value: float) -> None:
+    """Refuses a cylinder or sphere size that is not positive (a :class:`GeometryError`)."""
+    if not value > 0:
+        raise GeometryError(f"solid '{name}': {what} must be positive, got {float(value)}")
+
+
 def _shape(geometry, name: str, packages: Mapping[str, Path], folder: Path) -> Polyhedron:
     """One URDF geometry element as a solid in its own (origin) frame."""
     if geometry.box is not None:
         return box(name, geometry.box.size)
     if geometry.cylinder is not None:
+        _positive(name, "cylinder radius", geometry.cylinder.radius)
+        _positive(name, "cylinder length", geometry.cylinder.length)
         return cylinder_solid(name, geometry.cylinder.radius, geometry.cylinder.length)
     if geometry.sphere is not None:
+        _positive(name, "sphere radius", geometry.sphere.radius)
         return sphere_solid(name, geometry.sphere.radius)
     if geometry.mesh is None:
         raise UrdfError("geometry", f"solid {name}: a geometry with no shape")
@@ -259,9 +379,34 @@ def _solids(robot, walk: _Walk, geometry: str, robot_name: str, packages: Mappin
                 raise UrdfError("geometry", f"URDF file {path}: link {link.name!r}, "
                                 f"{geometry} {k}: {exc}") from exc
             origin = np.eye(4) if element.origin is None else np.asarray(element.origin, float)
+            placed = shape.vertices @ origin[:3, :3].T + origin[:3, 3]
+            reach = float(np.linalg.norm(placed, axis=1).max())
+            if reach > MAX_REACH:
+                raise UrdfError("geometry", f"URDF file {path}: link {link.name!r}, {geometry} "
+                                f"{k} reaches {reach:.4g} m from the link frame, over "
+                                f"{MAX_REACH:g} m: lengths must be metres (a mesh in mm "
+                                f"needs scale=\"0.001 0.001 0.001\", in inches 0.0254 each)")
             solids[frame].append(shape.transformed(T_frame_link @ origin))
             links[frame].append(link.name)
     return solids, links
+
+
+def _check_reach(walk: _Walk, path: Path) -> None:
+    """Refuses a link farther than ``MAX_REACH`` from the root link along the joint origins
+    and the prismatic joints' travel (``max(|lower|, |upper|)``): lengths not in metres."""
+    along = np.zeros(len(walk.origins) + 1)
+    for i, (origin, kind, (lo, hi)) in enumerate(zip(walk.origins, walk.kinds, walk.qlim,
+                                                    strict=True)):
+        travel = max(abs(lo), abs(hi)) if kind == "prismatic" else 0.0
+        along[i + 1] = along[i] + np.linalg.norm(origin[:3, 3]) + travel
+    reach = {link: along[frame] + np.linalg.norm(T[:3, 3])
+             for link, (frame, T) in walk.link_frame.items()}
+    far = max(reach, key=reach.__getitem__)
+    if reach[far] > MAX_REACH:
+        raise UrdfError("file", f"URDF file {path}: link {far!r} is up to {reach[far]:.4g} m "
+                        f"from the root link (joint origins and prismatic travel), over "
+                        f"{MAX_REACH:g} m: lengths must be metres (a URDF in mm or inches? "
+                        f"scale its origin xyz, limits and geometry to metres)")
 
 
 def _flange(walk: _Walk, flange: str | None, path: Path) -> tuple[str, np.ndarray]:
@@ -302,6 +447,7 @@ def load_urdf_robot(path: Path, robot_name: str, geometry: str = "collision",
     packages = dict(packages or {})
     robot = _parse(path)
     walk = _walk(robot, path)
+    _check_reach(walk, path)
     solids, links = _solids(robot, walk, geometry, robot_name, packages, path)
     name, T_last_flange = _flange(walk, flange, path)
     try:

@@ -9,6 +9,7 @@ import yaml
 
 from cellsight.camera import Camera
 from cellsight.model.yaml_input import read_cell_text, with_absolute_paths
+from cellsight.runfolder.writes import write_file
 
 
 def camera_entry(camera: Camera, name: str, reach: float = 1.0) -> dict:
@@ -40,5 +41,5 @@ def write_cell_file(source: str, cameras: list[Camera], path: Path, note: str = 
     head += [f"#   cam{i + 1}: candidate {cam.name}, optical centre "
              f"{np.round(cam.center, 3).tolist()} m" for i, cam in enumerate(cameras)]
     path = Path(path)
-    path.write_text("\n".join(head) + "\n" + yaml.safe_dump(data, sort_keys=False, width=100))
+    write_file(path, "\n".join(head) + "\n" + yaml.safe_dump(data, sort_keys=False, width=100))
     return path

@@ -1,9 +1,11 @@
 """``cellsight place-cameras``: its command line (the work is in :mod:`.run`, imported when
-the command runs)."""
+the command runs). SIGINT or SIGTERM stops it with one line and exit status 130 or 143 (the
+verify runs' pool ended too)."""
 
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 
@@ -33,11 +35,21 @@ def register(sub: argparse._SubParsersAction) -> None:
                    "(default: the whole task)")
     p.add_argument("--jobs", type=int, default=2, help="local worker processes (verify runs)")
     p.add_argument("--scheduler", help="a Dask scheduler's address for the scoring and runs")
+    p.add_argument("--overwrite", action="store_true", help="replace cell.yaml, report.md, "
+                   "fig_*.png, task/ and verify/ in --out (a finished task run there is reused)")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(func=cmd_place_cameras)
 
 
 def cmd_place_cameras(args: argparse.Namespace) -> int:
     from cellsight.placement.run import place_cameras
+    from cellsight.sweep.engine import sigterm_interrupts, stop_status
 
-    return place_cameras(args)
+    try:
+        with sigterm_interrupts():
+            return place_cameras(args)
+    except KeyboardInterrupt as stop:
+        name, status = stop_status(stop)
+        print(f"cellsight: place-cameras interrupted by {name}; finished runs in {args.out} "
+              f"are reused with --overwrite", file=sys.stderr)
+        return status

@@ -19,6 +19,7 @@ from cellsight.placement.candidates import work_area  # noqa: E402
 from cellsight.placement.choose import MIN_POINTS, Placement  # noqa: E402
 from cellsight.placement.scoring import CandidateScores  # noqa: E402
 from cellsight.placement.task import TaskFrames  # noqa: E402
+from cellsight.runfolder.writes import write_figure, write_file  # noqa: E402
 from cellsight.tracking.selection import camera_resolution, select_features  # noqa: E402
 
 
@@ -96,7 +97,7 @@ def plot_task(path: Path, task: TaskFrames, sets: list[SetFigures]) -> None:
     axes[0].legend(loc="upper right", fontsize=8)
     axes[2].set_xlabel("t (s)")
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    write_figure(path, fig, dpi=110)
     plt.close(fig)
 
 
@@ -122,7 +123,7 @@ def plot_candidates(path: Path, task: TaskFrames, scores: CandidateScores,
         ax.grid(alpha=0.3)
     fig.colorbar(sc, ax=axes, label="loss of the candidate alone")
     axes[0].legend(loc="lower left", fontsize=8)
-    fig.savefig(path, dpi=110)
+    write_figure(path, fig, dpi=110)
     plt.close(fig)
 
 
@@ -136,5 +137,5 @@ def write_report(out: Path, header: list[str], task: TaskFrames, sets: list[SetF
     if verification:
         lines += ["## Experiment runs with each set of cameras", "", *verification, ""]
     path = Path(out) / "report.md"
-    path.write_text("\n".join(lines))
+    write_file(path, "\n".join(lines))
     return path

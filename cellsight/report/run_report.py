@@ -33,6 +33,7 @@ from cellsight.geometry.transforms import pose_errors
 from cellsight.rates import VISION_HZ
 from cellsight.runfolder.framelog import FrameLog, camera_column, timing_column
 from cellsight.runfolder.metrics import read_metrics
+from cellsight.runfolder.writes import write_figure, write_file
 from cellsight.tracking.timing import STAGES
 
 PHASE_COLOURS = {
@@ -73,11 +74,14 @@ class Run:
         return np.append(t, t[-1] + dt) if len(t) else t
 
 
-def load_run(run_dir: Path) -> Run:
-    """Read ``frames.csv`` and ``metrics.json`` (either may be absent in a partial run)."""
+def load_run(run_dir: Path, metrics: dict | None = None) -> Run:
+    """Read ``frames.csv`` and ``metrics.json`` (either may be absent in a partial run);
+    ``metrics``: the run's metrics as they will be written (the run writes its
+    ``metrics.json`` last), instead of the file."""
     run_dir = Path(run_dir)
     frames = FrameLog.read(run_dir / "frames.csv")
-    metrics = read_metrics(run_dir, missing_ok=True)
+    if metrics is None:
+        metrics = read_metrics(run_dir, missing_ok=True)
     cameras = list(metrics.get("cameras") or
                    [f"cam{c}" for c in range(1, frames.n_cameras + 1)])
     n_features = metrics.get("features") or frames.n_features
@@ -137,10 +141,10 @@ def _figure(width: float, height: float) -> Figure:
 
 
 def _save(fig: Figure, path: Path) -> Path:
-    """Save a figure as PNG (100 dpi), leaving room for the phase legend on top."""
+    """Save a figure as PNG (100 dpi), leaving room for the phase legend on top; written
+    whole or not at all (:func:`~cellsight.runfolder.writes.write_figure`)."""
     fig.tight_layout(rect=(0, 0, 1, 0.93))
-    fig.savefig(path, dpi=100)
-    return path
+    return write_figure(path, fig, dpi=100)
 
 
 def _use_log(ax, *series: np.ndarray) -> None:
@@ -500,10 +504,13 @@ def _header_html(run: Run) -> str:
     return out
 
 
-def write_report(run_dir: Path) -> Path:
+def write_report(run_dir: Path, metrics: dict | None = None) -> Path:
     """Write the figures (``fig_*.png``) and ``report.html`` into ``run_dir``; returns the
-    report's path. Works on partial runs (few frames, short or missing ``metrics.json``)."""
-    run = load_run(Path(run_dir))
+    report's path. Works on partial runs (few frames, short or missing ``metrics.json``).
+    ``metrics``: the run's metrics, when its ``metrics.json`` is not written yet (:func:`load_run`).
+    Each file is written whole or not at all; a failure is a
+    :class:`~cellsight.runfolder.writes.WriteError` naming it."""
+    run = load_run(Path(run_dir), metrics)
     body = "".join([_header_html(run), _metrics_html(run.metrics),
                     _figures_html(write_figures(run)), _keyframes_html(run.dir),
                     _video_html(run.dir), _log_html(run.dir)])
@@ -512,6 +519,4 @@ def write_report(run_dir: Path) -> Path:
     page = (f"<!DOCTYPE html><html lang=en><head><meta charset=utf-8>"
             f"<title>{html.escape(title)}</title><style>{CSS}</style></head>"
             f"<body>{body}</body></html>\n")
-    out = run.dir / "report.html"
-    out.write_text(page)
-    return out
+    return write_file(run.dir / "report.html", page)

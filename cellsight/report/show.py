@@ -19,6 +19,12 @@ from mpl_toolkits.mplot3d.art3d import Poly3DCollection  # noqa: E402
 from cellsight.camera import MIN_DEPTH_M  # noqa: E402
 from cellsight.geometry.transforms import transform_points  # noqa: E402
 from cellsight.model.cell import Cell, Snapshot  # noqa: E402
+from cellsight.runfolder.writes import (  # noqa: E402
+    make_folders,
+    remove_folders,
+    staged,
+    write_figure,
+)
 
 KIND_COLOURS = {"link": "#f28e2b", "tool": "#4e79a7", "workpiece": "#e15759", "static": "#bab0ac"}
 
@@ -44,7 +50,7 @@ def plot_cell_3d(snapshot: Snapshot, path: Path) -> Path:
     ax.set_box_aspect((2.8, 2.8, 2.2))
     ax.view_init(elev=25, azim=-60)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    write_figure(path, fig, dpi=110)
     plt.close(fig)
     return path
 
@@ -96,7 +102,7 @@ def plot_camera_view(snapshot: Snapshot, camera: int, path: Path, visibility=Non
         title += f" - {n_vis} features visible (green), hidden (magenta)"
     ax.set_title(title, fontsize=10)
     fig.tight_layout()
-    fig.savefig(path, dpi=100)
+    write_figure(path, fig, dpi=100)
     plt.close(fig)
     return path
 
@@ -108,10 +114,16 @@ def show_files(cell: Cell) -> list[str]:
 
 def show_cell(snapshot: Snapshot, out_dir: Path, visibility=None) -> list[Path]:
     """Write the 3D view and one wireframe per camera (:func:`show_files`) into ``out_dir``;
-    returns the paths."""
-    out_dir.mkdir(parents=True, exist_ok=True)
+    returns the paths. All of them, or none when one cannot be written (a full disk:
+    :func:`~cellsight.runfolder.writes.staged`; the folders made for them are removed again)."""
+    made = make_folders(out_dir)
     names = show_files(snapshot.cell)
-    paths = [plot_cell_3d(snapshot, out_dir / names[0])]
-    for k, name in enumerate(names[1:]):
-        paths.append(plot_camera_view(snapshot, k, out_dir / name, visibility))
-    return paths
+    try:
+        with staged(out_dir) as stage:
+            plot_cell_3d(snapshot, stage / names[0])
+            for k, name in enumerate(names[1:]):
+                plot_camera_view(snapshot, k, stage / name, visibility)
+    except BaseException:
+        remove_folders(made)
+        raise
+    return [out_dir / name for name in names]

@@ -4,11 +4,14 @@ a folder can take a new run without losing anything that is not a run's output
 
 from __future__ import annotations
 
+import errno
+import os
 import shutil
 from collections.abc import Sequence
 from pathlib import Path
 
 from cellsight.errors import CellsightError
+from cellsight.runfolder.writes import TEMP_SUFFIX
 
 RUN_FILES = frozenset({"frames.csv", "metrics.json", "run.log", "report.html", "keyframes.json",
                        "views.mp4", "run_cell.yaml"})
@@ -19,16 +22,25 @@ class RunFolderError(CellsightError, ValueError):
     """The output folder cannot take a run: a file, under a file, or holding other things."""
 
 
+def _run_file_name(name: str) -> bool:
+    """``name`` is one of :data:`RUN_FILES` or a ``fig_*.png``."""
+    return name in RUN_FILES or (name.startswith("fig_") and name.endswith(".png"))
+
+
 def is_run_output(path: Path) -> bool:
     """``path`` (in a run folder) is something a run writes: a file of :data:`RUN_FILES`, a
-    ``fig_*.png``, or the ``keyframes`` folder holding only ``*.png`` files (no links)."""
+    ``fig_*.png``, the temporary file of one left by a killed run (``.<name>.<random>.tmp``,
+    :mod:`cellsight.runfolder.writes`), or the ``keyframes`` folder holding only ``*.png``
+    files (no links)."""
     if path.is_symlink():
         return False
     if path.is_dir():
         return path.name == "keyframes" and all(
             p.suffix == ".png" and p.is_file() and not p.is_symlink() for p in path.iterdir())
-    return path.is_file() and (path.name in RUN_FILES
-                               or (path.name.startswith("fig_") and path.suffix == ".png"))
+    name = path.name
+    if name.startswith(".") and name.endswith(TEMP_SUFFIX):
+        name = name[1:].removesuffix(TEMP_SUFFIX).rpartition(".")[0]
+    return path.is_file() and _run_file_name(name)
 
 
 def _shown(out: Path) -> str:
@@ -37,13 +49,27 @@ def _shown(out: Path) -> str:
 
 
 def check_folder(out: Path, arg: str) -> bool:
-    """Check that ``out`` is a folder, or can be made one (it is not a file and not under
-    one); returns whether it exists. A :class:`RunFolderError` naming ``arg`` (the option)."""
+    """Check that ``out`` is a folder this process may write into, or can be made one (it is
+    not a file, not under one, and the folder it would be made in takes it); returns whether
+    it exists. A :class:`RunFolderError` naming ``arg`` (the option)."""
     existing = next(p for p in (out, *out.parents) if p.exists() or p.is_symlink())
     if not existing.is_dir():
         where = "is not a folder" if existing == out else f"is under {str(existing)!r}, a file"
         raise RunFolderError(f"{arg}: {_shown(out)} {where}; expected a folder")
+    if not os.access(existing, os.W_OK | os.X_OK):
+        what = "write in it" if existing == out else f"create it in {_shown(existing)}"
+        raise RunFolderError(f"{arg}: {_shown(out)}: cannot {what} ({_why_not(existing)}); "
+                             f"choose another folder")
     return existing == out
+
+
+def _why_not(folder: Path) -> str:
+    """Why this process cannot write in ``folder``: a read-only file system, or permission."""
+    try:
+        read_only = bool(os.statvfs(folder).f_flag & os.ST_RDONLY)
+    except (OSError, AttributeError):  # no statvfs (Windows)
+        read_only = False
+    return os.strerror(errno.EROFS if read_only else errno.EACCES)
 
 
 def check_new_files(out: Path, names: Sequence[str], overwrite: bool, arg: str) -> None:

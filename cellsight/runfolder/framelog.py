@@ -38,7 +38,7 @@ from __future__ import annotations
 
 import csv
 import re
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from types import TracebackType
@@ -47,6 +47,7 @@ from typing import TextIO
 import numpy as np
 
 from cellsight.geometry.transforms import xyz_rpy_from_pose
+from cellsight.runfolder.writes import write_error
 from cellsight.tracking.timing import STAGES
 
 POSE = ("x", "y", "z", "roll", "pitch", "yaw")
@@ -128,16 +129,28 @@ def timing_fields(seconds: Mapping[str, float]) -> dict[str, float]:
 
 class FrameWriter:
     """Writes ``frames.csv`` row by row, flushing each row (an interrupted run keeps them).
-    Use as a context manager or call :meth:`close`."""
+    Use as a context manager or call :meth:`close`. A failed write (a full disk) is a
+    :class:`~cellsight.runfolder.writes.WriteError` naming the file; the rows flushed before it
+    stay (a row cut off mid-write is dropped on reading)."""
 
     def __init__(self, path: Path, n_cameras: int,
                  joint_counts: Mapping[str, int] | None = None) -> None:
         self.path = Path(path)
         self.columns = columns(n_cameras, joint_counts)
-        self._file: TextIO = self.path.open("w", newline="")
+        try:
+            self._file: TextIO = self.path.open("w", newline="")
+        except OSError as exc:
+            raise write_error(self.path, exc) from exc
         self._writer = csv.DictWriter(self._file, self.columns, quoting=csv.QUOTE_NONNUMERIC)
-        self._writer.writeheader()
-        self._file.flush()
+        self._written(self._writer.writeheader)
+
+    def _written(self, write: Callable[[], object]) -> None:
+        """``write`` then flush; an OSError is a WriteError naming the file."""
+        try:
+            write()
+            self._file.flush()
+        except OSError as exc:
+            raise write_error(self.path, exc) from exc
 
     def write(self, row: Mapping[str, object]) -> None:
         """Write one row (column -> value); missing columns and None values become empty
@@ -145,11 +158,16 @@ class FrameWriter:
         unknown = set(row) - set(self.columns)
         if unknown:
             raise KeyError(f"frames.csv has no columns {sorted(unknown)}")
-        self._writer.writerow({k: ("" if v is None else v) for k, v in row.items()})
-        self._file.flush()
+        self._written(lambda: self._writer.writerow(
+            {k: ("" if v is None else v) for k, v in row.items()}))
 
     def close(self) -> None:
-        self._file.close()
+        """Close the file (safe to call twice); a failure to write out its end is a
+        WriteError naming it."""
+        try:
+            self._file.close()
+        except OSError as exc:
+            raise write_error(self.path, exc) from exc
 
     def __enter__(self) -> FrameWriter:
         return self

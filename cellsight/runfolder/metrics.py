@@ -19,6 +19,7 @@ from typing import Any
 from pydantic import BaseModel, ConfigDict, ValidationError
 
 from cellsight.errors import CellsightError, short_repr
+from cellsight.runfolder.writes import write_file
 
 METRICS_VERSION = 1
 """Version of the schema :func:`write_metrics` writes (``metrics_version``)."""
@@ -170,19 +171,28 @@ def read_metrics(folder: str | Path, missing_ok: bool = False) -> dict:
     return _checked(_json_object(path, folder), path)
 
 
+def checked_metrics(folder: Path, metrics: dict) -> dict:
+    """``metrics`` as :func:`write_metrics` would write them into ``folder`` (with
+    ``metrics_version``), checked against :class:`RunMetrics`; nothing is written."""
+    out = {"metrics_version": METRICS_VERSION, **metrics}
+    return _checked(out, Path(folder) / "metrics.json")
+
+
 def write_metrics(folder: Path, metrics: dict) -> dict:
     """Write ``metrics`` as ``<folder>/metrics.json`` (with ``metrics_version``), checked
-    against :class:`RunMetrics` first; returns what was written."""
-    out = {"metrics_version": METRICS_VERSION, **metrics}
-    path = Path(folder) / "metrics.json"
-    _checked(out, path)
-    path.write_text(json.dumps(out, indent=1))
+    against :class:`RunMetrics` first; returns what was written. The file is written whole or
+    not at all (:func:`~cellsight.runfolder.writes.write_file`: a failure is a
+    :class:`~cellsight.runfolder.writes.WriteError` and leaves no ``metrics.json`` of it)."""
+    out = checked_metrics(folder, metrics)
+    write_file(Path(folder) / "metrics.json", json.dumps(out, indent=1))
     return out
 
 
 def finished_metrics(folder: Path) -> dict | None:
     """The metrics of a finished run in ``folder`` (neither interrupted nor failed), else None:
-    not run yet, cut short while writing, or not a run's metrics."""
+    not run yet, cut short while writing, or not a run's metrics. A run that could not write
+    one of its files (a full disk) is a failed one: its ``metrics.json``, written last, has the
+    ``error``, or it has none (:mod:`cellsight.runfolder.writes`)."""
     try:
         metrics = read_metrics(folder)
     except RunDataError:

@@ -7,19 +7,74 @@ spawned processes (not forked: numba's OpenMP threads, once started, make a fork
 ``scheduler``: the address of a Dask ``distributed`` scheduler (``tcp://host:8786``) or a
 :class:`distributed.Client` / ``LocalCluster`` object, whose workers must be able to import
 cellsight. Jobs and results must pickle; the function must be importable by name (module
-level). On Ctrl-C the jobs not started are cancelled and ``KeyboardInterrupt`` propagates.
+level). On Ctrl-C (or SIGTERM under :func:`sigterm_interrupts`, as :class:`Terminated`) the
+jobs not started are cancelled, the pool's workers are sent SIGTERM (a run in one ends at its
+next frame and writes what it has), killed after :data:`GRACE_S`, and the exception
+propagates.
 """
 
 from __future__ import annotations
 
+import signal
+import threading
+import time
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
+from contextlib import contextmanager
 from multiprocessing import get_context
 from typing import Any
 
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
 from cellsight.errors import CellsightError
+
+GRACE_S = 10.0
+"""Seconds the pool's workers have, after SIGTERM, to end their runs before they are killed."""
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, raised in the main thread by :func:`sigterm_interrupts`: a
+    ``KeyboardInterrupt``, so every clean-up for Ctrl-C runs for it too."""
+
+
+def stop_status(stop: KeyboardInterrupt) -> tuple[str, int]:
+    """The signal that raised ``stop`` and the exit status it gives: ``("SIGTERM", 143)``
+    for :class:`Terminated`, else ``("SIGINT", 130)``."""
+    sig = signal.SIGTERM if isinstance(stop, Terminated) else signal.SIGINT
+    return sig.name, 128 + sig.value
+
+
+def raise_if_stopped(metrics: dict) -> None:
+    """Raise again the signal that ended a run in this process (its own handler took it, and
+    its ``metrics`` say ``interrupted`` and which ``signal``): :class:`Terminated` for SIGTERM,
+    ``KeyboardInterrupt`` for SIGINT; nothing for a run that was not stopped by one."""
+    if metrics.get("interrupted") and metrics.get("signal") == "SIGTERM":
+        raise Terminated("SIGTERM")
+    if metrics.get("interrupted") and metrics.get("signal") == "SIGINT":
+        raise KeyboardInterrupt
+
+
+@contextmanager
+def sigterm_interrupts() -> Iterator[None]:
+    """While held, SIGTERM raises :class:`Terminated` in the main thread (once; a second one
+    is ignored, so the clean-up is not cut); the previous handler comes back on exit. Outside
+    the main thread nothing is installed."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    fired = False
+
+    def stop(signum: int, frame: object) -> None:
+        nonlocal fired
+        if not fired:
+            fired = True
+            raise Terminated("SIGTERM")
+
+    previous = signal.signal(signal.SIGTERM, stop)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, signal.SIG_DFL if previous is None else previous)
 
 
 def map_jobs(fn: Callable[[Any], Any], jobs: Sequence[Any], *, workers: int = 1,
@@ -45,12 +100,35 @@ def map_jobs(fn: Callable[[Any], Any], jobs: Sequence[Any], *, workers: int = 1,
 
 def _on_pool(fn: Callable, jobs: Sequence, workers: int) -> Iterator[tuple[int, Any]]:
     pool = ProcessPoolExecutor(min(workers, len(jobs)), mp_context=get_context("spawn"))
+    done = False
     try:
         futures = {pool.submit(fn, job): i for i, job in enumerate(jobs)}
         for future in as_completed(futures):
             yield futures[future], future.result()
+        done = True
     finally:
-        pool.shutdown(cancel_futures=True)
+        if done:
+            pool.shutdown()
+        else:  # interrupted, a job failed, or the caller stopped early
+            _stop_pool(pool)
+
+
+def _stop_pool(pool: ProcessPoolExecutor) -> None:
+    """Cancel the jobs not started and end the workers: SIGTERM, then SIGKILL after
+    :data:`GRACE_S` (a pool shut down the plain way waits for every running job)."""
+    # The executor has no public handle on its processes before Python 3.14
+    # (terminate_workers, which does just this); copy them before shutdown drops them.
+    processes = list((pool._processes or {}).values())
+    pool.shutdown(wait=False, cancel_futures=True)
+    for process in processes:
+        if process.is_alive():
+            process.terminate()
+    deadline = time.monotonic() + GRACE_S
+    for process in processes:
+        process.join(max(0.0, deadline - time.monotonic()))
+        if process.is_alive():
+            process.kill()
+            process.join(1.0)
 
 
 def _on_dask(fn: Callable, jobs: Sequence, scheduler: Any,

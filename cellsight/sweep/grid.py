@@ -13,6 +13,7 @@ interrupted nor failed, and run on the same cell file, by its SHA-256) and runs 
 from __future__ import annotations
 
 import itertools
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -76,13 +77,14 @@ def sweep_grid(cells: Sequence[str], experiments: Sequence[int], sensors: Sequen
                duration: float | None = None, realisms: Sequence[str] = ("exact",),
                structures: Sequence[str] = (OBJECT_BVH,)) -> list[RunSpec]:
     """Every combination, in that order; variants other than the first run on the first
-    ``variant_seeds`` seeds only (None: on all), as comparisons. Every realism profile is
-    loaded (and so checked) before anything runs."""
+    ``variant_seeds`` seeds only (None: on all), as comparisons. Every value is checked, and
+    every cell and realism profile loaded, before anything runs."""
     from cellsight.realism import load_profile
 
-    for realism in realisms:
-        load_profile(realism)
-    for name, values, allowed in (("--structures", structures, STRUCTURES),
+    if duration is not None and not (math.isfinite(duration) and duration > 0):
+        raise CellsightError(f"--duration: expected a positive, finite number of seconds, got "
+                             f"{duration!r}")
+    for name, values, allowed in (("--structure", structures, STRUCTURES),
                                   ("--sensors", sensors, SENSORS),
                                   ("--variants", variants, tuple(VARIANTS)),
                                   ("--experiments", experiments, (1, 2, 3))):
@@ -90,12 +92,21 @@ def sweep_grid(cells: Sequence[str], experiments: Sequence[int], sensors: Sequen
         if bad or not values:
             raise CellsightError(f"{name}: expected one or more of {list(allowed)}, got "
                                  f"{list(values)}")
-    if not cells or not seeds or any(s < 0 for s in seeds):
-        raise CellsightError(f"--cells and --seeds: expected one or more cells and seeds >= 0, "
-                             f"got {list(cells)} and {list(seeds)}")
+    if not seeds or any(s < 0 for s in seeds):
+        raise CellsightError(f"--seeds: expected one or more whole numbers >= 0, got "
+                             f"{list(seeds)}")
     if variant_seeds is not None and variant_seeds < 1:
         raise CellsightError(f"--variant-seeds: expected a whole number >= 1, got "
                              f"{variant_seeds}")
+    if not cells or not realisms:
+        raise CellsightError(f"--cells, --realism: expected one or more of each, got "
+                             f"{list(cells)}, {list(realisms)}")
+    _check_cells(cells)
+    for realism in realisms:
+        try:
+            load_profile(realism)
+        except CellsightError as exc:
+            raise CellsightError(f"--realism: {exc}") from exc
     compared = set(seeds[:variant_seeds]) if variant_seeds is not None else set(seeds)
     specs = [RunSpec(cell, e, sensor, variant, seed, duration, realism, structure)
             for cell, e, realism, structure, sensor, variant, seed in itertools.product(
@@ -103,6 +114,18 @@ def sweep_grid(cells: Sequence[str], experiments: Sequence[int], sensors: Sequen
             if variant == variants[0] or seed in compared]
     _check_one_folder_each(specs)
     return specs
+
+
+def _check_cells(cells: Sequence[str]) -> None:
+    """Load each cell once (a file or a built-in name): one that does not is refused here,
+    before any run, rather than as every one of its runs failing."""
+    from cellsight.model.loader import load_cell
+
+    for cell in dict.fromkeys(cells):
+        try:
+            load_cell(cell)
+        except CellsightError as exc:
+            raise CellsightError(f"--cells: {exc}") from exc
 
 
 def _check_one_folder_each(specs: list[RunSpec]) -> None:
@@ -142,16 +165,28 @@ def reusable_metrics(folder: Path, cell: str | None = None) -> dict | None:
     return metrics if metrics.get("cell_sha256") == digest else None
 
 
+_STOPPED_BY: list[str] = []
+"""In a pool's worker process: the signal that stopped a run there (the sweep is ending)."""
+
+
 def run_spec(job: tuple[RunSpec, Path]) -> dict:
     """Run one ``(spec, out)`` job (or reuse its finished folder); returns its metrics, with
-    ``"error"`` set when it failed (the sweep goes on) and ``"reused"`` when it was done."""
+    ``"error"`` set when it failed (the sweep goes on) and ``"reused"`` when it was done. In a
+    worker process whose run a signal stopped, the jobs already queued to it are not run."""
+    import multiprocessing
+
     from cellsight.experiments import run_experiment
 
+    if _STOPPED_BY:
+        return {"error": f"not run: the worker was stopped by {_STOPPED_BY[0]}"}
     spec, out = job
     done = reusable_metrics(Path(out) / spec.folder, spec.cell)
     if done is not None:
         return {**done, "reused": True}
     try:
-        return run_experiment(spec.config(out))
+        metrics = run_experiment(spec.config(out))
     except Exception as exc:  # recorded; the other runs go on
         return {"error": f"{type(exc).__name__}: {exc}"[:1000]}
+    if metrics.get("signal") and multiprocessing.parent_process() is not None:
+        _STOPPED_BY.append(str(metrics["signal"]))
+    return metrics

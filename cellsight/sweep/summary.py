@@ -7,6 +7,7 @@ experiment, sensor and variant, one dot per seed)."""
 from __future__ import annotations
 
 import csv
+import io
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -16,6 +17,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
 from cellsight.control import Phase  # noqa: E402
+from cellsight.runfolder.writes import write_figure, write_file  # noqa: E402
 from cellsight.sweep.aggregate import aggregate_markdown  # noqa: E402
 from cellsight.sweep.grid import RunSpec  # noqa: E402
 from cellsight.visibility import OBJECT_BVH  # noqa: E402
@@ -66,10 +68,11 @@ def flat_row(spec: RunSpec, metrics: dict) -> dict[str, object]:
 def write_csv(path: Path, rows: Sequence[dict]) -> None:
     """``summary.csv``: the union of the rows' columns, in first-seen order."""
     header = list(dict.fromkeys(k for row in rows for k in row))
-    with Path(path).open("w", newline="") as f:
-        writer = csv.DictWriter(f, header)
-        writer.writeheader()
-        writer.writerows(rows)
+    text = io.StringIO(newline="")
+    writer = csv.DictWriter(text, header)
+    writer.writeheader()
+    writer.writerows(rows)
+    write_file(path, text.getvalue())
 
 
 def markdown(specs: Sequence[RunSpec], results: Sequence[dict]) -> str:
@@ -128,7 +131,7 @@ def plot(path: Path, specs: Sequence[RunSpec], results: Sequence[dict]) -> None:
     axes[1].set_xticks(range(len(names)), names, rotation=60, ha="right", fontsize=7)
     axes[0].set_title("sweep: whole task, every frame in view (bar: mean over seeds)")
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    write_figure(path, fig, dpi=110)
     plt.close(fig)
 
 
@@ -137,6 +140,6 @@ def write_summary(out: Path, specs: Sequence[RunSpec], results: Sequence[dict]) 
     out = Path(out)
     paths = [out / "summary.csv", out / "summary.md", out / "summary.png"]
     write_csv(paths[0], [flat_row(s, m) for s, m in zip(specs, results, strict=True)])
-    paths[1].write_text(aggregate_markdown(specs, results) + "\n" + markdown(specs, results))
+    write_file(paths[1], aggregate_markdown(specs, results) + "\n" + markdown(specs, results))
     plot(paths[2], specs, results)
     return paths
