@@ -1,7 +1,8 @@
-"""``make fuzz``: hostile and random input against the oracle and the error rules (issue 14).
+"""``make fuzz``: hostile and random input against the oracle and the error rules (issues 14, 23).
 
 Runs the case kinds of ``tests/fuzzing.py`` (soups against the oracle, hostile soups, mutated
-and damaged cell files, random command lines), by default 105,000 cases in all, on a process
+and damaged cell files, random command lines, the run folder's families of
+``tests/fuzz_folders.py``), by default 108,700 cases in all, on a process
 pool (one kind per process), with a progress bar; every failure is appended to
 ``out/fuzz/failures.txt`` as it is found, and the summary to ``out/fuzz/summary.json``.
 Exit status 1 when any case failed.

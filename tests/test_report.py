@@ -253,7 +253,7 @@ def test_write_report_full_run(full_run):
     out = write_report(full_run)
     assert out == full_run / "report.html"
     page = out.read_text()
-    names = ["fig_trajectory.png", "fig_error.png", "fig_visibility_cam1.png",
+    names = ["fig_trajectory.png", "fig_error.png", "fig_health.png", "fig_visibility_cam1.png",
              "fig_visibility_cam2.png", "fig_visibility_agreement.png", "fig_timing.png"]
     for name in names:
         assert (full_run / name).stat().st_size > 5000
@@ -284,4 +284,4 @@ def test_write_report_partial_run(tmp_path):
     assert "Partial run" in page and "experiment 2 · seed 1" in page
     assert load_run(run_dir).cameras == ["cam1", "cam2"]
     assert (run_dir / "fig_visibility_cam2.png").exists()
-    assert page.count("data:image/png;base64,") == 6
+    assert page.count("data:image/png;base64,") == 7

@@ -32,7 +32,12 @@ such as an occluder's corner), ``wrong_accepted`` (wrong and not rejected).
 ``pixels_grabbed_fraction``: mean over frames and cameras of the fraction of pixels grabbed.
 ``extraction_error_px_median``: median over frames and cameras of each frame's median extraction
 error (px); None when no frame has one (ideal sensor). ``timing_ms``: median per stage (ms)
-over the frames. ``fewest_visible``: per working phase, per camera, the fewest features truly
+over the frames. Health (the tracker's statuses, :mod:`cellsight.tracking.health`):
+``degraded_s`` (seconds with the status ``degraded``), ``degraded_episodes`` (how many times it
+became degraded), ``confident_wrong_frames`` (evaluated frames more than
+:data:`CONFIDENT_WRONG_MM` off while the status says ``tracking``: the failure that matters)
+and ``max_error_tracking_mm`` (the largest error over the evaluated frames said ``tracking``).
+``fewest_visible``: per working phase, per camera, the fewest features truly
 visible in any frame of it (how deeply the occluders blinded each camera: experiment 3's
 meaning, per seed).
 """
@@ -49,6 +54,7 @@ from cellsight.visibility import BEHIND, OUTSIDE
 
 PHASES = tuple(str(p) for p in Phase.working())  # the task's phases, in order
 OUT_OF_VIEW = (OUTSIDE, BEHIND)  # true occluder labels of a feature not in the image
+CONFIDENT_WRONG_MM = 10.0  # mm: an estimate this far off while the status says tracking
 
 
 def _per_camera(log: FrameLog, name: str, decode: str) -> np.ndarray:
@@ -133,6 +139,23 @@ def _visibility(log: FrameLog) -> dict:
     }
 
 
+def _health(log: FrameLog) -> dict:
+    """The tracker's health statuses against the truth (module docstring)."""
+    status = np.array(log.text("status"), dtype=str)
+    degraded = np.char.startswith(status, "degraded")
+    t = log.floats("t")
+    period = float(np.median(np.diff(t))) if len(t) > 1 else 0.0
+    error_mm = pose_errors(log.poses("est"), log.poses("true"))[0] * 1e3
+    tracking = evaluated_frames(log) & (status == "tracking") & np.isfinite(error_mm)
+    starts = degraded & ~np.concatenate([[False], degraded[:-1]])
+    return {
+        "degraded_s": round(float(degraded.sum()) * period, 4),
+        "degraded_episodes": int(starts.sum()),
+        "confident_wrong_frames": int(np.sum(error_mm[tracking] > CONFIDENT_WRONG_MM)),
+        "max_error_tracking_mm": float(error_mm[tracking].max()) if tracking.any() else None,
+    }
+
+
 def _measurements(log: FrameLog) -> dict:
     """Measurement counts, pixels grabbed and extraction error (module docstring)."""
     meas, rej, wrong = (_per_camera(log, k, "bits") for k in ("meas", "rej", "wrong"))
@@ -181,5 +204,6 @@ def frame_metrics(log: FrameLog) -> dict:
         **_estimation(log),
         **_visibility(log),
         **_measurements(log),
+        **_health(log),
         "timing_ms": _timing(log),
     }

@@ -20,6 +20,7 @@ from cellsight.runfolder.framelog import (
     pose_fields,
     timing_fields,
 )
+from cellsight.tracking.health import TrackHealthReport
 from cellsight.tracking.records import PartFrame, TrackerFrame
 from cellsight.visibility import CameraVisibility
 
@@ -80,7 +81,7 @@ class FrameRows:
             truth: FrameTruth, pnp: np.ndarray | None) -> dict:
         """The row of the frame at time ``t`` (s)."""
         row: dict[str, object] = {"t": round(t, 5), "phase": str(task.phase),
-                                  "stage": task.stage, "status": str(rec.status)}
+                                  "stage": task.stage, "status": rec.status_text}
         estimate = rec.T_base_part if rec.status.has_estimate else None
         for prefix, T in (("true", truth.part.T_base_part), ("est", estimate), ("pnp", pnp)):
             row.update(pose_fields(prefix, T))
@@ -117,5 +118,16 @@ class FrameRows:
             "occ_true": encode_labels(view.reason),
             "grab": 0.0 if plan is None else plan.fraction,
             "err_px": float(np.median(err)) if len(err) and self.pixel_errors else None,
+            **_health_fields(rec.health, c),
         }
         return {camera_column(name, c + 1): v for name, v in values.items()}
+
+
+def _health_fields(health: TrackHealthReport | None, c: int) -> dict[str, float | None]:
+    """Camera ``c``'s health columns (``nis``, ``notfound``, ``rejfrac``): None (empty) while
+    the track has no health report or the figure is not judged (NaN)."""
+    if health is None:
+        return {"nis": None, "notfound": None, "rejfrac": None}
+    values = {"nis": health.nis_ratio[c], "notfound": health.missing_fraction[c],
+              "rejfrac": health.rejected_fraction[c]}
+    return {k: round(float(v), 4) if np.isfinite(v) else None for k, v in values.items()}

@@ -357,7 +357,7 @@ class ExperimentRun:
         with suppress(WriteError), self.writes.guard(self.out / "keyframes.json"):
             keys.offer_frame(t, phase, rec, draw)  # recorded; the run goes on without it
         if video is not None and k % self.config.video_every == 0:
-            picture = draw(f"t = {t:5.2f} s   {phase}   tracker: {rec.status}", 0.5)
+            picture = draw(f"t = {t:5.2f} s   {phase}   tracker: {rec.status_text}", 0.5)
             with self.writes.guard(video.path):
                 video.add(picture)
 

@@ -262,6 +262,36 @@ def plot_error(run: Run, path: Path) -> Path:
     return _save(fig, path)
 
 
+STATUS_SHADES = {"degraded": "#d62728", "coasting": "#bdbdbd", "predicting": "#bdbdbd",
+                 "lost": "#636363"}  # the statuses drawn behind the health figure
+
+
+def plot_health(run: Run, path: Path) -> Path:
+    """The tracker's health over its sliding window (``nis_c*``, ``notfound_c*``,
+    ``rejfrac_c*`` of frames.csv), one line per camera, with the frames whose status is
+    degraded (red), coasting (light grey) or lost (dark grey) shaded behind."""
+    f, t = run.frames, run.t
+    status = [s.split(":")[0] for s in f.text("status")]
+    fig = _figure(10, 6.5)
+    axes = fig.subplots(3, 1, sharex=True)
+    panels = [("NIS / dof", "nis"), ("not found (fraction)", "notfound"),
+              ("rejected (fraction)", "rejfrac")]
+    half = 0.5 * (float(np.median(np.diff(t))) if len(t) > 1 else 0.0)
+    for ax, (label, column) in zip(axes, panels, strict=True):
+        _time_axis(ax, run)
+        for i, s in enumerate(status):
+            if s in STATUS_SHADES:
+                ax.axvspan(t[i] - half, t[i] + half, color=STATUS_SHADES[s], alpha=0.25, lw=0)
+        for c, name in enumerate(run.cameras, start=1):
+            ax.plot(t, f.floats(camera_column(column, c)), lw=1.0, label=name)
+        ax.set_ylabel(label)
+        ax.grid(alpha=0.3)
+    axes[0].legend(loc="upper right", fontsize=8)
+    axes[-1].set_xlabel("t [s]")
+    _phase_legend(fig, run)
+    return _save(fig, path)
+
+
 def _rmse_label(name: str, rmse: float | None, unit: str) -> str:
     """Legend label with the RMSE when known."""
     return name if rmse is None else f"{name} (RMSE {rmse:.3g} {unit})"
@@ -339,7 +369,9 @@ def write_figures(run: Run) -> list[tuple[str, Path]]:
     d = run.dir
     figures = [("Trajectories (gripper solid, estimated part dashed, true part grey)",
                 plot_trajectory(run, d / "fig_trajectory.png")),
-               ("Pose error of the EKF and the PnP baseline", plot_error(run, d / "fig_error.png"))]
+               ("Pose error of the EKF and the PnP baseline", plot_error(run, d / "fig_error.png")),
+               ("Tracking health (shaded: degraded red, coasting light grey, lost dark grey)",
+                plot_health(run, d / "fig_health.png"))]
     if run.n_features and run.cameras:
         colours = occluder_colours(run)
         for c, name in enumerate(run.cameras, start=1):

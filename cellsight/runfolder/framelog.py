@@ -4,7 +4,9 @@ One row per vision frame, written and flushed as the run goes. Columns (C camera
 c = 1..C, F features; an empty field is a missing value):
 
 - ``t`` (s), ``phase`` and ``stage`` of the grasping task, ``status`` of the tracker
-  (:class:`~cellsight.tracking.status.TrackStatus`);
+  (:class:`~cellsight.tracking.status.TrackStatus`; a degraded track with its reasons,
+  ``degraded: 75% not found in cam1``, :attr:`~cellsight.tracking.records.PartFrame.status_text`;
+  runs logged before the health monitor say ``predicting`` for ``coasting``);
 - ``true_x, true_y, true_z, true_roll, true_pitch, true_yaw``: the part's true pose (m, rad,
   base frame, roll-pitch-yaw as in :func:`~cellsight.geometry.transforms.xyz_rpy_from_pose`);
   ``est_*`` the EKF's estimate after this frame's update (empty while the part is not acquired
@@ -23,7 +25,11 @@ c = 1..C, F features; an empty field is a missing value):
   when visible, ``self``, ``behind``, ``outside`` or the hiding object's label, as
   :attr:`cellsight.visibility.CameraVisibility.reason`); ``grab_c{c}``: fraction of the
   image's pixels grabbed; ``err_px_c{c}``: median distance (px) of this frame's measurements
-  from the true projections (rendered sensor);
+  from the true projections (rendered sensor); the track's health over its sliding window
+  (:mod:`cellsight.tracking.health`; empty while it is not tracked or not judged):
+  ``nis_c{c}`` the normalised innovation squared per degree of freedom, ``notfound_c{c}`` the
+  fraction of selected, predicted-visible features not found, ``rejfrac_c{c}`` the fraction
+  of measured features the gate rejected;
 - ``t_{stage}_ms`` for each stage of :data:`cellsight.tracking.timing.STAGES` (occlusion,
   selection, windowing, extraction, ekf = prediction + update, total): the tracker's stage
   times (ms).
@@ -55,7 +61,7 @@ POSE = ("x", "y", "z", "roll", "pitch", "yaw")
 POSE_PREFIXES = ("true", "est", "pnp")
 GRIPPER = ("gripper_x", "gripper_y", "gripper_z", "jaw_opening", "jaws_closed", "grasped")
 PER_CAMERA = ("vis_pred", "vis_true", "sel", "meas", "rej", "wrong", "occ_pred", "occ_true",
-              "grab", "err_px")
+              "grab", "err_px", "nis", "notfound", "rejfrac")
 WRONG_PX = 3.0  # a measurement this far (px) from the true projection is another image point
 LABEL_SEPARATOR = ";"
 

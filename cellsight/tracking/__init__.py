@@ -2,12 +2,13 @@
 
 EKF per workpiece (:mod:`.motion`, :mod:`.measurement`, :mod:`.ekf`) with its gate
 (:mod:`.gate`), PnP (:mod:`.pnp`) for acquisition (:mod:`.acquisition`) and as a baseline,
-loss and coasting (:mod:`.loss`), usable features (:mod:`.eligibility`), optimal feature
-selection (:mod:`.selection`), image windows (:mod:`.windowing`), sub-pixel corner extraction
-(:mod:`.extraction`); the tracker (:mod:`.tracker`) only wires them, with the occlusion
-predictor, into the paper's loop; it reports :mod:`.records` with a :mod:`.status` and
-:mod:`.timing` per stage. Each part is a protocol (:mod:`.interfaces`) with its default; the
-tracker takes its parts and its numbers apart (:mod:`.config`).
+loss and coasting (:mod:`.loss`), tracking health (:mod:`.health`), usable features
+(:mod:`.eligibility`), optimal feature selection (:mod:`.selection`), image windows
+(:mod:`.windowing`), sub-pixel corner extraction (:mod:`.extraction`); the tracker
+(:mod:`.tracker`) only wires them, with the occlusion predictor, into the paper's loop; it
+reports :mod:`.records` with a :mod:`.status` and :mod:`.timing` per stage. Each part is a
+protocol (:mod:`.interfaces`) with its default; the tracker takes its parts and its numbers
+apart (:mod:`.config`).
 """
 
 from cellsight.tracking.acquisition import PnPAcquisition
@@ -15,14 +16,17 @@ from cellsight.tracking.config import TrackerConfig, TrackerParts
 from cellsight.tracking.ekf import AdaptiveNoise, PoseEKF, UpdateReport
 from cellsight.tracking.extraction import CornerExtractor, ExtractionConfig, extract_corner
 from cellsight.tracking.gate import ChiSquareGate
+from cellsight.tracking.health import HealthMonitor, HealthRule, TrackHealthReport
 from cellsight.tracking.interfaces import (
     Acquisition,
     Extractor,
     Gate,
+    HealthCheck,
     MeasurementModel,
     MotionModel,
     Selector,
     TrackHealth,
+    TrackMonitor,
     WindowPlanner,
 )
 from cellsight.tracking.loss import LossRule
@@ -59,6 +63,9 @@ __all__ = [
     "ExtractionConfig",
     "Extractor",
     "Gate",
+    "HealthCheck",
+    "HealthMonitor",
+    "HealthRule",
     "LossRule",
     "MeasurementModel",
     "MotionModel",
@@ -74,6 +81,8 @@ __all__ = [
     "Selector",
     "StepContext",
     "TrackHealth",
+    "TrackHealthReport",
+    "TrackMonitor",
     "Tracker",
     "TrackerConfig",
     "TrackerFrame",

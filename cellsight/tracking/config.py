@@ -1,7 +1,7 @@
 """What a :class:`~cellsight.tracking.Tracker` is made of: its parts (:class:`TrackerParts`,
 each a protocol of :mod:`.interfaces` with its default implementation) and its plain numbers
 (:class:`TrackerConfig`). The defaults are the paper's tracker with this package's additions
-(gate, acquisition, loss, near-occluder hold)."""
+(gate, acquisition, loss, health, near-occluder hold)."""
 
 from __future__ import annotations
 
@@ -11,9 +11,11 @@ from dataclasses import dataclass
 from cellsight.camera import Camera
 from cellsight.tracking.acquisition import PnPAcquisition
 from cellsight.tracking.gate import ChiSquareGate
+from cellsight.tracking.health import HealthRule
 from cellsight.tracking.interfaces import (
     Acquisition,
     Gate,
+    HealthCheck,
     MeasurementModel,
     MotionModel,
     Selector,
@@ -32,6 +34,7 @@ class TrackerParts:
     """The tracker's swappable parts, in the order of one step (:mod:`.tracker`).
 
     ``motion`` predicts each filter; ``loss`` says when a track coasts and when it is lost;
+    ``health`` makes each track's health monitor, which says when a tracked part is degraded;
     ``selector`` chooses the features to measure; ``windows`` plans their image windows;
     ``gate`` screens the innovations (None accepts every measurement); ``acquisition`` starts a
     filter from one frame's measurements; ``measurement`` builds a camera's measurement model
@@ -41,6 +44,7 @@ class TrackerParts:
 
     motion: MotionModel = ConstantVelocity()
     loss: TrackHealth = LossRule()
+    health: HealthCheck = HealthRule()
     selector: Selector = OptimalSelector()
     windows: WindowPlanner = CovarianceWindows()
     gate: Gate | None = ChiSquareGate(0.999)

@@ -16,6 +16,8 @@ protocol                      default
 :class:`MeasurementModel`     :class:`~cellsight.tracking.measurement.PinholeMeasurement`
 :class:`Acquisition`          :class:`~cellsight.tracking.acquisition.PnPAcquisition`
 :class:`TrackHealth`          :class:`~cellsight.tracking.loss.LossRule`
+:class:`HealthCheck`          :class:`~cellsight.tracking.health.HealthRule`
+:class:`TrackMonitor`         :class:`~cellsight.tracking.health.HealthMonitor`
 ============================  ===========================================================
 
 Conventions: C cameras in the tracker's order, F features of one workpiece, pixels ``(u, v)``
@@ -25,11 +27,13 @@ as in the image (with distortion) unless said otherwise, times in s; state layou
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import Any, Protocol
 
 import numpy as np
 
 from cellsight.camera import Camera
+from cellsight.tracking.health import TrackHealthReport
 from cellsight.tracking.measurement import Observation
 from cellsight.tracking.pnp import PoseFix
 from cellsight.tracking.selection import Selection
@@ -147,4 +151,29 @@ class TrackHealth(Protocol):
 
     def lost(self, t: float, last_update: float) -> bool:
         """The track is lost at time ``t`` (s) (the tracker then re-acquires it)."""
+        ...
+
+
+class TrackMonitor(Protocol):
+    """One track's health (:mod:`cellsight.tracking.health`), fed every frame the track is
+    tracked (not while it is acquired)."""
+
+    def reset(self) -> None:
+        """Forget the past: the track's filter (re)starts."""
+        ...
+
+    def update(self, t: float, visible: np.ndarray, selected: np.ndarray, measured: np.ndarray,
+               rejected: np.ndarray, mahalanobis2: np.ndarray) -> TrackHealthReport:
+        """Add the frame at time ``t`` (s), the record's arrays per camera and feature (C, F):
+        predicted ``visible``, ``selected``, ``measured`` (C, F, 2) px (NaN where not found),
+        gate-``rejected`` and the gate's ``mahalanobis2``; the report, whose reasons make a
+        tracked frame degraded."""
+        ...
+
+
+class HealthCheck(Protocol):
+    """Makes each track's health monitor (:mod:`cellsight.tracking.health`)."""
+
+    def monitor(self, cameras: Sequence[str]) -> TrackMonitor:
+        """A new monitor for one track seen by ``cameras`` (names, in the tracker's order)."""
         ...

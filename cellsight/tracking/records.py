@@ -6,6 +6,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from cellsight.tracking.health import TrackHealthReport
 from cellsight.tracking.selection import Selection
 from cellsight.tracking.status import TrackStatus
 from cellsight.tracking.windowing import WindowPlan
@@ -22,7 +23,9 @@ class PartFrame:
     another object's silhouette (not selectable); ``selected``: features whose windows were
     planned; ``windows``: one plan per camera; ``measured``: extracted pixels (NaN where none);
     ``innovation`` (px), ``mahalanobis2`` and ``rejected`` (gated out); ``state``/``covariance``/
-    ``T_base_part`` after the update (None while waiting); ``predicted_state`` before it.
+    ``T_base_part`` after the update (None while waiting); ``predicted_state`` before it;
+    ``health``: the health monitor's report (:mod:`.health`; None where the part was not
+    tracked this frame), whose reasons :attr:`status_text` gives for a degraded track.
     """
 
     name: str
@@ -42,6 +45,7 @@ class PartFrame:
     covariance: np.ndarray | None
     T_base_part: np.ndarray | None
     views: list[CameraVisibility] = field(default_factory=list)
+    health: TrackHealthReport | None = None
 
     @classmethod
     def empty(cls, name: str, status: TrackStatus, n_cameras: int, n_features: int,
@@ -76,6 +80,14 @@ class PartFrame:
             self.visible[c] = np.asarray(view.visible, dtype=bool)
             self.pixels[c] = np.asarray(view.pixels, dtype=float)
             self.near_occluder[c] = np.asarray(view.near_occluder, dtype=bool)
+
+    @property
+    def status_text(self) -> str:
+        """The status as a user reads it: ``degraded: <reasons joined by '; '>`` for a degraded
+        track, else the status's value (``tracking``, ``coasting``...)."""
+        if self.status == TrackStatus.DEGRADED and self.health is not None and self.health.reasons:
+            return f"{self.status.value}: {'; '.join(self.health.reasons)}"
+        return self.status.value
 
     @property
     def reasons(self) -> list[list[str]]:

@@ -13,7 +13,9 @@ protocol of :mod:`.interfaces` with its default in its own module):
    the selector chooses among the usable features (:mod:`.eligibility`, :mod:`.selection`),
    the window planner places their windows (:mod:`.windowing`), the extractor finds them in
    what the sensors took (:mod:`.extraction`), the gate (:mod:`.gate`) screens the innovations
-   and the EKF updates with the accepted ones (:mod:`.measurement`, :mod:`.ekf`).
+   and the EKF updates with the accepted ones (:mod:`.measurement`, :mod:`.ekf`); the track's
+   health monitor (:mod:`.health`) takes the frame's outcome, and a tracked part whose figures
+   pass its limits is degraded.
 
 Within a step, each part's work carries one :class:`StepContext`. Measured pixels are as in the
 image (distorted); the camera undistorts them before the update. Stage times: :mod:`.timing`;
@@ -34,7 +36,7 @@ from cellsight.tracking.config import TrackerConfig, TrackerParts
 from cellsight.tracking.ekf import AdaptiveNoise, PoseEKF, UpdateReport
 from cellsight.tracking.eligibility import NearOccluderHold
 from cellsight.tracking.extraction import CornerExtractor
-from cellsight.tracking.interfaces import Acquisition, Extractor
+from cellsight.tracking.interfaces import Acquisition, Extractor, TrackMonitor
 from cellsight.tracking.measurement import Observation
 from cellsight.tracking.motion import POSE_DIM
 from cellsight.tracking.records import PartFrame, TrackerFrame
@@ -51,11 +53,13 @@ must avoid), and each part's (first row, its visible feature indices) in them.""
 @dataclass
 class _Track:
     """One workpiece's track: feature points (F, 3) in the part frame, the acquisition guess,
-    the filter, the last accepted measurement's time (s) and the holder's pose last frame."""
+    the near-occluder hold, the health monitor, the filter, the last accepted measurement's
+    time (s) and the holder's pose last frame."""
 
     points: np.ndarray
     guess: np.ndarray | None
     hold: NearOccluderHold
+    monitor: TrackMonitor
     ekf: PoseEKF | None = None
     base_guess: np.ndarray | None = None
     attempts: int = 0
@@ -108,7 +112,7 @@ class Tracker:
     :class:`~cellsight.tracking.extraction.CornerExtractor`, on images); ``config``: the plain
     numbers; ``initial_poses``: name -> guessed ``T_base_part`` for acquisition (a part without
     one waits for :meth:`initialise`); ``components``: the other parts (selector, window
-    planner, gate, motion, acquisition, loss, measurement model).
+    planner, gate, motion, acquisition, loss, health, measurement model).
     """
 
     def __init__(
@@ -129,9 +133,11 @@ class Tracker:
         self._models = [self.components.measurement(c, self.config.sigma_px)
                         for c in self.cameras]
         guesses = dict(initial_poses or {})
+        names = [c.name for c in self.cameras]
         self.tracks = {
             name: _Track(np.asarray(pts, dtype=float).reshape(-1, 3), guesses.get(name),
-                         NearOccluderHold(self.config.near_occluder_hold_s))
+                         NearOccluderHold(self.config.near_occluder_hold_s),
+                         self.components.health.monitor(names))
             for name, pts in parts.items()
         }
 
@@ -174,6 +180,7 @@ class Tracker:
         track.ekf = PoseEKF(self.components.motion, state, covariance, t, adaptive)
         track.last_update = float(t)
         track.lost = False
+        track.monitor.reset()
 
     def step(
         self,
@@ -234,20 +241,21 @@ class Tracker:
     def _record(self, name: str, track: _Track,
                 views: list[CameraVisibility] | None) -> PartFrame:
         """One part's record before its measurements: waiting (nothing predicted), to be
-        acquired (waiting or lost) or predicting, with the visibility source's answer."""
+        acquired (waiting or lost) or coasting, with the visibility source's answer."""
         C = len(self.cameras)
         if views is None:
             return track.empty_record(name, TrackStatus.WAITING, C)
         if track.acquiring:
             status = TrackStatus.LOST if track.ekf is not None else TrackStatus.WAITING
         else:
-            status = TrackStatus.PREDICTING
+            status = TrackStatus.COASTING
         rec = track.empty_record(name, status, C)
         rec.set_views(views)
         return rec
 
     def _track(self, context: StepContext) -> None:
-        """Select, window, extract, gate and update (the paper's loop)."""
+        """Select, window, extract, gate and update (the paper's loop), then the health
+        monitor: tracking, or degraded when it finds reasons."""
         rec, track, timer = context.rec, context.track, context.timer
         ekf = track.ekf
         with timer("selection"):
@@ -261,11 +269,20 @@ class Tracker:
         obs = self._measure(context, covariance)
         with timer("ekf"):
             report = ekf.update(obs, self.components.gate)
-        _record_update(rec, report)
+            _record_update(rec, report)
+            looked = rec.selected & self._grabbed(context.observed)[:, None]
+            rec.health = track.monitor.update(context.t, rec.visible, looked, rec.measured,
+                                              rec.rejected, rec.mahalanobis2)
         if report.n_accepted:
             track.last_update = ekf.t
-            rec.status = TrackStatus.TRACKING
+            rec.status = TrackStatus.DEGRADED if rec.health.reasons else TrackStatus.TRACKING
         _record_estimate(rec, ekf)
+
+    def _grabbed(self, observed: Any) -> np.ndarray:
+        """(C,) bool: the cameras that gave something this frame (a dropped frame's camera
+        gave nothing: its selected features are not counted as not found)."""
+        return np.array([_observed(observed, self.cameras, c) is not None
+                         for c in range(len(self.cameras))], dtype=bool)
 
     def _resolution(self, track: _Track) -> np.ndarray:
         """Per camera: pixels per metre at the estimated part's centroid (focal / depth), the
