@@ -8,32 +8,17 @@ import sys
 from pathlib import Path
 
 import pytest
+from test_urdf import _PRIMITIVES
 
 from cellsight.cli import main
 from cellsight.errors import CellFileError, CellsightError
 from cellsight.model.loader import load_cell
 
-# A two-joint robot with every kind of geometry; lengths m. Comments, an XML declaration and a
-# namespaced attribute are fine.
-_URDF = """<?xml version="1.0"?>
-<!-- toy robot -->
-<robot name="toy" xmlns:xacro="http://wiki.ros.org/xacro">
-  <link name="base"><collision><geometry><box size="0.2 0.2 0.1"/></geometry></collision></link>
-  <joint name="slide" type="prismatic"><parent link="base"/><child link="carriage"/>
-    <origin xyz="0 0 0.1" rpy="0.1 0 0.2"/><axis xyz="1 0 0"/>
-    <limit lower="-0.5" upper="0.5" effort="1" velocity="1"/></joint>
-  <link name="carriage"><collision><origin xyz="0 0 0.05"/>
-    <geometry><cylinder radius="0.05" length="0.1"/></geometry></collision></link>
-  <joint name="spin" type="continuous"><parent link="carriage"/><child link="arm"/>
-    <origin xyz="0 0 0.2" rpy="0 0.3 0"/><axis xyz="0 1 1"/></joint>
-  <link name="arm"><collision><origin xyz="0.1 0 0"/>
-    <geometry><mesh filename="package://toy/block.obj" scale="1 2 1"/></geometry></collision>
-  </link>
-  <joint name="tip_fixed" type="fixed"><parent link="arm"/><child link="tip"/>
-    <origin xyz="0.3 0 0"/></joint>
-  <link name="tip"><collision><geometry><sphere radius="0.03"/></geometry></collision></link>
-</robot>
-"""
+# test_urdf.py's two-joint robot with every kind of geometry (lengths m), with a comment, an XML
+# declaration and a namespaced attribute, which are fine.
+_URDF = ('<?xml version="1.0"?>\n<!-- toy robot -->\n'
+         + _PRIMITIVES.replace('<robot name="toy">',
+                               '<robot name="toy" xmlns:xacro="http://wiki.ros.org/xacro">'))
 _CORNERS = [(0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0), (0, 0, 1), (1, 0, 1), (1, 1, 1), (0, 1, 1)]
 _FACES = "f 1 4 3 2\nf 5 6 7 8\nf 1 2 6 5\nf 2 3 7 6\nf 3 4 8 7\nf 4 1 5 8\n"
 _CELL = """
