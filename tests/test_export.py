@@ -126,6 +126,23 @@ def _export_cli(argv: list[str]) -> int:
     return args.func(args)
 
 
+def test_diagnostics_carry_the_trackers_status_and_health(messages, rows, cell) -> None:
+    diagnostics = messages["/diagnostics"]
+    assert len(diagnostics) == len(rows)
+    levels = {"tracking": 0, "acquired": 0, "degraded": 1, "coasting": 1, "lost": 2,
+              "waiting": 3}
+    for (log, _, msg), row in zip(diagnostics, rows, strict=True):
+        (status,) = msg.status
+        assert log == _ns(row["t"]) and status.name == "cellsight/part"
+        assert status.message == row["status"]
+        assert status.level == levels[row["status"].split(":")[0]]
+        values = {v.key: v.value for v in status.values}
+        for c, cam in enumerate(cell.cameras, start=1):
+            assert values[f"nis_{cam.name}"] == row[f"nis_c{c}"]
+            assert values[f"notfound_{cam.name}"] == row[f"notfound_c{c}"]
+    assert {r["status"] for r in rows} >= {"tracking"}
+
+
 def test_message_counts_and_stamps(messages, rows, cell) -> None:
     n = len(rows)
     images = math.ceil(n / EVERY)
@@ -152,7 +169,7 @@ def test_file_is_a_ros2_mcap_with_well_formed_schemas(exported: Path) -> None:
     names = {s.name for s in summary.schemas.values()}
     assert names == {"tf2_msgs/msg/TFMessage", "geometry_msgs/msg/PoseStamped",
                      "visualization_msgs/msg/MarkerArray", "sensor_msgs/msg/CameraInfo",
-                     "sensor_msgs/msg/Image"}
+                     "sensor_msgs/msg/Image", "diagnostic_msgs/msg/DiagnosticArray"}
     assert {s.encoding for s in summary.schemas.values()} == {"ros2msg"}
     assert {c.message_encoding for c in summary.channels.values()} == {"cdr"}
     for schema in summary.schemas.values():  # every type used is defined once in the text

@@ -13,6 +13,11 @@ Topics (``<cam>``, ``<part>``: the camera's and the workpiece's names as ROS nam
   ``base``; the estimate only in frames that have one);
 - ``/<cam>/visibility`` (``visualization_msgs/msg/MarkerArray``, one per frame):
   :mod:`cellsight.export.markers`;
+- ``/diagnostics`` (``diagnostic_msgs/msg/DiagnosticArray``, one per frame, Foxglove's
+  Diagnostics panel): the tracker's status for ``cellsight/<part>``, level OK (tracking,
+  acquired), WARN (degraded, coasting), ERROR (lost) or STALE (waiting), the status text
+  (``degraded: 96% not found in cam1``) as its message and the health figures of each camera
+  (``nis_<cam>``, ``notfound_<cam>``, ``rejfrac_<cam>``; empty when not judged) as values;
 - ``/<cam>/camera_info`` (``sensor_msgs/msg/CameraInfo``) and ``/<cam>/image_raw``
   (``sensor_msgs/msg/Image``, mono8, frame ``<cam>_optical``), every ``every``-th frame
   (frames 0, every, 2 every, ...): the images are rendered again by MuJoCo at the logged state
@@ -43,11 +48,15 @@ from cellsight.export import markers, ros
 from cellsight.export.msgdefs import msgdef, schema_name
 from cellsight.geometry.transforms import transform_points
 from cellsight.runfolder import RUN_FILES, RunData, WriteError, load_run
+from cellsight.runfolder.framelog import camera_column
 from cellsight.runfolder.writes import AtomicFile
 
-TF, POSE, CAMERA_INFO, IMAGE, MARKERS = (
+TF, POSE, CAMERA_INFO, IMAGE, MARKERS, DIAGNOSTICS = (
     "tf2_msgs/TFMessage", "geometry_msgs/PoseStamped", "sensor_msgs/CameraInfo",
-    "sensor_msgs/Image", "visualization_msgs/MarkerArray")
+    "sensor_msgs/Image", "visualization_msgs/MarkerArray", "diagnostic_msgs/DiagnosticArray")
+LEVELS = {"tracking": 0, "acquired": 0, "degraded": 1, "coasting": 1, "predicting": 1,
+          "lost": 2}  # DiagnosticStatus levels of the tracker's statuses (else STALE, 3)
+HEALTH_COLUMNS = ("nis", "notfound", "rejfrac")  # frames.csv's health columns, per camera
 
 
 class Stop(BaseException):  # a signal, like KeyboardInterrupt: not caught as an Exception
@@ -188,9 +197,23 @@ class _Frames:
                 ns, points, run.part.feature_names, cam.center, run.vis_pred[c][k],
                 bool(run.vis_pred_present[c][k]), run.vis_true[c][k],
                 bool(run.vis_true_present[c][k]), self.size)))
+        out.append(("/diagnostics", DIAGNOSTICS, self._diagnostics(k, ns)))
         if k % self.every == 0:
             out += self._camera_messages(k, ns)
         return out
+
+    def _diagnostics(self, k: int, ns: int) -> dict:
+        """The tracker's status and health at frame ``k`` (module docstring)."""
+        frames = self.run.frames
+        status = frames.text("status")[k]
+        values = [{"key": f"{column}_{cam.name}",
+                   "value": frames.text(camera_column(column, c))[k]}
+                  for c, cam in enumerate(self.run.cell.cameras, start=1)
+                  for column in HEALTH_COLUMNS]
+        return {"header": ros.header(ns, tf.ROOT),
+                "status": [{"level": LEVELS.get(status.split(":")[0], 3),
+                            "name": f"cellsight/{self.run.part.name}", "message": status,
+                            "hardware_id": "", "values": values}]}
 
     def _camera_messages(self, k: int, ns: int) -> list[tuple[str, str, dict]]:
         images = self.images.render(k) if self.images is not None else None

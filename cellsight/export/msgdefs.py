@@ -34,6 +34,11 @@ MSG: dict[str, str] = {
         "std_msgs/Header header\nuint32 height\nuint32 width\nstring encoding\n"
         "uint8 is_bigendian\nuint32 step\nuint8[] data\n"),
     "sensor_msgs/CompressedImage": "std_msgs/Header header\nstring format\nuint8[] data\n",
+    "diagnostic_msgs/KeyValue": "string key\nstring value\n",
+    "diagnostic_msgs/DiagnosticStatus": (
+        "byte OK=0\nbyte WARN=1\nbyte ERROR=2\nbyte STALE=3\nbyte level\nstring name\n"
+        "string message\nstring hardware_id\nKeyValue[] values\n"),
+    "diagnostic_msgs/DiagnosticArray": "std_msgs/Header header\nDiagnosticStatus[] status\n",
     "visualization_msgs/UVCoordinate": "float32 u\nfloat32 v\n",
     "visualization_msgs/MeshFile": "string filename\nuint8[] data\n",
     "visualization_msgs/Marker": (
