@@ -88,7 +88,7 @@ def _tree(root: Path) -> dict[str, str]:
             hashlib.sha256(p.read_bytes()).hexdigest() for p in sorted(root.rglob("*"))}
 
 
-def _cli(argv: list[str]) -> tuple[int, str]:
+def run_cli(argv: list[str]) -> tuple[int, str]:
     """``cellsight`` in process: its exit status and stderr."""
     from cellsight.cli import main
 
@@ -156,7 +156,7 @@ def out_folder_case(rng: random.Random, case: int, tally, folder: Path) -> None:
         argv.append("--overwrite")  # a bad argument is refused all the same
     argv = [a.replace("OUT", str(out)).replace("RUN", str(run)) for a in argv]
     before_case, before_run = _tree(case_dir), _tree(run)
-    status, err = _cli(argv)
+    status, err = run_cli(argv)
     changed = _tree(case_dir) != before_case or _tree(run) != before_run
     if not _refused_in_one_line(status, err) or changed:
         tally.fail(case, f"exit {status}, {'changed files, ' if changed else ''}stderr "
@@ -206,7 +206,7 @@ def replay_case(rng: random.Random, case: int, tally, folder: Path) -> None:
                 ok, what = False, f"load_run: {exc}"
             refused_well = not ok and "\n" not in what
         else:
-            status, err = _cli(["export", str(run), "--mcap", str(mcap), "--quiet"])
+            status, err = run_cli(["export", str(run), "--mcap", str(mcap), "--quiet"])
             ok, what = status == 0, f"export: exit {status}, {err[-300:]!r}"
             refused_well = _refused_in_one_line(status, err) and not mcap.exists()
         if changed and not refused_well:
@@ -259,7 +259,7 @@ def write_failure_case(rng: random.Random, case: int, tally, folder: Path) -> No
     for cls, name, wrapper in targets.values():
         setattr(cls, name, wrapper)
     try:
-        status, err = _cli(["run", rng.choice(("1", "2", "3")), "--sensor", "ideal",
+        status, err = run_cli(["run", rng.choice(("1", "2", "3")), "--sensor", "ideal",
                             "--duration", "0.3", "--quiet", "--out", str(out)])
     finally:
         for key, (cls, name, _) in targets.items():

@@ -29,9 +29,7 @@ A failure is a disagreement or an unexpected exception; :func:`run_kind` returns
 
 from __future__ import annotations
 
-import contextlib
 import copy
-import io
 import json
 import math
 import random
@@ -43,7 +41,7 @@ from pathlib import Path
 
 import numpy as np
 import yaml
-from fuzz_folders import out_folder_case, replay_case, write_failure_case
+from fuzz_folders import out_folder_case, replay_case, run_cli, write_failure_case
 from oracle import random_convex_solid, random_prism, random_soup, segment_oracle
 
 from cellsight.errors import CellsightError, GeometryError
@@ -358,22 +356,16 @@ def _cli_argv(rng: random.Random, folder: Path) -> list[str]:
 
 def cli_case(rng: random.Random, case: int, tally: Tally, folder: Path) -> None:
     """``cellsight`` in process with random arguments: exit 0, 1 or 2, never a traceback."""
-    from cellsight.cli import main
 
     (folder / "file.txt").write_text("not a folder")
     argv = _cli_argv(rng, folder)
-    err = io.StringIO()
     try:
-        with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(err):
-            status = main(argv)
-    except SystemExit as exc:
-        status = exc.code if isinstance(exc.code, int) else 1
+        status, err = run_cli(argv)
     except Exception as exc:  # noqa: BLE001 - the point of the fuzz
         tally.fail(case, f"{_exception_line(exc)} for {json.dumps(argv)[:300]}")
         return
-    if status not in (0, 1, 2) or "Traceback" in err.getvalue():
-        tally.fail(case, f"exit {status}, stderr {err.getvalue()[-300:]!r} for "
-                         f"{json.dumps(argv)[:300]}")
+    if status not in (0, 1, 2) or "Traceback" in err:
+        tally.fail(case, f"exit {status}, stderr {err[-300:]!r} for {json.dumps(argv)[:300]}")
     elif status:
         tally.refused += 1
 
@@ -402,7 +394,10 @@ def run_kind(kind: str, cases: int, seed: int = 0,
             elif kind == "cli":
                 cli_case(py_rng, case, tally, folder)
             else:
-                FOLDER_CASES[kind](py_rng, case, tally, folder)
+                try:
+                    FOLDER_CASES[kind](py_rng, case, tally, folder)
+                except Exception as exc:  # noqa: BLE001 - the point of the fuzz
+                    tally.fail(case, _exception_line(exc))
             tally.cases += 1
             if progress is not None:
                 progress(case + 1)
