@@ -27,7 +27,8 @@ from cellsight.tracking.timing import STAGES
 
 # The header of the runs written before the schema had its own module: the format may not
 # change (strings and missing values quoted, numbers not); columns are only added (the health
-# columns nis, notfound, rejfrac after err_px, per camera), and files without them still read.
+# columns nis, notfound, rejfrac after err_px, then the unknown-occluder map, per camera), and
+# files without them still read.
 OLD_HEADER = (
     '"t","phase","stage","status","true_x","true_y","true_z","true_roll","true_pitch",'
     '"true_yaw","est_x","est_y","est_z","est_roll","est_pitch","est_yaw","pnp_x","pnp_y",'
@@ -38,9 +39,9 @@ OLD_HEADER = (
     '"grab_c2","err_px_c2","t_occlusion_ms","t_selection_ms","t_windowing_ms",'
     '"t_extraction_ms","t_ekf_ms","t_total_ms"'
 )
-HEADER = OLD_HEADER.replace('"err_px_c1",', '"err_px_c1","nis_c1","notfound_c1","rejfrac_c1",'
-                            ).replace('"err_px_c2",',
-                                      '"err_px_c2","nis_c2","notfound_c2","rejfrac_c2",')
+HEADER = OLD_HEADER.replace(
+    '"err_px_c1",', '"err_px_c1","nis_c1","notfound_c1","rejfrac_c1","unknown_c1",').replace(
+    '"err_px_c2",', '"err_px_c2","nis_c2","notfound_c2","rejfrac_c2","unknown_c2",')
 F = 16
 
 
@@ -70,7 +71,7 @@ def test_the_format_is_that_of_the_runs_already_written(tmp_path: Path):
     assert header == HEADER and columns(2) == [h.strip('"') for h in HEADER.split(",")]
     flags = '"0' + "1" * (F - 1) + '"'
     labels = '"self' + ";" * (F - 1) + '"'
-    camera = f'{flags},"","","","","",{labels},"",0.07347276475694445,"","","","",'
+    camera = f'{flags},"","","","","",{labels},"",0.07347276475694445,"","","","","",'
     assert line == ('0.078,"waiting","start","tracking",0.55,0.0,0.62,0.0,0.0,0.35,'
                     + '"",' * 12 + "0.5398199451773269,-0.15,0.8,0.09,0,1,"
                     + camera * 2 + ",".join(["1.2346"] * len(STAGES)))
@@ -86,6 +87,7 @@ def test_a_file_without_the_health_columns_reads_them_as_missing(tmp_path: Path)
     path.write_text(OLD_HEADER + "\n" + ",".join(row.split(",")[i] for i in kept) + "\n")
     log = FrameLog.read(path)
     assert log.n == 1 and np.isnan(log.floats("nis_c1")).all()
+    assert log.grids("unknown_c1") == [None]
     assert log.text("status") == ["tracking"]
 
 

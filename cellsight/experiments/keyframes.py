@@ -15,25 +15,31 @@ from cellsight.camera import Camera
 from cellsight.control import Phase
 from cellsight.report.overlay import compose_views, draw_camera_overlay
 from cellsight.runfolder.writes import WriteError, write_file
-from cellsight.tracking.records import PartFrame
+from cellsight.tracking.records import PartFrame, TrackerFrame
+from cellsight.tracking.unknown import UNKNOWN_LABEL
 
 Draw = Callable[[str], np.ndarray]
 """Draws the current frame with a caption: RGB image (H, W, 3) uint8."""
 
 
-def draw_frame(images: Sequence[np.ndarray], rec: PartFrame, truth_visible: np.ndarray,
-               cameras: Sequence[Camera], caption: str, scale: float) -> np.ndarray:
+def draw_frame(images: Sequence[np.ndarray], frame: TrackerFrame, part: str,
+               truth_visible: np.ndarray, cameras: Sequence[Camera], caption: str,
+               scale: float) -> np.ndarray:
     """The cameras' images side by side, each with the tracker's prediction, selection,
-    windows and measurements of one part, and where the prediction disagrees with the truth
-    (``truth_visible`` (C, F)); scaled by ``scale``, ``caption`` below."""
+    windows and measurements of workpiece ``part`` in ``frame``, its unknown-occluder map, and
+    where the prediction disagrees with the truth (``truth_visible`` (C, F)); scaled by
+    ``scale``, ``caption`` below."""
+    rec = frame.parts[part]
+    visible = rec.predicted_visible
     views = []
     for c, cam in enumerate(cameras):
         plan = rec.windows[c]
         views.append(draw_camera_overlay(
-            images[c], pixels=rec.pixels[c], visible=rec.visible[c],
+            images[c], pixels=rec.pixels[c], visible=visible[c],
             selected=rec.selected[c], measured=rec.measured[c], rejected=rec.rejected[c],
             boxes=np.zeros((0, 4), int) if plan is None else plan.boxes, title=cam.name,
-            truth_visible=truth_visible[c]))
+            truth_visible=truth_visible[c],
+            unknown=frame.unknown[c] if c < len(frame.unknown) else None))
     return compose_views(views, scale=scale, caption=caption)
 
 
@@ -41,7 +47,8 @@ class KeyFrames:
     """The frames worth a picture, each key with a score per frame; the best frame so far is
     drawn and saved. Keys: ``start`` (the first estimate; the self-occluded points),
     ``gripper`` (Grasp phase: most points the grasping robot's gripper hides),
-    ``crossing_<camera>`` (most points the crossing robot hides from that camera)."""
+    ``crossing_<camera>`` (most points the crossing robot hides from that camera), ``unknown``
+    (most points under the tracker's unknown-occluder map, :mod:`cellsight.tracking.unknown`)."""
 
     def __init__(self, out: Path, cameras: Sequence[str], robot: str,
                  crossing: str | None) -> None:
@@ -71,6 +78,10 @@ class KeyFrames:
             self.offer("gripper", sum(gripper), t, f"{head}: the gripper hides "
                        + ", ".join(f"{n} points from {cam}" for cam, n in
                                    zip(self.cameras, gripper, strict=True)), draw)
+        unknown = counts(UNKNOWN_LABEL)
+        self.offer("unknown", sum(unknown), t, f"{head}: unknown occluders (shaded) cover "
+                   + ", ".join(f"{n} points in {cam}" for cam, n in
+                               zip(self.cameras, unknown, strict=True)), draw)
         if self.crossing is not None:
             for c, n in enumerate(counts(f"{self.crossing}.")):
                 left = sum(1 for r in reasons[c] if not r)

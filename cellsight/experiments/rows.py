@@ -15,6 +15,7 @@ from cellsight.runfolder.framelog import (
     WRONG_PX,
     camera_column,
     encode_bits,
+    encode_grid,
     encode_labels,
     joint_fields,
     pose_fields,
@@ -90,6 +91,8 @@ class FrameRows:
         reasons = rec.reasons
         for c in range(self.n_cameras):
             row.update(self._camera(c, rec, truth.part, reasons[c] if reasons else None))
+            if c < len(frame.unknown):
+                row[camera_column("unknown", c + 1)] = encode_grid(frame.unknown[c])
         row.update(timing_fields(frame.timings))
         return row
 
@@ -111,7 +114,8 @@ class FrameRows:
         wrong[measured] = ~(err <= WRONG_PX)
         plan = rec.windows[c]
         values = {
-            "vis_pred": encode_bits(rec.visible[c]), "vis_true": encode_bits(view.visible),
+            "vis_pred": encode_bits(rec.predicted_visible[c]),
+            "vis_true": encode_bits(view.visible),
             "sel": encode_bits(rec.selected[c]), "meas": encode_bits(measured),
             "rej": encode_bits(rec.rejected[c]), "wrong": encode_bits(wrong),
             "occ_pred": None if reasons is None else encode_labels(reasons),

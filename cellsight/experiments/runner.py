@@ -352,7 +352,8 @@ class ExperimentRun:
         def draw(caption: str, scale: float = 1.0) -> np.ndarray:
             grabbed = self.ideal is None and all(i is not None for i in observed)
             shown = observed if grabbed else world.render()
-            return draw_frame(shown, rec, truth.part.visible, self.cell.cameras, caption, scale)
+            return draw_frame(shown, frame, self.part.name, truth.part.visible,
+                              self.cell.cameras, caption, scale)
 
         with suppress(WriteError), self.writes.guard(self.out / "keyframes.json"):
             keys.offer_frame(t, phase, rec, draw)  # recorded; the run goes on without it

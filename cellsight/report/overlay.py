@@ -12,6 +12,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from cellsight.tracking.unknown import Grid
+
 VISIBLE = (40, 210, 70)  # filled disc: predicted visible
 OCCLUDED = (235, 45, 45)  # hollow ring: predicted occluded
 SELECTED = (255, 215, 0)  # outer ring: selected for a window
@@ -19,6 +21,8 @@ WINDOW = (70, 150, 255)  # rectangle: image window to grab
 MEASURED = (0, 235, 235)  # cross: measured corner, accepted by the EKF gate
 REJECTED = (255, 120, 0)  # cross: measured corner, rejected by the gate
 MISMATCH = (230, 0, 230)  # square: prediction disagrees with the ray-cast truth
+UNKNOWN = (255, 140, 0)  # shaded cells: the tracker's unknown-occluder map
+UNKNOWN_ALPHA = 0.35  # opacity of that shade
 TEXT = (255, 255, 255)
 PANEL = (25, 25, 25)  # background of the title, legend and caption bars
 
@@ -63,11 +67,30 @@ def _cross(img: np.ndarray, centre: tuple[int, int], colour: tuple[int, int, int
     cv2.line(img, (u - d, v + d), (u + d, v - d), colour, 1, cv2.LINE_8)
 
 
-def _legend(img: np.ndarray, with_truth: bool) -> None:
+def _shade_cells(img: np.ndarray, grid: Grid) -> None:
+    """Shade ``grid``'s set cells (:class:`~cellsight.tracking.unknown.Grid`) in ``UNKNOWN``
+    and outline the shaded region."""
+    cells = np.asarray(grid.cells, dtype=np.uint8)
+    if not cells.any():
+        return
+    p = int(grid.pitch_px)
+    region = np.kron(cells, np.ones((p, p), dtype=np.uint8))[: img.shape[0], : img.shape[1]]
+    region = np.pad(region, ((0, img.shape[0] - region.shape[0]),
+                             (0, img.shape[1] - region.shape[1])))
+    inside = region.astype(bool)
+    img[inside] = ((1 - UNKNOWN_ALPHA) * img[inside] + UNKNOWN_ALPHA * np.array(UNKNOWN)
+                   ).astype(np.uint8)
+    contours, _ = cv2.findContours(region, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
+    cv2.drawContours(img, contours, -1, UNKNOWN, 1, cv2.LINE_8)
+
+
+def _legend(img: np.ndarray, with_truth: bool, with_unknown: bool = False) -> None:
     """Compact legend with one icon per marker type, in the bottom-left corner."""
     entries = ["visible", "occluded", "selected", "window", "measured", "rejected"]
     if with_truth:
         entries.append("pred != truth")
+    if with_unknown:
+        entries.append("unknown occluder")
     scale, row = 0.38, 14
     width = 24 + max(cv2.getTextSize(e, FONT, scale, 1)[0][0] for e in entries)
     height = row * len(entries) + 6
@@ -94,6 +117,8 @@ def _legend_icon(img: np.ndarray, label: str, c: tuple[int, int]) -> None:
         _cross(img, c, MEASURED)
     elif label == "rejected":
         _cross(img, c, REJECTED)
+    elif label == "unknown occluder":
+        cv2.rectangle(img, (u - 5, v - 5), (u + 5, v + 5), UNKNOWN, cv2.FILLED, cv2.LINE_8)
     else:
         cv2.rectangle(img, (u - 5, v - 5), (u + 5, v + 5), MISMATCH, 1, cv2.LINE_8)
 
@@ -110,6 +135,7 @@ def draw_camera_overlay(
     title: str,
     truth_visible: np.ndarray | None = None,
     size: tuple[int, int] | None = None,
+    unknown: Grid | None = None,
 ) -> np.ndarray:
     """One camera's view with the tracker's per-feature state drawn on it.
 
@@ -118,7 +144,9 @@ def draw_camera_overlay(
     px, NaN rows skipped. ``visible``, ``selected``, ``rejected``: (F,) bool. ``measured``:
     (F, 2) measured corners (u, v) in px, NaN where none. ``boxes``: (n, 4) int windows
     ``(u0, v0, u1, v1)``, half-open. ``truth_visible``: optional (F,) bool ray-cast truth;
-    features whose predicted visibility disagrees with it get a magenta square.
+    features whose predicted visibility disagrees with it get a magenta square. ``unknown``:
+    optional unknown-occluder map (:class:`~cellsight.tracking.unknown.Grid`), its cells shaded
+    orange.
 
     Predicted-visible features are green filled discs, occluded ones red hollow rings, selected
     ones get a yellow outer ring; windows are blue rectangles, measured corners cyan crosses
@@ -126,6 +154,8 @@ def draw_camera_overlay(
     uint8 RGB.
     """
     img = _canvas(image, size)
+    if unknown is not None:
+        _shade_cells(img, unknown)
     pixels = np.asarray(pixels, dtype=float)
     measured = np.asarray(measured, dtype=float)
     for u0, v0, u1, v1 in np.asarray(boxes, dtype=int).reshape(-1, 4):
@@ -148,7 +178,7 @@ def draw_camera_overlay(
         if np.isfinite(measured[j]).all():
             _cross(img, _point(measured[j]), REJECTED if rejected[j] else MEASURED)
     _text_box(img, title, (4, 4))
-    _legend(img, truth_visible is not None)
+    _legend(img, truth_visible is not None, unknown is not None and bool(unknown.cells.any()))
     return img
 
 

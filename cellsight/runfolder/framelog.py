@@ -16,14 +16,18 @@ c = 1..C, F features; an empty field is a missing value):
   ``jaws_closed`` (jaws closed on the part, 0/1); ``grasped`` (part held, 0/1);
 - ``q_{robot}_{j}`` (rad or m, j = 1..n): every robot's true joint values, enough to replay
   the cell (``cellsight view``, ``cellsight export``); absent in runs logged before them;
-- per camera: ``vis_pred_c{c}`` (predicted visible at the tracker's predicted pose),
+- per camera: ``vis_pred_c{c}`` (predicted visible at the tracker's predicted pose, and not
+  under an unknown occluder),
   ``vis_true_c{c}`` (visible by the simulator's ray casts at the true pose), ``sel_c{c}``
   (selected: a window was planned), ``meas_c{c}`` (a feature was measured in it), ``rej_c{c}``
   (measured, rejected by the EKF's gate), ``wrong_c{c}`` (measured more than :data:`WRONG_PX`
   from the feature's true projection): strings of F characters ``0``/``1`` in feature order
   (:func:`encode_bits`); ``occ_pred_c{c}``, ``occ_true_c{c}``: F labels joined by ``;`` (empty
   when visible, ``self``, ``behind``, ``outside`` or the hiding object's label, as
-  :attr:`cellsight.visibility.CameraVisibility.reason`); ``grab_c{c}``: fraction of the
+  :attr:`cellsight.visibility.CameraVisibility.reason`; in ``occ_pred``, ``unknown`` for a
+  feature the tracker's unknown-occluder map covers, :mod:`cellsight.tracking.unknown`);
+  ``unknown_c{c}``: that map's occluded cells after the frame (:func:`encode_grid`; empty when
+  none, and in runs logged before it); ``grab_c{c}``: fraction of the
   image's pixels grabbed; ``err_px_c{c}``: median distance (px) of this frame's measurements
   from the true projections (rendered sensor); the track's health over its sliding window
   (:mod:`cellsight.tracking.health`; empty while it is not tracked or not judged):
@@ -55,13 +59,14 @@ import numpy as np
 from cellsight.geometry.transforms import xyz_rpy_from_pose
 from cellsight.runfolder.writes import write_error
 from cellsight.tracking.timing import STAGES
+from cellsight.tracking.unknown import Grid
 
 POSE = ("x", "y", "z", "roll", "pitch", "yaw")
 """The six pose columns after a prefix: position (m), roll-pitch-yaw (rad)."""
 POSE_PREFIXES = ("true", "est", "pnp")
 GRIPPER = ("gripper_x", "gripper_y", "gripper_z", "jaw_opening", "jaws_closed", "grasped")
 PER_CAMERA = ("vis_pred", "vis_true", "sel", "meas", "rej", "wrong", "occ_pred", "occ_true",
-              "grab", "err_px", "nis", "notfound", "rejfrac")
+              "grab", "err_px", "nis", "notfound", "rejfrac", "unknown")
 WRONG_PX = 3.0  # a measurement this far (px) from the true projection is another image point
 LABEL_SEPARATOR = ";"
 
@@ -112,6 +117,29 @@ def decode_bits(text: str) -> np.ndarray:
     """A '0'/'1' string as a boolean mask (the inverse of :func:`encode_bits`)."""
     return np.frombuffer(text.encode(), dtype=np.uint8) == ord("1")
 
+
+def encode_grid(grid: Grid) -> str:
+    """A :class:`~cellsight.tracking.unknown.Grid` as text:
+    ``"<rows>x<columns>@<pitch_px>:<hex>"``, the row-major bits packed big-endian into bytes;
+    empty when no cell is set."""
+    cells = np.asarray(grid.cells, dtype=bool)
+    if not cells.any():
+        return ""
+    bits = np.packbits(cells.ravel()).tobytes().hex()
+    return f"{cells.shape[0]}x{cells.shape[1]}@{int(grid.pitch_px)}:{bits}"
+
+
+def decode_grid(text: str) -> Grid | None:
+    """The grid of :func:`encode_grid`; None for an empty text. A text of another
+    form is a ValueError quoting it."""
+    if not text:
+        return None
+    match = re.fullmatch(r"(\d+)x(\d+)@(\d+):([0-9a-f]*)", text)
+    rows, cols = (int(match[1]), int(match[2])) if match else (0, 0)
+    if match is None or len(match[4]) != 2 * (-(-rows * cols // 8)):
+        raise ValueError(f"grid {text[:40]!r}: not <rows>x<columns>@<pitch>:<hex of the bits>")
+    bits = np.unpackbits(np.frombuffer(bytes.fromhex(match[4]), dtype=np.uint8))
+    return Grid(bits[: rows * cols].reshape(rows, cols).astype(bool), int(match[3]))
 
 def encode_labels(labels: Sequence[str]) -> str:
     """Per-feature labels ('' for none) as one field."""
@@ -240,6 +268,10 @@ class FrameLog:
                     raise ValueError(f"{name} row {i}: {len(parts)} labels, expected {F}")
                 out[i] = parts
         return out
+
+    def grids(self, name: str) -> list[Grid | None]:
+        """A grid column (:func:`encode_grid`) per row: the grid, or None where empty."""
+        return [decode_grid(s) for s in self.text(name)]
 
     def poses(self, prefix: str) -> np.ndarray:
         """(N, 6) ``{prefix}_x .. {prefix}_yaw`` (m, rad), NaN rows where missing."""

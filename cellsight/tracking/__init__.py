@@ -24,6 +24,8 @@ from cellsight.tracking.interfaces import (
     HealthCheck,
     MeasurementModel,
     MotionModel,
+    OccluderMap,
+    OccluderMemory,
     Selector,
     TrackHealth,
     TrackMonitor,
@@ -50,10 +52,12 @@ from cellsight.tracking.selection import (
 from cellsight.tracking.status import TrackStatus
 from cellsight.tracking.timing import STAGES
 from cellsight.tracking.tracker import StepContext, Tracker
+from cellsight.tracking.unknown import UNKNOWN_LABEL, Grid, UnknownOccluderRule, UnknownOccluders
 from cellsight.tracking.windowing import CovarianceWindows, WindowConfig, WindowPlan, plan_windows
 
 __all__ = [
     "STAGES",
+    "UNKNOWN_LABEL",
     "Acquisition",
     "AdaptiveNoise",
     "ChiSquareGate",
@@ -63,6 +67,7 @@ __all__ = [
     "ExtractionConfig",
     "Extractor",
     "Gate",
+    "Grid",
     "HealthCheck",
     "HealthMonitor",
     "HealthRule",
@@ -70,6 +75,8 @@ __all__ = [
     "MeasurementModel",
     "MotionModel",
     "Observation",
+    "OccluderMap",
+    "OccluderMemory",
     "OptimalSelector",
     "PartFrame",
     "PinholeMeasurement",
@@ -88,6 +95,8 @@ __all__ = [
     "TrackerFrame",
     "TrackerParts",
     "TrackStatus",
+    "UnknownOccluderRule",
+    "UnknownOccluders",
     "UpdateReport",
     "WindowPlanner",
     "WindowConfig",

@@ -1,7 +1,7 @@
 """What a :class:`~cellsight.tracking.Tracker` is made of: its parts (:class:`TrackerParts`,
 each a protocol of :mod:`.interfaces` with its default implementation) and its plain numbers
 (:class:`TrackerConfig`). The defaults are the paper's tracker with this package's additions
-(gate, acquisition, loss, health, near-occluder hold)."""
+(gate, acquisition, loss, health, unknown occluders, near-occluder hold)."""
 
 from __future__ import annotations
 
@@ -18,6 +18,7 @@ from cellsight.tracking.interfaces import (
     HealthCheck,
     MeasurementModel,
     MotionModel,
+    OccluderMemory,
     Selector,
     TrackHealth,
     WindowPlanner,
@@ -26,6 +27,7 @@ from cellsight.tracking.loss import LossRule
 from cellsight.tracking.measurement import PinholeMeasurement
 from cellsight.tracking.motion import ConstantVelocity
 from cellsight.tracking.selection import OptimalSelector
+from cellsight.tracking.unknown import UnknownOccluderRule
 from cellsight.tracking.windowing import CovarianceWindows
 
 
@@ -35,7 +37,8 @@ class TrackerParts:
 
     ``motion`` predicts each filter; ``loss`` says when a track coasts and when it is lost;
     ``health`` makes each track's health monitor, which says when a tracked part is degraded;
-    ``selector`` chooses the features to measure; ``windows`` plans their image windows;
+    ``unknown`` makes the map of unknown occluders that the selection avoids; ``selector``
+    chooses the features to measure; ``windows`` plans their image windows;
     ``gate`` screens the innovations (None accepts every measurement); ``acquisition`` starts a
     filter from one frame's measurements; ``measurement`` builds a camera's measurement model
     from the camera and the pixel noise ``TrackerConfig.sigma_px`` (px). The extractor (the
@@ -45,6 +48,7 @@ class TrackerParts:
     motion: MotionModel = ConstantVelocity()
     loss: TrackHealth = LossRule()
     health: HealthCheck = HealthRule()
+    unknown: OccluderMemory = UnknownOccluderRule()
     selector: Selector = OptimalSelector()
     windows: WindowPlanner = CovarianceWindows()
     gate: Gate | None = ChiSquareGate(0.999)
@@ -61,10 +65,15 @@ class TrackerConfig:
     (:class:`~cellsight.tracking.ekf.AdaptiveNoise`); ``carried_noise``: random-walk densities of
     a held part's pose relative to its holder, with the kinematic prior (``holders`` in
     :meth:`Tracker.step`); ``near_occluder_hold_s``: how long a feature stays unusable after it
-    was last flagged ``near_occluder`` (:mod:`.eligibility`).
+    was last flagged ``near_occluder`` (:mod:`.eligibility`); ``resume_support``: how many
+    features the gate must accept together in the first update after a tracked frame without
+    one (a coasting track's prediction is wide, and a lone intruder's corner fits it: in the
+    realistic world one such corner threw the velocity off by 0.5 m/s;
+    :class:`~cellsight.tracking.gate.SupportedGate`).
     """
 
     sigma_px: float = 0.5
     adaptive_noise: bool = False
     carried_noise: tuple[float, float] = (1e-6, 1e-5)
     near_occluder_hold_s: float = 0.5
+    resume_support: int = 3

@@ -10,10 +10,14 @@ chi-square quantile with 2 degrees of freedom at ``probability``.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numba
 import numpy as np
 from scipy.stats import chi2
+
+if TYPE_CHECKING:
+    from cellsight.tracking.interfaces import Gate
 
 
 @dataclass(frozen=True)
@@ -33,6 +37,21 @@ class ChiSquareGate:
     def accepts(self, mahalanobis2: np.ndarray) -> np.ndarray:
         """Boolean mask (m,): which squared Mahalanobis distances pass."""
         return np.asarray(mahalanobis2) <= self.threshold
+
+
+@dataclass(frozen=True)
+class SupportedGate:
+    """What ``gate`` accepts (everything when None), provided at least ``min_support``
+    features pass together; otherwise none."""
+
+    gate: Gate | None
+    min_support: int
+
+    def accepts(self, mahalanobis2: np.ndarray) -> np.ndarray:
+        """Boolean mask (m,): which squared Mahalanobis distances pass."""
+        d2 = np.asarray(mahalanobis2)
+        passed = np.ones(d2.shape, dtype=bool) if self.gate is None else self.gate.accepts(d2)
+        return passed if passed.sum() >= self.min_support else np.zeros_like(passed)
 
 
 @numba.njit(cache=True)

@@ -14,12 +14,16 @@ Per camera, over the frames of the last ``window_s`` seconds:
   below the band (a filter more cautious than its measurements) is reported, not judged;
 - *not found*: the fraction of the selected, predicted-visible features that the extractor
   did not find;
-- *rejected*: the fraction of the measured features that the gate rejected.
+- *rejected*: the fraction of the measured features that the gate rejected;
+- *unknown*: the fraction of the predicted-visible features that the unknown-occluder map
+  (:mod:`.unknown`) covers: they are neither selected nor counted as not found, so a camera
+  an intruder blinds is reported by this figure.
 
 A figure is judged once its camera has ``min_measurements`` of what it counts in the window
 (accepted measurements; selected visible features; measured features). A track whose figures
 pass a limit is inconsistent: the report says why, one reason per camera and figure, e.g.
-``NIS 6.3x in cam2``, ``60% not found in cam1``, ``35% rejected in cam1``.
+``NIS 6.3x in cam2``, ``60% not found in cam1``, ``35% rejected in cam1``, ``80% under
+unknown occluders in cam1``.
 """
 
 from __future__ import annotations
@@ -32,7 +36,8 @@ from functools import lru_cache
 import numpy as np
 from scipy.stats import chi2
 
-_NIS, _ACCEPTED, _SELECTED, _MISSING, _MEASURED, _REJECTED = range(6)  # rows of a frame's counts
+# rows of a frame's counts
+_NIS, _ACCEPTED, _SELECTED, _MISSING, _MEASURED, _REJECTED, _VISIBLE, _UNKNOWN = range(8)
 _TIME_TOLERANCE_S = 1e-9  # a frame exactly ``window_s`` old has left the window
 
 
@@ -52,7 +57,9 @@ class TrackHealthReport:
     freedom (2 per accepted measurement); ``nis_above`` / ``nis_below``: the NIS sum outside
     the chi-square band; ``missing_fraction``: selected visible features not found (NaN when
     none was selected); ``rejected_fraction``: measured features gated out (NaN when none was
-    measured); ``reasons``: why the track is inconsistent (empty when it is not).
+    measured); ``reasons``: why the track is inconsistent (empty when it is not);
+    ``unknown_fraction``: predicted-visible features under the unknown-occluder map (NaN when
+    none was predicted visible).
     """
 
     nis_ratio: np.ndarray
@@ -62,6 +69,7 @@ class TrackHealthReport:
     missing_fraction: np.ndarray
     rejected_fraction: np.ndarray
     reasons: tuple[str, ...] = ()
+    unknown_fraction: np.ndarray | None = None
 
     @property
     def degraded(self) -> bool:
@@ -74,9 +82,9 @@ class HealthRule:
     """The health monitor's window and limits. ``window_s`` (s): the sliding window;
     ``band_probability`` in (0, 1): the chi-square band's coverage; ``nis_ratio_limit``: NIS /
     dof from which a sum above the band is inconsistent; ``missing_limit``,
-    ``rejected_limit`` in [0, 1]: fractions above which a camera's features are too often not
-    found, or rejected; ``min_measurements``: what a camera needs in the window before it is
-    judged (module docstring).
+    ``rejected_limit``, ``unknown_limit`` in [0, 1]: fractions above which a camera's features
+    are too often not found, rejected, or under unknown occluders; ``min_measurements``: what a
+    camera needs in the window before it is judged (module docstring).
 
     The defaults come from rendered runs of experiments 1-3 (issue 24): on the ``exact`` and
     ``lab`` worlds a camera's window reaches at most NIS 1.3x (typically below 0.6x: the motion
@@ -90,6 +98,7 @@ class HealthRule:
     nis_ratio_limit: float = 2.0
     missing_limit: float = 0.5
     rejected_limit: float = 0.4
+    unknown_limit: float = 0.5
     min_measurements: int = 10
 
     def __post_init__(self) -> None:
@@ -99,6 +108,7 @@ class HealthRule:
             "nis_ratio_limit": self.nis_ratio_limit > 0,
             "missing_limit": 0 <= self.missing_limit <= 1,
             "rejected_limit": 0 <= self.rejected_limit <= 1,
+            "unknown_limit": 0 <= self.unknown_limit <= 1,
             "min_measurements": self.min_measurements >= 1,
         }
         for name, ok in checks.items():
@@ -124,19 +134,24 @@ class HealthMonitor:
         self._frames.clear()
 
     def update(self, t: float, visible: np.ndarray, selected: np.ndarray, measured: np.ndarray,
-               rejected: np.ndarray, mahalanobis2: np.ndarray) -> TrackHealthReport:
+               rejected: np.ndarray, mahalanobis2: np.ndarray,
+               unknown: np.ndarray | None = None) -> TrackHealthReport:
         """Add the frame at time ``t`` (s) and report over the window ending there. Per
         camera and feature (C, F): ``visible`` predicted visible, ``selected`` chosen,
         ``measured`` (C, F, 2) px (NaN where not found), ``rejected`` gated out,
-        ``mahalanobis2`` the gate's distance of each measured feature."""
+        ``mahalanobis2`` the gate's distance of each measured feature, ``unknown`` under the
+        unknown-occluder map (None: none is)."""
         found = np.isfinite(np.asarray(measured, dtype=float)[..., 0])
         looked = np.asarray(selected, dtype=bool) & np.asarray(visible, dtype=bool)
         rejected = np.asarray(rejected, dtype=bool) & found
         accepted = found & ~rejected
         d2 = np.where(accepted, np.nan_to_num(np.asarray(mahalanobis2, dtype=float)), 0.0)
+        visible = np.asarray(visible, dtype=bool)
+        covered = visible & (False if unknown is None else np.asarray(unknown, dtype=bool))
         counts = np.stack([d2.sum(axis=1), accepted.sum(axis=1), looked.sum(axis=1),
                            (looked & ~found).sum(axis=1), found.sum(axis=1),
-                           rejected.sum(axis=1)]).astype(float)
+                           rejected.sum(axis=1), visible.sum(axis=1),
+                           covered.sum(axis=1)]).astype(float)
         self._frames.append((float(t), counts))
         while self._frames and self._frames[0][0] <= t - self.rule.window_s + _TIME_TOLERANCE_S:
             self._frames.popleft()
@@ -146,22 +161,27 @@ class HealthMonitor:
         """The figures and reasons over the frames in the window (all NaN when empty)."""
         rule = self.rule
         C = len(self.cameras)
-        total = sum((counts for _, counts in self._frames), np.zeros((6, C)))
+        total = sum((counts for _, counts in self._frames), np.zeros((8, C)))
         dof = 2 * total[_ACCEPTED].astype(int)
         with np.errstate(invalid="ignore", divide="ignore"):
             ratio = total[_NIS] / dof
             missing = total[_MISSING] / total[_SELECTED]
             rejected = total[_REJECTED] / total[_MEASURED]
+            unknown = total[_UNKNOWN] / total[_VISIBLE]
         bands = np.array([nis_band(int(n), rule.band_probability) if n else (np.nan, np.nan)
                           for n in dof]).reshape(C, 2)
         above, below = total[_NIS] > bands[:, 1], total[_NIS] < bands[:, 0]
         judged = {k: total[k] >= rule.min_measurements for k in (_ACCEPTED, _SELECTED,
-                                                                _MEASURED)}
+                                                                _MEASURED, _VISIBLE)}
         reasons = (
             [f"NIS {ratio[c]:.1f}x in {cam}" for c, cam in enumerate(self.cameras)
              if judged[_ACCEPTED][c] and above[c] and ratio[c] >= rule.nis_ratio_limit]
             + [f"{100 * missing[c]:.0f}% not found in {cam}" for c, cam in enumerate(self.cameras)
                if judged[_SELECTED][c] and missing[c] > rule.missing_limit]
             + [f"{100 * rejected[c]:.0f}% rejected in {cam}" for c, cam in enumerate(self.cameras)
-               if judged[_MEASURED][c] and rejected[c] > rule.rejected_limit])
-        return TrackHealthReport(ratio, dof, above, below, missing, rejected, tuple(reasons))
+               if judged[_MEASURED][c] and rejected[c] > rule.rejected_limit]
+            + [f"{100 * unknown[c]:.0f}% under unknown occluders in {cam}"
+               for c, cam in enumerate(self.cameras)
+               if judged[_VISIBLE][c] and unknown[c] > rule.unknown_limit])
+        return TrackHealthReport(ratio, dof, above, below, missing, rejected, tuple(reasons),
+                                 unknown)

@@ -18,6 +18,8 @@ protocol                      default
 :class:`TrackHealth`          :class:`~cellsight.tracking.loss.LossRule`
 :class:`HealthCheck`          :class:`~cellsight.tracking.health.HealthRule`
 :class:`TrackMonitor`         :class:`~cellsight.tracking.health.HealthMonitor`
+:class:`OccluderMemory`       :class:`~cellsight.tracking.unknown.UnknownOccluderRule`
+:class:`OccluderMap`          :class:`~cellsight.tracking.unknown.UnknownOccluders`
 ============================  ===========================================================
 
 Conventions: C cameras in the tracker's order, F features of one workpiece, pixels ``(u, v)``
@@ -37,6 +39,7 @@ from cellsight.tracking.health import TrackHealthReport
 from cellsight.tracking.measurement import Observation
 from cellsight.tracking.pnp import PoseFix
 from cellsight.tracking.selection import Selection
+from cellsight.tracking.unknown import Grid
 from cellsight.tracking.windowing import WindowPlan
 
 
@@ -163,11 +166,12 @@ class TrackMonitor(Protocol):
         ...
 
     def update(self, t: float, visible: np.ndarray, selected: np.ndarray, measured: np.ndarray,
-               rejected: np.ndarray, mahalanobis2: np.ndarray) -> TrackHealthReport:
+               rejected: np.ndarray, mahalanobis2: np.ndarray,
+               unknown: np.ndarray | None = None) -> TrackHealthReport:
         """Add the frame at time ``t`` (s), the record's arrays per camera and feature (C, F):
         predicted ``visible``, ``selected``, ``measured`` (C, F, 2) px (NaN where not found),
-        gate-``rejected`` and the gate's ``mahalanobis2``; the report, whose reasons make a
-        tracked frame degraded."""
+        gate-``rejected``, the gate's ``mahalanobis2`` and ``unknown`` (under the
+        unknown-occluder map); the report, whose reasons make a tracked frame degraded."""
         ...
 
 
@@ -176,4 +180,36 @@ class HealthCheck(Protocol):
 
     def monitor(self, cameras: Sequence[str]) -> TrackMonitor:
         """A new monitor for one track seen by ``cameras`` (names, in the tracker's order)."""
+        ...
+
+
+class OccluderMap(Protocol):
+    """Where, per camera, something the cell file does not know hides the workpieces
+    (:mod:`cellsight.tracking.unknown`); shared by every part of one tracker."""
+
+    def covered(self, c: int, pixels: np.ndarray, t: float) -> np.ndarray:
+        """(n,) bool: which ``pixels`` (n, 2) px of camera ``c`` an unknown occluder covers at
+        time ``t`` (s)."""
+        ...
+
+    def learn(self, c: int, t: float, failed: np.ndarray) -> None:
+        """Camera ``c`` at time ``t`` (s): features looked for at the predicted pixels
+        ``failed`` (n, 2) px were not found, or rejected where the camera accepted none."""
+        ...
+
+    def mask(self, c: int, t: float) -> Grid:
+        """Camera ``c``'s occluded cells at time ``t`` (s)."""
+        ...
+
+
+class OccluderMemory(Protocol):
+    """Makes a tracker's unknown-occluder map (:mod:`cellsight.tracking.unknown`)."""
+
+    min_accepted: int
+    trust_s: float
+
+    def maps(self, cameras: Sequence[Camera]) -> OccluderMap:
+        """Empty maps for ``cameras`` (the tracker's order); a frame's failures are learnt
+        only within ``trust_s`` seconds of a frame whose update accepted ``min_accepted``
+        measurements of the part."""
         ...

@@ -9,6 +9,7 @@ import numpy as np
 from cellsight.tracking.health import TrackHealthReport
 from cellsight.tracking.selection import Selection
 from cellsight.tracking.status import TrackStatus
+from cellsight.tracking.unknown import UNKNOWN_LABEL, Grid
 from cellsight.tracking.windowing import WindowPlan
 from cellsight.visibility import CameraVisibility
 
@@ -20,8 +21,10 @@ class PartFrame:
     ``status``: see :class:`TrackStatus`. ``views``: the visibility source's answer for this
     part, one per camera (empty when nothing was predicted); ``visible``/``pixels``: its
     prediction at the predicted (or guessed) pose; ``near_occluder``: visible but next to
-    another object's silhouette (not selectable); ``selected``: features whose windows were
-    planned; ``windows``: one plan per camera; ``measured``: extracted pixels (NaN where none);
+    another object's silhouette (not selectable); ``unknown``: predicted visible, but under an
+    unknown occluder learnt online (:mod:`.unknown`; not selectable); ``selected``: features
+    whose windows were planned; ``windows``: one plan per camera; ``measured``: extracted
+    pixels (NaN where none);
     ``innovation`` (px), ``mahalanobis2`` and ``rejected`` (gated out); ``state``/``covariance``/
     ``T_base_part`` after the update (None while waiting); ``predicted_state`` before it;
     ``health``: the health monitor's report (:mod:`.health`; None where the part was not
@@ -33,6 +36,7 @@ class PartFrame:
     visible: np.ndarray
     pixels: np.ndarray
     near_occluder: np.ndarray
+    unknown: np.ndarray
     selected: np.ndarray
     selection: Selection | None
     windows: list[WindowPlan | None]
@@ -60,6 +64,7 @@ class PartFrame:
             visible=np.zeros((C, F), dtype=bool),
             pixels=np.full((C, F, 2), np.nan),
             near_occluder=np.zeros((C, F), dtype=bool),
+            unknown=np.zeros((C, F), dtype=bool),
             selected=np.zeros((C, F), dtype=bool),
             selection=None,
             windows=[None] * C,
@@ -90,18 +95,29 @@ class PartFrame:
         return self.status.value
 
     @property
+    def predicted_visible(self) -> np.ndarray:
+        """(C, F) bool: what the tracker expects to see: predicted visible by the visibility
+        source and not under an unknown occluder."""
+        return self.visible & ~self.unknown
+
+    @property
     def reasons(self) -> list[list[str]]:
         """Per camera, per feature: '' when predicted visible, else why it is hidden
-        (:attr:`CameraVisibility.reason`); empty when nothing was predicted."""
-        return [view.reason for view in self.views]
+        (:attr:`CameraVisibility.reason`, or ``unknown`` under an unknown occluder); empty when
+        nothing was predicted."""
+        return [[UNKNOWN_LABEL if self.unknown[c, f] else reason
+                 for f, reason in enumerate(view.reason)]
+                for c, view in enumerate(self.views)]
 
 
 @dataclass
 class TrackerFrame:
     """One step: time (s), per-part records, stage times (s, keyed by
-    :data:`cellsight.tracking.timing.STAGES`) and the fraction of each camera's pixels grabbed."""
+    :data:`cellsight.tracking.timing.STAGES`), the fraction of each camera's pixels grabbed and
+    each camera's unknown-occluder map after the step (:mod:`.unknown`)."""
 
     t: float
     parts: dict[str, PartFrame]
     timings: dict[str, float]
     grabbed_fraction: np.ndarray
+    unknown: list[Grid] = field(default_factory=list)

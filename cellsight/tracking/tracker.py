@@ -15,7 +15,9 @@ protocol of :mod:`.interfaces` with its default in its own module):
    what the sensors took (:mod:`.extraction`), the gate (:mod:`.gate`) screens the innovations
    and the EKF updates with the accepted ones (:mod:`.measurement`, :mod:`.ekf`); the track's
    health monitor (:mod:`.health`) takes the frame's outcome, and a tracked part whose figures
-   pass its limits is degraded.
+   pass its limits is degraded; the unknown-occluder map (:mod:`.unknown`, shared by the
+   parts) learns from the features not found, and no feature it covers is selected or used
+   for acquisition.
 
 Within a step, each part's work carries one :class:`StepContext`. Measured pixels are as in the
 image (distorted); the camera undistorts them before the update. Stage times: :mod:`.timing`;
@@ -36,6 +38,7 @@ from cellsight.tracking.config import TrackerConfig, TrackerParts
 from cellsight.tracking.ekf import AdaptiveNoise, PoseEKF, UpdateReport
 from cellsight.tracking.eligibility import NearOccluderHold
 from cellsight.tracking.extraction import CornerExtractor
+from cellsight.tracking.gate import SupportedGate
 from cellsight.tracking.interfaces import Acquisition, Extractor, TrackMonitor
 from cellsight.tracking.measurement import Observation
 from cellsight.tracking.motion import POSE_DIM
@@ -54,7 +57,9 @@ must avoid), and each part's (first row, its visible feature indices) in them.""
 class _Track:
     """One workpiece's track: feature points (F, 3) in the part frame, the acquisition guess,
     the near-occluder hold, the health monitor, the filter, the last accepted measurement's
-    time (s) and the holder's pose last frame."""
+    time (s), the holder's pose last frame, whether the last tracked frame accepted no
+    measurement (``coasted``) and the last time (s) enough were accepted to confirm the
+    estimate for the unknown-occluder map (``confirmed``)."""
 
     points: np.ndarray
     guess: np.ndarray | None
@@ -66,6 +71,8 @@ class _Track:
     last_update: float = -np.inf
     lost: bool = False
     holder: np.ndarray | None = None
+    coasted: bool = False
+    confirmed: float = -np.inf
 
     @property
     def acquiring(self) -> bool:
@@ -132,6 +139,7 @@ class Tracker:
         self.extractor = extractor or CornerExtractor()
         self._models = [self.components.measurement(c, self.config.sigma_px)
                         for c in self.cameras]
+        self.unknown = self.components.unknown.maps(self.cameras)
         guesses = dict(initial_poses or {})
         names = [c.name for c in self.cameras]
         self.tracks = {
@@ -180,6 +188,7 @@ class Tracker:
         track.ekf = PoseEKF(self.components.motion, state, covariance, t, adaptive)
         track.last_update = float(t)
         track.lost = False
+        track.coasted = False
         track.monitor.reset()
 
     def step(
@@ -216,7 +225,9 @@ class Tracker:
                 if part_views is not None:
                     context = StepContext(t, observed, crowd, timer, track, rec)
                     (self._acquire if track.acquiring else self._track)(context)
-        return TrackerFrame(float(t), records, timer.seconds, _grabbed(records, len(self.cameras)))
+        masks = [self.unknown.mask(c, t) for c in range(len(self.cameras))]
+        return TrackerFrame(float(t), records, timer.seconds, _grabbed(records, len(self.cameras)),
+                            masks)
 
     def _predict(self, t: float, holders: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
         """Predict every tracked part to time ``t``; the pose each is looked for at (the
@@ -259,7 +270,7 @@ class Tracker:
         rec, track, timer = context.rec, context.track, context.timer
         ekf = track.ekf
         with timer("selection"):
-            usable = track.hold.usable(rec.visible, rec.near_occluder, ekf.t)
+            usable = self._usable(context, ekf.t)
             sel = self.components.selector.select(rec.pixels, usable, self._resolution(track))
             rec.selection, rec.selected = sel, sel.selected
 
@@ -268,15 +279,43 @@ class Tracker:
 
         obs = self._measure(context, covariance)
         with timer("ekf"):
-            report = ekf.update(obs, self.components.gate)
+            gate = self.components.gate
+            if track.coasted:
+                gate = SupportedGate(gate, self.config.resume_support)
+            report = ekf.update(obs, gate)
+            track.coasted = report.n_accepted == 0
             _record_update(rec, report)
             looked = rec.selected & self._grabbed(context.observed)[:, None]
             rec.health = track.monitor.update(context.t, rec.visible, looked, rec.measured,
-                                              rec.rejected, rec.mahalanobis2)
+                                              rec.rejected, rec.mahalanobis2, rec.unknown)
+            unknown = self.components.unknown
+            if report.n_accepted >= unknown.min_accepted:
+                track.confirmed = context.t
+            if context.t - track.confirmed <= unknown.trust_s:
+                self._learn_unknown(context.t, rec, looked)
         if report.n_accepted:
             track.last_update = ekf.t
             rec.status = TrackStatus.DEGRADED if rec.health.reasons else TrackStatus.TRACKING
         _record_estimate(rec, ekf)
+
+    def _usable(self, context: StepContext, t_hold: float) -> np.ndarray:
+        """(C, F) bool: the features that may be measured: predicted visible, not held back
+        next to an occluder at time ``t_hold`` (s; :mod:`.eligibility`) and not under an
+        unknown occluder (recorded in ``rec.unknown``)."""
+        rec = context.rec
+        for c in range(len(self.cameras)):
+            rec.unknown[c] = rec.visible[c] & self.unknown.covered(c, rec.pixels[c], context.t)
+        return context.track.hold.usable(rec.visible, rec.near_occluder, t_hold) & ~rec.unknown
+
+    def _learn_unknown(self, t: float, rec: PartFrame, looked: np.ndarray) -> None:
+        """Teach the unknown-occluder map this frame's failures: per camera, the predicted
+        pixels of the looked-for features not found, or rejected where the camera had none of
+        the part's corners accepted (:mod:`.unknown`)."""
+        found = np.isfinite(rec.measured[..., 0])
+        blinded = ~(found & ~rec.rejected).any(axis=1, keepdims=True)
+        failed = looked & (~found | (rec.rejected & blinded))
+        for c in np.flatnonzero(failed.any(axis=1)):
+            self.unknown.learn(int(c), t, rec.pixels[c, failed[c]])
 
     def _grabbed(self, observed: Any) -> np.ndarray:
         """(C,) bool: the cameras that gave something this frame (a dropped frame's camera
@@ -295,7 +334,7 @@ class Tracker:
         """Windows of a fixed size on every usable feature, then a fix (:mod:`.acquisition`)."""
         rec, track = context.rec, context.track
         acquisition = self.components.acquisition
-        rec.selected = track.hold.usable(rec.visible, rec.near_occluder, context.t)
+        rec.selected = self._usable(context, context.t)
 
         def covariance(c: int, idx: np.ndarray) -> np.ndarray:
             return np.zeros((len(idx), 2, 2))
