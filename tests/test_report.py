@@ -19,9 +19,9 @@ from cellsight.report import overlay
 from cellsight.report.overlay import compose_views, draw_camera_overlay
 from cellsight.report.run_report import (
     Run,
-    load_run,
     orientation_error_deg,
     position_error_mm,
+    report_inputs,
     runs_of,
     write_report,
 )
@@ -222,7 +222,7 @@ def full_run(tmp_path) -> Path:
 
 
 def test_frames_keep_flag_strings_and_missing_values(full_run):
-    run = load_run(full_run)
+    run = report_inputs(full_run)
     assert run.frames.n == 40 and run.cameras == list(CAMERAS) and run.n_features == F
     vis = run.frames.bits("vis_pred_c1", F)
     assert vis.shape == (40, F) and not vis[:, 0].any() and vis[3:].any()
@@ -282,6 +282,6 @@ def test_write_report_partial_run(tmp_path):
         {"experiment": 2, "seed": 1, "interrupted": True, "frames": 4}))
     page = write_report(run_dir).read_text()
     assert "Partial run" in page and "experiment 2 · seed 1" in page
-    assert load_run(run_dir).cameras == ["cam1", "cam2"]
+    assert report_inputs(run_dir).cameras == ["cam1", "cam2"]
     assert (run_dir / "fig_visibility_cam2.png").exists()
     assert page.count("data:image/png;base64,") == 7

@@ -74,7 +74,7 @@ class Run:
         return np.append(t, t[-1] + dt) if len(t) else t
 
 
-def load_run(run_dir: Path, metrics: dict | None = None) -> Run:
+def report_inputs(run_dir: Path, metrics: dict | None = None) -> Run:
     """Read ``frames.csv`` and ``metrics.json`` (either may be absent in a partial run);
     ``metrics``: the run's metrics as they will be written (the run writes its
     ``metrics.json`` last), instead of the file."""
@@ -539,10 +539,11 @@ def _header_html(run: Run) -> str:
 def write_report(run_dir: Path, metrics: dict | None = None) -> Path:
     """Write the figures (``fig_*.png``) and ``report.html`` into ``run_dir``; returns the
     report's path. Works on partial runs (few frames, short or missing ``metrics.json``).
-    ``metrics``: the run's metrics, when its ``metrics.json`` is not written yet (:func:`load_run`).
+    ``metrics``: the run's metrics, when its ``metrics.json`` is not written yet
+    (:func:`report_inputs`).
     Each file is written whole or not at all; a failure is a
     :class:`~cellsight.runfolder.writes.WriteError` naming it."""
-    run = load_run(Path(run_dir), metrics)
+    run = report_inputs(Path(run_dir), metrics)
     body = "".join([_header_html(run), _metrics_html(run.metrics),
                     _figures_html(write_figures(run)), _keyframes_html(run.dir),
                     _video_html(run.dir), _log_html(run.dir)])

@@ -23,6 +23,7 @@ import numpy as np
 from cellsight.camera import Camera
 from cellsight.model.cell import Cell
 from cellsight.report.overlay import draw_camera_overlay
+from cellsight.tracking.unknown import Grid
 from cellsight.tracking.windowing import plan_windows
 from cellsight.view.states import FeatureState, FrameState
 
@@ -43,10 +44,11 @@ def window_boxes(camera: Camera, pixels: np.ndarray, visible: np.ndarray,
 
 
 def draw_view(image: np.ndarray, camera: Camera, c: int,
-              features: dict[str, FeatureState]) -> np.ndarray:
+              features: dict[str, FeatureState], unknown: Grid | None = None) -> np.ndarray:
     """Camera ``c``'s grayscale image with every workpiece's features drawn on it: predicted
     visible (green) or hidden (red), selected (yellow ring), windows (blue), measurements
-    (crosses), and where the prediction disagrees with the ray-cast truth (magenta)."""
+    (crosses), where the prediction disagrees with the ray-cast truth (magenta), and the
+    tracker's unknown-occluder map ``unknown`` (shaded orange)."""
     out = image
     for feats in features.values():
         F = feats.pixels.shape[1]
@@ -61,7 +63,9 @@ def draw_view(image: np.ndarray, camera: Camera, c: int,
             out, pixels=feats.pixels[c], visible=feats.visible[c], selected=row(feats.selected),
             measured=measured, rejected=row(feats.rejected),
             boxes=window_boxes(camera, feats.pixels[c], feats.visible[c], row(feats.selected)),
-            title=camera.name, truth_visible=None if feats.truth is None else feats.truth[c])
+            title=camera.name, truth_visible=None if feats.truth is None else feats.truth[c],
+            unknown=unknown)
+        unknown = None  # shaded once
     return out
 
 
@@ -82,7 +86,8 @@ class CameraImages:
             self._world = ReplayWorld(self.cell)
         self._world.show_state(state.joints, state.part_poses, state.openings)
         images = self._world.render()
-        return [draw_view(img, cam, c, state.features)
+        return [draw_view(img, cam, c, state.features,
+                          state.unknown[c] if c < len(state.unknown) else None)
                 for c, (img, cam) in enumerate(zip(images, self.cell.cameras, strict=True))]
 
     def close(self) -> None:

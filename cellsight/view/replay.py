@@ -12,6 +12,7 @@ import numpy as np
 
 from cellsight.geometry.transforms import transform_points
 from cellsight.runfolder import load_run
+from cellsight.runfolder.framelog import camera_column
 from cellsight.view.states import FeatureState, FrameState
 
 BIT_COLUMNS = ("vis_pred", "vis_true", "sel", "meas", "rej")
@@ -31,6 +32,8 @@ class RunReplay:
         self.part, self.robot = self.run.part.name, self.run.robot
         self.bits = {name: self.run.bits(name) for name in BIT_COLUMNS}
         self.text = {k: self.run.frames.text(k) for k in ("phase", "stage", "status")}
+        self.unknown = [self.run.frames.grids(camera_column("unknown", c + 1))
+                        for c in range(len(self.cell.cameras))]
         self.n, self.t = self.run.n, self.run.t
 
     def frame_at(self, t: float) -> int:
@@ -64,4 +67,5 @@ class RunReplay:
             rejected=bits["rej"][k],
             measured_pixels=np.array([cam.project(truth) for cam in cell.cameras]))
         return FrameState(joints, {self.part: true}, openings, estimates,
-                          {self.part: features}, self.caption(k))
+                          {self.part: features}, self.caption(k),
+                          [grids[k] for grids in self.unknown])

@@ -13,6 +13,7 @@ import numpy as np
 
 from cellsight.model.cell import Cell
 from cellsight.occlusion.predictor import VisibilityPredictor
+from cellsight.tracking.unknown import Grid
 
 
 @dataclass
@@ -47,7 +48,9 @@ class FeatureState:
 class FrameState:
     """The shown instant: robot name -> joints, workpiece name -> true ``T_base_part``, robot
     name -> jaw opening (m), workpiece name -> estimated ``T_base_part`` (only those with an
-    estimate), workpiece name -> :class:`FeatureState`, and a caption (time, phase, status)."""
+    estimate), workpiece name -> :class:`FeatureState`, a caption (time, phase, status) and,
+    per camera, the tracker's unknown-occluder map (:class:`~cellsight.tracking.unknown.Grid`,
+    None where empty; none outside a run)."""
 
     joints: dict[str, np.ndarray]
     part_poses: dict[str, np.ndarray]
@@ -55,6 +58,7 @@ class FrameState:
     estimates: dict[str, np.ndarray] = field(default_factory=dict)
     features: dict[str, FeatureState] = field(default_factory=dict)
     caption: str = ""
+    unknown: list[Grid | None] = field(default_factory=list)
 
 
 def static_state(cell: Cell, joints: Mapping[str, np.ndarray] | None = None,
