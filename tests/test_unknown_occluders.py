@@ -137,7 +137,8 @@ def test_the_map_covers_what_the_forearm_hides_in_the_simulators_truth(tmp_path)
     profile.write_text(PROFILE)
     run = tmp_path / "run"
     metrics = run_experiment(RunConfig(1, run, sensor="ideal", realism=f"{profile}:early-forearm",
-                                       duration=4.5, progress=False, video_every=0))
+                                       duration=4.5, progress=False, video_every=0,
+                                       unknown_occluders=True))
     log = FrameLog.read(run / "frames.csv")
     t = log.floats("t")
     hidden = np.stack([_labels(log, "occ_true", c) == "unknown.forearm" for c in (1, 2)])
@@ -156,3 +157,22 @@ def test_the_map_covers_what_the_forearm_hides_in_the_simulators_truth(tmp_path)
     grids = log.grids(camera_column("unknown", 1))
     assert grids[first - 1] is None and any(g is not None and g.cells.any() for g in grids)
     assert metrics["wrong_accepted"] == 0 and metrics["position_rmse_mm"] < 3.0
+    assert metrics["unknown_occluders"] is True
+    assert any("under unknown occluders in cam1" in s for s in log.text("status"))
+
+
+def test_the_map_is_off_by_default_and_the_run_is_todays(tmp_path):
+    """Without ``unknown_occluders`` the same world runs the tracker as before: nothing is
+    labelled ``unknown`` and no map is logged."""
+    from cellsight.experiments import RunConfig, run_experiment
+    from cellsight.runfolder.framelog import FrameLog, camera_column
+
+    profile = tmp_path / "forearm.yaml"
+    profile.write_text(PROFILE)
+    metrics = run_experiment(RunConfig(1, tmp_path / "run", sensor="ideal",
+                                       realism=f"{profile}:early-forearm", duration=2.5,
+                                       progress=False, video_every=0))
+    log = FrameLog.read(tmp_path / "run" / "frames.csv")
+    assert metrics["unknown_occluders"] is False
+    assert not any("unknown" in row.split(";") for row in log.text(camera_column("occ_pred", 1)))
+    assert all(g is None for c in (1, 2) for g in log.grids(camera_column("unknown", c)))

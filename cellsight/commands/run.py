@@ -33,6 +33,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     run.add_argument("--kinematic-prior", action="store_true",
                      help="once the jaws hold the part, predict it by the gripper's measured "
                           "motion (off by default: the paper tracks from images alone)")
+    run.add_argument("--unknown-occluders", action="store_true",
+                     help="learn where objects the cell file does not know hide the part, and "
+                          "select no feature there (off by default: on the rendered harsh "
+                          "world it also masks corners lost to image noise)")
     run.add_argument("--realism", default="exact", metavar="PROFILE",
                      help="how the simulated world departs from the cell file: exact (default: "
                           "it is the cell file), lab, harsh, one knob group alone (harsh/cameras), "
@@ -93,7 +97,8 @@ def cmd_run(args: argparse.Namespace) -> int:
     config = RunConfig(
         experiment=args.experiment, out=out, cell=args.cell, seed=args.seed,
         sensor=args.sensor, occlusion_prediction=not args.no_occlusion_prediction,
-        kinematic_prior=args.kinematic_prior, duration=args.duration, progress=not args.quiet,
+        kinematic_prior=args.kinematic_prior, unknown_occluders=args.unknown_occluders,
+        duration=args.duration, progress=not args.quiet,
         overwrite=args.overwrite, realism=args.realism, structure=args.structure,
     )
     try:

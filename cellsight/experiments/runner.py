@@ -43,7 +43,7 @@ import signal
 import threading
 import time
 from contextlib import suppress
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Literal
 
@@ -82,7 +82,7 @@ from cellsight.runfolder import (
     make_out_folder,
     write_metrics,
 )
-from cellsight.tracking import Tracker, TrackerConfig, TrackerParts
+from cellsight.tracking import Tracker, TrackerConfig, TrackerParts, UnknownOccluderRule
 from cellsight.world import World
 
 log = logging.getLogger(__name__)
@@ -98,9 +98,11 @@ class RunConfig:
     the true projection on the built-in cell, i.e. 0.21 px per coordinate).
     ``kinematic_prior``: while the jaws are closed on the part, the tracker predicts it by the
     gripper's motion measured from the joints (``holders`` of :meth:`Tracker.step`).
-    ``video_every``: a frame of ``views.mp4`` every so many vision frames. ``overwrite``: clear
-    ``out`` first when it holds an earlier run (:func:`check_out_folder`; else a non-empty
-    ``out`` is refused)."""
+    ``unknown_occluders``: the tracker learns where objects the cell file does not know hide
+    the part (:mod:`cellsight.tracking.unknown`), and a coasting track resumes only on three
+    features passing the gate together. ``video_every``: a frame of ``views.mp4`` every so many
+    vision frames. ``overwrite``: clear ``out`` first when it holds an earlier run
+    (:func:`check_out_folder`; else a non-empty ``out`` is refused)."""
 
     experiment: int
     out: Path
@@ -109,6 +111,7 @@ class RunConfig:
     sensor: Sensor = "rendered"
     occlusion_prediction: bool = True
     kinematic_prior: bool = False
+    unknown_occluders: bool = False
     duration: float | None = None
     max_duration: float = 80.0
     tail_s: float = 1.0
@@ -189,6 +192,9 @@ class ExperimentRun:
         self.ideal = (IdealExtractor(config.ideal_sigma_px, config.seed)
                       if config.sensor == "ideal" else None)
         tracking, parts = TrackerConfig(), TrackerParts()
+        if config.unknown_occluders:
+            tracking = replace(tracking, resume_support=3)
+            parts = replace(parts, unknown=UnknownOccluderRule())
         self.tracker = Tracker.from_cell(cell, predictor, self.ideal, tracking, parts)
         self.task = GraspTask(self.robot, self.part)
         self.baseline = PnPBaseline(cell.cameras, self.part.feature_points, tracking.sigma_px,
@@ -252,7 +258,8 @@ class ExperimentRun:
         log.info("experiment %d (%s) on %s; seed %d; sensor %s; occlusion prediction %s%s",
                  cfg.experiment, self.scenario.description, self.cell.source, cfg.seed,
                  cfg.sensor, "on" if cfg.occlusion_prediction else "off",
-                 "; kinematic prior on" if cfg.kinematic_prior else "")
+                 ("; kinematic prior on" if cfg.kinematic_prior else "")
+                 + ("; unknown occluders learned" if cfg.unknown_occluders else ""))
         writer = FrameWriter(self.out / "frames.csv", len(self.cell.cameras),
                              {r.name: r.n_joints for r in self.cell.robots})
         video = None
@@ -399,6 +406,7 @@ class ExperimentRun:
             "sensor": cfg.sensor,
             "occlusion_prediction": cfg.occlusion_prediction,
             "kinematic_prior": cfg.kinematic_prior,
+            "unknown_occluders": cfg.unknown_occluders,
             "structure": cfg.structure,
             "realism": self.draws.profile.name,
             "realism_file": self.draws.profile.file,

@@ -48,6 +48,7 @@ class RunMetrics(BaseModel):
     sensor: str | None = None
     occlusion_prediction: bool | None = None
     kinematic_prior: bool | None = None
+    unknown_occluders: bool | None = None
     structure: str | None = None
     realism: str | None = None
     realism_file: str | None = None

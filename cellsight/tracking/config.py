@@ -37,7 +37,8 @@ class TrackerParts:
 
     ``motion`` predicts each filter; ``loss`` says when a track coasts and when it is lost;
     ``health`` makes each track's health monitor, which says when a tracked part is degraded;
-    ``unknown`` makes the map of unknown occluders that the selection avoids; ``selector``
+    ``unknown`` makes the map of unknown occluders that the selection avoids (off by default,
+    ``UnknownOccluderRule()`` turns it on); ``selector``
     chooses the features to measure; ``windows`` plans their image windows;
     ``gate`` screens the innovations (None accepts every measurement); ``acquisition`` starts a
     filter from one frame's measurements; ``measurement`` builds a camera's measurement model
@@ -48,7 +49,7 @@ class TrackerParts:
     motion: MotionModel = ConstantVelocity()
     loss: TrackHealth = LossRule()
     health: HealthCheck = HealthRule()
-    unknown: OccluderMemory = UnknownOccluderRule()
+    unknown: OccluderMemory = UnknownOccluderRule(enabled=False)
     selector: Selector = OptimalSelector()
     windows: WindowPlanner = CovarianceWindows()
     gate: Gate | None = ChiSquareGate(0.999)
@@ -69,11 +70,12 @@ class TrackerConfig:
     features the gate must accept together in the first update after a tracked frame without
     one (a coasting track's prediction is wide, and a lone intruder's corner fits it: in the
     realistic world one such corner threw the velocity off by 0.5 m/s;
-    :class:`~cellsight.tracking.gate.SupportedGate`).
+    :class:`~cellsight.tracking.gate.SupportedGate`; 1, the default, is the plain gate; 3 goes
+    with the unknown-occluder map).
     """
 
     sigma_px: float = 0.5
     adaptive_noise: bool = False
     carried_noise: tuple[float, float] = (1e-6, 1e-5)
     near_occluder_hold_s: float = 0.5
-    resume_support: int = 3
+    resume_support: int = 1
