@@ -16,8 +16,8 @@ protocol of :mod:`.interfaces` with its default in its own module):
    and the EKF updates with the accepted ones (:mod:`.measurement`, :mod:`.ekf`); the track's
    health monitor (:mod:`.health`) takes the frame's outcome, and a tracked part whose figures
    pass its limits is degraded; the unknown-occluder map (:mod:`.unknown`, shared by the
-   parts) learns from the features not found, and no feature it covers is selected or used
-   for acquisition.
+   parts; off by default) learns from the features not found, or rejected where their camera
+   accepted none, and no feature it covers is selected or used for acquisition.
 
 Within a step, each part's work carries one :class:`StepContext`. Measured pixels are as in the
 image (distorted); the camera undistorts them before the update. Stage times: :mod:`.timing`;
