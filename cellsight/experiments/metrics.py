@@ -28,7 +28,8 @@ predicted visible but truly hidden, ``false_hidden`` the reverse, over every lab
 Measurements, over all frames: ``measurements`` (features measured), ``rejected_measurements``
 (of those, rejected by the EKF's gate), ``wrong_measurements`` (measured more than
 :data:`~cellsight.runfolder.framelog.WRONG_PX` from the true projection: another image point,
-such as an occluder's corner), ``wrong_accepted`` (wrong and not rejected).
+such as an occluder's corner), ``wrong_accepted`` (wrong, not rejected, and used: frames of a
+part being acquired, ``waiting`` or ``lost``, used nothing: no fix came of them).
 ``pixels_grabbed_fraction``: mean over frames and cameras of the fraction of pixels grabbed.
 ``extraction_error_px_median``: median over frames and cameras of each frame's median extraction
 error (px); None when no frame has one (ideal sensor). ``timing_ms``: median per stage (ms)
@@ -165,10 +166,17 @@ def _measurements(log: FrameLog) -> dict:
         "measurements": int(meas.sum()),
         "rejected_measurements": int(rej.sum()),
         "wrong_measurements": int(wrong.sum()),
-        "wrong_accepted": int(np.sum(wrong & ~rej)),
+        "wrong_accepted": int(np.sum((wrong & ~rej)[_used(log)])),
         "pixels_grabbed_fraction": float(np.mean(grabbed)) if grabbed.size else None,
         "extraction_error_px_median": float(np.median(px)) if px.size else None,
     }
+
+
+def _used(log: FrameLog) -> np.ndarray:
+    """(N,) bool: the frame's measurements went into an estimate (its status is neither
+    ``waiting`` nor ``lost``: an acquisition that gave no fix)."""
+    status = np.array(log.text("status"), dtype=str)
+    return ~np.isin(status, ("waiting", "lost"))
 
 
 def _row_major(log: FrameLog, name: str) -> np.ndarray:

@@ -61,3 +61,59 @@ class OcclusionEvents:
             text = ", ".join(f"{label} {n}" for label, n in sorted(hidden.items()))
             log.info("t=%6.2f s %-10s %s: %d/%d visible%s", t, phase, self.cameras[c],
                      n_visible, len(per_feature), f"; hidden: {text}" if text else "")
+
+
+class KidnapMonitor:
+    """How the tracker meets the kidnapping (:class:`~cellsight.world.faults.Kidnap`), from
+    when the cameras see again (``t_back``), frame by frame until the part is found again:
+
+    - ``noticed_s``: until the first frame whose status is ``lost`` or ``acquired`` (the
+      tracker says its estimate is gone, or starts anew);
+    - ``wrong_tracking_s``: how long it said ``tracking`` with the estimate more than
+      ``wrong_mm`` off (a confident wrong pose; ``degraded`` is a warning), before it was
+      found again;
+    - ``visible_s``: when (from ``t_back``) some camera truly saw ``min_visible`` of its points;
+    - ``reacquired_s``: from then until the first frame with an estimate within ``found_mm``
+      (None: never, by the end of the run).
+
+    Logged in ``run.log`` as it happens; :meth:`record` for ``metrics.json``."""
+
+    def __init__(self, kidnap, wrong_mm: float = 10.0, found_mm: float = 2.0,
+                 min_visible: int = 4) -> None:
+        self.kidnap = kidnap
+        self.wrong_mm, self.found_mm, self.min_visible = wrong_mm, found_mm, min_visible
+        self.noticed: float | None = None
+        self.visible: float | None = None
+        self.found: float | None = None
+        self.wrong_frames = 0
+
+    def update(self, t: float, status: str, error_mm: float | None, n_visible: int) -> None:
+        """One frame at ``t`` (s): the part's status, its position error (mm; None without an
+        estimate) and the most points any camera truly sees."""
+        k = self.kidnap
+        if t < k.t_back - 1e-9 or self.found is not None:
+            return
+        if self.noticed is None and status in ("lost", "acquired"):
+            self.noticed = t
+            log.info("t=%6.2f s kidnapping noticed: the track is %s, %.2f s after the cameras "
+                     "saw again", t, status, t - k.t_back)
+        if status == "tracking" and error_mm is not None and error_mm > self.wrong_mm:
+            self.wrong_frames += 1
+        if self.visible is None and n_visible >= self.min_visible:
+            self.visible = t
+        if self.visible is not None and error_mm is not None and error_mm <= self.found_mm:
+            self.found = t
+            log.info("t=%6.2f s kidnapped part found again: %.2f mm off, %.2f s after it was "
+                     "visible", t, error_mm, t - self.visible)
+
+    def record(self, vision_hz: float, moved: bool | None) -> dict:
+        """The fault and the figures (module docstring), s."""
+        k = self.kidnap
+
+        def since(t: float | None, start: float | None) -> float | None:
+            return None if t is None or start is None else round(t - start, 4)
+
+        return {**k.record(), "moved": moved, "noticed_s": since(self.noticed, k.t_back),
+                "wrong_tracking_s": round(self.wrong_frames / vision_hz, 4),
+                "visible_s": since(self.visible, k.t_back),
+                "reacquired_s": since(self.found, self.visible)}

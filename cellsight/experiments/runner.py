@@ -57,7 +57,7 @@ from cellsight.experiments.exposure import Exposures
 from cellsight.experiments.keyframes import KeyFrames, draw_frame
 from cellsight.experiments.latency import Deliveries, Estimate
 from cellsight.experiments.metrics import frame_metrics
-from cellsight.experiments.monitors import GraspMonitor, OcclusionEvents
+from cellsight.experiments.monitors import GraspMonitor, KidnapMonitor, OcclusionEvents
 from cellsight.experiments.plant import SimulatedCell
 from cellsight.experiments.rows import FrameRows, FrameTruth, PartTruth
 from cellsight.experiments.scenario import Scenario, scenario
@@ -83,6 +83,7 @@ from cellsight.runfolder import (
     write_metrics,
 )
 from cellsight.tracking import Tracker, TrackerConfig, TrackerParts, UnknownOccluderRule
+from cellsight.tracking.records import PartFrame
 from cellsight.world import World
 
 log = logging.getLogger(__name__)
@@ -187,6 +188,8 @@ class ExperimentRun:
         self.clock = FrameClock(self.draws.profile.timing, config.seed)
         self.deliveries = Deliveries()
         self.frames_dropped = 0
+        kidnap = self.draws.errors.kidnap
+        self.kidnap = None if kidnap is None else KidnapMonitor(kidnap)
         self.exposures = Exposures(self.world, self.draws.trigger_skew_s, config.sensor == "ideal",
                                    self.part.name)
         self.ideal = (IdealExtractor(config.ideal_sigma_px, config.seed)
@@ -339,7 +342,8 @@ class ExperimentRun:
         joints = world.measured_joints()
         openings = world.jaw_openings()
         truth = FrameTruth.of(world, self.part.name, name)
-        observed = self._grab(fate.dropped, truth.part)
+        dropped = fate.dropped or (self.kidnap is not None and self.kidnap.kidnap.blind(t))
+        observed = self._grab(dropped, truth.part)
         holders = None
         if self.config.kinematic_prior and world.jaws_closed_on_part(name):
             holders = {self.part.name: self.robot.tcp_pose(joints[name])}
@@ -348,10 +352,13 @@ class ExperimentRun:
         estimate = Estimate.of(t, rec)
         if self.clock.ideal:
             self._plan(t, estimate, joints[name])
-        elif not fate.dropped:
+        elif not dropped:
             self.deliveries.add(t + fate.latency_s, estimate)
         phase = str(self.task.phase)
         self.events.update(t, phase, rec.reasons)
+        if self.kidnap is not None:
+            self.kidnap.update(t, str(rec.status), _error_mm(rec, truth.part),
+                               int(truth.part.visible.sum(axis=1).max(initial=0)))
         pnp = self.baseline.update(t, rec.measured)
         with self.writes.guard(writer.path):
             writer.write(self.rows.row(t, self.task, frame, rec, truth, pnp))
@@ -415,6 +422,8 @@ class ExperimentRun:
             "collisions": collisions,
             "collision_count": len(collisions),
             "frames_dropped": self.frames_dropped,
+            "kidnap": None if self.kidnap is None else self.kidnap.record(
+                VISION_HZ, getattr(getattr(self.world, "faults", None), "moved", None)),
             "grasp_success": bool(self.grasp.held_at_manipulate),
             "grasp_position_error_mm": self.grasp.error_mm,
             "final_phase": str(self.task.phase),
@@ -481,3 +490,10 @@ def _progress_bar(enabled: bool) -> Progress:
 def run_experiment(config: RunConfig) -> dict:
     """Run one experiment (see :class:`ExperimentRun`) and return its metrics."""
     return ExperimentRun(config).run()
+
+
+def _error_mm(rec: PartFrame, truth: PartTruth) -> float | None:
+    """The estimate's position error (mm) against the truth; None without an estimate."""
+    if not rec.status.has_estimate or rec.T_base_part is None:
+        return None
+    return 1e3 * float(np.linalg.norm(rec.T_base_part[:3, 3] - truth.T_base_part[:3, 3]))

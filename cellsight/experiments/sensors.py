@@ -68,6 +68,15 @@ class IdealExtractor:
         return out
 
 
+    def detect(self, view: IdealView | None) -> np.ndarray:
+        """(N, 2) px: every corner in view (:attr:`IdealView.corners`) with the pixel noise,
+        as a whole-image corner detector would find them; none for a dropped frame."""
+        if view is None:
+            return np.zeros((0, 2))
+        corners = np.asarray(view.corners, dtype=float).reshape(-1, 2)
+        return corners + self._rng.normal(0.0, self.sigma_px, corners.shape)
+
+
 def _corner_in(corners: np.ndarray, box, own: np.ndarray | None) -> np.ndarray | None:
     """The corner of ``corners`` (N, 2) px nearest the centre of ``box`` inside it, not within
     ``OWN_PX`` of ``own``; None when there is none."""

@@ -26,9 +26,13 @@ from cellsight.realism.perturb import (
 )
 from cellsight.realism.profile import Distribution, Profile, load_profile
 from cellsight.realism.unknown import forearm, table_box
+from cellsight.world.faults import Kidnap
 from cellsight.world.images import ImageEffects
 from cellsight.world.imperfections import Imperfections
 from cellsight.world.servo import ServoParams
+
+KIDNAP_MARGIN_PX = 60.0
+"""How far inside a camera's image (px) a kidnapped part's centre is put back."""
 
 
 @dataclass(frozen=True)
@@ -165,7 +169,30 @@ def _imperfections(k: _Knobs, p: Profile, cell: Cell, world_cell: Cell) -> Imper
         encoder_offsets=_encoder_offsets(k, p, cell),
         quantum_rad=math.radians(r.encoder_resolution_deg), quantum_m=r.encoder_resolution_mm / 1e3,
         noise_rad=r.joint_noise_rad, noise_m=r.joint_noise_m, servo=servo,
-        grasp_seat=seat, slip_m_s=slip, intruders=_intruders(k, p, world_cell), images=images)
+        grasp_seat=seat, slip_m_s=slip, intruders=_intruders(k, p, world_cell), images=images,
+        kidnap=_kidnap(k, p, cell))
+
+
+def _kidnap(k: _Knobs, p: Profile, cell: Cell) -> Kidnap | None:
+    """The kidnapping of the experiment's workpiece, if the seed draws one. The part is put
+    back where a camera sees it: the drawn direction turned by 30 deg steps until the part's
+    start moved that way is inside some camera's view by ``KIDNAP_MARGIN_PX``."""
+    f = p.faults
+    if not cell.workpieces or not k.event("faults.kidnap", f.kidnap_probability):
+        return None
+    part = cell.workpiece(cell.experiments.workpiece or cell.workpieces[0].name)
+    distance = float(k.draw("faults.kidnap_distance_mm", f.kidnap_distance_mm, (), 1e-3))
+    heading = float(k.draw("faults.kidnap_direction_deg", f.kidnap_direction_deg, (),
+                           math.pi / 180))
+    start = part.T_base_part[:3, 3] + part.T_base_part[:3, :3] @ part.feature_points.mean(0)
+    for turn in np.radians(np.arange(0.0, 360.0, 30.0)):
+        shift = distance * np.array([math.cos(heading + turn), math.sin(heading + turn)])
+        there = start + [*shift, 0.0]
+        if any(c.sees(there[None], KIDNAP_MARGIN_PX)[0] for c in cell.cameras):
+            break
+    return Kidnap(part.name, float(k.draw("faults.kidnap_time_s", f.kidnap_time_s)),
+                  f.kidnap_blind_s, shift,
+                  float(k.draw("faults.kidnap_turn_deg", f.kidnap_turn_deg, (), math.pi / 180)))
 
 
 def _intruders(k: _Knobs, p: Profile, cell: Cell) -> tuple:

@@ -21,7 +21,7 @@ from cellsight.errors import CellFileError
 from cellsight.model.yaml_input import load_yaml, read_cell_text
 
 BUILTIN_FILE = Path(__file__).resolve().parent.parent / "data" / "realism.yaml"
-BUILTIN = ("exact", "lab", "harsh")
+BUILTIN = ("exact", "lab", "harsh", "kidnap")
 
 
 class ProfileError(CellFileError):
@@ -157,6 +157,21 @@ class UnmodelledKnobs(_Strict):
     forearm_duration_s: Knob = Distribution(dist="uniform", low=1.0, high=4.0)
 
 
+class FaultKnobs(_Strict):
+    """Faults of a run. The part kidnapped (probability per run): at ``kidnap_time_s`` every
+    camera goes blind for ``kidnap_blind_s`` (no frame arrives), and halfway through it the
+    part, if no gripper holds it, is moved by ``kidnap_distance_mm`` towards
+    ``kidnap_direction_deg`` (about the base z axis, from +x) and turned by ``kidnap_turn_deg``
+    about the vertical through its origin; on the conveyor it rides on from there."""
+
+    kidnap_probability: Probability = 0.0
+    kidnap_time_s: Knob = Distribution(dist="uniform", low=3.0, high=6.0)
+    kidnap_blind_s: Annotated[float, Field(gt=0, allow_inf_nan=False)] = 1.0
+    kidnap_distance_mm: Knob = Distribution(dist="uniform", low=100.0, high=300.0)
+    kidnap_direction_deg: Knob = Distribution(dist="uniform", low=0.0, high=360.0)
+    kidnap_turn_deg: Knob = Distribution(dist="uniform", low=-45.0, high=45.0)
+
+
 class ImageKnobs(_Strict):
     """What the camera does to the image (:mod:`cellsight.world.images`): read noise (grey
     levels), conversion gain for shot noise (DN per electron), slow gain drift (% amplitude,
@@ -210,12 +225,13 @@ class Profile(_Strict):
     servo: ServoKnobs = ServoKnobs()
     geometry: GeometryKnobs = GeometryKnobs()
     unmodelled: UnmodelledKnobs = UnmodelledKnobs()
+    faults: FaultKnobs = FaultKnobs()
     images: ImageKnobs = ImageKnobs()
     timing: TimingKnobs = TimingKnobs()
     scenario: ScenarioKnobs = ScenarioKnobs()
 
 
-GROUPS = ("cameras", "robots", "servo", "geometry", "unmodelled", "images", "timing",
+GROUPS = ("cameras", "robots", "servo", "geometry", "unmodelled", "faults", "images", "timing",
           "scenario")
 """The knob groups; ``PROFILE/GROUP`` keeps only that group of a profile (a fault alone)."""
 

@@ -57,6 +57,7 @@ class RunMetrics(BaseModel):
     collisions: list[dict[str, Any]] | None = None
     collision_count: int | None = None
     frames_dropped: int | None = None
+    kidnap: dict[str, Any] | None = None
     grasp_success: bool | None = None
     grasp_position_error_mm: Number = None
     final_phase: str | None = None

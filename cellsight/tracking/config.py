@@ -26,6 +26,7 @@ from cellsight.tracking.interfaces import (
 from cellsight.tracking.loss import LossRule
 from cellsight.tracking.measurement import PinholeMeasurement
 from cellsight.tracking.motion import ConstantVelocity
+from cellsight.tracking.search import PlaneSearch
 from cellsight.tracking.selection import OptimalSelector
 from cellsight.tracking.unknown import UnknownOccluderRule
 from cellsight.tracking.windowing import CovarianceWindows
@@ -41,9 +42,12 @@ class TrackerParts:
     ``UnknownOccluderRule()`` turns it on); ``selector``
     chooses the features to measure; ``windows`` plans their image windows;
     ``gate`` screens the innovations (None accepts every measurement); ``acquisition`` starts a
-    filter from one frame's measurements; ``measurement`` builds a camera's measurement model
-    from the camera and the pixel noise ``TrackerConfig.sigma_px`` (px). The extractor (the
-    sensor) is the tracker's own argument: it goes with what :meth:`Tracker.step` is given.
+    filter from one frame's measurements; ``search`` finds a part being acquired anywhere on
+    its support plane in the whole images, when the extractor can ``detect`` corners (None:
+    only near the last prediction or the nominal pose); ``measurement`` builds a camera's
+    measurement model from the camera and the pixel noise ``TrackerConfig.sigma_px`` (px). The
+    extractor (the sensor) is the tracker's own argument: it goes with what
+    :meth:`Tracker.step` is given.
     """
 
     motion: MotionModel = ConstantVelocity()
@@ -54,6 +58,7 @@ class TrackerParts:
     windows: WindowPlanner = CovarianceWindows()
     gate: Gate | None = ChiSquareGate(0.999)
     acquisition: Acquisition = PnPAcquisition()
+    search: PlaneSearch | None = PlaneSearch()
     measurement: Callable[[Camera, float], MeasurementModel] = PinholeMeasurement
 
 

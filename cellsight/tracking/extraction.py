@@ -36,6 +36,9 @@ class ExtractionConfig:
     """Corner detection and acceptance parameters (px, gray levels; module docstring)."""
 
     max_candidates: int = 5
+    image_corners: int = 500
+    image_quality_level: float = 0.01
+    image_min_distance_px: float = 5.0
     quality_level: float = 0.05
     min_distance_px: float = 3.0
     block_size: int = 3
@@ -256,3 +259,16 @@ class CornerExtractor:
             if px is not None:
                 out[int(f)] = px
         return out
+
+    def detect(self, image: np.ndarray | None) -> np.ndarray:
+        """(N, 2) px: the Shi-Tomasi corners of the whole image (at most ``image_corners``,
+        quality ``image_quality_level``, ``image_min_distance_px`` apart), for the whole-image
+        search (:mod:`.search`); none for a camera that gave nothing."""
+        if image is None:
+            return np.zeros((0, 2))
+        cfg = self.config
+        found = cv2.goodFeaturesToTrack(_to_gray(image), maxCorners=cfg.image_corners,
+                                        qualityLevel=cfg.image_quality_level,
+                                        minDistance=cfg.image_min_distance_px,
+                                        blockSize=cfg.block_size)
+        return np.zeros((0, 2)) if found is None else found.reshape(-1, 2).astype(float)

@@ -79,6 +79,17 @@ class Extractor(Protocol):
         ...
 
 
+class CornerDetector(Protocol):
+    """A sensor that can also find corners in a camera's whole image (an extractor with a
+    ``detect`` method): what the whole-image search (:mod:`cellsight.tracking.search`)
+    matches the part's model against."""
+
+    def detect(self, observed: Any) -> np.ndarray:
+        """(N, 2) px, as in the image: the corners in what one camera took (``observed``, as
+        given to :meth:`Extractor.extract`)."""
+        ...
+
+
 class Gate(Protocol):
     """Validation gate of the EKF update (:mod:`cellsight.tracking.gate`)."""
 
@@ -152,8 +163,17 @@ class TrackHealth(Protocol):
         measurement being at ``last_update`` (s)."""
         ...
 
-    def lost(self, t: float, last_update: float) -> bool:
-        """The track is lost at time ``t`` (s) (the tracker then re-acquires it)."""
+    def lost(self, t: float, last_update: float, unseen_since: float) -> bool:
+        """The track is lost at time ``t`` (s) (the tracker then re-acquires it);
+        ``unseen_since`` (s): since when every frame looked for its features in vain
+        (:meth:`in_vain`; ``inf`` when the last frame that said saw the part)."""
+        ...
+
+    def in_vain(self, looked: int, accepted: int) -> bool | None:
+        """Whether a tracked frame that looked for ``looked`` features (in the cameras that
+        gave something) and accepted ``accepted`` looked in vain (True: it counts towards
+        ``unseen_since``), saw the part (False: ``unseen_since`` is reset) or says nothing
+        (None)."""
         ...
 
 

@@ -1,7 +1,12 @@
 """When a track coasts and when it is lost.
 
-A part is *lost* after ``lost_after_s`` seconds without an accepted measurement (the tracker
-then re-acquires it); until then frames without measurements only predict. The prediction
+A part is *lost* after ``lost_after_s`` seconds without an accepted measurement, or sooner,
+after ``unseen_s`` seconds in which every frame that looked for at least ``min_looked`` of its
+features (in the images that came) accepted fewer than ``min_found`` of them: the part is not
+where it is predicted (moved while the cameras were blind, or the estimate has gone bad; a
+lone wrong corner that fits a wide prediction does not hold such a track). The tracker then
+re-acquires it, from the whole image when it can (:mod:`.search`); until then frames without
+measurements only predict. The prediction
 coasts at most ``coast_s`` seconds after the last accepted measurement, then stops: the last
 velocity would carry the pose away for ever, and a part that left the views is looked for
 where it was last predicted.
@@ -14,15 +19,25 @@ from dataclasses import dataclass
 
 @dataclass(frozen=True)
 class LossRule:
-    """Coasting and loss times (s) after the last accepted measurement."""
+    """Coasting and loss times (s) after the last accepted measurement (module docstring)."""
 
     lost_after_s: float = 2.0
     coast_s: float = 4.0
+    unseen_s: float = 0.3
+    min_looked: int = 4
+    min_found: float = 0.25
 
     def coasts(self, t: float, last_update: float) -> bool:
         """The motion model still propagates the estimate at time ``t`` (s)."""
         return t - last_update <= self.coast_s
 
-    def lost(self, t: float, last_update: float) -> bool:
-        """The track is lost at time ``t`` (s)."""
-        return t - last_update > self.lost_after_s
+    def in_vain(self, looked: int, accepted: int) -> bool | None:
+        """A frame looked in vain, saw the part, or says nothing (module docstring)."""
+        if looked >= self.min_looked and accepted < self.min_found * looked:
+            return True
+        return False if accepted else None
+
+    def lost(self, t: float, last_update: float, unseen_since: float = float("inf")) -> bool:
+        """The track is lost at time ``t`` (s): nothing accepted since ``last_update`` (s) for
+        too long, or looked for in vain since ``unseen_since`` (s)."""
+        return t - last_update > self.lost_after_s or t - unseen_since >= self.unseen_s - 1e-9

@@ -9,7 +9,10 @@ protocol of :mod:`.interfaces` with its default in its own module):
 2. the visibility source (:class:`cellsight.visibility.VisibilitySource`: the BSP predictor)
    predicts, at the predicted poses, which features each camera sees; every tracked part is
    passed, so parts can hide each other;
-3. per part: a part not tracked yet, or lost, is acquired (:mod:`.acquisition`); otherwise
+3. per part: a part not tracked yet, or lost, is acquired (:mod:`.acquisition`: windows at
+   the guess or the last prediction; failing that, at most every ``search.every_s``, the
+   whole-image search over its support plane, :mod:`.search`, each candidate verified by the
+   same windows and PnP); otherwise
    the selector chooses among the usable features (:mod:`.eligibility`, :mod:`.selection`),
    the window planner places their windows (:mod:`.windowing`), the extractor finds them in
    what the sensors took (:mod:`.extraction`), the gate (:mod:`.gate`) screens the innovations
@@ -27,7 +30,7 @@ statuses: :mod:`.status`; records: :mod:`.records`.
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -42,6 +45,7 @@ from cellsight.tracking.gate import SupportedGate
 from cellsight.tracking.interfaces import Acquisition, Extractor, TrackMonitor
 from cellsight.tracking.measurement import Observation
 from cellsight.tracking.motion import POSE_DIM
+from cellsight.tracking.pnp import PoseFix
 from cellsight.tracking.records import PartFrame, TrackerFrame
 from cellsight.tracking.selection import camera_resolution
 from cellsight.tracking.status import TrackStatus
@@ -55,11 +59,13 @@ must avoid), and each part's (first row, its visible feature indices) in them.""
 
 @dataclass
 class _Track:
-    """One workpiece's track: feature points (F, 3) in the part frame, the acquisition guess,
-    the near-occluder hold, the health monitor, the filter, the last accepted measurement's
-    time (s), the holder's pose last frame, whether the last tracked frame accepted no
-    measurement (``coasted``) and the last time (s) enough were accepted to confirm the
-    estimate for the unknown-occluder map (``confirmed``)."""
+    """One workpiece's track: feature points (F, 3) in the part frame, the acquisition guess
+    (also the ``support`` pose of the whole-image search), the near-occluder hold, the health
+    monitor, the filter, the last accepted measurement's time (s), the holder's pose last
+    frame, whether the last tracked frame accepted no measurement (``coasted``), the last time
+    (s) enough were accepted to confirm the estimate for the unknown-occluder map
+    (``confirmed``), since when its features were looked for in vain (``unseen_since``, s;
+    :mod:`.loss`) and when it was last searched for in the whole images (``searched``, s)."""
 
     points: np.ndarray
     guess: np.ndarray | None
@@ -73,6 +79,9 @@ class _Track:
     holder: np.ndarray | None = None
     coasted: bool = False
     confirmed: float = -np.inf
+    unseen_since: float = np.inf
+    searched: float = -np.inf
+    support: np.ndarray | None = None
 
     @property
     def acquiring(self) -> bool:
@@ -100,7 +109,9 @@ class _Track:
 class StepContext:
     """One part's work in one :meth:`Tracker.step`: the frame's time ``t`` (s), what the
     sensors took (``observed``, as given to the step), the ``crowd`` of predicted pixels
-    (:data:`Crowd`), the stage ``timer``, the part's ``track`` and its ``rec`` being filled."""
+    (:data:`Crowd`), the stage ``timer``, the part's ``track`` and its ``rec`` being filled;
+    ``look(name, T_base_part)``: the visibility source's answer with that part at that pose
+    (the others at their predictions)."""
 
     t: float
     observed: Any
@@ -108,6 +119,7 @@ class StepContext:
     timer: StageTimer
     track: _Track
     rec: PartFrame
+    look: Callable[[str, np.ndarray], Views]
 
 
 class Tracker:
@@ -145,7 +157,7 @@ class Tracker:
         self.tracks = {
             name: _Track(np.asarray(pts, dtype=float).reshape(-1, 3), guesses.get(name),
                          NearOccluderHold(self.config.near_occluder_hold_s),
-                         self.components.health.monitor(names))
+                         self.components.health.monitor(names), support=guesses.get(name))
             for name, pts in parts.items()
         }
 
@@ -189,6 +201,7 @@ class Tracker:
         track.last_update = float(t)
         track.lost = False
         track.coasted = False
+        track.unseen_since = np.inf
         track.monitor.reset()
 
     def step(
@@ -219,12 +232,17 @@ class Tracker:
             with timer("occlusion"):
                 views = self.predictor.predict(joints, poses, openings) if poses else {}
             crowd = _visible_pixels(views, len(self.cameras))
+
+            def look(name: str, T_base_part: np.ndarray) -> Views:
+                with timer("occlusion"):
+                    return self.predictor.predict(joints, {**poses, name: T_base_part}, openings)
+
             for name, track in self.tracks.items():
                 part_views = views.get(name)
                 rec = records[name] = self._record(name, track, part_views)
                 if part_views is not None:
-                    context = StepContext(t, observed, crowd, timer, track, rec)
-                    (self._acquire if track.acquiring else self._track)(context)
+                    context = StepContext(t, observed, crowd, timer, track, rec, look)
+                    records[name] = (self._acquire if track.acquiring else self._track)(context)
         masks = [self.unknown.mask(c, t) for c in range(len(self.cameras))]
         return TrackerFrame(float(t), records, timer.seconds, _grabbed(records, len(self.cameras)),
                             masks)
@@ -242,7 +260,7 @@ class Tracker:
                                               self.config.carried_noise)
                 elif loss.coasts(t, track.last_update):
                     track.ekf.predict(t)
-                track.lost = loss.lost(t, track.last_update)
+                track.lost = loss.lost(t, track.last_update, track.unseen_since)
                 poses[name] = track.ekf.pose
             elif track.guess is not None:
                 poses[name] = track.guess
@@ -264,9 +282,9 @@ class Tracker:
         rec.set_views(views)
         return rec
 
-    def _track(self, context: StepContext) -> None:
+    def _track(self, context: StepContext) -> PartFrame:
         """Select, window, extract, gate and update (the paper's loop), then the health
-        monitor: tracking, or degraded when it finds reasons."""
+        monitor: tracking, or degraded when it finds reasons. Returns the part's record."""
         rec, track, timer = context.rec, context.track, context.timer
         ekf = track.ekf
         with timer("selection"):
@@ -285,7 +303,7 @@ class Tracker:
             report = ekf.update(obs, gate)
             track.coasted = report.n_accepted == 0
             _record_update(rec, report)
-            looked = rec.selected & self._grabbed(context.observed)[:, None]
+            looked = rec.selected & _cameras_grabbed(context.observed, self.cameras)[:, None]
             rec.health = track.monitor.update(context.t, rec.visible, looked, rec.measured,
                                               rec.rejected, rec.mahalanobis2, rec.unknown)
             unknown = self.components.unknown
@@ -293,10 +311,14 @@ class Tracker:
                 track.confirmed = context.t
             if context.t - track.confirmed <= unknown.trust_s:
                 self._learn_unknown(context.t, rec, looked)
+        in_vain = self.components.loss.in_vain(int(looked.sum()), report.n_accepted)
+        if in_vain is not None:
+            track.unseen_since = min(track.unseen_since, context.t) if in_vain else np.inf
         if report.n_accepted:
             track.last_update = ekf.t
             rec.status = TrackStatus.DEGRADED if rec.health.reasons else TrackStatus.TRACKING
         _record_estimate(rec, ekf)
+        return rec
 
     def _usable(self, context: StepContext, t_hold: float) -> np.ndarray:
         """(C, F) bool: the features that may be measured: predicted visible, not held back
@@ -317,12 +339,6 @@ class Tracker:
         for c in np.flatnonzero(failed.any(axis=1)):
             self.unknown.learn(int(c), t, rec.pixels[c, failed[c]])
 
-    def _grabbed(self, observed: Any) -> np.ndarray:
-        """(C,) bool: the cameras that gave something this frame (a dropped frame's camera
-        gave nothing: its selected features are not counted as not found)."""
-        return np.array([_observed(observed, self.cameras, c) is not None
-                         for c in range(len(self.cameras))], dtype=bool)
-
     def _resolution(self, track: _Track) -> np.ndarray:
         """Per camera: pixels per metre at the estimated part's centroid (focal / depth), the
         selection's weight of each camera."""
@@ -330,24 +346,63 @@ class Tracker:
         return camera_resolution(self.cameras, track.points.mean(axis=0) @ T[:3, :3].T
                                  + T[:3, 3])
 
-    def _acquire(self, context: StepContext) -> None:
-        """Windows of a fixed size on every usable feature, then a fix (:mod:`.acquisition`)."""
-        rec, track = context.rec, context.track
-        acquisition = self.components.acquisition
-        rec.selected = self._usable(context, context.t)
+    def _acquire(self, context: StepContext) -> PartFrame:
+        """A fix at the guess or the last prediction, else from the whole-image search (module
+        docstring); the filter starts from it. Returns the record of the windows that gave the
+        fix (or of the guess's, when there is none)."""
+        track, acquisition = context.track, self.components.acquisition
+        fix = self._fix(context)
+        if fix is None and (found := self._search(context)) is not None:
+            context, fix = found
+        rec = context.rec
+        if fix is None:
+            track.search_on(acquisition)
+            return rec
+        self.initialise(rec.name, fix.T_base_part, context.t, acquisition.start(fix))
+        rec.status = TrackStatus.ACQUIRED
+        _record_estimate(rec, track.ekf)
+        return rec
+
+    def _fix(self, context: StepContext) -> PoseFix | None:
+        """Windows of a fixed size on every usable feature of the record's prediction, then a
+        fix (:mod:`.acquisition`), or None."""
+        context.rec.selected = self._usable(context, context.t)
 
         def covariance(c: int, idx: np.ndarray) -> np.ndarray:
             return np.zeros((len(idx), 2, 2))
 
+        acquisition = self.components.acquisition
         obs = self._measure(context, covariance, acquisition.window_px)
         with context.timer("ekf"):
-            fix = acquisition.fix(obs, self.config.sigma_px)
-            if fix is None:
-                track.search_on(acquisition)
-            else:
-                self.initialise(rec.name, fix.T_base_part, context.t, acquisition.start(fix))
-                rec.status = TrackStatus.ACQUIRED
-                _record_estimate(rec, track.ekf)
+            return acquisition.fix(obs, self.config.sigma_px)
+
+    def _search(self, context: StepContext) -> tuple[StepContext, PoseFix] | None:
+        """The whole-image search, when it is due (:mod:`.search`): the first of its best
+        candidates whose windows give a fix of at least ``min_points`` points, with the
+        context of that candidate's record; None otherwise."""
+        search, track, t = self.components.search, context.track, context.t
+        detect = getattr(self.extractor, "detect", None)
+        observed = [_observed(context.observed, self.cameras, c) for c in range(len(self.cameras))]
+        if (search is None or detect is None or track.support is None
+                or t - track.searched < search.every_s - 1e-9
+                or all(o is None for o in observed)):
+            return None
+        track.searched = t
+        with context.timer("search"):
+            corners = [None if o is None else detect(o) for o in observed]
+            centre = (track.support if track.ekf is None else track.ekf.pose)[:2, 3]
+            candidates = search.candidates(self.cameras, track.points, track.support, centre,
+                                           corners)
+        name, C = context.rec.name, len(self.cameras)
+        for candidate in candidates[:search.verify]:
+            views = context.look(name, candidate.T_base_part)
+            rec = track.empty_record(name, context.rec.status, C)
+            rec.set_views(views[name])
+            trial = replace(context, rec=rec, crowd=_visible_pixels(views, C))
+            fix = self._fix(trial)
+            if fix is not None and fix.n_points >= search.min_points:
+                return trial, fix
+        return None
 
     def _measure(self, context: StepContext,
                  covariance: Callable[[int, np.ndarray], np.ndarray],
@@ -403,6 +458,13 @@ def _observed(observed: Any, cameras: Sequence[Camera], c: int) -> Any:
     if isinstance(observed, Mapping):
         return observed.get(cameras[c].name)
     return observed[c] if c < len(observed) else None
+
+
+def _cameras_grabbed(observed: Any, cameras: Sequence[Camera]) -> np.ndarray:
+    """(C,) bool: the cameras that gave something this frame (a dropped frame's camera gave
+    nothing: its selected features are not counted as not found)."""
+    return np.array([_observed(observed, cameras, c) is not None for c in range(len(cameras))],
+                    dtype=bool)
 
 
 def _own_rows(start: int, visible: np.ndarray, idx: np.ndarray) -> np.ndarray:

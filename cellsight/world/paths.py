@@ -136,6 +136,7 @@ class _Part:
     T_tcp_part: np.ndarray | None = None
     fall_left: float = 0.0
     fall_speed: float = 0.0
+    turn: float = 0.0
 
 
 class PartMotion:
@@ -176,6 +177,7 @@ class PartMotion:
         for name, part in self._parts.items():
             if part.mode == "conveyor":
                 part.pose = self._conveyor_pose(t)
+                part.pose[:3, :3] = _turn_z(part.turn) @ part.pose[:3, :3]
                 part.pose[:3, 3] += part.offset
                 self._write(name)
             elif part.fall_left > 0:
@@ -200,6 +202,20 @@ class PartMotion:
         part.pose[:3, 3] += shift
         part.offset += shift
         self._write(name)
+
+    def displace(self, name: str, shift: np.ndarray, turn: float) -> bool:
+        """Move a workpiece no gripper holds by ``shift`` (2,) m in the horizontal plane and
+        turn it by ``turn`` (rad) about the vertical through its origin (a kidnapping); the
+        conveyor keeps both. False (nothing moved) when a gripper holds it."""
+        part = self._parts[name]
+        if part.mode == "held":
+            return False
+        part.pose[:2, 3] += np.asarray(shift, dtype=float)
+        part.pose[:3, :3] = _turn_z(turn) @ part.pose[:3, :3]
+        part.offset[:2] += np.asarray(shift, dtype=float)
+        part.turn += float(turn)
+        self._write(name)
+        return True
 
     def hold(self, name: str, T_base_tcp: np.ndarray) -> None:
         """Weld a workpiece to a TCP at its current relative pose (the grasp engages)."""
@@ -257,3 +273,9 @@ class PartMotion:
 
     def _write(self, name: str) -> None:
         self.scene.set_mocap(self._mocap[name], self._parts[name].pose)
+
+
+def _turn_z(angle: float) -> np.ndarray:
+    """Rotation (3x3) by ``angle`` (rad) about the z axis."""
+    c, s = math.cos(angle), math.sin(angle)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])

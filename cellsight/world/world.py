@@ -39,6 +39,7 @@ from cellsight.model import Cell
 from cellsight.rates import CONTROL_HZ, VISION_HZ
 from cellsight.visibility import Views
 from cellsight.world.contacts import ContactMonitor
+from cellsight.world.faults import Faults
 from cellsight.world.grasp import Grasp, Grippers
 from cellsight.world.images import Imager
 from cellsight.world.imperfections import IDEAL, Imperfections
@@ -171,6 +172,7 @@ class World:
     of change of the jaw opening (m/s).
 
     Its parts are attributes: ``scene``, ``robots``, ``parts``, ``grippers``, ``intruders``,
+    ``faults``,
     ``contacts`` (the collisions so far), ``truth``.
     """
 
@@ -202,6 +204,7 @@ class World:
         self.grippers = Grippers(self.scene, cell, self.parts, grasp_poses or {},
                                  grasp_tolerance, jaw_speed, self.dt_control)
         self.intruders = Intruders(self.scene, errors.intruders)
+        self.faults = Faults(errors.kidnap)
         self.contacts = ContactMonitor(
             self.scene, cell, errors.collision_depth_m,
             partial(_in_hand, self.grippers))
@@ -231,6 +234,7 @@ class World:
         self.robots.advance()
         self.intruders.step(t)
         self.grippers.command(gripper or {})
+        self.faults.step(t, self.parts)
         self.parts.step(t, self.dt_control)
         self.grippers.step()
         self.contacts.check(t)

@@ -1,0 +1,196 @@
+"""Re-acquisition from the whole image (:mod:`cellsight.tracking.search`) and the kidnapping
+fault (:mod:`cellsight.world.faults`), against the simulator's truth: the search on rendered
+frames at random part poses, a tracker started far from the part, the fault itself, the loss
+rule, and a short run in which the part is kidnapped."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from cellsight import load_cell
+from cellsight.tracking.extraction import CornerExtractor
+from cellsight.tracking.loss import LossRule
+from cellsight.tracking.search import PlaneSearch
+from cellsight.world import World
+from cellsight.world.faults import Kidnap
+from cellsight.world.imperfections import Imperfections
+
+
+def _moved(T: np.ndarray, shift, turn: float) -> np.ndarray:
+    """``T`` moved by ``shift`` (2,) m and turned by ``turn`` (rad) about the vertical."""
+    c, s = math.cos(turn), math.sin(turn)
+    out = np.array(T, dtype=float)
+    out[:3, :3] = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]) @ out[:3, :3]
+    out[:2, 3] += shift
+    return out
+
+
+@pytest.fixture(scope="module")
+def cell():
+    return load_cell()
+
+
+def test_search_finds_the_part_anywhere_on_its_plane_in_rendered_frames(cell):
+    """Random poses 10-30 cm from the nominal, turned up to 45 deg; rendered by MuJoCo,
+    corners by OpenCV. Of 8 poses where some camera truly sees at least 6 of its points, the
+    candidates the tracker verifies (the first ``verify``) hold one within 3 mm and 2 deg of
+    the simulator's pose in at least 6 (today 7: the miss is a part only camera 2 sees, 6
+    points), and the best candidate is that one in at least 5."""
+    part = cell.workpieces[0]
+    world = World(cell, seed=0)
+    rng = np.random.default_rng(7)
+    detector, search = CornerExtractor(), PlaneSearch()
+    tried, found, first, errors = 0, 0, 0, []
+    try:
+        while tried < 8:
+            heading, turn = rng.uniform(0, 2 * math.pi), rng.uniform(-math.pi / 4, math.pi / 4)
+            shift = rng.uniform(0.1, 0.3) * np.array([math.cos(heading), math.sin(heading)])
+            world.place_part(part.name, _moved(part.T_base_part, shift, turn))
+            world.step({}, {})
+            if max(int(v.visible.sum()) for v in world.true_views()[part.name]) < 6:
+                continue
+            tried += 1
+            corners = [detector.detect(image) for image in world.render()]
+            candidates = search.candidates(cell.cameras, part.feature_points, part.T_base_part,
+                                           part.T_base_part[:2, 3], corners)
+            truth = world.true_part_poses()[part.name]
+            right = [_close(c.T_base_part, truth) for c in candidates[:search.verify]]
+            found += any(right)
+            first += bool(right) and right[0]
+            errors.append([round(1e3 * np.linalg.norm(c.T_base_part[:3, 3] - truth[:3, 3]), 1)
+                           for c in candidates[:search.verify]])
+    finally:
+        world.close()
+    assert found >= 6 and first >= 5, (found, first, errors)
+
+
+def _close(T: np.ndarray, truth: np.ndarray) -> bool:
+    """Within 3 mm and 2 deg."""
+    angle = np.arccos(np.clip((np.trace(T[:3, :3].T @ truth[:3, :3]) - 1) / 2, -1, 1))
+    return bool(np.linalg.norm(T[:3, 3] - truth[:3, 3]) < 3e-3 and angle < math.radians(2.0))
+
+
+def test_search_finds_nothing_in_empty_images(cell):
+    part = cell.workpieces[0]
+    corners = [np.zeros((0, 2)) for _ in cell.cameras]
+    assert PlaneSearch().candidates(cell.cameras, part.feature_points, part.T_base_part,
+                                    part.T_base_part[:2, 3], corners) == []
+    assert PlaneSearch().candidates(cell.cameras, part.feature_points, part.T_base_part,
+                                    part.T_base_part[:2, 3], [None] * len(cell.cameras)) == []
+
+
+def test_tracker_started_far_from_the_part_finds_it_from_the_whole_image(cell):
+    """The part 22 cm and 30 deg from where the cell file says (far beyond the acquisition's
+    64 px windows at the nominal pose): the whole-image search finds it in the first frame,
+    and the acquired pose is within 1 mm of the simulator's; without the search it is never
+    found."""
+    from cellsight.occlusion.predictor import VisibilityPredictor
+    from cellsight.rates import VISION_HZ
+    from cellsight.tracking import Tracker, TrackerParts
+
+    part = cell.workpieces[0]
+    world = World(cell, seed=1)
+    world.place_part(part.name, _moved(part.T_base_part, [-0.12, -0.18], math.radians(30)))
+    predictor = VisibilityPredictor(cell)
+    tracker = Tracker.from_cell(cell, predictor)
+    blind = Tracker.from_cell(cell, predictor, components=TrackerParts(search=None))
+    try:
+        world.step({}, {})
+        images, joints = world.render(), world.measured_joints()
+        rec = tracker.step(images, joints, 0.0).parts[part.name]
+        truth = world.true_part_poses()[part.name]
+        assert rec.status == "acquired"
+        assert np.linalg.norm(rec.T_base_part[:3, 3] - truth[:3, 3]) < 1e-3
+        for k in range(5):
+            status = blind.step(images, joints, k / VISION_HZ).parts[part.name].status
+            assert status == "waiting"
+    finally:
+        world.close()
+
+
+def test_kidnap_moves_a_free_part_once_and_the_conveyor_keeps_the_move(cell):
+    from cellsight.world import ConveyorPath
+
+    part = cell.workpieces[0]
+    start = part.T_base_part[:2, 3]
+    kidnap = Kidnap(part.name, 0.1, 0.2, np.array([0.1, -0.05]), math.radians(20))
+    conveyor = ConveyorPath([start, start + [0.5, 0.0]], speed=0.1)
+    world = World(cell, conveyor=conveyor, errors=Imperfections(kidnap=kidnap))
+    plain = World(cell, conveyor=conveyor)
+    try:
+        for _ in range(200):  # 0.4 s
+            world.step({}, {})
+            plain.step({}, {})
+            if world.time < kidnap.t_move - 1e-9:
+                np.testing.assert_allclose(world.true_part_poses()[part.name],
+                                           plain.true_part_poses()[part.name], atol=1e-9)
+        expected = _moved(plain.true_part_poses()[part.name], kidnap.shift, kidnap.turn)
+        np.testing.assert_allclose(world.true_part_poses()[part.name], expected, atol=1e-6)
+        assert world.faults.moved is True
+        assert kidnap.blind(0.1) and kidnap.blind(0.29) and not kidnap.blind(0.3)
+    finally:
+        world.close()
+        plain.close()
+
+
+def test_lost_after_looking_in_vain_or_after_long_without_measurements():
+    rule = LossRule(lost_after_s=2.0, unseen_s=0.3, min_looked=4, min_found=0.25)
+    assert rule.in_vain(11, 1) is True  # one wrong corner fitting a wide prediction
+    assert rule.in_vain(12, 3) is False and rule.in_vain(3, 0) is None
+    assert rule.in_vain(3, 1) is False
+    assert not rule.lost(1.0, 0.5, math.inf)
+    assert not rule.lost(1.0, 0.5, 0.8)
+    assert rule.lost(1.1, 0.5, 0.8)
+    assert rule.lost(2.6, 0.5, math.inf)
+
+
+def test_kidnap_profile_puts_the_part_back_in_a_cameras_view(cell):
+    from cellsight.realism.draws import KIDNAP_MARGIN_PX, draw_world
+
+    for seed in range(10):
+        k = draw_world("kidnap", cell, seed).errors.kidnap
+        part = cell.workpieces[0]
+        assert 0.1 <= np.hypot(*k.shift) <= 0.3 and abs(k.turn) <= math.radians(45)
+        there = _moved(part.T_base_part, k.shift, 0.0)[:3, 3]
+        assert any(c.sees(there[None], KIDNAP_MARGIN_PX / 2)[0] for c in cell.cameras)
+    assert draw_world("kidnap/faults", cell, 0).errors.kidnap is not None
+    assert draw_world("lab", cell, 0).errors.kidnap is None
+
+
+PROFILE = """
+profiles:
+  early-kidnap:
+    faults:
+      kidnap_probability: 1.0
+      kidnap_time_s: 1.5
+      kidnap_blind_s: 1.0
+      kidnap_distance_mm: 180.0
+      kidnap_direction_deg: 200.0
+      kidnap_turn_deg: 30.0
+"""
+
+
+def test_a_kidnapped_part_is_noticed_and_found_again(tmp_path):
+    """Experiment 1, ideal sensor: blind from 1.5 s to 2.5 s, the part moved 18 cm and turned
+    30 deg at 2.0 s. When the cameras see again, a wrong corner in camera 2 fits the wide
+    prediction for one frame (said ``tracking``, 170 mm off), then the track is degraded;
+    within 0.5 s of seeing again the tracker drops it and finds the part from the whole
+    image, within 2 mm of the truth within 1 s of the part being visible."""
+    from cellsight.experiments import RunConfig, run_experiment
+
+    profile = tmp_path / "kidnap.yaml"
+    profile.write_text(PROFILE)
+    metrics = run_experiment(RunConfig(1, tmp_path / "run", sensor="ideal",
+                                       realism=f"{profile}:early-kidnap", duration=4.0,
+                                       progress=False, video_every=0))
+    k = metrics["kidnap"]
+    assert k["moved"] is True and k["distance_mm"] == pytest.approx(180.0)
+    assert k["wrong_tracking_s"] <= 0.1
+    assert k["noticed_s"] is not None and k["noticed_s"] <= 0.5
+    assert k["reacquired_s"] is not None and k["reacquired_s"] <= 1.0
+    assert metrics["confident_wrong_frames"] <= 2
+    log = (tmp_path / "run" / "run.log").read_text()
+    assert "kidnapping noticed" in log and "found again" in log
