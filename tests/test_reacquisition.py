@@ -191,6 +191,7 @@ def test_a_kidnapped_part_is_noticed_and_found_again(tmp_path):
     assert k["wrong_tracking_s"] <= 0.1
     assert k["noticed_s"] is not None and k["noticed_s"] <= 0.5
     assert k["reacquired_s"] is not None and k["reacquired_s"] <= 1.0
+    assert k["recovered_s"] <= k["reacquired_s"] and k["before_mm"] < 2.0
     assert metrics["confident_wrong_frames"] <= 2
     log = (tmp_path / "run" / "run.log").read_text()
     assert "kidnapping noticed" in log and "found again" in log

@@ -65,16 +65,19 @@ class OcclusionEvents:
 
 class KidnapMonitor:
     """How the tracker meets the kidnapping (:class:`~cellsight.world.faults.Kidnap`), from
-    when the cameras see again (``t_back``), frame by frame until the part is found again:
+    when the cameras see again (``t_back``):
 
     - ``noticed_s``: until the first frame whose status is ``lost`` or ``acquired`` (the
       tracker says its estimate is gone, or starts anew);
     - ``wrong_tracking_s``: how long it said ``tracking`` with the estimate more than
-      ``wrong_mm`` off (a confident wrong pose; ``degraded`` is a warning), before it was
-      found again;
+      ``wrong_mm`` off (a confident wrong pose; ``degraded`` is a warning), before it
+      recovered;
     - ``visible_s``: when (from ``t_back``) some camera truly saw ``min_visible`` of its points;
-    - ``reacquired_s``: from then until the first frame with an estimate within ``found_mm``
-      (None: never, by the end of the run).
+    - from then, ``recovered_s``: until the first frame with an estimate within ``wrong_mm``,
+      and ``reacquired_s``: within ``found_mm`` (None: never, by the end of the run);
+    - ``before_mm``: the error in the last frame before the blind spell, ``settled_mm``: 1 s
+      after it recovered (a world with calibration errors has an error of its own, wherever
+      the part is).
 
     Logged in ``run.log`` as it happens; :meth:`record` for ``metrics.json``."""
 
@@ -82,38 +85,52 @@ class KidnapMonitor:
                  min_visible: int = 4) -> None:
         self.kidnap = kidnap
         self.wrong_mm, self.found_mm, self.min_visible = wrong_mm, found_mm, min_visible
-        self.noticed: float | None = None
-        self.visible: float | None = None
-        self.found: float | None = None
+        self.times: dict[str, float] = {}
+        self.errors: dict[str, float] = {}
         self.wrong_frames = 0
 
     def update(self, t: float, status: str, error_mm: float | None, n_visible: int) -> None:
         """One frame at ``t`` (s): the part's status, its position error (mm; None without an
         estimate) and the most points any camera truly sees."""
-        k = self.kidnap
-        if t < k.t_back - 1e-9 or self.found is not None:
+        k, times = self.kidnap, self.times
+        if t < k.t_start - 1e-9 and error_mm is not None:
+            self.errors["before"] = error_mm
+        if t < k.t_back - 1e-9 or "settled" in times:
             return
-        if self.noticed is None and status in ("lost", "acquired"):
-            self.noticed = t
+        if "noticed" not in times and status in ("lost", "acquired"):
+            times["noticed"] = t
             log.info("t=%6.2f s kidnapping noticed: the track is %s, %.2f s after the cameras "
                      "saw again", t, status, t - k.t_back)
-        if status == "tracking" and error_mm is not None and error_mm > self.wrong_mm:
+        near = error_mm is not None and error_mm <= self.wrong_mm
+        if status == "tracking" and error_mm is not None and not near and "recovered" not in times:
             self.wrong_frames += 1
-        if self.visible is None and n_visible >= self.min_visible:
-            self.visible = t
-        if self.visible is not None and error_mm is not None and error_mm <= self.found_mm:
-            self.found = t
+        if "visible" not in times and n_visible >= self.min_visible:
+            times["visible"] = t
+        if "visible" in times and near and "recovered" not in times:
+            times["recovered"] = t
             log.info("t=%6.2f s kidnapped part found again: %.2f mm off, %.2f s after it was "
-                     "visible", t, error_mm, t - self.visible)
+                     "visible", t, error_mm, t - times["visible"])
+        if "visible" in times and near and error_mm <= self.found_mm:
+            times.setdefault("found", t)
+        if "recovered" in times and t >= times["recovered"] + 1.0 - 1e-9:
+            times["settled"] = t
+            self.errors["settled"] = error_mm if error_mm is not None else float("nan")
 
     def record(self, vision_hz: float, moved: bool | None) -> dict:
-        """The fault and the figures (module docstring), s."""
-        k = self.kidnap
+        """The fault and the figures (module docstring), s and mm."""
+        k, times = self.kidnap, self.times
 
-        def since(t: float | None, start: float | None) -> float | None:
-            return None if t is None or start is None else round(t - start, 4)
+        def since(event: str, start: str | None) -> float | None:
+            t0 = k.t_back if start is None else times.get(start)
+            return None if event not in times or t0 is None else round(times[event] - t0, 4)
 
-        return {**k.record(), "moved": moved, "noticed_s": since(self.noticed, k.t_back),
+        def error(name: str) -> float | None:
+            value = self.errors.get(name)
+            return None if value is None or value != value else round(value, 3)
+
+        return {**k.record(), "moved": moved, "noticed_s": since("noticed", None),
                 "wrong_tracking_s": round(self.wrong_frames / vision_hz, 4),
-                "visible_s": since(self.visible, k.t_back),
-                "reacquired_s": since(self.found, self.visible)}
+                "visible_s": since("visible", None),
+                "recovered_s": since("recovered", "visible"),
+                "reacquired_s": since("found", "visible"),
+                "before_mm": error("before"), "settled_mm": error("settled")}

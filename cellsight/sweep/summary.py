@@ -62,7 +62,30 @@ def flat_row(spec: RunSpec, metrics: dict) -> dict[str, object]:
                 if k not in row and isinstance(v, int | float | str | bool | None)})
     for phase, figures in (metrics.get("phases") or {}).items():
         row.update({f"{phase}_{k}": v for k, v in figures.items()})
+    row.update({f"kidnap_{k}": v for k, v in (metrics.get("kidnap") or {}).items()
+                if isinstance(v, int | float | str | bool | None)})
     return row
+
+
+def kidnap_markdown(specs: Sequence[RunSpec], results: Sequence[dict]) -> str:
+    """The kidnapped runs' table (empty when there are none): per run, the fault and how the
+    tracker met it (``kidnap`` in ``metrics.json``; s)."""
+    lines = ["| cell | exp. | sensor | realism | seed | moved mm | turned deg | noticed s | "
+             "said tracking while >10 mm off s | visible s | recovered s (<= 10 mm) | "
+             "re-acquired s (<= 2 mm) | error before / 1 s after mm | grasp |",
+             "|" + "---|" * 14]
+    for spec, m in zip(specs, results, strict=True):
+        k = m.get("kidnap")
+        if not k or m.get("error"):
+            continue
+        cells = [spec.folder.parent.name, spec.experiment, spec.sensor, spec.realism, spec.seed,
+                 f"{k['distance_mm']:.0f}", f"{k['turn_deg']:.0f}"]
+        cells += [_fmt(k, key, "{:.2f}") for key in ("noticed_s", "wrong_tracking_s",
+                                                      "visible_s", "recovered_s",
+                                                      "reacquired_s")]
+        cells.append(f"{_fmt(k, 'before_mm', '{:.1f}')} / {_fmt(k, 'settled_mm', '{:.1f}')}")
+        lines.append("| " + " | ".join(map(str, cells + [m.get("grasp_success")])) + " |")
+    return "\n".join(lines) + "\n" if len(lines) > 2 else ""
 
 
 def write_csv(path: Path, rows: Sequence[dict]) -> None:
@@ -140,6 +163,8 @@ def write_summary(out: Path, specs: Sequence[RunSpec], results: Sequence[dict]) 
     out = Path(out)
     paths = [out / "summary.csv", out / "summary.md", out / "summary.png"]
     write_csv(paths[0], [flat_row(s, m) for s, m in zip(specs, results, strict=True)])
-    write_file(paths[1], aggregate_markdown(specs, results) + "\n" + markdown(specs, results))
+    kidnaps = kidnap_markdown(specs, results)
+    write_file(paths[1], aggregate_markdown(specs, results) + "\n" + markdown(specs, results)
+               + (f"\nKidnapped runs:\n\n{kidnaps}" if kidnaps else ""))
     plot(paths[2], specs, results)
     return paths
