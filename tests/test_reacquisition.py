@@ -137,9 +137,10 @@ def test_kidnap_moves_a_free_part_once_and_the_conveyor_keeps_the_move(cell):
 
 
 def test_lost_after_looking_in_vain_or_after_long_without_measurements():
-    rule = LossRule(lost_after_s=2.0, unseen_s=0.3, min_looked=4, min_found=0.25)
+    rule = LossRule(lost_after_s=2.0, unseen_s=0.3, min_looked=4, min_found=0.34)
     assert rule.in_vain(11, 1) is True  # one wrong corner fitting a wide prediction
-    assert rule.in_vain(12, 3) is False and rule.in_vain(3, 0) is None
+    assert rule.in_vain(11, 3) is True  # three of eleven: clutter at the old place
+    assert rule.in_vain(12, 5) is False and rule.in_vain(3, 0) is None
     assert rule.in_vain(3, 1) is False
     assert not rule.lost(1.0, 0.5, math.inf)
     assert not rule.lost(1.0, 0.5, 0.8)

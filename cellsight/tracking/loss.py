@@ -25,7 +25,7 @@ class LossRule:
     coast_s: float = 4.0
     unseen_s: float = 0.3
     min_looked: int = 4
-    min_found: float = 0.25
+    min_found: float = 0.34
 
     def coasts(self, t: float, last_update: float) -> bool:
         """The motion model still propagates the estimate at time ``t`` (s)."""
