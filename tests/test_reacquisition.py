@@ -55,7 +55,7 @@ def test_search_finds_the_part_anywhere_on_its_plane_in_rendered_frames(cell):
             tried += 1
             corners = [detector.detect(image) for image in world.render()]
             candidates = search.candidates(cell.cameras, part.feature_points, part.T_base_part,
-                                           part.T_base_part[:2, 3], corners)
+                                           part.T_base_part[None, :2, 3], corners)
             truth = world.true_part_poses()[part.name]
             right = [_close(c.T_base_part, truth) for c in candidates[:search.verify]]
             found += any(right)
@@ -73,13 +73,16 @@ def _close(T: np.ndarray, truth: np.ndarray) -> bool:
     return bool(np.linalg.norm(T[:3, 3] - truth[:3, 3]) < 3e-3 and angle < math.radians(2.0))
 
 
-def test_search_finds_nothing_in_empty_images(cell):
+def test_search_finds_nothing_in_empty_images_or_out_of_view(cell):
     part = cell.workpieces[0]
-    corners = [np.zeros((0, 2)) for _ in cell.cameras]
+    centre = part.T_base_part[None, :2, 3]
+    for corners in ([np.zeros((0, 2)) for _ in cell.cameras], [None] * len(cell.cameras)):
+        assert PlaneSearch().candidates(cell.cameras, part.feature_points, part.T_base_part,
+                                        centre, corners) == []
+    # a square no camera sees: nothing to score, nothing proposed
+    far = [np.array([[100.0, 100.0]]) for _ in cell.cameras]
     assert PlaneSearch().candidates(cell.cameras, part.feature_points, part.T_base_part,
-                                    part.T_base_part[:2, 3], corners) == []
-    assert PlaneSearch().candidates(cell.cameras, part.feature_points, part.T_base_part,
-                                    part.T_base_part[:2, 3], [None] * len(cell.cameras)) == []
+                                    centre + 50.0, far) == []
 
 
 def test_tracker_started_far_from_the_part_finds_it_from_the_whole_image(cell):
@@ -185,7 +188,7 @@ def test_a_kidnapped_part_is_noticed_and_found_again(tmp_path):
     profile = tmp_path / "kidnap.yaml"
     profile.write_text(PROFILE)
     metrics = run_experiment(RunConfig(1, tmp_path / "run", sensor="ideal",
-                                       realism=f"{profile}:early-kidnap", duration=4.0,
+                                       realism=f"{profile}:early-kidnap", duration=3.4,
                                        progress=False, video_every=0))
     k = metrics["kidnap"]
     assert k["moved"] is True and k["distance_mm"] == pytest.approx(180.0)

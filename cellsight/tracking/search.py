@@ -9,9 +9,10 @@ free, ``T = Trans(x, y, z_s) Rz(psi) R_s``. The search:
 1. corners: every corner the sensor finds in each camera's whole image
    (:class:`~cellsight.tracking.interfaces.CornerDetector`), as a distance image
    (``cv2.distanceTransform``: the distance of every pixel to the nearest corner, px);
-2. coarse: every pose of a grid over the square of half-width ``extent_m`` around ``centre``
-   (steps ``step_m`` and ``turn_step_deg``, the whole turn) whose centroid some camera sees is
-   projected into every camera; its score is the number of its feature points that have a
+2. coarse: every pose of a grid over the squares of half-width ``extent_m`` around the
+   ``centres`` (the last estimate and the support pose; steps ``step_m`` and
+   ``turn_step_deg``, the whole turn) whose centroid some camera sees is projected into every
+   camera; its score is the number of its feature points that have a
    corner within a tolerance: the pixels that half a grid step moves a point by, at the
    part's depth (at least ``min_tolerance_px``);
 3. fine: the ``keep`` best coarse poses over all cameras, and the ``keep`` best in each camera
@@ -66,22 +67,23 @@ class PlaneSearch:
     min_points: int = 6
 
     def candidates(self, cameras: Sequence[Camera], points: np.ndarray,
-                   T_support: np.ndarray, centre: np.ndarray,
+                   T_support: np.ndarray, centres: np.ndarray,
                    corners: Sequence[np.ndarray | None]) -> list[Candidate]:
         """The candidate poses, best first (module docstring). ``points`` (F, 3) in the part
-        frame (m); ``centre`` (2,) x, y (m) of the searched square; ``corners``: per camera,
-        the (N, 2) px of the corners found in its whole image (None: the camera gave
-        nothing)."""
+        frame (m); ``centres`` (K, 2) x, y (m) of the searched squares (the grid is shared:
+        its points are multiples of the step); ``corners``: per camera, the (N, 2) px of the
+        corners found in its whole image (None: the camera gave nothing)."""
         maps = [None if c is None else _distance_image(cam, c)
                 for cam, c in zip(cameras, corners, strict=True)]
         if all(m is None for m in maps):
             return []
         board = _Board(cameras, maps, np.asarray(points, dtype=float).reshape(-1, 3),
                        np.asarray(T_support, dtype=float))
-        n = int(round(self.extent_m / self.step_m))
-        axis = np.arange(-n, n + 1) * self.step_m
-        xy = np.stack(np.meshgrid(axis, axis), -1).reshape(-1, 2) + np.asarray(centre)[:2]
+        xy = _squares(np.asarray(centres, dtype=float).reshape(-1, 2), self.extent_m,
+                      self.step_m)
         xy = xy[board.seen(xy)]
+        if len(xy) == 0:
+            return []
         turns = np.radians(np.arange(0.0, 360.0, self.turn_step_deg))
         step, turn = self.step_m, math.radians(self.turn_step_deg)
         grid = _grid(xy, turns)
@@ -191,6 +193,17 @@ def _matched(dist: np.ndarray, uv: np.ndarray, tol: float) -> np.ndarray:
     out = np.zeros(len(uv))
     out[ok] = np.maximum(0.0, 1.0 - dist[v[ok], u[ok]] / tol)
     return out
+
+
+def _squares(centres: np.ndarray, extent: float, step: float) -> np.ndarray:
+    """(G, 2) the points of the grid of pitch ``step`` (m) within ``extent`` (m, per axis) of
+    any of ``centres`` (K, 2), each once."""
+    n = int(round(extent / step))
+    axis = np.arange(-n, n + 1)
+    offsets = np.stack(np.meshgrid(axis, axis), -1).reshape(-1, 2)
+    cells = np.unique(np.concatenate([offsets + np.rint(c / step).astype(int) for c in centres]),
+                      axis=0)
+    return cells * step
 
 
 def _grid(xy: np.ndarray, turns: np.ndarray) -> np.ndarray:

@@ -6,10 +6,10 @@ import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 
-STAGES = ("occlusion", "selection", "windowing", "extraction", "ekf", "search", "total")
-"""The stages of one :meth:`~cellsight.tracking.Tracker.step` (``ekf``: prediction + update;
-``search``: the whole-image search of a part being acquired, :mod:`.search`; ``total``: the
-whole step), in the order of the paper's Fig. 5."""
+STAGES = ("occlusion", "selection", "windowing", "extraction", "ekf", "total")
+"""The stages of one :meth:`~cellsight.tracking.Tracker.step` (``extraction``: in the windows,
+and the whole-image search of a part being acquired, :mod:`.search`; ``ekf``: prediction +
+update; ``total``: the whole step), in the order of the paper's Fig. 5."""
 
 
 class StageTimer:

@@ -388,11 +388,12 @@ class Tracker:
                 or all(o is None for o in observed)):
             return None
         track.searched = t
-        with context.timer("search"):
+        with context.timer("extraction"):
             corners = [None if o is None else detect(o) for o in observed]
-            centre = (track.support if track.ekf is None else track.ekf.pose)[:2, 3]
-            candidates = search.candidates(self.cameras, track.points, track.support, centre,
-                                           corners)
+            centres = [track.support[:2, 3]] + ([] if track.ekf is None else
+                                                [track.ekf.pose[:2, 3]])
+            candidates = search.candidates(self.cameras, track.points, track.support,
+                                           np.array(centres), corners)
         name, C = context.rec.name, len(self.cameras)
         for candidate in candidates[:search.verify]:
             views = context.look(name, candidate.T_base_part)
