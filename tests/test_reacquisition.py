@@ -145,6 +145,7 @@ def test_lost_after_looking_in_vain_or_after_long_without_measurements():
     assert rule.in_vain(11, 3) is True  # three of eleven: clutter at the old place
     assert rule.in_vain(12, 5) is False and rule.in_vain(3, 0) is None
     assert rule.in_vain(3, 1) is False
+    assert rule.in_vain(0, 0, in_view=False) is True  # a prediction flown out of every view
     assert not rule.lost(1.0, 0.5, math.inf)
     assert not rule.lost(1.0, 0.5, 0.8)
     assert rule.lost(1.1, 0.5, 0.8)

@@ -169,11 +169,11 @@ class TrackHealth(Protocol):
         (:meth:`in_vain`; ``inf`` when the last frame that said saw the part)."""
         ...
 
-    def in_vain(self, looked: int, accepted: int) -> bool | None:
+    def in_vain(self, looked: int, accepted: int, in_view: bool) -> bool | None:
         """Whether a tracked frame that looked for ``looked`` features (in the cameras that
-        gave something) and accepted ``accepted`` looked in vain (True: it counts towards
-        ``unseen_since``), saw the part (False: ``unseen_since`` is reset) or says nothing
-        (None)."""
+        gave something) and accepted ``accepted``, its prediction ``in_view`` of some camera
+        or not, looked in vain (True: it counts towards ``unseen_since``), saw the part
+        (False: ``unseen_since`` is reset) or says nothing (None)."""
         ...
 
 

@@ -2,9 +2,11 @@
 
 A part is *lost* after ``lost_after_s`` seconds without an accepted measurement, or sooner,
 after ``unseen_s`` seconds in which every frame that looked for at least ``min_looked`` of its
-features (in the images that came) accepted fewer than ``min_found`` of them: the part is not
-where it is predicted (moved while the cameras were blind, or the estimate has gone bad; a
-lone wrong corner that fits a wide prediction does not hold such a track). The tracker then
+features (in the images that came) accepted fewer than ``min_found`` of them, or, accepting
+nothing, predicted the part outside every camera's view: the part is not where it is
+predicted (moved while the cameras were blind, or the estimate has gone bad; a lone wrong
+corner that fits a wide prediction does not hold such a track, nor does a velocity that wrong
+corners threw out of the views). The tracker then
 re-acquires it, from the whole image when it can (:mod:`.search`); until then frames without
 measurements only predict. The prediction
 coasts at most ``coast_s`` seconds after the last accepted measurement, then stops: the last
@@ -31,9 +33,12 @@ class LossRule:
         """The motion model still propagates the estimate at time ``t`` (s)."""
         return t - last_update <= self.coast_s
 
-    def in_vain(self, looked: int, accepted: int) -> bool | None:
-        """A frame looked in vain, saw the part, or says nothing (module docstring)."""
+    def in_vain(self, looked: int, accepted: int, in_view: bool = True) -> bool | None:
+        """A frame looked in vain, saw the part, or says nothing (module docstring);
+        ``in_view``: some camera's image holds a predicted feature point."""
         if looked >= self.min_looked and accepted < self.min_found * looked:
+            return True
+        if not in_view and not accepted:
             return True
         return False if accepted else None
 

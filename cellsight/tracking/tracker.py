@@ -311,7 +311,8 @@ class Tracker:
                 track.confirmed = context.t
             if context.t - track.confirmed <= unknown.trust_s:
                 self._learn_unknown(context.t, rec, looked)
-        in_vain = self.components.loss.in_vain(int(looked.sum()), report.n_accepted)
+        in_view = any(cam.in_image(rec.pixels[c]).any() for c, cam in enumerate(self.cameras))
+        in_vain = self.components.loss.in_vain(int(looked.sum()), report.n_accepted, in_view)
         if in_vain is not None:
             track.unseen_since = min(track.unseen_since, context.t) if in_vain else np.inf
         if report.n_accepted:
