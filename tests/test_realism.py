@@ -439,6 +439,7 @@ def test_a_skewed_camera_is_exposed_before_the_frame(cell):
     np.testing.assert_array_equal(out[0].pixels, now[0])
     np.testing.assert_array_equal(out[1].pixels, seen["early"])
     assert np.abs(out[1].pixels - now[1]).max() > 1.0  # 2 mm of conveyor travel
+    assert exposures.stamps[0] is None and exposures.stamps[1] == pytest.approx(t_frame - 0.010)
 
 
 def test_one_knob_group_alone_keeps_its_harsh_strength_and_nothing_else(cell):

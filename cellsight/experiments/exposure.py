@@ -3,8 +3,9 @@
 Unsynchronised cameras are exposed at different instants. A camera with a skew ``s`` (s, less
 than a vision period) is exposed during the control steps before the frame, at the first step
 at or after ``t_frame - s`` (:meth:`Exposures.before_step`); the others at the frame's time
-(:meth:`Exposures.frame`). For the rendered sensor an exposure is that camera's image; for the
-ideal sensor it is that camera's true pixels, visibility and corners (an
+(:meth:`Exposures.frame`); the tracker is told when each was exposed
+(:attr:`Exposures.stamps`). For the rendered sensor an exposure is that camera's image; for
+the ideal sensor it is that camera's true pixels, visibility and corners (an
 :class:`~cellsight.experiments.sensors.IdealView`).
 """
 
@@ -25,21 +26,25 @@ class Exposures:
         self.world, self.ideal, self.part = world, ideal, part
         self.skews = np.asarray(skews, dtype=float)
         self._skewed = [int(c) for c in np.flatnonzero(self.skews > 0)]
-        self._early: dict[int, object] = {}
+        self._early: dict[int, tuple[float, object]] = {}
+        self.stamps: list[float | None] = [None] * len(self.skews)
+        """Each camera's exposure time (s) of the last frame (None: the frame's time)."""
 
     def before_step(self, t_frame: float) -> None:
         """Expose each skewed camera whose instant for the frame at ``t_frame`` has come."""
         now = self.world.time
         for c in self._skewed:
             if c not in self._early and now >= t_frame - self.skews[c] - 1e-9:
-                self._early[c] = self._expose([c])[c]
+                self._early[c] = (now, self._expose([c])[c])
 
     def frame(self, truth: PartTruth | None = None) -> list:
         """Every camera's exposure for the frame now (the skewed ones taken earlier);
         ``truth``: the part's truth now, when the caller has it (ideal sensor)."""
         rest = [c for c in range(len(self.skews)) if c not in self._early]
         now = self._expose(rest, truth) if rest else [None] * len(self.skews)
-        out = [self._early.get(c, now[c]) for c in range(len(self.skews))]
+        out = [self._early[c][1] if c in self._early else now[c] for c in range(len(self.skews))]
+        self.stamps = [self._early[c][0] if c in self._early else None
+                       for c in range(len(self.skews))]
         self._early = {}
         return out
 

@@ -347,7 +347,8 @@ class ExperimentRun:
         holders = None
         if self.config.kinematic_prior and world.jaws_closed_on_part(name):
             holders = {self.part.name: self.robot.tcp_pose(joints[name])}
-        frame = self.tracker.step(observed, joints, t, openings, holders)
+        frame = self.tracker.step(observed, joints, t, openings, holders,
+                                  None if dropped else self.exposures.stamps)
         rec = frame.parts[self.part.name]
         estimate = Estimate.of(t, rec)
         if self.clock.ideal:

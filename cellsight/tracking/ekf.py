@@ -179,7 +179,8 @@ class PoseEKF:
         self, observations: list[Observation], gate: Gate | None = None
     ) -> UpdateReport:
         """Gate the observations of all cameras, then fuse the accepted features in one
-        Joseph-form update. ``gate`` None accepts every feature.
+        Joseph-form update. ``gate`` None accepts every feature. A camera exposed before the
+        filter's time (``Observation.lag_s``) measures the pose of its exposure.
 
         An empty list (or one where every feature is gated out) leaves the prediction unchanged.
         """
@@ -189,7 +190,8 @@ class PoseEKF:
             n = len(obs.feature_ids)
             if n == 0:
                 continue
-            pred, H = obs.model.evaluate(self.state, obs.points_model, R_part)
+            pred, H = (obs.model.evaluate(self.state, obs.points_model, R_part)
+                       if obs.lag_s == 0.0 else obs.evaluate(self.state))
             sigma = self.sigma_px(obs.model, obs.camera_index)
             sig[obs.camera_index] = sigma
             cams.append(np.full(n, obs.camera_index))

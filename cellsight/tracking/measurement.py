@@ -37,6 +37,7 @@ import numpy as np
 
 from cellsight._camera_kernel import pinhole_jacobian
 from cellsight.camera import Camera
+from cellsight.tracking.motion import POSE_DIM
 
 
 def rotation_of_state(state: np.ndarray) -> np.ndarray:
@@ -148,7 +149,9 @@ class Observation:
     """Pixels of some features of one workpiece measured in one camera.
 
     ``pixels`` (n, 2) are ideal pinhole pixels (distortion removed); ``points_model`` (n, 3) are
-    the features' model coordinates (part frame, m); ``feature_ids`` (n,) their indices.
+    the features' model coordinates (part frame, m); ``feature_ids`` (n,) their indices;
+    ``lag_s``: how long before the filter's time (s) the camera was exposed (its trigger
+    skew): the filter measures the pose it had then (:meth:`exposed_state`).
     """
 
     model: PinholeMeasurement
@@ -156,4 +159,23 @@ class Observation:
     feature_ids: np.ndarray
     points_model: np.ndarray
     pixels: np.ndarray
+    lag_s: float = 0.0
+
+    def evaluate(self, state: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Predicted pixels (n, 2) and Jacobian (2n, 12) at the filter's ``state`` of the
+        features as exposed ``lag_s`` earlier: the pose moved back along its velocity
+        (:meth:`exposed_state`), so the Jacobian's velocity columns are ``-lag_s`` times its
+        pose columns (the constant-velocity model's own shift; the process noise over the
+        lag, a few milliseconds, is neglected)."""
+        if self.lag_s == 0.0:
+            return self.model.evaluate(state, self.points_model)
+        pred, H = self.model.evaluate(self.exposed_state(state), self.points_model)
+        H[:, POSE_DIM:] -= self.lag_s * H[:, :POSE_DIM]
+        return pred, H
+
+    def exposed_state(self, state: np.ndarray) -> np.ndarray:
+        """The state (12,) moved back ``lag_s`` seconds at its own velocity."""
+        out = np.array(state, dtype=float)
+        out[:POSE_DIM] -= self.lag_s * out[POSE_DIM:]
+        return out
 

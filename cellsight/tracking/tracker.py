@@ -111,7 +111,8 @@ class StepContext:
     sensors took (``observed``, as given to the step), the ``crowd`` of predicted pixels
     (:data:`Crowd`), the stage ``timer``, the part's ``track`` and its ``rec`` being filled;
     ``look(name, T_base_part)``: the visibility source's answer with that part at that pose
-    (the others at their predictions)."""
+    (the others at their predictions); ``lags`` (C,) s: how long before ``t`` each camera was
+    exposed."""
 
     t: float
     observed: Any
@@ -120,6 +121,7 @@ class StepContext:
     track: _Track
     rec: PartFrame
     look: Callable[[str, np.ndarray], Views]
+    lags: np.ndarray
 
 
 class Tracker:
@@ -211,6 +213,7 @@ class Tracker:
         t: float,
         openings: Mapping[str, float] | None = None,
         holders: Mapping[str, np.ndarray] | None = None,
+        stamps: Any = None,
     ) -> TrackerFrame:
         """Process one vision frame at time ``t`` (s): the paper's Fig. 5 (module docstring).
 
@@ -222,8 +225,13 @@ class Tracker:
         prior, optional): part name -> measured pose ``T_base_holder`` of what holds the part
         rigidly this frame (a gripper's TCP from the joint measurements); a part held at this
         frame and the last one is predicted by the holder's motion
-        (:meth:`PoseEKF.predict_carried`) instead of its motion model.
+        (:meth:`PoseEKF.predict_carried`) instead of its motion model; ``stamps`` (optional):
+        each camera's exposure time (s, at most ``t``; a sequence in camera order or a mapping
+        by camera name, None for ``t``), for cameras not triggered together: the filter is
+        predicted to ``t`` and each camera measures the pose of its own exposure
+        (:class:`~cellsight.tracking.measurement.Observation` ``lag_s``).
         """
+        lags = _lags(stamps, self.cameras, t)
         timer = StageTimer()
         records = {}
         with timer("total"):
@@ -241,7 +249,7 @@ class Tracker:
                 part_views = views.get(name)
                 rec = records[name] = self._record(name, track, part_views)
                 if part_views is not None:
-                    context = StepContext(t, observed, crowd, timer, track, rec, look)
+                    context = StepContext(t, observed, crowd, timer, track, rec, look, lags)
                     records[name] = (self._acquire if track.acquiring else self._track)(context)
         masks = [self.unknown.mask(c, t) for c in range(len(self.cameras))]
         return TrackerFrame(float(t), records, timer.seconds, _grabbed(records, len(self.cameras)),
@@ -432,8 +440,8 @@ class Tracker:
             ids = np.array(sorted(found), dtype=np.int64)
             px = np.array([found[i] for i in ids], dtype=float).reshape(-1, 2)
             rec.measured[c, ids] = px
-            observations.append(
-                Observation(self._models[c], c, ids, track.points[ids], cam.undistort(px)))
+            observations.append(Observation(self._models[c], c, ids, track.points[ids],
+                                            cam.undistort(px), float(context.lags[c])))
         return observations
 
 
@@ -460,6 +468,25 @@ def _observed(observed: Any, cameras: Sequence[Camera], c: int) -> Any:
     if isinstance(observed, Mapping):
         return observed.get(cameras[c].name)
     return observed[c] if c < len(observed) else None
+
+
+def _lags(stamps: Any, cameras: Sequence[Camera], t: float) -> np.ndarray:
+    """(C,) s: how long before ``t`` each camera was exposed, from ``stamps`` (see
+    :meth:`Tracker.step`); a stamp after ``t`` or not finite is a ``ValueError`` naming the
+    camera."""
+    lags = np.zeros(len(cameras))
+    if stamps is None:
+        return lags
+    for c in range(len(cameras)):
+        stamp = _observed(stamps, cameras, c)
+        if stamp is None:
+            continue
+        lag = float(t) - float(stamp)
+        if not (np.isfinite(lag) and lag >= -1e-9):
+            raise ValueError(f"Tracker.step: camera {cameras[c].name!r} stamp {stamp!r} must "
+                             f"be a finite time at or before the frame's t = {t}")
+        lags[c] = max(lag, 0.0)
+    return lags
 
 
 def _cameras_grabbed(observed: Any, cameras: Sequence[Camera]) -> np.ndarray:
