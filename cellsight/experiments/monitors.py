@@ -134,3 +134,30 @@ class KidnapMonitor:
                 "recovered_s": since("recovered", "visible"),
                 "reacquired_s": since("found", "visible"),
                 "before_mm": error("before"), "settled_mm": error("settled")}
+
+
+def knock_record(knock, dropped: dict[int, float], recovered: dict[int, np.ndarray],
+                 cameras: Sequence, true_cameras: Sequence | None) -> dict:
+    """How the tracker met a knocked camera (:class:`~cellsight.world.faults.Knock`), for
+    ``metrics.json``: the fault; ``detected_s``, from the knock until the tracker dropped that
+    camera (None: never; negative: dropped before it was knocked); ``recovered``: the
+    re-estimated pose's move from the cell file's (mm, deg) and, where the world's true camera
+    is known (``true_cameras``), its error against it (mm, deg)."""
+    c = knock.camera
+    out = {**knock.record(cameras[c].name), "detected_s": None, "recovered": None}
+    if c in dropped:
+        out["detected_s"] = round(dropped[c] - knock.t, 4)
+    if c in recovered:
+        T = recovered[c]
+        out["recovered"] = {"moved": _pose_gap(cameras[c].T_base_cam, T)}
+        if true_cameras is not None:
+            out["recovered"]["error"] = _pose_gap(true_cameras[c].T_base_cam, T)
+    return out
+
+
+def _pose_gap(A: np.ndarray, B: np.ndarray) -> dict:
+    """How far pose ``B`` is from ``A``: position (mm) and rotation (deg)."""
+    R = A[:3, :3].T @ B[:3, :3]
+    angle = np.degrees(np.arccos(np.clip((np.trace(R) - 1) / 2, -1, 1)))
+    return {"mm": round(1e3 * float(np.linalg.norm(B[:3, 3] - A[:3, 3])), 3),
+            "deg": round(float(angle), 4)}

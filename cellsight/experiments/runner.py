@@ -57,7 +57,12 @@ from cellsight.experiments.exposure import Exposures
 from cellsight.experiments.keyframes import KeyFrames, draw_frame
 from cellsight.experiments.latency import Deliveries, Estimate
 from cellsight.experiments.metrics import frame_metrics
-from cellsight.experiments.monitors import GraspMonitor, KidnapMonitor, OcclusionEvents
+from cellsight.experiments.monitors import (
+    GraspMonitor,
+    KidnapMonitor,
+    OcclusionEvents,
+    knock_record,
+)
 from cellsight.experiments.plant import SimulatedCell
 from cellsight.experiments.rows import FrameRows, FrameTruth, PartTruth
 from cellsight.experiments.scenario import Scenario, scenario
@@ -396,6 +401,16 @@ class ExperimentRun:
                                 estimate.velocity, stamp=estimate.t)
         self.grasp.after_vision(before, self.task.phase)
 
+    def _knock(self) -> dict | None:
+        """The knocked camera's figures (:func:`~.monitors.knock_record`), if any."""
+        knock = self.draws.errors.knock
+        if knock is None:
+            return None
+        check = self.tracker.camera_check
+        truth = getattr(self.world, "truth", None)
+        return knock_record(knock, check.dropped, check.recovered, self.cell.cameras,
+                            None if truth is None else truth.cell.cameras)
+
     def _metrics(self, wall_s: float, ending: dict) -> dict:
         """The metrics for ``metrics.json`` (checked, not written yet): the run's facts, how it
         ended (``ending``: :meth:`_ending`; its ``error`` with every failed write so far),
@@ -425,6 +440,9 @@ class ExperimentRun:
             "frames_dropped": self.frames_dropped,
             "kidnap": None if self.kidnap is None else self.kidnap.record(
                 VISION_HZ, getattr(getattr(self.world, "faults", None), "moved", None)),
+            "cameras_dropped": {self.cell.cameras[c].name: round(t, 4)
+                                for c, t in self.tracker.camera_check.dropped.items()},
+            "knock": self._knock(),
             "grasp_success": bool(self.grasp.held_at_manipulate),
             "grasp_position_error_mm": self.grasp.error_mm,
             "final_phase": str(self.task.phase),

@@ -26,7 +26,7 @@ from cellsight.realism.perturb import (
 )
 from cellsight.realism.profile import Distribution, Profile, load_profile
 from cellsight.realism.unknown import forearm, table_box
-from cellsight.world.faults import Kidnap
+from cellsight.world.faults import Kidnap, Knock
 from cellsight.world.images import ImageEffects
 from cellsight.world.imperfections import Imperfections
 from cellsight.world.servo import ServoParams
@@ -170,7 +170,24 @@ def _imperfections(k: _Knobs, p: Profile, cell: Cell, world_cell: Cell) -> Imper
         quantum_rad=math.radians(r.encoder_resolution_deg), quantum_m=r.encoder_resolution_mm / 1e3,
         noise_rad=r.joint_noise_rad, noise_m=r.joint_noise_m, servo=servo,
         grasp_seat=seat, slip_m_s=slip, intruders=_intruders(k, p, world_cell), images=images,
-        kidnap=_kidnap(k, p, cell))
+        kidnap=_kidnap(k, p, cell), knock=_knock(k, p, cell))
+
+
+def _knock(k: _Knobs, p: Profile, cell: Cell) -> Knock | None:
+    """The knocked camera, if the seed draws one: which, when, and its move in its own frame
+    (directions uniform on the sphere)."""
+    f = p.faults
+    if not cell.cameras or not k.event("faults.knock", f.knock_probability):
+        return None
+    cams = len(cell.cameras)
+    which = int(k.draw("faults.knock_camera", Distribution(dist="uniform", high=cams)))
+    which = f.knock_camera if f.knock_camera >= 0 else which
+    axes = k.draw("faults.knock_axes", Distribution(dist="normal", sigma=1.0), (2, 3))
+    axes /= np.linalg.norm(axes, axis=1, keepdims=True)
+    shift = float(k.draw("faults.knock_shift_mm", f.knock_shift_mm, (), 1e-3)) * axes[0]
+    angle = float(k.draw("faults.knock_rotation_deg", f.knock_rotation_deg, (), math.pi / 180))
+    return Knock(min(which, cams - 1), float(k.draw("faults.knock_time_s", f.knock_time_s)),
+                 small_pose(shift, angle * axes[1]))
 
 
 def _kidnap(k: _Knobs, p: Profile, cell: Cell) -> Kidnap | None:

@@ -162,7 +162,11 @@ class FaultKnobs(_Strict):
     camera goes blind for ``kidnap_blind_s`` (no frame arrives), and halfway through it the
     part, if no gripper holds it, is moved by ``kidnap_distance_mm`` towards
     ``kidnap_direction_deg`` (about the base z axis, from +x) and turned by ``kidnap_turn_deg``
-    about the vertical through its origin; on the conveyor it rides on from there."""
+    about the vertical through its origin; on the conveyor it rides on from there. A camera
+    knocked (probability per run): at ``knock_time_s`` one camera (``knock_camera``, its index
+    in the cell file; -1: drawn) moves by
+    ``knock_shift_mm`` along a drawn direction and turns by ``knock_rotation_deg`` about a drawn
+    axis of its own frame, for the rest of the run."""
 
     kidnap_probability: Probability = 0.0
     kidnap_time_s: Knob = Distribution(dist="uniform", low=3.0, high=6.0)
@@ -170,6 +174,11 @@ class FaultKnobs(_Strict):
     kidnap_distance_mm: Knob = Distribution(dist="uniform", low=100.0, high=300.0)
     kidnap_direction_deg: Knob = Distribution(dist="uniform", low=0.0, high=360.0)
     kidnap_turn_deg: Knob = Distribution(dist="uniform", low=-45.0, high=45.0)
+    knock_probability: Probability = 0.0
+    knock_camera: Annotated[int, Field(strict=True, ge=-1)] = -1
+    knock_time_s: Knob = Distribution(dist="uniform", low=15.0, high=30.0)
+    knock_shift_mm: Knob = Distribution(dist="fixed", value=20.0)
+    knock_rotation_deg: Knob = Distribution(dist="fixed", value=1.0)
 
 
 class ImageKnobs(_Strict):

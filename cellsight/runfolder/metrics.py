@@ -58,6 +58,8 @@ class RunMetrics(BaseModel):
     collision_count: int | None = None
     frames_dropped: int | None = None
     kidnap: dict[str, Any] | None = None
+    knock: dict[str, Any] | None = None
+    cameras_dropped: dict[str, Any] | None = None
     grasp_success: bool | None = None
     grasp_position_error_mm: Number = None
     final_phase: str | None = None

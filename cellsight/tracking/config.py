@@ -10,6 +10,7 @@ from dataclasses import dataclass
 
 from cellsight.camera import Camera
 from cellsight.tracking.acquisition import PnPAcquisition
+from cellsight.tracking.camera_check import CameraCheckRule
 from cellsight.tracking.gate import ChiSquareGate
 from cellsight.tracking.health import HealthRule
 from cellsight.tracking.interfaces import (
@@ -44,7 +45,8 @@ class TrackerParts:
     ``gate`` screens the innovations (None accepts every measurement); ``acquisition`` starts a
     filter from one frame's measurements; ``search`` finds a part being acquired anywhere on
     its support plane in the whole images, when the extractor can ``detect`` corners (None:
-    only near the last prediction or the nominal pose); ``measurement`` builds a camera's
+    only near the last prediction or the nominal pose); ``cameras`` drops a camera that
+    disagrees with the others and re-estimates its pose; ``measurement`` builds a camera's
     measurement model from the camera and the pixel noise ``TrackerConfig.sigma_px`` (px). The
     extractor (the sensor) is the tracker's own argument: it goes with what
     :meth:`Tracker.step` is given.
@@ -59,6 +61,7 @@ class TrackerParts:
     gate: Gate | None = ChiSquareGate(0.999)
     acquisition: Acquisition = PnPAcquisition()
     search: PlaneSearch | None = PlaneSearch()
+    cameras: CameraCheckRule = CameraCheckRule()
     measurement: Callable[[Camera, float], MeasurementModel] = PinholeMeasurement
 
 

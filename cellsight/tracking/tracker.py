@@ -20,7 +20,9 @@ protocol of :mod:`.interfaces` with its default in its own module):
    health monitor (:mod:`.health`) takes the frame's outcome, and a tracked part whose figures
    pass its limits is degraded; the unknown-occluder map (:mod:`.unknown`, shared by the
    parts; off by default) learns from the features not found, or rejected where their camera
-   accepted none, and no feature it covers is selected or used for acquisition.
+   accepted none, and no feature it covers is selected or used for acquisition; the camera
+   check (:mod:`.camera_check`, shared) drops a camera whose innovations are consistently
+   biased while another's are not, and re-estimates its pose.
 
 Within a step, each part's work carries one :class:`StepContext`. Measured pixels are as in the
 image (distorted); the camera undistorts them before the update. Stage times: :mod:`.timing`;
@@ -37,6 +39,7 @@ import numpy as np
 
 from cellsight.camera import Camera
 from cellsight.geometry.transforms import invert_pose, xyz_rpy_from_pose
+from cellsight.tracking.camera_check import CameraCheck, CheckFrame
 from cellsight.tracking.config import TrackerConfig, TrackerParts
 from cellsight.tracking.ekf import AdaptiveNoise, PoseEKF, UpdateReport
 from cellsight.tracking.eligibility import NearOccluderHold
@@ -154,6 +157,7 @@ class Tracker:
         self._models = [self.components.measurement(c, self.config.sigma_px)
                         for c in self.cameras]
         self.unknown = self.components.unknown.maps(self.cameras)
+        self.camera_check = self.components.cameras.check(self.cameras)
         guesses = dict(initial_poses or {})
         names = [c.name for c in self.cameras]
         self.tracks = {
@@ -308,7 +312,8 @@ class Tracker:
             gate = self.components.gate
             if track.coasted:
                 gate = SupportedGate(gate, self.config.resume_support)
-            report = ekf.update(obs, gate)
+            check = self.camera_check
+            report = ekf.update([o for o in obs if check.usable(o.camera_index)], gate)
             track.coasted = report.n_accepted == 0
             _record_update(rec, report)
             looked = rec.selected & _cameras_grabbed(context.observed, self.cameras)[:, None]
@@ -327,6 +332,8 @@ class Tracker:
             track.last_update = ekf.t
             rec.status = TrackStatus.DEGRADED if rec.health.reasons else TrackStatus.TRACKING
         _record_estimate(rec, ekf)
+        _check_cameras(self.camera_check, self.extractor, self.cameras, context, looked,
+                       report.n_accepted > 0)
         return rec
 
     def _usable(self, context: StepContext, t_hold: float) -> np.ndarray:
@@ -468,6 +475,22 @@ def _observed(observed: Any, cameras: Sequence[Camera], c: int) -> Any:
     if isinstance(observed, Mapping):
         return observed.get(cameras[c].name)
     return observed[c] if c < len(observed) else None
+
+
+def _check_cameras(check: CameraCheck, extractor: Extractor, cameras: Sequence[Camera],
+                   context: StepContext, looked: np.ndarray, updated: bool) -> None:
+    """Feed the camera check (:mod:`.camera_check`) this frame of the part (``looked``: the
+    (C, F) features looked for; ``updated``: the usable cameras updated the estimate)."""
+    rec, T = context.rec, context.track.ekf.pose
+    detect = getattr(extractor, "detect", None)
+
+    def corners(c: int) -> np.ndarray | None:
+        seen = _observed(context.observed, cameras, c)
+        return None if detect is None or seen is None else detect(seen)
+
+    check.update(context.t, CheckFrame(
+        rec.innovation, rec.measured, rec.pixels, rec.visible, looked, updated,
+        context.track.points @ T[:3, :3].T + T[:3, 3], corners))
 
 
 def _lags(stamps: Any, cameras: Sequence[Camera], t: float) -> np.ndarray:

@@ -15,8 +15,8 @@ joint measurement noise of 1e-4 rad (m for a prismatic joint).
   applied to the part's relative pose when the grasp engages; ``slip_m_s``: the part then slides
   along the tool's approach axis (+z) at this speed while held;
 - ``intruders``: bodies the cell file does not know (:mod:`cellsight.world.intruders`);
-- ``kidnap``: the part moved while every camera is blind (:mod:`cellsight.world.faults`;
-  None: never);
+- ``kidnap``: the part moved while every camera is blind, ``knock``: a camera knocked
+  (:mod:`cellsight.world.faults`; None: never);
 - ``images``: what the camera and grabber do to each image
   (:class:`~cellsight.world.images.ImageEffects`; None: clean renders);
 - ``collision_depth_m``: the penetration (m) from which a contact is a collision event.
@@ -29,7 +29,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from cellsight.world.faults import Kidnap
+from cellsight.world.faults import Kidnap, Knock
 from cellsight.world.images import ImageEffects
 from cellsight.world.intruders import Intruder
 from cellsight.world.servo import ServoParams
@@ -49,6 +49,7 @@ class Imperfections:
     slip_m_s: float = 0.0
     intruders: tuple[Intruder, ...] = ()
     kidnap: Kidnap | None = None
+    knock: Knock | None = None
     images: ImageEffects | None = None
     collision_depth_m: float = 1e-3
 

@@ -46,6 +46,17 @@ class Scene:
         mujoco.mju_mat2Quat(self.data.mocap_quat[mocap_id], np.ascontiguousarray(T[:3, :3]).ravel())
         self._stale = True
 
+    def move_camera(self, name: str, T_base_cam: np.ndarray) -> None:
+        """Put the fixed camera ``name`` at the OpenCV camera pose ``T_base_cam`` (its MJCF
+        orientation: :func:`~cellsight.world.mjcf.mjcf_camera`)."""
+        cid = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_CAMERA, name)
+        R = np.asarray(T_base_cam, dtype=float)[:3, :3] @ np.diag([1.0, -1.0, -1.0])
+        self.model.cam_pos[cid] = np.asarray(T_base_cam, dtype=float)[:3, 3]
+        mujoco.mju_mat2Quat(self.model.cam_quat[cid], np.ascontiguousarray(R).ravel())
+        mujoco.mj_kinematics(self.model, self.data)
+        mujoco.mj_camlight(self.model, self.data)  # cameras: not in mj_kinematics
+        self._stale = False
+
     def body_pose(self, body_id: int) -> np.ndarray:
         """``T_base_body`` (4x4), up to date."""
         self.sync()

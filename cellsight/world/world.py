@@ -28,8 +28,10 @@ contact force acts. :class:`World` puts together its parts, each in its own modu
 
 from __future__ import annotations
 
+import copy
 import math
 from collections.abc import Mapping, Sequence
+from dataclasses import replace
 from functools import partial
 
 import mujoco
@@ -156,6 +158,17 @@ def _in_hand(grippers: Grippers, robot: str) -> str | None:
     grasp = grippers.grasp(robot)
     return grasp.part if grasp is not None else grippers.clamped(robot)
 
+def _knock_camera(scene: Scene, truth: RayTruth, index: int, T_delta: np.ndarray) -> None:
+    """Move camera ``index`` of the world by ``T_delta`` in its own frame: MuJoCo's camera
+    (what renders) and the truth's (a copy of its cell with the moved camera)."""
+    camera = truth.cell.cameras[index]
+    moved = replace(camera, T_base_cam=camera.T_base_cam @ np.asarray(T_delta, dtype=float))
+    cell = copy.copy(truth.cell)
+    cell.cameras = [moved if i == index else c for i, c in enumerate(truth.cell.cameras)]
+    truth.cell = cell
+    scene.move_camera(camera.name, moved.T_base_cam)
+
+
 class World:
     """The simulated cell (see the module docstring).
 
@@ -204,11 +217,12 @@ class World:
         self.grippers = Grippers(self.scene, cell, self.parts, grasp_poses or {},
                                  grasp_tolerance, jaw_speed, self.dt_control)
         self.intruders = Intruders(self.scene, errors.intruders)
-        self.faults = Faults(errors.kidnap)
+        self.truth = RayTruth(self.scene, cell)
+        self.faults = Faults(errors.kidnap, errors.knock,
+                             partial(_knock_camera, self.scene, self.truth))
         self.contacts = ContactMonitor(
             self.scene, cell, errors.collision_depth_m,
             partial(_in_hand, self.grippers))
-        self.truth = RayTruth(self.scene, cell)
         self._render_size = render_size
         self._renderer: GrayRenderer | None = None
         self._imager = None if errors.images is None else Imager(errors.images, [seed, 2])

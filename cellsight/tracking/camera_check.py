@@ -1,0 +1,274 @@
+"""A camera that disagrees (knocked, or an extrinsic error beyond its calibration's): found by
+a consistent bias of its innovations while another camera holds the pose, then dropped from
+the filter and its pose re-estimated online.
+
+Per camera, over the last ``window_s`` seconds, the innovations (measured minus predicted
+ideal pixel, px) of its measured features, accepted by the gate or not. A camera is *biased*
+when at least ``min_points`` innovations in the window have a mean longer than ``bias_px`` and
+than ``sigmas`` standard errors of that mean; it *disagrees* when it is biased while another
+camera, with at least ``min_points`` innovations in the window, is not. A camera knocked
+further than its windows reach finds its features no more: when, over ``window_s``, it found
+fewer than half of the features it looked for while another camera found at least two thirds
+of its own, the corners of its whole image (the sensor's ``detect``; at most every
+``window_s``) are matched to its predicted pixels: the image offset (within ``max_offset_px``)
+that brings the most predicted pixels within ``match_px`` of a corner, if it brings at least
+``min_matched`` of them and 60 % of the predicted-visible ones, is a displacement of the
+camera, not an occluder (an occluder hides some features, it does not move them all alike).
+A camera that disagrees either way is *dropped*: its features are still measured, but no
+longer update the filter.
+
+While dropped, from ``window_s`` after the drop (the estimate has settled on the other cameras)
+in every frame where they updated it, its pixels of the estimated feature points (base frame)
+are gathered: the measured ones, or, for a displaced
+camera, the whole-image corners found within ``match_px`` of each predicted pixel moved by the
+offset; once ``recalibrate_points`` are in hand its pose is re-estimated by PnP (OpenCV's RANSAC
+with the iterative solver from its cell-file pose, ``match_px`` of reprojection error, with
+its own intrinsics and distortion): the recovered ``T_base_cam``
+(:attr:`CameraCheck.recovered`).
+The camera stays dropped (the visibility source keeps the cell file's camera).
+"""
+
+from __future__ import annotations
+
+import logging
+from collections import deque
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from cellsight.camera import Camera
+from cellsight.geometry.transforms import invert_pose
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class CameraCheckRule:
+    """The numbers of the module docstring. Units: s, px. ``enabled`` False: never drops."""
+
+    window_s: float = 1.0
+    bias_px: float = 8.0
+    sigmas: float = 5.0
+    min_points: int = 15
+    max_offset_px: float = 150.0
+    match_px: float = 2.5
+    min_matched: int = 6
+    recalibrate_points: int = 60
+    enabled: bool = True
+
+    def check(self, cameras: Sequence[Camera]) -> CameraCheck:
+        """The check of these cameras (one for all the tracked parts)."""
+        return CameraCheck(self, cameras)
+
+
+class CameraCheck:
+    """Innovations per camera, the dropped cameras and their recovered poses (module
+    docstring). ``dropped``: camera index -> time (s) it was dropped; ``recovered``: camera
+    index -> re-estimated ``T_base_cam``."""
+
+    def __init__(self, rule: CameraCheckRule, cameras: Sequence[Camera]) -> None:
+        self.rule = rule
+        self.cameras = list(cameras)
+        self._innovations: list[deque] = [deque() for _ in self.cameras]
+        self._found: list[deque] = [deque() for _ in self.cameras]
+        self._searched = np.full(len(self.cameras), -np.inf)
+        self._offsets: dict[int, np.ndarray] = {}
+        self._gathered: dict[int, tuple[list, list]] = {}
+        self.dropped: dict[int, float] = {}
+        self.recovered: dict[int, np.ndarray] = {}
+
+    def usable(self, camera_index: int) -> bool:
+        """The camera's measurements update the filter (it is not dropped)."""
+        return camera_index not in self.dropped
+
+    def update(self, t: float, frame: CheckFrame) -> None:
+        """One tracked frame at ``t`` (s) (:class:`CheckFrame`)."""
+        if not self.rule.enabled:
+            return
+        for c in range(len(self.cameras)):
+            rows = frame.innovation[c][np.isfinite(frame.innovation[c, :, 0])]
+            _slide(self._innovations[c], t, [(t, r) for r in rows], self.rule.window_s)
+            looked = int(frame.looked[c].sum())
+            if looked:
+                found = int((frame.looked[c] & np.isfinite(frame.measured[c, :, 0])).sum())
+                _slide(self._found[c], t, [(t, looked, found)], self.rule.window_s)
+        biased = [self._biased(c) for c in range(len(self.cameras))]
+        for c, bias in enumerate(biased):
+            others = [b for o, b in enumerate(biased) if o != c and o not in self.dropped]
+            if c not in self.dropped and bias is not None and bias > 0 and 0.0 in others:
+                self._drop(t, c, f"its innovations are {bias:.1f} px off on average")
+        for c in range(len(self.cameras)):
+            if c not in self.dropped and self._lost_features(c):
+                self._look_for_offset(t, c, frame)
+        if frame.updated:
+            for c, since in self.dropped.items():
+                if c not in self.recovered and t >= since + self.rule.window_s - 1e-9:
+                    self._gather(t, c, self._pixels(c, frame), frame.points_base)
+
+    def _drop(self, t: float, c: int, why: str) -> None:
+        self.dropped[c] = t
+        self._innovations[c].clear()
+        log.warning("t=%6.2f s camera %s disagrees with the others: %s over %.1f s; dropped "
+                    "from the filter", t, self.cameras[c].name, why, self.rule.window_s)
+
+    def _lost_features(self, c: int) -> bool:
+        """Camera ``c`` found fewer than half of what it looked for over the window while
+        another camera found two thirds of its own."""
+        def share(o: int) -> float | None:
+            rows = self._found[o]
+            looked = sum(r[1] for r in rows)
+            return None if looked < self.rule.min_points else sum(r[2] for r in rows) / looked
+
+        mine = share(c)
+        others = [share(o) for o in range(len(self.cameras)) if o != c and o not in self.dropped]
+        return mine is not None and mine < 0.5 and any(x is not None and x >= 2 / 3
+                                                       for x in others)
+
+    def _look_for_offset(self, t: float, c: int, frame: CheckFrame) -> None:
+        """Match camera ``c``'s whole-image corners to its predicted pixels (module
+        docstring); drop it when one offset moves them all."""
+        if t - self._searched[c] < self.rule.window_s - 1e-9:
+            return
+        self._searched[c] = t
+        corners = frame.corners(c)
+        visible = frame.pixels[c][frame.visible[c]]
+        if corners is None or len(corners) == 0 or len(visible) < self.rule.min_matched:
+            return
+        offset, matched = _best_offset(visible, corners, self.rule.max_offset_px,
+                                       self.rule.match_px)
+        if matched >= max(self.rule.min_matched, 0.6 * len(visible)) and \
+                np.linalg.norm(offset) > self.rule.bias_px:
+            self._offsets[c] = offset
+            self._drop(t, c, f"its {matched} of {len(visible)} features are found "
+                             f"({offset[0]:+.0f}, {offset[1]:+.0f}) px from where predicted")
+
+    def _pixels(self, c: int, frame: CheckFrame) -> np.ndarray:
+        """(F, 2) camera ``c``'s pixels of the features this frame (NaN where none): measured,
+        or for a displaced camera the corners found at the offset."""
+        if c not in self._offsets:
+            return frame.measured[c]
+        out = np.full((len(frame.pixels[c]), 2), np.nan)
+        corners = frame.corners(c)
+        if corners is None or len(corners) == 0:
+            return out
+        ok = self._at_offset(c, frame.pixels[c], frame.visible[c], corners, out)
+        if ok < self.rule.min_matched:  # the estimate or the camera moved: find it again
+            self._offsets[c] = _best_offset(frame.pixels[c][frame.visible[c]], corners,
+                                            self.rule.max_offset_px, self.rule.match_px)[0]
+            ok = self._at_offset(c, frame.pixels[c], frame.visible[c], corners, out)
+        return out if ok >= self.rule.min_matched else np.full_like(out, np.nan)
+
+    def _at_offset(self, c: int, pixels: np.ndarray, visible: np.ndarray, corners: np.ndarray,
+                   out: np.ndarray) -> int:
+        """Write into ``out`` (F, 2) the corners within ``match_px`` of the visible ``pixels``
+        moved by camera ``c``'s offset; how many there are."""
+        moved = pixels + self._offsets[c]
+        d = np.linalg.norm(moved[:, None] - corners[None], axis=2)
+        nearest = np.argmin(d, axis=1)
+        ok = visible & (d[np.arange(len(moved)), nearest] <= self.rule.match_px)
+        out[:] = np.nan
+        out[ok] = corners[nearest[ok]]
+        return int(ok.sum())
+
+    def _biased(self, c: int) -> float | None:
+        """The mean innovation's length (px) when camera ``c`` is biased, 0.0 when it has
+        enough innovations and is not, None when it has too few."""
+        window = self._innovations[c]
+        if len(window) < self.rule.min_points:
+            return None
+        rows = np.array([r for _, r in window])
+        mean = rows.mean(axis=0)
+        spread = rows.std(axis=0, ddof=1) / np.sqrt(len(rows))
+        length = float(np.linalg.norm(mean))
+        return length if (length > self.rule.bias_px
+                          and length > self.rule.sigmas * float(np.linalg.norm(spread))) else 0.0
+
+    def _gather(self, t: float, c: int, measured: np.ndarray, points_base: np.ndarray) -> None:
+        """Gather camera ``c``'s correspondences of this frame; re-estimate its pose once there
+        are enough."""
+        found = np.isfinite(measured[:, 0])
+        pixels, points = self._gathered.setdefault(c, ([], []))
+        pixels.extend(measured[found])
+        points.extend(points_base[found])
+        if len(pixels) < self.rule.recalibrate_points:
+            return
+        T = _solve_camera(self.cameras[c], np.array(points), np.array(pixels),
+                          self.rule.match_px)
+        if T is None:
+            return
+        self.recovered[c] = T
+        nominal = self.cameras[c].T_base_cam
+        moved = invert_pose(nominal) @ T
+        angle = np.degrees(np.arccos(np.clip((np.trace(moved[:3, :3]) - 1) / 2, -1, 1)))
+        log.warning("t=%6.2f s camera %s re-estimated from %d points: %.1f mm and %.2f deg from "
+                    "the cell file's pose", t, self.cameras[c].name, len(pixels),
+                    1e3 * np.linalg.norm(moved[:3, 3]), angle)
+
+
+@dataclass(frozen=True)
+class CheckFrame:
+    """What the check reads of one tracked frame: per camera (C, F, 2) the innovations (px,
+    NaN where none), the measured pixels (as in the image, NaN where none) and the predicted
+    ones, the (C, F) features predicted ``visible`` and ``looked`` for; whether the usable
+    cameras ``updated`` the estimate; the estimated feature points (F, 3), base frame; and
+    ``corners(c)``, the whole-image corners of camera ``c`` (None: none to be had)."""
+
+    innovation: np.ndarray
+    measured: np.ndarray
+    pixels: np.ndarray
+    visible: np.ndarray
+    looked: np.ndarray
+    updated: bool
+    points_base: np.ndarray
+    corners: Callable[[int], np.ndarray | None]
+
+
+def _slide(window: deque, t: float, rows: list, span: float) -> None:
+    """Append ``rows`` (each starting with its time) and drop those older than ``span``."""
+    window.extend(rows)
+    while window and window[0][0] < t - span - 1e-9:
+        window.popleft()
+
+
+def _best_offset(pixels: np.ndarray, corners: np.ndarray, max_px: float,
+                 match_px: float) -> tuple[np.ndarray, int]:
+    """The image offset (2,) px, within ``max_px``, that brings the most ``pixels`` (n, 2)
+    within ``match_px`` of a corner (m, 2), and how many it brings (every pixel-to-corner
+    offset is a candidate)."""
+    diff = (corners[None] - pixels[:, None]).reshape(-1, 2)
+    candidates = diff[np.linalg.norm(diff, axis=1) <= max_px]
+    best, count = np.zeros(2), 0
+    for d in candidates:
+        moved = pixels + d
+        near = np.min(np.linalg.norm(moved[:, None] - corners[None], axis=2), axis=1)
+        n = int(np.sum(near <= match_px))
+        if n > count:
+            best, count = d, n
+    return best, count
+
+
+def _solve_camera(camera: Camera, points: np.ndarray, pixels: np.ndarray,
+                  match_px: float) -> np.ndarray | None:
+    """``T_base_cam`` from base-frame points (n, 3) and their pixels in the image (n, 2), with
+    the camera's intrinsics and distortion, started at its nominal pose, RANSAC with
+    ``match_px`` of reprojection error; None if OpenCV fails."""
+    T0 = camera.T_cam_base
+    rvec0 = cv2.Rodrigues(np.ascontiguousarray(T0[:3, :3]))[0]
+    dist = camera.dist5
+    obj = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 1, 3)
+    img = np.ascontiguousarray(pixels, dtype=np.float64).reshape(-1, 1, 2)
+    try:
+        ok, rvec, tvec, _ = cv2.solvePnPRansac(
+            obj, img, camera.K, dist, rvec0.copy(), T0[:3, 3].reshape(3, 1).copy(),
+            useExtrinsicGuess=True, reprojectionError=match_px, iterationsCount=200,
+            flags=cv2.SOLVEPNP_ITERATIVE)
+    except cv2.error:
+        return None
+    if not ok:
+        return None
+    T_cam_base = np.eye(4)
+    T_cam_base[:3, :3] = cv2.Rodrigues(rvec)[0]
+    T_cam_base[:3, 3] = tvec.ravel()
+    return invert_pose(T_cam_base)
