@@ -12,9 +12,9 @@ free, ``T = Trans(x, y, z_s) Rz(psi) R_s``. The search:
 2. coarse: every pose of a grid over the squares of half-width ``extent_m`` around the
    ``centres`` (the last estimate and the support pose; steps ``step_m`` and
    ``turn_step_deg``, the whole turn) whose centroid some camera sees is projected into every
-   camera; its score is the number of its feature points that have a
-   corner within a tolerance: the pixels that half a grid step moves a point by, at the
-   part's depth (at least ``min_tolerance_px``);
+   camera; its score sums over its feature points ``1 - d / tol`` for the nearest corner at
+   ``d <= tol`` px, the tolerance ``tol`` being the pixels that half a grid step moves a point
+   by at the part's depth (at least ``min_tolerance_px``);
 3. fine: the ``keep`` best coarse poses over all cameras, and the ``keep`` best in each camera
    alone (a part one camera alone sees scores less than clutter two cameras see), are refined
    ``rounds`` times by a local grid of a quarter of the previous steps, with the tolerance
