@@ -9,6 +9,8 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from cellsight import load_cell
 from cellsight.tracking.extraction import CornerExtractor
@@ -137,6 +139,23 @@ def test_kidnap_moves_a_free_part_once_and_the_conveyor_keeps_the_move(cell):
     finally:
         world.close()
         plain.close()
+
+
+@settings(max_examples=100, deadline=None)
+@given(st.floats(-math.pi, math.pi), st.lists(st.floats(-1.0, 1.0), min_size=3, max_size=3))
+def test_rotation_helpers_match_their_closed_forms(angle, axis):
+    """``rotation_z`` is the textbook matrix; ``rotation_angle`` is ``acos((tr R - 1) / 2)``,
+    the angle the kidnap and knock figures report."""
+    from scipy.spatial.transform import Rotation
+
+    from cellsight.geometry.transforms import rotation_angle, rotation_z
+
+    c, s = math.cos(angle), math.sin(angle)
+    np.testing.assert_allclose(rotation_z(angle), [[c, -s, 0], [s, c, 0], [0, 0, 1]],
+                               atol=1e-12)
+    R = Rotation.from_rotvec(np.asarray(axis) * angle).as_matrix()
+    expected = math.acos(min(1.0, max(-1.0, (np.trace(R) - 1) / 2)))
+    assert rotation_angle(R) == pytest.approx(expected, abs=1e-6)
 
 
 def test_lost_after_looking_in_vain_or_after_long_without_measurements():

@@ -11,6 +11,7 @@ import numpy as np
 
 from cellsight.control import Phase
 from cellsight.experiments.plant import GroundTruth
+from cellsight.geometry.transforms import rotation_angle
 
 log = logging.getLogger(__name__)
 
@@ -157,7 +158,6 @@ def knock_record(knock, dropped: dict[int, float], recovered: dict[int, np.ndarr
 
 def _pose_gap(A: np.ndarray, B: np.ndarray) -> dict:
     """How far pose ``B`` is from ``A``: position (mm) and rotation (deg)."""
-    R = A[:3, :3].T @ B[:3, :3]
-    angle = np.degrees(np.arccos(np.clip((np.trace(R) - 1) / 2, -1, 1)))
+    angle = np.degrees(rotation_angle(A[:3, :3].T @ B[:3, :3]))
     return {"mm": round(1e3 * float(np.linalg.norm(B[:3, 3] - A[:3, 3])), 3),
             "deg": round(float(angle), 4)}

@@ -37,6 +37,16 @@ def xyz_rpy_from_pose(T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return T[:3, 3].copy(), Rotation.from_matrix(T[:3, :3]).as_euler(RPY_SEQUENCE)
 
 
+def rotation_z(angle: float) -> np.ndarray:
+    """Rotation matrix (3x3) by ``angle`` (rad) about the z axis."""
+    return Rotation.from_rotvec([0.0, 0.0, float(angle)]).as_matrix()
+
+
+def rotation_angle(R: np.ndarray) -> float:
+    """The angle (rad, in [0, pi]) of a rotation matrix (3x3): its axis-angle magnitude."""
+    return float(Rotation.from_matrix(np.asarray(R, dtype=float)).magnitude())
+
+
 def pose_errors(estimate: np.ndarray, truth: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Position (m) and orientation (rad, the angle of ``R_est^T R_true``) errors between
     (n, 6) rows of ``[x, y, z, roll, pitch, yaw]``; NaN where an estimate row has a NaN."""

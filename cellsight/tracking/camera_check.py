@@ -39,7 +39,7 @@ import cv2
 import numpy as np
 
 from cellsight.camera import Camera
-from cellsight.geometry.transforms import invert_pose
+from cellsight.geometry.transforms import invert_pose, rotation_angle
 
 log = logging.getLogger(__name__)
 
@@ -201,7 +201,7 @@ class CameraCheck:
         self.recovered[c] = T
         nominal = self.cameras[c].T_base_cam
         moved = invert_pose(nominal) @ T
-        angle = np.degrees(np.arccos(np.clip((np.trace(moved[:3, :3]) - 1) / 2, -1, 1)))
+        angle = np.degrees(rotation_angle(moved[:3, :3]))
         log.warning("t=%6.2f s camera %s re-estimated from %d points: %.1f mm and %.2f deg from "
                     "the cell file's pose", t, self.cameras[c].name, len(pixels),
                     1e3 * np.linalg.norm(moved[:3, 3]), angle)

@@ -37,6 +37,7 @@ import cv2
 import numpy as np
 
 from cellsight.camera import Camera
+from cellsight.geometry.transforms import rotation_z
 
 
 @dataclass(frozen=True)
@@ -120,9 +121,8 @@ class _Board:
 
     def pose(self, p: np.ndarray) -> np.ndarray:
         """``T_base_part`` of the pose ``(x, y, psi)``."""
-        c, s = math.cos(p[2]), math.sin(p[2])
         T = np.eye(4)
-        T[:3, :3] = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]) @ self.R_s
+        T[:3, :3] = rotation_z(p[2]) @ self.R_s
         T[:3, 3] = [p[0], p[1], self.z]
         return T
 

@@ -20,6 +20,8 @@ from typing import Protocol
 
 import numpy as np
 
+from cellsight.geometry.transforms import rotation_angle
+
 
 @dataclass(frozen=True)
 class Kidnap:
@@ -64,7 +66,7 @@ class Knock:
 
     def record(self, name: str) -> dict:
         """The fault as plain data (mm, deg, s) for ``metrics.json``; ``name``: the camera's."""
-        angle = np.degrees(np.arccos(np.clip((np.trace(self.T_delta[:3, :3]) - 1) / 2, -1, 1)))
+        angle = np.degrees(rotation_angle(self.T_delta[:3, :3]))
         return {"camera": name, "t_s": round(self.t, 4),
                 "shift_mm": round(1e3 * float(np.linalg.norm(self.T_delta[:3, 3])), 2),
                 "rotation_deg": round(float(angle), 3)}

@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 import mujoco
 import numpy as np
 
-from cellsight.geometry.transforms import invert_pose, transform_points
+from cellsight.geometry.transforms import invert_pose, rotation_z, transform_points
 from cellsight.model import Cell
 from cellsight.world.mjcf import GROUP_PART, GROUP_STATIC
 from cellsight.world.scene import Scene
@@ -177,7 +177,7 @@ class PartMotion:
         for name, part in self._parts.items():
             if part.mode == "conveyor":
                 part.pose = self._conveyor_pose(t)
-                part.pose[:3, :3] = _turn_z(part.turn) @ part.pose[:3, :3]
+                part.pose[:3, :3] = rotation_z(part.turn) @ part.pose[:3, :3]
                 part.pose[:3, 3] += part.offset
                 self._write(name)
             elif part.fall_left > 0:
@@ -211,7 +211,7 @@ class PartMotion:
         if part.mode == "held":
             return False
         part.pose[:2, 3] += np.asarray(shift, dtype=float)
-        part.pose[:3, :3] = _turn_z(turn) @ part.pose[:3, :3]
+        part.pose[:3, :3] = rotation_z(turn) @ part.pose[:3, :3]
         part.offset[:2] += np.asarray(shift, dtype=float)
         part.turn += float(turn)
         self._write(name)
@@ -274,8 +274,3 @@ class PartMotion:
     def _write(self, name: str) -> None:
         self.scene.set_mocap(self._mocap[name], self._parts[name].pose)
 
-
-def _turn_z(angle: float) -> np.ndarray:
-    """Rotation (3x3) by ``angle`` (rad) about the z axis."""
-    c, s = math.cos(angle), math.sin(angle)
-    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
