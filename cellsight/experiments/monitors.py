@@ -4,6 +4,7 @@ changes: the grasp (:class:`GraspMonitor`) and what hides the part (:class:`Occl
 from __future__ import annotations
 
 import logging
+import math
 from collections import Counter
 from collections.abc import Sequence
 
@@ -127,7 +128,7 @@ class KidnapMonitor:
 
         def error(name: str) -> float | None:
             value = self.errors.get(name)
-            return None if value is None or value != value else round(value, 3)
+            return None if value is None or math.isnan(value) else round(value, 3)
 
         return {**k.record(), "moved": moved, "noticed_s": since("noticed", None),
                 "wrong_tracking_s": round(self.wrong_frames / vision_hz, 4),

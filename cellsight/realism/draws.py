@@ -193,7 +193,8 @@ def _knock(k: _Knobs, p: Profile, cell: Cell) -> Knock | None:
 def _kidnap(k: _Knobs, p: Profile, cell: Cell) -> Kidnap | None:
     """The kidnapping of the experiment's workpiece, if the seed draws one. The part is put
     back where a camera sees it: the drawn direction turned by 30 deg steps until the part's
-    start moved that way is inside some camera's view by ``KIDNAP_MARGIN_PX``."""
+    start moved that way is inside some camera's view by ``KIDNAP_MARGIN_PX`` (the last step
+    tried, 330 deg on, when none is)."""
     f = p.faults
     if not cell.workpieces or not k.event("faults.kidnap", f.kidnap_probability):
         return None

@@ -190,8 +190,7 @@ class PoseEKF:
             n = len(obs.feature_ids)
             if n == 0:
                 continue
-            pred, H = (obs.model.evaluate(self.state, obs.points_model, R_part)
-                       if obs.lag_s == 0.0 else obs.evaluate(self.state))
+            pred, H = obs.evaluate(self.state, R_part)
             sigma = self.sigma_px(obs.model, obs.camera_index)
             sig[obs.camera_index] = sigma
             cams.append(np.full(n, obs.camera_index))

@@ -161,14 +161,16 @@ class Observation:
     pixels: np.ndarray
     lag_s: float = 0.0
 
-    def evaluate(self, state: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def evaluate(self, state: np.ndarray,
+                 rotation: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Predicted pixels (n, 2) and Jacobian (2n, 12) at the filter's ``state`` of the
         features as exposed ``lag_s`` earlier: the pose moved back along its velocity
         (:meth:`exposed_state`), so the Jacobian's velocity columns are ``-lag_s`` times its
         pose columns (the constant-velocity model's own shift; the process noise over the
-        lag, a few milliseconds, is neglected)."""
+        lag, a few milliseconds, is neglected). ``rotation``: the state's ``R_base_part``, when
+        the caller has it (used without a lag)."""
         if self.lag_s == 0.0:
-            return self.model.evaluate(state, self.points_model)
+            return self.model.evaluate(state, self.points_model, rotation)
         pred, H = self.model.evaluate(self.exposed_state(state), self.points_model)
         H[:, POSE_DIM:] -= self.lag_s * H[:, :POSE_DIM]
         return pred, H
