@@ -79,12 +79,15 @@ def boundary_distance(poly2d: np.ndarray, xy: np.ndarray) -> np.ndarray:
     return np.linalg.norm(rel - u[..., None] * e, axis=-1).min(axis=1)
 
 
-def segment_oracle(polygons, points, viewpoint, surface_tolerance: float = 0.0) -> OracleAnswer:
+def segment_oracle(polygons, points, viewpoint, surface_tolerance: float = 0.0,
+                   prune: bool = False) -> OracleAnswer:
     """Exact-arithmetic-style answers for every (point, polygon) pair; see the module doc.
 
     ``surface_tolerance`` (absolute): a point nearer than this to a polygon's plane is not hidden
     by it either (a feature resting on a surface); points within the band around that distance
-    are ambiguous."""
+    are ambiguous. ``prune``: skip the polygons whose bounding sphere stays farther than the
+    tolerances from every segment (they can neither hide a point nor make it ambiguous); their
+    pairs read not hit, ``t`` nan and infinite distances (for big scenes: a robot cell)."""
     points = np.asarray(points, dtype=float).reshape(-1, 3)
     view = np.asarray(viewpoint, dtype=float)
     polygons = [np.asarray(p, dtype=float) for p in polygons]
@@ -95,10 +98,14 @@ def segment_oracle(polygons, points, viewpoint, surface_tolerance: float = 0.0) 
     hits = np.zeros((n, m), bool)
     t = np.full((n, m), np.nan)
     edge = np.full((n, m), np.inf)
-    sp_all = np.zeros((n, m))
-    sv_all = np.zeros(m)
+    sp_all = np.full((n, m), np.inf)
+    sv_all = np.full(m, np.inf)
     amb = np.zeros(n, bool)
+    pad = 2 * (surface_tolerance + hi + contact)
+    near = _near_segments(polygons, points, view, pad) if prune else np.ones(m, bool)
     for q, poly in enumerate(polygons):
+        if not near[q]:
+            continue
         centre, normal, u, w = _frame(poly)
         to2d = np.stack([u, w], axis=1)
         poly2d = (poly - centre) @ to2d
@@ -131,6 +138,21 @@ def segment_oracle(polygons, points, viewpoint, surface_tolerance: float = 0.0) 
     t_hit = np.where(hits, t, np.inf)
     occluder = np.where(visible, -1, np.argmin(t_hit, axis=1) if m else -1)
     return OracleAnswer(hits, t, edge, sp_all, sv_all, amb, visible, occluder)
+
+
+def _near_segments(polygons, points: np.ndarray, view: np.ndarray, pad: float) -> np.ndarray:
+    """(P,) bool: the polygons whose bounding sphere (about the vertex mean) comes within
+    ``pad`` of some segment from ``view`` to a point."""
+    if not polygons or not len(points):
+        return np.zeros(len(polygons), bool)
+    centres = np.array([p.mean(axis=0) for p in polygons])
+    radii = np.array([np.linalg.norm(p - c, axis=1).max()
+                      for p, c in zip(polygons, centres, strict=True)])
+    d = points - view
+    rel = centres - view
+    along = np.clip((rel @ d.T) / np.maximum((d * d).sum(axis=1), 1e-300), 0.0, 1.0)
+    gap = np.linalg.norm(rel[:, None, :] - along[..., None] * d[None], axis=-1).min(axis=1)
+    return gap <= radii + pad
 
 
 def _region_distance(poly2d: np.ndarray, xy: np.ndarray) -> np.ndarray:

@@ -39,7 +39,7 @@ def test_builtin_cell_matches_oracle_at_random_configurations(cell, structure, c
             if not seen.any():
                 continue
             oracle = segment_oracle(polygons, features[seen], cam.center,
-                                    predictor.surface_tolerance)
+                                    predictor.surface_tolerance, prune=True)
             for j, i in enumerate(np.flatnonzero(seen)):
                 if oracle.ambiguous[j]:
                     left_out += 1
@@ -53,6 +53,17 @@ def test_builtin_cell_matches_oracle_at_random_configurations(cell, structure, c
     assert left_out <= 0.02 * (checked + left_out)
     assert hidden_by_others > 0.05 * checked  # the scenes really exercise mutual occlusion
     assert checked > (3000 if cull else 600)
+
+
+def test_the_pruned_oracle_answers_as_the_whole_one(cell) -> None:
+    """The oracle's pruning (polygons far from every segment skipped) changes no answer."""
+    for snapshot in random_snapshots(cell, 4, seed=3):
+        polygons, _, features = cell_scene(cell, snapshot)
+        for cam in cell.cameras:
+            whole = segment_oracle(polygons, features, cam.center, 2e-3)
+            pruned = segment_oracle(polygons, features, cam.center, 2e-3, prune=True)
+            for name in ("visible", "occluder", "ambiguous"):
+                np.testing.assert_array_equal(getattr(pruned, name), getattr(whole, name))
 
 
 def test_labels_behind_outside_self_and_gripper(cell) -> None:
@@ -120,7 +131,8 @@ def test_near_occluder_flags_match_the_oracle_on_the_ring(cell) -> None:
                         for a in np.arange(8) * np.pi / 4]
                 ring = np.array([p + 0.01 * (cam.center - p) / np.linalg.norm(cam.center - p)
                                  for p in ring])
-                oracle = segment_oracle(polygons, ring, cam.center, predictor.surface_tolerance)
+                oracle = segment_oracle(polygons, ring, cam.center, predictor.surface_tolerance,
+                                        prune=True)
                 if oracle.ambiguous.any():
                     continue
                 want = any(not v and labels[o] != "self"

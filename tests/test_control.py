@@ -533,6 +533,29 @@ def test_waits_until_the_part_is_localised(caplog) -> None:
     assert np.abs(q[t < t_start] - ROBOT.home).max() < 1e-9
 
 
+def test_a_lost_part_sends_the_approach_back_clear_of_the_views_until_found() -> None:
+    task = _fast_task()
+    sim = _KinematicCell()
+    T_start = ROBOT.tcp_pose(sim.q)
+    t, k, stages = 0.0, 0, []
+    lost = (3.0, 6.0)  # the tracker says lost, with no estimate, between these times
+    while t < 8.0:
+        if k % round(VISION_DT / DT) == 0:
+            is_lost = lost[0] <= t < lost[1]
+            task.update_vision(t, None if is_lost else sim.measured_part_pose(), sim.q,
+                               sim.jaws_closed(), part_lost=is_lost)
+            stages.append((t, task.stage))
+        sim.step(*task.step_control(t, sim.q))
+        k += 1
+        t = k * DT
+        if abs(t - lost[1]) < DT / 2:
+            at_lost_end = ROBOT.tcp_pose(sim.q)
+    assert [s for t, s in stages if lost[0] <= t < lost[1]] == ["clear"] * sum(
+        lost[0] <= t < lost[1] for t, _ in stages)
+    np.testing.assert_allclose(at_lost_end[:3, 3], T_start[:3, 3], atol=0.005)
+    assert "over" in [s for t, s in stages if t >= lost[1]]
+
+
 # ---- smoothness of the 500 Hz set-points -------------------------------------------------------
 
 def _derivatives(q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -146,7 +146,7 @@ def test_several_workpieces_against_the_oracle(three_parts, structure) -> None:
                 if not seen.size:
                     continue
                 oracle = segment_oracle(polygons, features[seen], cam.center,
-                                        predictor.surface_tolerance)
+                                        predictor.surface_tolerance, prune=True)
                 for j, i in enumerate(seen):
                     if oracle.ambiguous[j]:
                         continue

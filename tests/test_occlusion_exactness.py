@@ -68,7 +68,7 @@ def test_camera_in_or_on_a_closed_solid(cell, case, structure) -> None:
         if not seen.size:
             continue
         oracle = segment_oracle(polygons, features[seen], housed.cameras[0].center,
-                                culled.surface_tolerance)
+                                culled.surface_tolerance, prune=True)
         for j, i in enumerate(seen):
             if oracle.ambiguous[j]:
                 continue

@@ -82,7 +82,7 @@ def test_scoring_sees_what_the_segment_oracle_sees(cell, task, candidates, score
         for c in range(0, len(candidates), 4):
             cam = candidates[c]
             inside = cam.sees(features)
-            oracle = segment_oracle(polygons, features, cam.center, 2e-3)
+            oracle = segment_oracle(polygons, features, cam.center, 2e-3, prune=True)
             sure = inside & ~oracle.ambiguous
             assert np.array_equal(scores.visible[k, c][sure], oracle.visible[sure])
             assert not scores.visible[k, c][~inside].any()

@@ -171,6 +171,13 @@ def test_lost_after_looking_in_vain_or_after_long_without_measurements():
     assert rule.lost(2.6, 0.5, math.inf)
 
 
+def test_a_coasting_track_resumes_on_half_of_what_it_looked_for():
+    rule = LossRule(min_looked=4, resume_found=0.5)
+    assert rule.resume_support(11) == 6  # four wrong corners of eleven do not resume it
+    assert rule.resume_support(16) == 8
+    assert rule.resume_support(3) == 0  # too few looked for to judge: the plain gate
+
+
 def test_kidnap_profile_puts_the_part_back_in_a_cameras_view(cell):
     from cellsight.realism.draws import KIDNAP_MARGIN_PX, draw_world
 

@@ -6,7 +6,10 @@ Phases, in order: ``waiting`` -> ``approach`` -> ``grasp`` -> ``manipulate`` -> 
 - waiting: hold the start pose until the part is localised and ``t >= timing.start``.
 - approach: ``over`` (go 5 cm above the part's grasp pose, following it while it moves) until the
   horizontal TCP error has stayed under tolerance for ``timing.stable``; ``descend`` (lower to the
-  grasp pose, still following) until the grasp pose is reached.
+  grasp pose, still following) until the grasp pose is reached. When the tracker says the part
+  is lost, ``clear`` (back to the pose the robot started from, in ``timing.retreat``: the last
+  estimate is stale, and an arm hovering over it can hide the part where it really is) until
+  the part is found again, then ``over``.
 - grasp: ``closing`` (close the jaws, keep moving with the part's last estimated horizontal
   velocity, without vision feedback, for ``timing.close``), then check the jaws; closed on the
   part: ``holding`` for ``timing.hold``; not closed: open the jaws and go back to
@@ -73,7 +76,7 @@ class TaskTiming:
     descend: float = 2.0  # descent from the approach height to the grasp pose
     close: float = 1.5  # jaws closing before their state is checked
     hold: float = 6.5  # holding after a successful check, before manipulating
-    retreat: float = 1.5  # back up to the approach height after a failed check
+    retreat: float = 1.5  # back up after a failed check; stand clear when the part is lost
     lift: float = 3.0  # lift the part before returning HOME (gently: the tracker follows it)
     to_home: float = 7.0  # move to HOME (manipulate, and at the end of release)
     to_final: float = 8.0  # move from HOME to FINAL
@@ -109,6 +112,7 @@ class ServoLoop:
         self.clik = clik
         self.interpolator = interpolator
         self.t0 = 0.0
+        self.T_start: np.ndarray | None = None  # the TCP pose at the first call of start
         self._q: np.ndarray | None = None
 
     def start(self, t: float, q: np.ndarray) -> None:
@@ -120,6 +124,7 @@ class ServoLoop:
         T = self.robot.tcp_pose(self._q)
         self.planner.reset(t, T)
         self.interpolator.reset(T)
+        self.T_start = T
 
     def new_target(self, t: float) -> None:
         """Vision rate: the planner's target at time ``t`` (s) to the interpolating filter."""
@@ -179,6 +184,7 @@ class GraspTask:
         self._gripper = self.open_command
         self._stage_t = 0.0
         self._stable_since: float | None = None
+        self._part_lost = False
         self._handlers = {
             Phase.WAITING: self._waiting, Phase.APPROACH: self._approach, Phase.GRASP: self._grasp,
             Phase.MANIPULATE: self._manipulate, Phase.RELEASE: self._release,
@@ -189,12 +195,14 @@ class GraspTask:
 
     def update_vision(self, t: float, part_pose: np.ndarray | None, joints_measured: np.ndarray,
                       jaws_closed: bool, part_velocity: np.ndarray | None = None,
-                      stamp: float | None = None) -> None:
+                      stamp: float | None = None, part_lost: bool = False) -> None:
         """Vision-rate update at time ``t``: ``part_pose`` is the estimated ``T_base_part``
         (None when not localised) at time ``stamp`` (its image's exposure; default ``t``: no
         latency), ``part_velocity`` its optional linear velocity (m/s), ``joints_measured`` the
-        robot's joints at ``t``, ``jaws_closed`` the gripper's jaw sensor at ``t``."""
+        robot's joints at ``t``, ``jaws_closed`` the gripper's jaw sensor at ``t``;
+        ``part_lost``: the tracker has lost the part (the approach stands clear)."""
         self.servo.start(t, joints_measured)
+        self._part_lost = bool(part_lost)
         if self.phase in (Phase.WAITING, Phase.APPROACH, Phase.GRASP):
             self.planner.part.update(t if stamp is None else stamp, part_pose, part_velocity)
         T_meas = self.robot.tcp_pose(joints_measured)
@@ -222,7 +230,12 @@ class GraspTask:
             self._over(t, self.timing.over)
 
     def _approach(self, t: float, T_meas: np.ndarray, jaws_closed: bool) -> None:
-        if self.stage == "over" and t >= self.planner.segment_end():
+        if self._part_lost and self.stage != "clear":
+            self._set_stage(t, "clear", "part lost: back to the start pose, clear of the views")
+            self.planner.move_to(t, PoseGoal(self.servo.T_start, t), self.timing.retreat)
+        elif self.stage == "clear" and not self._part_lost and self.planner.part.known:
+            self._over(t, self.timing.over)
+        elif self.stage == "over" and t >= self.planner.segment_end():
             goal, _ = self.planner.goal_at(self.planner.goal, t)
             error = float(np.linalg.norm(goal[:2, 3] - T_meas[:2, 3]))
             if error > self.tolerances.horizontal:

@@ -12,21 +12,23 @@ from dataclasses import dataclass
 import numpy as np
 
 from cellsight.tracking.records import PartFrame
+from cellsight.tracking.status import TrackStatus
 
 
 @dataclass(frozen=True)
 class Estimate:
     """The tracker's estimate of frame time ``t`` (s): ``T_base_part`` and linear velocity
-    (m/s), both None when the tracker has no estimate."""
+    (m/s), both None when the tracker has no estimate; ``lost``: the tracker lost the part."""
 
     t: float
     pose: np.ndarray | None
     velocity: np.ndarray | None
+    lost: bool = False
 
     @classmethod
     def of(cls, t: float, rec: PartFrame) -> Estimate:
         if not rec.status.has_estimate:
-            return cls(t, None, None)
+            return cls(t, None, None, rec.status is TrackStatus.LOST)
         return cls(t, np.array(rec.T_base_part), np.array(rec.state[6:9]))
 
 

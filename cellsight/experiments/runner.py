@@ -398,7 +398,7 @@ class ExperimentRun:
         before = self.task.phase
         self.task.update_vision(t, estimate.pose, joints,
                                 self.world.jaws_closed_on_part(self.robot.name),
-                                estimate.velocity, stamp=estimate.t)
+                                estimate.velocity, stamp=estimate.t, part_lost=estimate.lost)
         self.grasp.after_vision(before, self.task.phase)
 
     def _knock(self) -> dict | None:

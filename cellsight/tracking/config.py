@@ -78,8 +78,9 @@ class TrackerConfig:
     features the gate must accept together in the first update after a tracked frame without
     one (a coasting track's prediction is wide, and a lone intruder's corner fits it: in the
     realistic world one such corner threw the velocity off by 0.5 m/s;
-    :class:`~cellsight.tracking.gate.SupportedGate`; 1, the default, is the plain gate; 3 goes
-    with the unknown-occluder map).
+    :class:`~cellsight.tracking.gate.SupportedGate`; at least the loss rule's
+    :meth:`~cellsight.tracking.loss.LossRule.resume_support` share of the features looked for
+    applies too; 3 goes with the unknown-occluder map).
     """
 
     sigma_px: float = 0.5

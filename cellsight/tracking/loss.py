@@ -6,7 +6,10 @@ features (in the images that came) accepted fewer than ``min_found`` of them, or
 nothing, predicted the part outside every camera's view: the part is not where it is
 predicted (moved while the cameras were blind, or the estimate has gone bad; a lone wrong
 corner that fits a wide prediction does not hold such a track, nor does a velocity that wrong
-corners threw out of the views). The tracker then
+corners threw out of the views). For the same reason a coasting track resumes only on a frame
+that accepts, together, at least ``resume_found`` of the features it looked for (after a blind
+second, four wrong corners of eleven fitted the wide prediction of a kidnapped part;
+:meth:`LossRule.resume_support`). The tracker then
 re-acquires it, from the whole image when it can (:mod:`.search`); until then frames without
 measurements only predict. The prediction
 coasts at most ``coast_s`` seconds after the last accepted measurement, then stops: the last
@@ -16,6 +19,7 @@ where it was last predicted.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 
@@ -28,6 +32,7 @@ class LossRule:
     unseen_s: float = 0.3
     min_looked: int = 4
     min_found: float = 0.34
+    resume_found: float = 0.5
 
     def coasts(self, t: float, last_update: float) -> bool:
         """The motion model still propagates the estimate at time ``t`` (s)."""
@@ -41,6 +46,12 @@ class LossRule:
         if not in_view and not accepted:
             return True
         return False if accepted else None
+
+    def resume_support(self, looked: int) -> int:
+        """How many of ``looked`` features a coasting track must accept together to resume:
+        the share ``resume_found`` of them, so that a few wrong corners that fit a wide
+        prediction do not resume it; 0 below ``min_looked``."""
+        return math.ceil(self.resume_found * looked) if looked >= self.min_looked else 0
 
     def lost(self, t: float, last_update: float, unseen_since: float = float("inf")) -> bool:
         """The track is lost at time ``t`` (s): nothing accepted since ``last_update`` (s) for

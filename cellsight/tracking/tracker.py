@@ -308,15 +308,17 @@ class Tracker:
             return ekf.innovation_covariance(self._models[c], c, track.points[idx])[1]
 
         obs = self._measure(context, covariance)
+        looked = rec.selected & _cameras_grabbed(context.observed, self.cameras)[:, None]
+        loss = self.components.loss
         with timer("ekf"):
             gate = self.components.gate
             if track.coasted:
-                gate = SupportedGate(gate, self.config.resume_support)
+                support = loss.resume_support(int(looked.sum()))
+                gate = SupportedGate(gate, max(self.config.resume_support, support))
             check = self.camera_check
             report = ekf.update([o for o in obs if check.usable(o.camera_index)], gate)
             track.coasted = report.n_accepted == 0
             _record_update(rec, report)
-            looked = rec.selected & _cameras_grabbed(context.observed, self.cameras)[:, None]
             rec.health = track.monitor.update(context.t, rec.visible, looked, rec.measured,
                                               rec.rejected, rec.mahalanobis2, rec.unknown)
             unknown = self.components.unknown
@@ -325,7 +327,7 @@ class Tracker:
             if context.t - track.confirmed <= unknown.trust_s:
                 self._learn_unknown(context.t, rec, looked)
         in_view = any(cam.in_image(rec.pixels[c]).any() for c, cam in enumerate(self.cameras))
-        in_vain = self.components.loss.in_vain(int(looked.sum()), report.n_accepted, in_view)
+        in_vain = loss.in_vain(int(looked.sum()), report.n_accepted, in_view)
         if in_vain is not None:
             track.unseen_since = min(track.unseen_since, context.t) if in_vain else np.inf
         if report.n_accepted:
