@@ -23,8 +23,10 @@ $(DEV): $(STAMP)
 lint: dev
 	.venv/bin/ruff check cellsight tests bench scripts
 
+# The suite runs on every core (at most 4; each test module stays on one worker, so its
+# fixtures are built once).
 test: dev lint
-	$(PY) -m pytest
+	$(PY) -m pytest -n auto --maxprocesses 4 --dist loadscope
 
 # The main job: the paper's third experiment on the built-in cell, in a world with a well
 # calibrated lab cell's errors (report in out/experiment3).

@@ -53,7 +53,8 @@ def test_sweep_refuses_an_out_that_is_or_lies_under_a_file(tmp_path, capsys):
     file = tmp_path / "notes.txt"
     file.write_text("mine")
     assert main([*SWEEP, "--out", str(file)]) == 2
-    assert f"--out: {str(file)!r} is not a folder" in _one_line(capsys)
+    line = _one_line(capsys)  # a long path is shortened in the middle
+    assert "--out: '" in line and "notes" in line and "is not a folder" in line
     assert main([*SWEEP, "--out", str(file / "sweep")]) == 2
     assert "is under" in _one_line(capsys)
     assert file.read_text() == "mine"

@@ -180,6 +180,22 @@ def test_unknown_forearm_hides_features_the_predictor_thinks_visible(cell, tmp_p
     assert predicted["part"][c].visible[hidden].any()
 
 
+def test_crossed_puts_the_forearm_across_camera_1_at_10_s(cell):
+    """``crossed``: the forearm's camera is the profile's (index 0), not drawn, on every seed:
+    the bar's centre lies on that camera's line of sight to the part, off the other's."""
+    for seed in range(4):
+        d = draw_world("crossed", cell, seed)
+        arm = next(i for i in d.errors.intruders if i.name == "unknown.forearm")
+        assert (arm.t_in, arm.t_out) == (10.0, 12.0)
+        target = d.cell.workpieces[0].T_base_part[:3, 3] + [0.0, 0.0, 0.05]
+
+        def off_line(cam, point=arm.T_in[:3, 3], target=target):
+            sight = (cam.center - target) / np.linalg.norm(cam.center - target)
+            return np.linalg.norm(np.cross(point - target, sight))
+
+        assert off_line(d.cell.cameras[0]) < 1e-9 < 0.05 < off_line(d.cell.cameras[1])
+
+
 def test_image_noise_matches_its_model_and_jpeg_and_vignetting_act():
     flat = np.full((200, 300), 128, np.uint8)
     effects = ImageEffects(read_noise_dn=1.5, shot_dn_per_e=0.05)

@@ -232,6 +232,8 @@ class GraspTask:
     def _approach(self, t: float, T_meas: np.ndarray, jaws_closed: bool) -> None:
         if self._part_lost and self.stage != "clear":
             self._set_stage(t, "clear", "part lost: back to the start pose, clear of the views")
+            log.info("t=%.3f s: %s/clear (part lost: back to the start pose, clear of the views)",
+                     t, self.phase.value)
             self.planner.move_to(t, PoseGoal(self.servo.T_start, t), self.timing.retreat)
         elif self.stage == "clear" and not self._part_lost and self.planner.part.known:
             self._over(t, self.timing.over)

@@ -227,6 +227,7 @@ def _intruders(k: _Knobs, p: Profile, cell: Cell) -> tuple:
                                     2)))
     if k.event("unmodelled.forearm", u.forearm_probability):
         which = int(k.draw("unmodelled.forearm_camera", Distribution(dist="uniform", high=cams)))
+        which = u.forearm_camera if u.forearm_camera >= 0 else which
         t_in = float(k.draw("unmodelled.forearm_start_s", u.forearm_start_s))
         stay = float(k.draw("unmodelled.forearm_duration_s", u.forearm_duration_s))
         where = float(k.draw("unmodelled.forearm_place", Distribution(dist="uniform", high=1)))

@@ -21,7 +21,7 @@ from cellsight.errors import CellFileError
 from cellsight.model.yaml_input import load_yaml, read_cell_text
 
 BUILTIN_FILE = Path(__file__).resolve().parent.parent / "data" / "realism.yaml"
-BUILTIN = ("exact", "lab", "harsh", "kidnap")
+BUILTIN = ("exact", "lab", "harsh", "kidnap", "crossed")
 
 
 class ProfileError(CellFileError):
@@ -148,13 +148,15 @@ class GeometryKnobs(_Strict):
 class UnmodelledKnobs(_Strict):
     """Bodies the cell file does not know: a box left near the part (its probability per run,
     its size per axis, mm) and an operator's forearm reaching across a camera's line of sight to
-    the part (probability per run, when it arrives and how long it stays, s)."""
+    the part (probability per run, when it arrives and how long it stays, s; across which
+    camera: ``forearm_camera``, its index in the cell file, -1: drawn)."""
 
     box_probability: Probability = 0.0
     box_size_mm: Knob = Distribution(dist="uniform", low=40.0, high=120.0)
     forearm_probability: Probability = 0.0
     forearm_start_s: Knob = Distribution(dist="uniform", low=5.0, high=40.0)
     forearm_duration_s: Knob = Distribution(dist="uniform", low=1.0, high=4.0)
+    forearm_camera: Annotated[int, Field(strict=True, ge=-1)] = -1
 
 
 class FaultKnobs(_Strict):
