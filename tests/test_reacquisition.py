@@ -267,3 +267,26 @@ def test_a_knocked_camera_is_dropped_and_its_pose_re_estimated(tmp_path):
     error = np.linalg.norm(true[late, :3] - est[late, :3], axis=1)
     assert np.sqrt(np.mean(error**2)) < 2.5e-3 and error.max() < 5e-3, error
     assert "camera cam2 disagrees" in (run / "run.log").read_text()
+
+
+@pytest.mark.parametrize(("moved", "dropped"), [(12, True), (8, False)])
+def test_a_camera_is_dropped_for_one_offset_of_nearly_all_its_features(cell, moved, dropped):
+    """Camera 2 finds 4 of its 12 features for a second while camera 1 finds them all. When
+    its whole image holds all 12 moved by one offset, it was knocked: dropped. When only 8
+    (67 %) line up at one offset (clutter beside an occluder), it is kept."""
+    from cellsight.tracking.camera_check import CameraCheckRule, CheckFrame
+
+    rng = np.random.default_rng(4)
+    F = 12
+    pixels = np.stack([rng.uniform([100, 100], [600, 450], (F, 2)) for _ in range(2)])
+    corners = np.concatenate([pixels[1, :moved] + [40.0, -25.0],
+                              rng.uniform([0, 0], [760, 570], (40, 2))])
+    measured = pixels.copy()
+    measured[1, 4:] = np.nan
+    check = CameraCheckRule().check(cell.cameras)
+    for k in range(30):
+        check.update(k / 26, CheckFrame(
+            np.full((2, F, 2), np.nan), measured, pixels, np.ones((2, F), bool),
+            np.ones((2, F), bool), True, rng.normal(size=(F, 3)),
+            lambda c: corners if c == 1 else pixels[0]))
+    assert (1 in check.dropped) is dropped and 0 not in check.dropped
