@@ -48,7 +48,7 @@ experiments: venv
 	$(SWEEP) --out out/faults --seeds 0 1 2 3 4 --realism harsh/cameras harsh/robots \
 		harsh/servo harsh/geometry harsh/unmodelled harsh/images harsh/timing harsh/scenario
 
-# Hostile and random input, 10^5 cases (a few thousand run in `make test`); tests/fuzzing.py.
+# Hostile and random input, 10^5 cases (about a thousand run in `make test`); tests/fuzzing.py.
 fuzz: dev
 	$(PY) scripts/fuzz.py --out out/fuzz
 

@@ -36,7 +36,7 @@ def _scene(rng: np.random.Generator, kind: int):
 def test_fast_paths_agree_with_the_full_bsp(kind):
     rng = np.random.default_rng(100 + kind)
     compared = 0
-    for _ in range(700):
+    for _ in range(350):
         polygons, points, viewpoint = _scene(rng, kind)
         full = visible_mask(polygons, points, viewpoint, _method="full")
         keep = ~segment_oracle(polygons, points, viewpoint).ambiguous
@@ -44,7 +44,7 @@ def test_fast_paths_agree_with_the_full_bsp(kind):
             fast = visible_mask(polygons, points, viewpoint, _method=method)
             np.testing.assert_array_equal(fast[keep], full[keep], err_msg=method)
         compared += int(keep.sum())
-    assert compared > 5000
+    assert compared > 2500
 
 
 def test_far_and_outside_polygons_are_culled_without_changing_answers():
