@@ -271,9 +271,11 @@ def test_a_knocked_camera_is_dropped_and_its_pose_re_estimated(tmp_path):
 
 @pytest.mark.parametrize(("moved", "dropped"), [(12, True), (8, False)])
 def test_a_camera_is_dropped_for_one_offset_of_nearly_all_its_features(cell, moved, dropped):
-    """Camera 2 finds 4 of its 12 features for a second while camera 1 finds them all. When
-    its whole image holds all 12 moved by one offset, it was knocked: dropped. When only 8
-    (67 %) line up at one offset (clutter beside an occluder), it is kept."""
+    """Both cameras agree for a second (all 12 features found, unbiased innovations); then
+    camera 2 finds 4 of them for a second while camera 1 finds them all. When its whole image
+    holds all 12 moved by one offset, it was knocked: dropped. When only 8 (67 %) line up at
+    one offset (clutter beside an occluder), it is kept. A camera that never agreed is never
+    dropped (the last check)."""
     from cellsight.tracking.camera_check import CameraCheckRule, CheckFrame
 
     rng = np.random.default_rng(4)
@@ -281,12 +283,22 @@ def test_a_camera_is_dropped_for_one_offset_of_nearly_all_its_features(cell, mov
     pixels = np.stack([rng.uniform([100, 100], [600, 450], (F, 2)) for _ in range(2)])
     corners = np.concatenate([pixels[1, :moved] + [40.0, -25.0],
                               rng.uniform([0, 0], [760, 570], (40, 2))])
-    measured = pixels.copy()
-    measured[1, 4:] = np.nan
-    check = CameraCheckRule().check(cell.cameras)
-    for k in range(30):
-        check.update(k / 26, CheckFrame(
-            np.full((2, F, 2), np.nan), measured, pixels, np.ones((2, F), bool),
-            np.ones((2, F), bool), True, rng.normal(size=(F, 3)),
-            lambda c: corners if c == 1 else pixels[0]))
+
+    def run(agree_first: bool):
+        check = CameraCheckRule().check(cell.cameras)
+        for k in range(60):
+            measured = pixels.copy()
+            if k >= 30 or not agree_first:
+                measured[1, 4:] = np.nan
+            innovation = np.where(np.isfinite(measured), rng.normal(0, 0.3, measured.shape),
+                                  np.nan)
+            if not agree_first:
+                innovation[1] = np.nan
+            check.update(k / 26, CheckFrame(
+                innovation, measured, pixels, np.ones((2, F), bool), np.ones((2, F), bool),
+                True, rng.normal(size=(F, 3)), lambda c: corners if c == 1 else pixels[0]))
+        return check
+
+    check = run(agree_first=True)
     assert (1 in check.dropped) is dropped and 0 not in check.dropped
+    assert not run(agree_first=False).dropped
