@@ -235,7 +235,7 @@ class GraspTask:
             log.info("t=%.3f s: %s/clear (part lost: back to the start pose, clear of the views)",
                      t, self.phase.value)
             self.planner.move_to(t, PoseGoal(self.servo.T_start, t), self.timing.retreat)
-        elif self.stage == "clear" and not self._part_lost and self.planner.part.known:
+        elif self.stage == "clear" and not self._part_lost:
             self._over(t, self.timing.over)
         elif self.stage == "over" and t >= self.planner.segment_end():
             goal, _ = self.planner.goal_at(self.planner.goal, t)
