@@ -27,8 +27,8 @@ from cellsight.tracking.timing import STAGES
 
 # The header of the runs written before the schema had its own module: the format may not
 # change (strings and missing values quoted, numbers not); columns are only added (the health
-# columns nis, notfound, rejfrac after err_px, then the unknown-occluder map, per camera), and
-# files without them still read.
+# columns nis, notfound, rejfrac after err_px, then the unknown-occluder map, per camera; the
+# cameras' grab time at the end), and files without them still read.
 OLD_HEADER = (
     '"t","phase","stage","status","true_x","true_y","true_z","true_roll","true_pitch",'
     '"true_yaw","est_x","est_y","est_z","est_roll","est_pitch","est_yaw","pnp_x","pnp_y",'
@@ -41,7 +41,8 @@ OLD_HEADER = (
 )
 HEADER = OLD_HEADER.replace(
     '"err_px_c1",', '"err_px_c1","nis_c1","notfound_c1","rejfrac_c1","unknown_c1",').replace(
-    '"err_px_c2",', '"err_px_c2","nis_c2","notfound_c2","rejfrac_c2","unknown_c2",')
+    '"err_px_c2",', '"err_px_c2","nis_c2","notfound_c2","rejfrac_c2","unknown_c2",'
+) + ',"t_grab_ms"'
 F = 16
 
 

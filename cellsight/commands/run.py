@@ -46,6 +46,10 @@ def register(sub: argparse._SubParsersAction) -> None:
                           "paper's per-frame BSP tree")
     run.add_argument("--duration", type=float,
                      help="simulated seconds (default: until the task is done)")
+    run.add_argument("--full-frames", action="store_true",
+                     help="render every camera's whole image every frame (default: only the "
+                          "region of the windows the tracker reads, and whole images where it "
+                          "needs them; the same pixels)")
     run.add_argument("--quiet", action="store_true", help="no progress bar")
     run.add_argument("--overwrite", action="store_true",
                      help="clear --out first if it holds an earlier run (only a run's outputs; "
@@ -98,7 +102,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         experiment=args.experiment, out=out, cell=args.cell, seed=args.seed,
         sensor=args.sensor, occlusion_prediction=not args.no_occlusion_prediction,
         kinematic_prior=args.kinematic_prior, unknown_occluders=args.unknown_occluders,
-        duration=args.duration, progress=not args.quiet,
+        duration=args.duration, progress=not args.quiet, full_frames=args.full_frames,
         overwrite=args.overwrite, realism=args.realism, structure=args.structure,
     )
     try:

@@ -20,10 +20,14 @@ from cellsight.experiments.sensors import IdealView
 
 class Exposures:
     """Exposures of one run's frames (module docstring). ``skews`` (C,) s; ``ideal``: expose
-    truths (ideal sensor) instead of images; ``part``: the workpiece whose truth is exposed."""
+    truths (ideal sensor) instead of images; ``part``: the workpiece whose truth is exposed;
+    ``full_frames``: render each image whole at once, instead of shots that render what the
+    tracker reads of them (:mod:`cellsight.world.shots`)."""
 
-    def __init__(self, world: SimulatedCell, skews: np.ndarray, ideal: bool, part: str) -> None:
+    def __init__(self, world: SimulatedCell, skews: np.ndarray, ideal: bool, part: str,
+                 full_frames: bool = False) -> None:
         self.world, self.ideal, self.part = world, ideal, part
+        self.full_frames = full_frames
         self.skews = np.asarray(skews, dtype=float)
         self._skewed = [int(c) for c in np.flatnonzero(self.skews > 0)]
         self._early: dict[int, tuple[float, object]] = {}
@@ -54,7 +58,7 @@ class Exposures:
 
     def _expose(self, cameras: list[int], truth: PartTruth | None = None) -> list:
         if not self.ideal:
-            return self.world.render(cameras)
+            return self.world.render(cameras) if self.full_frames else self.world.shoot(cameras)
         truth = truth or PartTruth.of(self.world, self.part)
         corners = self.world.true_corners()
         return [IdealView(truth.pixels[c], truth.visible[c], corners[c]) if c in cameras

@@ -51,6 +51,11 @@ class Plant(Protocol):
         theirs (None for the others)."""
         ...
 
+    def shoot(self, cameras: Sequence[int] | None = None) -> list:
+        """As :meth:`render`, each image read when the tracker reads it: an
+        :class:`~cellsight.tracking.grabbing.OnDemandImage` (or an image)."""
+        ...
+
     def close(self) -> None:
         """Release what the plant holds (renderer, devices)."""
         ...

@@ -88,6 +88,7 @@ from cellsight.runfolder import (
     write_metrics,
 )
 from cellsight.tracking import Tracker, TrackerConfig, TrackerParts, UnknownOccluderRule
+from cellsight.tracking.grabbing import grabbed
 from cellsight.tracking.records import PartFrame
 from cellsight.world import World
 
@@ -107,7 +108,9 @@ class RunConfig:
     ``unknown_occluders``: the tracker learns where objects the cell file does not know hide
     the part (:mod:`cellsight.tracking.unknown`), and a coasting track resumes only on three
     features passing the gate together. ``video_every``: a frame of ``views.mp4`` every so many
-    vision frames. ``overwrite``: clear ``out`` first when it holds an earlier run
+    vision frames. ``full_frames``: the rendered cameras render every frame whole, instead of
+    only the region the tracker reads (:mod:`cellsight.world.shots`; the same pixels, see
+    :mod:`cellsight.world.render`). ``overwrite``: clear ``out`` first when it holds an earlier run
     (:func:`check_out_folder`; else a non-empty ``out`` is refused)."""
 
     experiment: int
@@ -123,6 +126,7 @@ class RunConfig:
     tail_s: float = 1.0
     ideal_sigma_px: float = 0.2
     video_every: int = 2
+    full_frames: bool = False
     progress: bool = True
     overwrite: bool = False
     realism: str | Path | Profile = "exact"
@@ -196,7 +200,7 @@ class ExperimentRun:
         kidnap = self.draws.errors.kidnap
         self.kidnap = None if kidnap is None else KidnapMonitor(kidnap)
         self.exposures = Exposures(self.world, self.draws.trigger_skew_s, config.sensor == "ideal",
-                                   self.part.name)
+                                   self.part.name, config.full_frames)
         self.ideal = (IdealExtractor(config.ideal_sigma_px, config.seed)
                       if config.sensor == "ideal" else None)
         tracking, parts = TrackerConfig(), TrackerParts()
@@ -370,8 +374,8 @@ class ExperimentRun:
             writer.write(self.rows.row(t, self.task, frame, rec, truth, pnp))
 
         def draw(caption: str, scale: float = 1.0) -> np.ndarray:
-            grabbed = self.ideal is None and all(i is not None for i in observed)
-            shown = observed if grabbed else world.render()
+            complete = self.ideal is None and all(i is not None for i in observed)
+            shown = [grabbed(o) for o in observed] if complete else world.render()
             return draw_frame(shown, frame, self.part.name, truth.part.visible,
                               self.cell.cameras, caption, scale)
 

@@ -45,6 +45,7 @@ from cellsight.tracking.ekf import AdaptiveNoise, PoseEKF, UpdateReport
 from cellsight.tracking.eligibility import NearOccluderHold
 from cellsight.tracking.extraction import CornerExtractor
 from cellsight.tracking.gate import SupportedGate
+from cellsight.tracking.grabbing import grabbed
 from cellsight.tracking.interfaces import Acquisition, Extractor, TrackMonitor
 from cellsight.tracking.measurement import Observation
 from cellsight.tracking.motion import POSE_DIM
@@ -406,6 +407,8 @@ class Tracker:
                 or all(o is None for o in observed)):
             return None
         track.searched = t
+        with context.timer("grab"):
+            observed = [grabbed(o) for o in observed]
         with context.timer("extraction"):
             corners = [None if o is None else detect(o) for o in observed]
             centres = [track.support[:2, 3]] + ([] if track.ekf is None else
@@ -441,9 +444,10 @@ class Tracker:
                 plan = self.components.windows.plan(cam, rec.pixels[c, idx], idx,
                                                     covariance(c, idx), crowd, own, size_px)
                 rec.windows[c] = plan
+            with timer("grab"):
+                seen = grabbed(_observed(context.observed, self.cameras, c), plan.boxes)
             with timer("extraction"):
-                found = self.extractor.extract(c, _observed(context.observed, self.cameras, c),
-                                               plan)
+                found = self.extractor.extract(c, seen, plan)
             if not found:
                 continue
             ids = np.array(sorted(found), dtype=np.int64)
@@ -488,7 +492,11 @@ def _check_cameras(check: CameraCheck, extractor: Extractor, cameras: Sequence[C
 
     def corners(c: int) -> np.ndarray | None:
         seen = _observed(context.observed, cameras, c)
-        return None if detect is None or seen is None else detect(seen)
+        if detect is None or seen is None:
+            return None
+        with context.timer("grab"):
+            seen = grabbed(seen)
+        return detect(seen)
 
     check.update(context.t, CheckFrame(
         rec.innovation, rec.measured, rec.pixels, rec.visible, looked, updated,

@@ -4,6 +4,16 @@ Images are rendered with the camera's pinhole model (see
 :func:`~cellsight.world.mjcf.mjcf_camera`); a camera with lens distortion gets the rendered
 image warped by the camera's distortion maps (:meth:`Camera.distortion_maps
 <cellsight.camera.Camera.distortion_maps>`), so that ``Camera.project`` matches the pixels.
+
+A region of an image (a half-open box ``(u0, v0, u1, v1)`` of pixels, ``image[v0:v1, u0:u1]``)
+can be rendered alone, as a camera that grabs only its windows reads only them
+(:meth:`GrayRenderer.render_region`). It is rendered into the smallest square framebuffer of
+``TILES`` that holds it (a render costs about its framebuffer's area), in tiles of the largest
+when none does, with the whole image's projection and the viewport moved by the region's
+origin, so its pixels are the whole render's: the same to the grey level except, at a few
+anti-aliased edges (about 3 pixels in 100,000), by one grey level, where the shifted
+viewport rounds a vertex differently. A distorted camera renders the region of the pinhole
+image its distortion maps read.
 """
 
 from __future__ import annotations
@@ -17,11 +27,15 @@ import numpy as np
 
 from cellsight.camera import Camera
 
+TILES = (128, 256, 384)  # px: sides of the square framebuffers that regions are rendered into
+
 
 class GrayRenderer:
-    """Renders every cell camera of a MuJoCo model as (H, W) uint8 grayscale images."""
+    """Renders every cell camera of a MuJoCo model as (H, W) uint8 grayscale images, whole
+    or by region."""
 
     def __init__(self, model, cameras: list[Camera], size: tuple[int, int] | None = None) -> None:
+        self._model = model
         self._names = [c.name for c in cameras]
         self._sizes = [size or (c.width, c.height) for c in cameras]
         self._maps = [c.distortion_maps(s) for c, s in zip(cameras, self._sizes, strict=True)]
@@ -34,6 +48,11 @@ class GrayRenderer:
                 f"(import cellsight.world first, or export it in the shell)."
             ) from exc
         self._rgb = {s: np.empty((s[1], s[0], 3), np.uint8) for s in self._renderers}
+        self._tiles: dict[int, mujoco.Renderer] = {}
+
+    def size(self, camera: int) -> tuple[int, int]:
+        """(width, height) px of camera ``camera``'s rendered images."""
+        return self._sizes[camera]
 
     def render(self, data, cameras: Sequence[int] | None = None) -> list[np.ndarray | None]:
         """Every camera's image, in camera order; with ``cameras`` (indices), only theirs (None
@@ -53,7 +72,70 @@ class GrayRenderer:
             images.append(gray)
         return images
 
+    def render_region(self, data, camera: int, box: Sequence[int]) -> np.ndarray:
+        """(v1 - v0, u1 - u0) uint8: the pixels ``box`` = (u0, v0, u1, v1) of camera
+        ``camera``'s image (inside the image; module docstring), as :meth:`render` gives
+        them."""
+        u0, v0, u1, v1 = (int(x) for x in box)
+        width, height = self._sizes[camera]
+        if not (0 <= u0 < u1 <= width and 0 <= v0 < v1 <= height):
+            raise ValueError(f"render_region: box {tuple(box)} is not inside the "
+                             f"{width}x{height} image of camera {self._names[camera]!r}")
+        maps = self._maps[camera]
+        if maps is None:
+            return self._pinhole_region(data, camera, (u0, v0, u1, v1))
+        mu, mv = maps[0][v0:v1, u0:u1], maps[1][v0:v1, u0:u1]
+        inside = (mu > -1) & (mu < width) & (mv > -1) & (mv < height)
+        if not inside.any():
+            return np.zeros((v1 - v0, u1 - u0), np.uint8)
+        s0 = max(int(np.floor(mu[inside].min())), 0), max(int(np.floor(mv[inside].min())), 0)
+        s1 = (min(int(np.floor(mu[inside].max())) + 2, width),
+              min(int(np.floor(mv[inside].max())) + 2, height))
+        source = self._pinhole_region(data, camera, (*s0, *s1))
+        # the maps moved by the source's integer origin sample the same pixels; samples outside
+        # the whole image read the border value there as here
+        padded = np.zeros((s1[1] - s0[1] + 2, s1[0] - s0[0] + 2), np.uint8)
+        padded[1:-1, 1:-1] = source
+        return cv2.remap(padded, mu - np.float32(s0[0] - 1), mv - np.float32(s0[1] - 1),
+                         cv2.INTER_LINEAR, borderValue=0)
+
+    def _pinhole_region(self, data, camera: int, box: tuple[int, int, int, int]) -> np.ndarray:
+        """The pixels ``box`` of camera ``camera``'s pinhole (undistorted) render, tile by
+        tile."""
+        u0, v0, u1, v1 = box
+        width, height = self._sizes[camera]
+        side = next((t for t in TILES if t >= max(u1 - u0, v1 - v0)), TILES[-1])
+        tile = self._tile_renderer(side)
+        tile.update_scene(data, camera=self._names[camera])
+        tile._gl_context.make_current()
+        out = np.empty((v1 - v0, u1 - u0), np.uint8)
+        for tv in range(v0, v1, side):
+            for tu in range(u0, u1, side):
+                w, h = min(side, u1 - tu), min(side, v1 - tv)
+                # OpenGL's rows count from the bottom: the tile's bottom row is image row tv + h
+                viewport = mujoco.MjrRect(-tu, -(height - tv - h), width, height)
+                mujoco.mjr_render(viewport, tile.scene, tile._mjr_context)
+                part = np.empty((h, w, 3), np.uint8)
+                mujoco.mjr_readPixels(part, None, mujoco.MjrRect(0, 0, w, h), tile._mjr_context)
+                out[tv - v0:tv - v0 + h, tu - u0:tu - u0 + w] = cv2.cvtColor(
+                    np.flipud(part), cv2.COLOR_RGB2GRAY)
+        return out
+
+    def _tile_renderer(self, side: int) -> mujoco.Renderer:
+        """The renderer whose framebuffer is a ``side`` px square (made on first use: a
+        framebuffer's size is the model's ``offwidth`` x ``offheight`` when it is made)."""
+        if side not in self._tiles:
+            glob = self._model.vis.global_
+            shape = glob.offwidth, glob.offheight
+            glob.offwidth = glob.offheight = side
+            try:
+                self._tiles[side] = mujoco.Renderer(self._model, side, side)
+            finally:
+                glob.offwidth, glob.offheight = shape
+        return self._tiles[side]
+
     def close(self) -> None:
-        for renderer in self._renderers.values():
+        for renderer in [*self._renderers.values(), *self._tiles.values()]:
             renderer.close()
         self._renderers.clear()
+        self._tiles.clear()

@@ -51,6 +51,7 @@ from cellsight.world.paths import ConveyorPath, JointTask, PartMotion, Waypoint
 from cellsight.world.render import GrayRenderer
 from cellsight.world.scene import Scene
 from cellsight.world.servo import JointServo
+from cellsight.world.shots import Shot
 from cellsight.world.truth import RayTruth
 
 
@@ -305,11 +306,20 @@ class World:
         """One (H, W) uint8 grayscale image per camera, in ``cell.cameras`` order, as the
         cameras grab it (``errors.images``); with ``cameras`` (indices), only theirs (None for
         the others: a camera triggered at another time)."""
+        return [None if s is None else s.whole() for s in self.shoot(cameras)]
+
+    def shoot(self, cameras: Sequence[int] | None = None) -> list[Shot | None]:
+        """One exposure per camera now, in ``cell.cameras`` order, rendered when it is read
+        (:mod:`cellsight.world.shots`); with ``cameras`` (indices), only theirs (None for the
+        others)."""
         self.scene.sync()
         if self._renderer is None:
             self._renderer = GrayRenderer(self.scene.model, self.cell.cameras, self._render_size)
-        images = self._renderer.render(self.scene.data, cameras)
-        return images if self._imager is None else self._imager.apply(images, self.time)
+        data = copy.copy(self.scene.data)
+        return [Shot(self._renderer, self._imager, data, c, self.time,
+                     0 if self._imager is None else self._imager.exposure())
+                if cameras is None or c in cameras else None
+                for c in range(len(self.cell.cameras))]
 
     def close(self) -> None:
         """Free the renderer's OpenGL context."""

@@ -1,0 +1,40 @@
+"""What a camera gives the tracker: a whole image, or an image read on demand.
+
+The paper's system grabs only the image windows of the selected features. A camera that can do
+the same gives the tracker an :class:`OnDemandImage` instead of an array: the tracker asks it
+for the region of a camera's windows once they are planned (:func:`grabbed` with the boxes),
+and for the whole image only where it needs one (the whole-image search and the camera check).
+Anything else (an image array, the ideal sensor's view, None for a camera that gave nothing)
+is passed on as it is. The time a grab takes is the tracker's ``grab`` stage
+(:mod:`.timing`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any, Protocol, runtime_checkable
+
+import numpy as np
+
+
+@runtime_checkable
+class OnDemandImage(Protocol):
+    """One camera's exposure, read when asked: pixels as in the image (u = column, v = row),
+    boxes half-open ``(u0, v0, u1, v1)``."""
+
+    def grab(self, boxes: Sequence[Sequence[int]]) -> np.ndarray:
+        """(H, W) uint8: the exposure's pixels in at least the region that holds every box;
+        what lies outside that region is unspecified (read as 0)."""
+        ...
+
+    def whole(self) -> np.ndarray:
+        """(H, W) uint8: the whole image."""
+        ...
+
+
+def grabbed(observed: Any, boxes: Sequence[Sequence[int]] | None = None) -> Any:
+    """What a camera took, read for the windows ``boxes`` (None: the whole image) when it is
+    an :class:`OnDemandImage`; anything else as it is."""
+    if not isinstance(observed, OnDemandImage):
+        return observed
+    return observed.whole() if boxes is None else observed.grab(boxes)

@@ -1,0 +1,86 @@
+"""A camera's exposure, rendered when the tracker reads it: only its windows' region, or the
+whole image where one is asked for.
+
+:meth:`World.shoot <cellsight.world.World.shoot>` takes a :class:`Shot` per camera: a copy of
+the simulation's state at the exposure, the camera, its time and its noise offset. Reading it
+renders then (:meth:`GrayRenderer.render_region
+<cellsight.world.render.GrayRenderer.render_region>`) and applies the camera's image effects
+to that region (:class:`~cellsight.world.images.Imager`), so the pixels read are those of
+the whole image, which :meth:`Shot.whole` renders, as a whole render of the same state would
+show them (:mod:`cellsight.world.render` says to what precision). It is the
+:class:`~cellsight.tracking.grabbing.OnDemandImage` of the tracker.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from cellsight.world.images import Imager
+from cellsight.world.render import GrayRenderer
+
+
+class Shot:
+    """One camera's exposure (module docstring): ``data`` the simulation's state then (not
+    changed afterwards), ``camera`` its index, ``t`` (s) its time, ``offset`` its noise
+    offset (:meth:`Imager.exposure`). ``grabbed_px`` counts the pixels rendered for it."""
+
+    def __init__(self, renderer: GrayRenderer, imager: Imager | None, data, camera: int,
+                 t: float, offset: int) -> None:
+        self._renderer, self._imager, self._data = renderer, imager, data
+        self.camera, self.t, self.offset = camera, t, offset
+        width, height = renderer.size(camera)
+        self.shape = (height, width)
+        self._whole: np.ndarray | None = None
+        self.grabbed_px = 0
+
+    def whole(self) -> np.ndarray:
+        """(H, W) uint8: the whole image (rendered once)."""
+        if self._whole is None:
+            image = self._renderer.render(self._data, [self.camera])[self.camera]
+            self.grabbed_px += image.size
+            self._whole = image if self._imager is None else self._imager.finish(
+                self._imager.develop(image, (0, 0), self.shape, self.t, self.offset))
+        return self._whole
+
+    def grab(self, boxes: Sequence[Sequence[int]]) -> np.ndarray:
+        """(H, W) uint8: the image's pixels in the bounding box of ``boxes`` (half-open
+        ``(u0, v0, u1, v1)``, clipped to the image), 0 elsewhere; the whole image once it has
+        been rendered."""
+        if self._whole is not None:
+            return self._whole
+        canvas = np.zeros(self.shape, np.uint8)
+        region = self._region(boxes)
+        if region is None:
+            return canvas
+        u0, v0, u1, v1 = region
+        canvas[v0:v1, u0:u1] = self._read(region)
+        return canvas
+
+    def _region(self, boxes: Sequence[Sequence[int]]) -> tuple[int, int, int, int] | None:
+        """The boxes' bounding box inside the image, widened to whole JPEG blocks when the
+        camera compresses; None when empty."""
+        b = np.asarray(boxes, dtype=np.int64).reshape(-1, 4)
+        if len(b) == 0:
+            return None
+        h, w = self.shape
+        step = 1 if self._imager is None else self._imager.block()
+        u0, v0 = (max(int(b[:, i].min()), 0) // step * step for i in (0, 1))
+        u1, v1 = (min(-(-int(b[:, i].max()) // step) * step, n) for i, n in ((2, w), (3, h)))
+        return (u0, v0, u1, v1) if u0 < u1 and v0 < v1 else None
+
+    def _read(self, region: tuple[int, int, int, int]) -> np.ndarray:
+        """The pixels of ``region``: rendered with the imager's blur context around it, then
+        the image effects."""
+        u0, v0, u1, v1 = region
+        if self._imager is None:
+            self.grabbed_px += (u1 - u0) * (v1 - v0)
+            return self._renderer.render_region(self._data, self.camera, region)
+        h, w = self.shape
+        m = self._imager.margin()
+        p0, q0, p1, q1 = max(u0 - m, 0), max(v0 - m, 0), min(u1 + m, w), min(v1 + m, h)
+        raw = self._renderer.render_region(self._data, self.camera, (p0, q0, p1, q1))
+        self.grabbed_px += raw.size
+        developed = self._imager.develop(raw, (p0, q0), self.shape, self.t, self.offset)
+        return self._imager.finish(developed[v0 - q0:v1 - q0, u0 - p0:u1 - p0])

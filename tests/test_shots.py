@@ -1,0 +1,131 @@
+"""Rendering only what the tracker reads (cellsight.world.render regions, cellsight.world.shots):
+a region's pixels are the whole render's (judged against the whole render itself), the image
+effects give a region what they give the whole image, and a run that renders only the windows
+measures what a run rendering whole frames measures."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from cellsight import load_cell
+from cellsight.camera import Camera
+from cellsight.experiments import RunConfig, run_experiment
+from cellsight.model import Cell
+from cellsight.tracking.grabbing import OnDemandImage, grabbed
+from cellsight.world import World
+from cellsight.world.images import ImageEffects, Imager
+from cellsight.world.shots import Shot
+
+
+def _distorted(cell: Cell) -> Cell:
+    dist = [-0.3, 0.12, 0.002, -0.0015, 0.0]
+    cameras = [Camera(c.K, c.width, c.height, c.T_base_cam, dist, c.name) for c in cell.cameras]
+    return Cell(cell.name, cell.robots, cell.workpieces, cell.static, cameras)
+
+
+def _boxes(rng: np.random.Generator, width: int, height: int, n: int) -> list[tuple]:
+    """Random boxes inside the image, from a few pixels to more than the largest tile."""
+    out = []
+    for _ in range(n):
+        u0, v0 = int(rng.integers(0, width - 4)), int(rng.integers(0, height - 4))
+        out.append((u0, v0, int(rng.integers(u0 + 1, min(width, u0 + 450) + 1)),
+                    int(rng.integers(v0 + 1, min(height, v0 + 450) + 1))))
+    return out
+
+
+@pytest.mark.parametrize("distorted", [False, True], ids=["pinhole", "distorted"])
+def test_a_region_renders_the_whole_images_pixels(distorted: bool):
+    cell = load_cell()
+    world = World(_distorted(cell) if distorted else cell)
+    for _ in range(400):  # 0.8 s: the crossing robot on its way
+        world.step({}, {})
+    whole = world.render()
+    renderer = world._renderer
+    width, height = renderer.size(0)
+    rng = np.random.default_rng(7)
+    differing = total = 0
+    for k, box in enumerate(_boxes(rng, width, height, 60)):
+        c = k % len(whole)
+        u0, v0, u1, v1 = box
+        region = renderer.render_region(world.scene.data, c, box).astype(int)
+        ref = whole[c].astype(int)
+        diff = region - ref[v0:v1, u0:u1]
+        differing, total = differing + np.count_nonzero(diff), total + diff.size
+        # where a pixel differs, it is an anti-aliased edge sample: by no more than the
+        # contrast around it in the whole render
+        for v, u in zip(*np.nonzero(diff), strict=True):
+            around = ref[max(v + v0 - 1, 0):v + v0 + 2, max(u + u0 - 1, 0):u + u0 + 2]
+            assert abs(diff[v, u]) <= around.max() - around.min()
+    assert total > 10 ** 6 and differing <= 1e-4 * total
+    world.close()
+
+
+class _Picture:
+    """A renderer of one fixed picture (for the image effects' region arithmetic alone; the
+    renderer itself is judged above)."""
+
+    def __init__(self, picture: np.ndarray) -> None:
+        self.picture = picture
+
+    def size(self, camera: int) -> tuple[int, int]:
+        return self.picture.shape[1], self.picture.shape[0]
+
+    def render(self, data, cameras):
+        return [self.picture.copy()]
+
+    def render_region(self, data, camera, box):
+        u0, v0, u1, v1 = box
+        return self.picture[v0:v1, u0:u1].copy()
+
+
+def test_image_effects_give_a_region_the_whole_images_pixels():
+    rng = np.random.default_rng(3)
+    picture = (np.add.outer(np.arange(240) * 0.7, np.arange(320) * 0.4) % 200
+               + rng.integers(0, 40, (240, 320))).astype(np.uint8)
+    effects = ImageEffects(read_noise_dn=2.0, shot_dn_per_e=0.05, gain_drift=0.1,
+                           defocus_px=1.2, vignetting=0.2, jpeg_quality=60)
+    imager = Imager(effects, 5)
+    shot = Shot(_Picture(picture), imager, None, 0, 1.3, imager.exposure())
+    for box in _boxes(rng, 320, 240, 25):
+        u0, v0, u1, v1 = box
+        read = shot.grab([box])
+        assert np.array_equal(read[v0:v1, u0:u1], Shot(
+            _Picture(picture), imager, None, 0, 1.3, shot.offset).whole()[v0:v1, u0:u1])
+    # a second exposure has noise of its own; the effects did act
+    other = Shot(_Picture(picture), imager, None, 0, 1.3, imager.exposure()).whole()
+    whole = shot.whole()
+    assert np.abs(other.astype(int) - whole).mean() > 1.0
+    assert np.abs(whole.astype(int) - picture).mean() > 2.0
+
+
+def test_a_shot_is_the_state_it_was_taken_in():
+    world = World(load_cell())
+    before = world.render()
+    shots = world.shoot()  # taken now, read later
+    assert all(isinstance(s, OnDemandImage) for s in shots)
+    robot = world.cell.robots[0].name
+    q = world.measured_joints()[robot].copy()
+    q[:3] += [0.4, -0.3, 0.3]
+    for _ in range(500):  # 1 s: the arm moves
+        world.step({robot: q}, {})
+    assert all(np.array_equal(grabbed(s), b) for s, b in zip(shots, before, strict=True))
+    assert any(not np.array_equal(a, b) for a, b in zip(world.render(), before, strict=True))
+    assert grabbed(before[1]) is before[1]  # an array is passed on as it is
+    world.close()
+
+
+def test_a_run_on_windows_measures_what_a_run_on_whole_frames_measures(tmp_path: Path):
+    runs = {}
+    for full in (False, True):
+        runs[full] = run_experiment(RunConfig(
+            experiment=3, out=tmp_path / str(full), duration=2.0, full_frames=full,
+            progress=False, video_every=0))
+    windows, whole = runs[False], runs[True]
+    assert windows["measurements"] == whole["measurements"] > 300
+    assert windows["wrong_accepted"] == whole["wrong_accepted"]
+    assert windows["position_rmse_mm"] == pytest.approx(whole["position_rmse_mm"], abs=0.01)
+    assert windows["timing_ms"]["grab"] > 0.0 and whole["timing_ms"]["grab"] < 0.5
+    assert windows["pixels_grabbed_fraction"] == whole["pixels_grabbed_fraction"] < 0.02
