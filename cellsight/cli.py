@@ -15,6 +15,7 @@ from __future__ import annotations
 import argparse
 import sys
 
+from cellsight import threads
 from cellsight.commands import cameras, cells, compare, run, show, visibility
 from cellsight.commands.text import debug, one_line
 from cellsight.errors import CellsightError
@@ -42,6 +43,7 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
+        threads.apply()
         return args.func(args)
     except (CellsightError, KeyError) as exc:
         print(f"cellsight: error: {one_line(exc, 500)}", file=sys.stderr)

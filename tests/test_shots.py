@@ -104,7 +104,7 @@ def test_image_effects_give_a_region_the_whole_images_pixels():
 def test_a_shot_is_the_state_it_was_taken_in():
     world = World(load_cell())
     before = world.render()
-    shots = world.shoot()  # taken now, read later
+    shots = world.render(on_demand=True)  # taken now, read later
     assert all(isinstance(s, OnDemandImage) for s in shots)
     robot = world.cell.robots[0].name
     q = world.measured_joints()[robot].copy()

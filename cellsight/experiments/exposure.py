@@ -58,7 +58,7 @@ class Exposures:
 
     def _expose(self, cameras: list[int], truth: PartTruth | None = None) -> list:
         if not self.ideal:
-            return self.world.render(cameras) if self.full_frames else self.world.shoot(cameras)
+            return self.world.render(cameras, on_demand=not self.full_frames)
         truth = truth or PartTruth.of(self.world, self.part)
         corners = self.world.true_corners()
         return [IdealView(truth.pixels[c], truth.visible[c], corners[c]) if c in cameras

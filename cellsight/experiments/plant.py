@@ -46,14 +46,10 @@ class Plant(Protocol):
         """The gripper's signal: its jaws closed on a part."""
         ...
 
-    def render(self, cameras: Sequence[int] | None = None) -> list[np.ndarray | None]:
+    def render(self, cameras: Sequence[int] | None = None, *, on_demand: bool = False) -> list:
         """One image per camera, in the cell's camera order; with ``cameras`` (indices), only
-        theirs (None for the others)."""
-        ...
-
-    def shoot(self, cameras: Sequence[int] | None = None) -> list:
-        """As :meth:`render`, each image read when the tracker reads it: an
-        :class:`~cellsight.tracking.grabbing.OnDemandImage` (or an image)."""
+        theirs (None for the others). ``on_demand``: each read when the tracker reads it (an
+        :class:`~cellsight.tracking.grabbing.OnDemandImage`, or an image)."""
         ...
 
     def close(self) -> None:

@@ -139,20 +139,40 @@ def forest_occluders(polys, forest, poses, views, starts, points, tol):  # pragm
     4): object -> base frame. Camera c at ``views[c]`` (base frame) asks for
     ``points[starts[c]:starts[c + 1]]`` (base frame); ``tol`` (m): the surface tolerance.
 
-    Per camera (in parallel): an object whose ball misses the cone from the camera through
-    its points is skipped; per point, an object whose ball misses the segment is skipped;
-    else the segment, moved to the object's frame, descends the hierarchy.
+    The cameras in parallel (:func:`forest_occluders_serial`: one after the other, the same
+    answers), each by :func:`_camera_occluders`.
     """
+    occluder = np.full(points.shape[0], -1, np.int32)
+    best = np.ones(points.shape[0])
+    for c in prange(views.shape[0]):
+        _camera_occluders(c, polys, forest, poses, views, starts, points, tol, occluder, best)
+    return occluder
+
+
+@njit(cache=True)
+def forest_occluders_serial(polys, forest, poses, views, starts,
+                            points, tol):  # pragma: no cover - jit
+    """:func:`forest_occluders`, one camera after the other (no thread started)."""
+    occluder = np.full(points.shape[0], -1, np.int32)
+    best = np.ones(points.shape[0])
+    for c in range(views.shape[0]):
+        _camera_occluders(c, polys, forest, poses, views, starts, points, tol, occluder, best)
+    return occluder
+
+
+@njit(cache=True)
+def _camera_occluders(c, polys, forest, poses, views, starts, points, tol, occluder,
+                      best):  # pragma: no cover - jit
+    """Camera ``c``'s points of :func:`forest_occluders`: their ``occluder`` and crossing
+    ``best`` (fraction of the segment) written in place. An object whose ball misses the cone
+    from the camera through its points is skipped; per point, an object whose ball misses the
+    segment is skipped; else the segment, moved to the object's frame, descends the
+    hierarchy."""
     node_box, node_links, node_polys = forest.node_box, forest.node_links, forest.node_polys
     object_root, object_sphere = forest.object_root, forest.object_sphere
     cull_backs, contain_margin = forest.cull_backs, forest.contain_margin
-    n_points = points.shape[0]
-    occluder = np.full(n_points, -1, np.int32)
-    best = np.ones(n_points)
-    for c in prange(views.shape[0]):
-        a, b = starts[c], starts[c + 1]
-        if b == a:
-            continue
+    a, b = starts[c], starts[c + 1]
+    if b > a:
         axis, cos_half, sin_half, length = _cone(views, points, c, a, b)
         stack = np.empty(STACK, np.int64)
         for k in range(object_root.shape[0]):
@@ -220,4 +240,3 @@ def forest_occluders(polys, forest, poses, views, starts, points, tol):  # pragm
                             occluder[i] = q
                             later = best[i] - TIE
                             sooner = np.nextafter(best[i] + TIE, np.inf)
-    return occluder

@@ -18,10 +18,19 @@ from __future__ import annotations
 
 import numpy as np
 
-from cellsight.occlusion._forest_kernel import ForestArrays, forest_occluders
+from cellsight.occlusion._forest_kernel import (
+    ForestArrays,
+    forest_occluders,
+    forest_occluders_serial,
+)
 from cellsight.occlusion.soup import PolygonSoup
 
 LEAF_SIZE = 4  # polygons at most per leaf
+#: Query points from which the cameras are answered in parallel threads (one per camera, at
+#: most the process's share of cores, :mod:`cellsight.threads`); below it, one after the other
+#: in the calling thread. A camera's few dozen points take microseconds, less than waking a
+#: thread, and on a busy machine a woken thread may wait a scheduler slice (milliseconds).
+PARALLEL_MIN_POINTS = 2048
 
 
 class ObjectForest:
@@ -67,8 +76,9 @@ class ObjectForest:
         base frame, m), those of camera c (optical centre ``views[c]``) being
         ``points[starts[c]:starts[c + 1]]``; ``poses`` (K, 4, 4) object -> base; ``tol`` (m):
         the surface tolerance (a point this near a polygon's plane is not hidden by it)."""
-        return forest_occluders(self.soup.arrays(), self.arrays(), poses, views, starts, points,
-                                float(tol))
+        parallel = len(views) > 1 and len(points) >= PARALLEL_MIN_POINTS
+        kernel = forest_occluders if parallel else forest_occluders_serial
+        return kernel(self.soup.arrays(), self.arrays(), poses, views, starts, points, float(tol))
 
     def arrays(self) -> ForestArrays:
         """The hierarchies as the compiled kernel reads them, as one argument."""

@@ -3,7 +3,8 @@
 :func:`map_jobs` yields ``(index, result)`` as jobs finish, in any order, with a rich progress
 bar. ``workers`` = 1 and no scheduler: in this process, one after the other (no pickling, the
 numba caches warm); ``workers`` > 1: a :class:`~concurrent.futures.ProcessPoolExecutor` of
-spawned processes (not forked: numba's OpenMP threads, once started, make a fork unsafe);
+spawned processes (not forked: numba's threads, once started, make a fork unsafe), each with
+its share of the cores (:mod:`cellsight.threads`);
 ``scheduler``: the address of a Dask ``distributed`` scheduler (``tcp://host:8786``) or a
 :class:`distributed.Client` / ``LocalCluster`` object, whose workers must be able to import
 cellsight. Jobs and results must pickle; the function must be importable by name (module
@@ -15,6 +16,7 @@ propagates.
 
 from __future__ import annotations
 
+import os
 import signal
 import threading
 import time
@@ -26,6 +28,7 @@ from typing import Any
 
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
+from cellsight import threads
 from cellsight.errors import CellsightError
 
 GRACE_S = 10.0
@@ -99,10 +102,14 @@ def map_jobs(fn: Callable[[Any], Any], jobs: Sequence[Any], *, workers: int = 1,
 
 
 def _on_pool(fn: Callable, jobs: Sequence, workers: int) -> Iterator[tuple[int, Any]]:
-    pool = ProcessPoolExecutor(min(workers, len(jobs)), mp_context=get_context("spawn"))
+    workers = min(workers, len(jobs))
+    per_job = threads.share(workers)  # each worker its share of the cores (threading policy)
+    pool = ProcessPoolExecutor(workers, mp_context=get_context("spawn"),
+                               initializer=threads.apply, initargs=(per_job,))
     done = False
     try:
-        futures = {pool.submit(fn, job): i for i, job in enumerate(jobs)}
+        with _environment(threads.environment(per_job)):  # the workers start at the submits
+            futures = {pool.submit(fn, job): i for i, job in enumerate(jobs)}
         for future in as_completed(futures):
             yield futures[future], future.result()
         done = True
@@ -111,6 +118,21 @@ def _on_pool(fn: Callable, jobs: Sequence, workers: int) -> Iterator[tuple[int, 
             pool.shutdown()
         else:  # interrupted, a job failed, or the caller stopped early
             _stop_pool(pool)
+
+
+@contextmanager
+def _environment(values: dict[str, str]) -> Iterator[None]:
+    """``os.environ`` with ``values`` while the pool's processes start (they inherit it)."""
+    before = {name: os.environ.get(name) for name in values}
+    os.environ.update(values)
+    try:
+        yield
+    finally:
+        for name, value in before.items():
+            if value is None:
+                os.environ.pop(name, None)
+            else:
+                os.environ[name] = value
 
 
 def _stop_pool(pool: ProcessPoolExecutor) -> None:

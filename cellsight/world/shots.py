@@ -1,9 +1,9 @@
 """A camera's exposure, rendered when the tracker reads it: only its windows' region, or the
 whole image where one is asked for.
 
-:meth:`World.shoot <cellsight.world.World.shoot>` takes a :class:`Shot` per camera: a copy of
-the simulation's state at the exposure, the camera, its time and its noise offset. Reading it
-renders then (:meth:`GrayRenderer.render_region
+:meth:`World.render(on_demand=True) <cellsight.world.World.render>` takes a :class:`Shot` per
+camera: a copy of the simulation's state at the exposure, the camera, its time and its noise
+offset. Reading it renders then (:meth:`GrayRenderer.render_region
 <cellsight.world.render.GrayRenderer.render_region>`) and applies the camera's image effects
 to that region (:class:`~cellsight.world.images.Imager`), so the pixels read are those of
 the whole image, which :meth:`Shot.whole` renders, as a whole render of the same state would

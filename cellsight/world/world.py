@@ -302,24 +302,22 @@ class World:
         """Every collision so far (:mod:`cellsight.world.contacts`), as plain data."""
         return self.contacts.report()
 
-    def render(self, cameras: Sequence[int] | None = None) -> list[np.ndarray | None]:
+    def render(self, cameras: Sequence[int] | None = None, *,
+               on_demand: bool = False) -> list[np.ndarray | Shot | None]:
         """One (H, W) uint8 grayscale image per camera, in ``cell.cameras`` order, as the
         cameras grab it (``errors.images``); with ``cameras`` (indices), only theirs (None for
-        the others: a camera triggered at another time)."""
-        return [None if s is None else s.whole() for s in self.shoot(cameras)]
-
-    def shoot(self, cameras: Sequence[int] | None = None) -> list[Shot | None]:
-        """One exposure per camera now, in ``cell.cameras`` order, rendered when it is read
-        (:mod:`cellsight.world.shots`); with ``cameras`` (indices), only theirs (None for the
-        others)."""
+        the others: a camera triggered at another time). ``on_demand``: each image is a
+        :class:`~cellsight.world.shots.Shot` of the state now, rendered when it is read (only
+        the region read)."""
         self.scene.sync()
         if self._renderer is None:
             self._renderer = GrayRenderer(self.scene.model, self.cell.cameras, self._render_size)
         data = copy.copy(self.scene.data)
-        return [Shot(self._renderer, self._imager, data, c, self.time,
-                     0 if self._imager is None else self._imager.exposure())
-                if cameras is None or c in cameras else None
-                for c in range(len(self.cell.cameras))]
+        shots = [Shot(self._renderer, self._imager, data, c, self.time,
+                      0 if self._imager is None else self._imager.exposure())
+                 if cameras is None or c in cameras else None
+                 for c in range(len(self.cell.cameras))]
+        return shots if on_demand else [None if s is None else s.whole() for s in shots]
 
     def close(self) -> None:
         """Free the renderer's OpenGL context."""
