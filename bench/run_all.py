@@ -7,6 +7,7 @@ import sys
 from pathlib import Path
 
 BENCHES = ["bench_cell_occlusion", "bench_ur_cell", "bench_bsp_scaling", "bench_tracking",
+           "bench_latency",
            "bench_kinematics", "bench_visible_mask", "bench_scale", "bench_placement"]
 
 

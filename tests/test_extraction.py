@@ -9,7 +9,13 @@ import pytest
 from render_helpers import PartRenderer, conveyor_pose
 
 from cellsight import load_cell
-from cellsight.tracking import CornerExtractor, WindowConfig, extract_corner, plan_windows
+from cellsight.tracking import (
+    CornerExtractor,
+    WindowConfig,
+    extract_corner,
+    extraction,
+    plan_windows,
+)
 
 SS = 32  # supersampling of the drawn test images
 
@@ -124,3 +130,31 @@ def test_windows_on_faces_edges_or_background_give_nothing(rendered):
                         cam.height, visible_px, config=WindowConfig(max_size_px=24))
     found = CornerExtractor().extract(c, image, plan)
     assert len(plan.features) == 4 and found == {}
+
+
+def test_compiled_gradients_and_structure_are_numpys(rendered):
+    """The compiled gradient, magnitude and structure tensor of the extraction against NumPy's
+    ``gradient``, ``hypot`` and ``eigvalsh`` on crops of rendered images (corners, edges, flat
+    faces, background)."""
+    cell, part, renderer = rendered
+    rng = np.random.default_rng(11)
+    checked = 0
+    for t in (0.0, 2.3, 4.6):
+        image = renderer.render(0, conveyor_pose(t, part.T_base_part)).astype(np.float64)
+        for _ in range(40):
+            h, w = rng.integers(2, 40, 2)
+            v, u = rng.integers(0, image.shape[0] - h), rng.integers(0, image.shape[1] - w)
+            crop = np.ascontiguousarray(image[v:v + h, u:u + w])
+            gy, gx = np.gradient(crop)
+            mine_gy, mine_gx = extraction._gradients(crop)
+            assert np.array_equal(mine_gy, gy) and np.array_equal(mine_gx, gx)
+            assert np.array_equal(extraction._gradient_magnitude(crop), np.hypot(gx, gy))
+            sxx, sxy, syy = extraction._structure_tensor(crop)
+            G = np.array([[np.sum(gx * gx), np.sum(gx * gy)], [np.sum(gx * gy), np.sum(gy * gy)]])
+            np.testing.assert_allclose([[sxx, sxy], [sxy, syy]], G, rtol=1e-12, atol=1e-9)
+            lam = np.linalg.eigvalsh(G)
+            mean, diff = 0.5 * (sxx + syy), np.hypot(0.5 * (sxx - syy), sxy)
+            np.testing.assert_allclose([mean - diff, mean + diff], lam, rtol=1e-9,
+                                       atol=1e-9 * max(lam[1], 1.0))
+            checked += 1
+    assert checked == 120

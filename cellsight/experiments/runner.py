@@ -91,6 +91,7 @@ from cellsight.tracking import Tracker, TrackerConfig, TrackerParts, UnknownOccl
 from cellsight.tracking.grabbing import grabbed
 from cellsight.tracking.records import PartFrame
 from cellsight.world import World
+from cellsight.world.shots import Shot
 
 log = logging.getLogger(__name__)
 
@@ -375,7 +376,9 @@ class ExperimentRun:
 
         def draw(caption: str, scale: float = 1.0) -> np.ndarray:
             complete = self.ideal is None and all(i is not None for i in observed)
-            shown = [grabbed(o) for o in observed] if complete else world.render()
+            shown = observed if complete else world.render(on_demand=True)
+            shown = [o.preview(scale) if isinstance(o, Shot) and scale < 1 else grabbed(o)
+                     for o in shown]
             return draw_frame(shown, frame, self.part.name, truth.part.visible,
                               self.cell.cameras, caption, scale)
 

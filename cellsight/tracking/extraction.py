@@ -61,21 +61,55 @@ def _to_gray(image: np.ndarray) -> np.ndarray:
 
 
 def _structure_ok(patch: np.ndarray, cfg: ExtractionConfig) -> bool:
-    gy, gx = np.gradient(patch.astype(np.float64))
-    G = np.array([[np.sum(gx * gx), np.sum(gx * gy)], [np.sum(gx * gy), np.sum(gy * gy)]])
-    lam_min, lam_max = np.linalg.eigvalsh(G)
+    sxx, sxy, syy = _structure_tensor(np.ascontiguousarray(patch, dtype=np.float64))
+    mean, diff = 0.5 * (sxx + syy), math.hypot(0.5 * (sxx - syy), sxy)
+    lam_min, lam_max = mean - diff, mean + diff
     if lam_max <= 0:
         return False
     return bool(
-        np.sqrt(max(lam_min, 0.0) / patch.size) >= cfg.min_gradient
+        math.sqrt(max(lam_min, 0.0) / patch.size) >= cfg.min_gradient
         and lam_min / lam_max >= cfg.min_eigen_ratio
     )
 
 
+@numba.njit(cache=True)
+def _gradients(image):
+    """``np.gradient`` of a float image (h, w), both at least 2: (gy, gx), central differences
+    inside, one-sided at the borders."""
+    h, w = image.shape
+    gy, gx = np.empty((h, w)), np.empty((h, w))
+    for v in range(h):
+        for u in range(w):
+            if 0 < v < h - 1:
+                gy[v, u] = (image[v + 1, u] - image[v - 1, u]) / 2.0
+            else:
+                gy[v, u] = image[1, u] - image[0, u] if v == 0 else image[v, u] - image[v - 1, u]
+            if 0 < u < w - 1:
+                gx[v, u] = (image[v, u + 1] - image[v, u - 1]) / 2.0
+            else:
+                gx[v, u] = image[v, 1] - image[v, 0] if u == 0 else image[v, u] - image[v, u - 1]
+    return gy, gx
+
+
+@numba.njit(cache=True)
+def _structure_tensor(patch):
+    """The gradient structure tensor summed over ``patch``: (sum gx^2, sum gx gy, sum gy^2)."""
+    gy, gx = _gradients(patch)
+    return np.sum(gx * gx), np.sum(gx * gy), np.sum(gy * gy)
+
+
+@numba.njit(cache=True)
+def _gradient_magnitude(image):
+    """``hypot`` of :func:`_gradients` (h, w)."""
+    gy, gx = _gradients(image)
+    return np.hypot(gx, gy)
+
+
 def _intersect_edges(
-    crop: np.ndarray, q: np.ndarray, cfg: ExtractionConfig
+    mag: np.ndarray, q: np.ndarray, cfg: ExtractionConfig
 ) -> np.ndarray | None:
-    """Corner as the least-squares intersection of the edges leaving ``q`` (crop coordinates).
+    """Corner as the least-squares intersection of the edges leaving ``q`` (crop coordinates),
+    on the crop's gradient magnitude ``mag`` (:func:`_gradient_magnitude`).
 
     Edge directions: peaks of a 10-degree histogram of the directions from ``q`` of the strong
     gradient pixels (magnitude above ``line_threshold`` of the largest) in the ring
@@ -86,8 +120,7 @@ def _intersect_edges(
     the fit unbiased). Lines passing within ``line_max_offset_px`` of ``q`` are intersected,
     weighted by their total gradient. None when fewer than two non-parallel edges are found.
     """
-    gy, gx = np.gradient(crop.astype(np.float64))
-    ok, x, y = _edge_intersection(np.hypot(gx, gy), float(q[0]), float(q[1]), cfg.line_inner_px,
+    ok, x, y = _edge_intersection(mag, float(q[0]), float(q[1]), cfg.line_inner_px,
                                   cfg.line_outer_px, cfg.line_threshold, cfg.line_max_offset_px)
     return np.array([x, y]) if ok else None
 
@@ -233,8 +266,9 @@ def extract_corner(
     if not _structure_ok(patch, cfg):
         return None
     q = refined
+    mag = _gradient_magnitude(crop.astype(np.float64))
     for _ in range(2):  # edge-line intersection, recentred once on its own result
-        lines = _intersect_edges(crop, q, cfg)
+        lines = _intersect_edges(mag, q, cfg)
         if lines is None or np.hypot(*(lines - refined)) > cfg.line_max_offset_px:
             break
         q = lines

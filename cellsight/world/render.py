@@ -72,6 +72,28 @@ class GrayRenderer:
             images.append(gray)
         return images
 
+    def render_preview(self, data, camera: int, scale: float) -> np.ndarray:
+        """(H, W) uint8: camera ``camera``'s whole image rendered at ``scale`` (0-1] of its
+        resolution (the same field of view, the viewport shrunk, in the smallest framebuffer that
+        holds it) and resized back to it, then distorted as :meth:`render` does: a picture for a
+        video, at a fraction of the cost, blurrier than the image the tracker reads."""
+        width, height = self._sizes[camera]
+        w, h = max(1, round(width * scale)), max(1, round(height * scale))
+        side = next((t for t in TILES if t >= max(w, h)), None)
+        renderer = self._renderers[(width, height)] if side is None else self._tile_renderer(side)
+        renderer.update_scene(data, camera=self._names[camera])
+        renderer._gl_context.make_current()
+        rect = mujoco.MjrRect(0, 0, w, h)
+        mujoco.mjr_render(rect, renderer.scene, renderer._mjr_context)
+        rgb = np.empty((h, w, 3), np.uint8)
+        mujoco.mjr_readPixels(rgb, None, rect, renderer._mjr_context)
+        gray = cv2.resize(cv2.cvtColor(np.flipud(rgb), cv2.COLOR_RGB2GRAY), (width, height),
+                          interpolation=cv2.INTER_LINEAR)
+        maps = self._maps[camera]
+        if maps is None:
+            return gray
+        return cv2.remap(gray, maps[0], maps[1], cv2.INTER_LINEAR, borderValue=0)
+
     def render_region(self, data, camera: int, box: Sequence[int]) -> np.ndarray:
         """(v1 - v0, u1 - u0) uint8: the pixels ``box`` = (u0, v0, u1, v1) of camera
         ``camera``'s image (inside the image; module docstring), as :meth:`render` gives

@@ -44,6 +44,17 @@ class Shot:
                 self._imager.develop(image, (0, 0), self.shape, self.t, self.offset))
         return self._whole
 
+    def preview(self, scale: float) -> np.ndarray:
+        """(H, W) uint8: the whole image for a picture (a video frame), rendered at ``scale``
+        of the resolution (:meth:`GrayRenderer.render_preview
+        <cellsight.world.render.GrayRenderer.render_preview>`) with the exposure's effects;
+        the whole image itself once it has been rendered."""
+        if self._whole is not None:
+            return self._whole
+        image = self._renderer.render_preview(self._data, self.camera, scale)
+        return image if self._imager is None else self._imager.finish(
+            self._imager.develop(image, (0, 0), self.shape, self.t, self.offset))
+
     def grab(self, boxes: Sequence[Sequence[int]]) -> np.ndarray:
         """(H, W) uint8: the image's pixels in the bounding box of ``boxes`` (half-open
         ``(u0, v0, u1, v1)``, clipped to the image), 0 elsewhere; the whole image once it has

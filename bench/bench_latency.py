@@ -1,0 +1,118 @@
+"""The tracker's time per frame on a quiet and on a busy machine (issue 25).
+
+A rendered run of experiment 3 on the built-in cell (``exact`` world, ``DURATION`` s: the part
+on the conveyor, R6AX crossing the views), in its own process as ``cellsight run`` does it.
+Per frame, the tracker's time (``t_total_ms`` of ``frames.csv``: every stage, extraction
+included, both cameras; the cameras' grab not included, :mod:`cellsight.tracking.timing`) and
+the predictor's (``t_occlusion_ms``), in three conditions:
+
+- quiet: nothing else running;
+- beside a second run: the same run in another process at the same time;
+- beside busy loops: one process spinning on every core.
+
+Each condition twice: with the threading policy (:mod:`cellsight.threads`) and with the
+policy before it, its peer (numba's OpenMP threading layer, whose idle threads spin, and the
+predictor's kernel parallel over the cameras whatever the work). Printed: median, p99 and max
+per frame (ms) and the wall time of the run; the p99 under load against the quiet p99.
+
+    .venv/bin/python bench/bench_latency.py [DURATION]
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+from rich.console import Console
+from rich.table import Table
+
+from cellsight import threads
+from cellsight.runfolder.framelog import FrameLog
+
+DURATION = 12.0  # s of simulated time per run (312 frames)
+OUT = Path(__file__).resolve().parent.parent / "out" / "bench"
+CONDITIONS = ("quiet", "beside a second run", "beside busy loops")
+POLICIES = ("threading policy", "before it: OpenMP, parallel kernel")
+
+_CHILD = """
+import sys
+from pathlib import Path
+from cellsight import threads
+from cellsight.experiments import RunConfig, run_experiment
+if sys.argv[3] == "old":
+    import cellsight.occlusion.forest as forest
+    forest.PARALLEL_MIN_POINTS = 0
+else:
+    threads.apply()
+run_experiment(RunConfig(experiment=3, out=Path(sys.argv[1]), duration=float(sys.argv[2]),
+                         progress=False, video_every=0, overwrite=True))
+"""
+
+
+def _run(out: Path, duration: float, old: bool) -> subprocess.Popen:
+    """A run in its own process; ``old``: the threading of before the policy."""
+    env = dict(os.environ)
+    if old:
+        env.update(NUMBA_THREADING_LAYER="omp")
+        for name in threads.environment(1):
+            if name != "NUMBA_THREADING_LAYER":
+                env.pop(name, None)
+    return subprocess.Popen([sys.executable, "-c", _CHILD, str(out), str(duration),
+                             "old" if old else "new"], env=env)
+
+
+def _busy_loops() -> list[subprocess.Popen]:
+    return [subprocess.Popen([sys.executable, "-c", "while True: pass"])
+            for _ in range(threads.cores())]
+
+
+def measure(condition: str, old: bool, duration: float, folder: Path) -> dict:
+    """Per-frame times of one run in ``condition`` (one of :data:`CONDITIONS`)."""
+    out = folder / f"{CONDITIONS.index(condition)}{'old' if old else 'new'}"
+    load = _busy_loops() if condition == "beside busy loops" else []
+    if condition == "beside a second run":
+        load.append(_run(out.with_name(out.name + "-second"), duration, old))
+    try:
+        if _run(out, duration, old).wait() != 0 or any(p.poll() for p in load):
+            raise RuntimeError(f"the benchmark's run in {out} failed")
+    finally:
+        for process in load:
+            process.kill()
+            process.wait()
+    log = FrameLog.read(out / "frames.csv")
+    metrics = json.loads((out / "metrics.json").read_text())
+    tracker, occlusion = log.floats("t_total_ms")[1:], log.floats("t_occlusion_ms")[1:]
+    return {"median": float(np.median(tracker)), "p99": float(np.percentile(tracker, 99)),
+            "max": float(tracker.max()), "occlusion_p99": float(np.percentile(occlusion, 99)),
+            "wall_s": metrics["wall_s"], "frames": int(tracker.size)}
+
+
+def main(duration: float = DURATION) -> None:
+    results: dict[str, dict[str, dict]] = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        _run(Path(tmp) / "warm", 1.0, False).wait()  # numba's caches, once
+        for policy, old in zip(POLICIES, (False, True), strict=True):
+            results[policy] = {c: measure(c, old, duration, Path(tmp)) for c in CONDITIONS}
+    table = Table(title=f"tracker time per frame (ms), rendered experiment 3, {duration:g} s, "
+                        f"{threads.cores()} cores (first frame left out)")
+    for col in ("threads", "condition", "median", "p99", "max", "p99 / quiet p99",
+                "predictor p99", "run wall s"):
+        table.add_column(col, justify="left" if col in ("threads", "condition") else "right")
+    for policy, rows in results.items():
+        quiet = rows["quiet"]["p99"]
+        for condition, r in rows.items():
+            table.add_row(policy, condition, f"{r['median']:.2f}", f"{r['p99']:.2f}",
+                          f"{r['max']:.1f}", f"{r['p99'] / quiet:.2f}x",
+                          f"{r['occlusion_p99']:.2f}", f"{r['wall_s']:.1f}")
+    Console(width=150).print(table)
+    OUT.mkdir(parents=True, exist_ok=True)
+    (OUT / "latency.json").write_text(json.dumps(results, indent=1))
+
+
+if __name__ == "__main__":
+    main(*(float(a) for a in sys.argv[1:2]))
