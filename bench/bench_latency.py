@@ -11,8 +11,8 @@ the predictor's (``t_occlusion_ms``), in three conditions:
 - beside busy loops: one process spinning on every core.
 
 Each condition twice: with the threading policy (:mod:`cellsight.threads`) and with the
-policy before it, its peer (numba's OpenMP threading layer, whose idle threads spin, and the
-predictor's kernel parallel over the cameras whatever the work). Printed: median, p99 and max
+policy before it, its peer (OpenMP's idle threads spinning, and the predictor's kernel
+parallel over the cameras whatever the work). Printed: median, p99 and max
 per frame (ms) and the wall time of the run; the p99 under load against the quiet p99.
 
     .venv/bin/python bench/bench_latency.py [DURATION]
@@ -37,7 +37,7 @@ from cellsight.runfolder.framelog import FrameLog
 DURATION = 12.0  # s of simulated time per run (312 frames)
 OUT = Path(__file__).resolve().parent.parent / "out" / "bench"
 CONDITIONS = ("quiet", "beside a second run", "beside busy loops")
-POLICIES = ("threading policy", "before it: OpenMP, parallel kernel")
+POLICIES = ("threading policy", "before it: spinning, parallel kernel")
 
 _CHILD = """
 import sys
@@ -57,16 +57,17 @@ run_experiment(RunConfig(experiment=3, out=Path(sys.argv[1]), duration=float(sys
 def _run(out: Path, duration: float, old: bool) -> subprocess.Popen:
     """A run in its own process; ``old``: the threading of before the policy."""
     env = dict(os.environ)
-    if old:
-        env.update(NUMBA_THREADING_LAYER="omp")
+    if old:  # OpenMP's threads spin as they did (cellsight sets PASSIVE only where unset)
+        env.update(OMP_WAIT_POLICY="ACTIVE")
         for name in threads.environment(1):
-            if name != "NUMBA_THREADING_LAYER":
+            if name != "OMP_WAIT_POLICY":
                 env.pop(name, None)
     return subprocess.Popen([sys.executable, "-c", _CHILD, str(out), str(duration),
                              "old" if old else "new"], env=env)
 
 
-def _busy_loops() -> list[subprocess.Popen]:
+def busy_loops() -> list[subprocess.Popen]:
+    """One process spinning on every core (kill them when done)."""
     return [subprocess.Popen([sys.executable, "-c", "while True: pass"])
             for _ in range(threads.cores())]
 
@@ -74,7 +75,7 @@ def _busy_loops() -> list[subprocess.Popen]:
 def measure(condition: str, old: bool, duration: float, folder: Path) -> dict:
     """Per-frame times of one run in ``condition`` (one of :data:`CONDITIONS`)."""
     out = folder / f"{CONDITIONS.index(condition)}{'old' if old else 'new'}"
-    load = _busy_loops() if condition == "beside busy loops" else []
+    load = busy_loops() if condition == "beside busy loops" else []
     if condition == "beside a second run":
         load.append(_run(out.with_name(out.name + "-second"), duration, old))
     try:

@@ -6,12 +6,15 @@ import importlib
 import sys
 from pathlib import Path
 
+from cellsight import threads
+
 BENCHES = ["bench_cell_occlusion", "bench_ur_cell", "bench_bsp_scaling", "bench_tracking",
            "bench_latency",
            "bench_kinematics", "bench_visible_mask", "bench_scale", "bench_placement"]
 
 
 def main() -> None:
+    threads.apply()  # the threading policy, as the CLI applies it
     sys.path.insert(0, str(Path(__file__).parent))
     for name in BENCHES:
         if not (Path(__file__).parent / f"{name}.py").exists():
