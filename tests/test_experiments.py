@@ -76,7 +76,7 @@ def test_short_run_writes_every_log_column_and_metric(short_run: Path) -> None:
     metrics = json.loads((short_run / "metrics.json").read_text())
     assert REQUIRED_METRICS <= set(metrics)
     assert set(metrics["timing_ms"]) == {"occlusion", "selection", "windowing", "extraction",
-                                         "ekf", "total"}
+                                         "ekf", "total", "grab"}
     assert metrics["experiment"] == 3 and metrics["sensor"] == "ideal"
     assert metrics["extraction_error_px_median"] is None and not metrics["interrupted"]
     assert metrics["frames"] == len(rows)
