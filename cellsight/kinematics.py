@@ -60,6 +60,8 @@ class KinematicChain(Protocol):
 
     def jacobian_at(self, frames: np.ndarray, p_end: np.ndarray) -> np.ndarray: ...
 
+    def joint_axes(self, frames: np.ndarray) -> tuple[np.ndarray, np.ndarray]: ...
+
     def random_q(self, rng: np.random.Generator) -> np.ndarray: ...
 
     def joint_placements(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]: ...
@@ -212,9 +214,13 @@ class DHChain:
         """Geometric Jacobian (6, n) of the point ``p_end`` (chain base frame, m) moving with
         the last frame, from the frames (n+1, 4, 4) of :meth:`fkine` (so that a caller that
         needs both pays for one forward kinematics)."""
-        # joint i turns about z of frame i-1, through its origin
-        return geometric_jacobian(frames[:-1, :3, 2].T, frames[:-1, :3, 3].T, p_end,
-                                  self._prismatic)
+        axes, points = self.joint_axes(frames)
+        return geometric_jacobian(axes.T, points.T, p_end, self._prismatic)
+
+    def joint_axes(self, frames: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Every joint's unit axis and a point on it, (n, 3) each, chain base frame, from the
+        frames of :meth:`fkine`: joint i turns about z of frame i-1, through its origin."""
+        return frames[:-1, :3, 2].copy(), frames[:-1, :3, 3].copy()
 
     def random_q(self, rng: np.random.Generator) -> np.ndarray:
         """A uniformly random joint vector inside the limits."""
@@ -341,9 +347,14 @@ class SerialChain:
     def jacobian_at(self, frames: np.ndarray, p_end: np.ndarray) -> np.ndarray:
         """Geometric Jacobian (6, n) of the point ``p_end`` (chain base frame, m) moving with
         frame n, from the frames (n+1, 4, 4) of :meth:`fkine`."""
-        # joint i moves along / about its axis in frame i, through frame i's origin
-        axes = (frames[1:, :3, :3] @ self._axes[:, :, None])[:, :, 0].T
-        return geometric_jacobian(axes, frames[1:, :3, 3].T, p_end, self._prismatic)
+        axes, points = self.joint_axes(frames)
+        return geometric_jacobian(axes.T, points.T, p_end, self._prismatic)
+
+    def joint_axes(self, frames: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Every joint's unit axis and a point on it, (n, 3) each, chain base frame, from the
+        frames of :meth:`fkine`: joint i moves along / about its axis in frame i, through
+        frame i's origin."""
+        return (frames[1:, :3, :3] @ self._axes[:, :, None])[:, :, 0], frames[1:, :3, 3].copy()
 
     def random_q(self, rng: np.random.Generator) -> np.ndarray:
         """A uniformly random joint vector inside the limits."""

@@ -81,20 +81,27 @@ def parse_part_poses(text: str | None) -> dict[str, np.ndarray]:
     if not isinstance(data, dict):
         raise CellsightError(f"--part-pose: expected an object name -> pose, got "
                              f"{short_repr(data)}")
-    poses = {}
-    for name, value in data.items():
-        what = f"--part-pose: {name!r}"
-        if isinstance(value, dict):
-            unknown = sorted(set(value) - {"xyz", "rpy"})
-            if unknown:
-                raise CellsightError(f"{what}: unknown keys {unknown}; expected xyz and rpy")
-            xyz = _numbers(value.get("xyz", [0, 0, 0]), f"{what}.xyz", (3,))
-            rpy = _numbers(value.get("rpy", [0, 0, 0]), f"{what}.rpy", (3,))
-            poses[name] = pose_from_xyz_rpy(xyz, rpy)
-            continue
-        T = _numbers(value, what, (4, 4))
-        if not is_rigid(T):
-            raise CellsightError(f"{what}: expected a rigid transform (rotation with det +1, "
-                                 f"last row 0 0 0 1), got {short_repr(value)}")
-        poses[name] = T
-    return poses
+    return {name: _pose(value, f"--part-pose: {name!r}") for name, value in data.items()}
+
+
+def parse_tcp_pose(text: str) -> np.ndarray:
+    """``{"xyz": [...], "rpy": [...]}`` or a 4x4 rigid transform (JSON or a JSON file) -> the
+    pose (4, 4)."""
+    return _pose(json_value(text, "tcp-pose"), "--tcp-pose")
+
+
+def _pose(value, what: str) -> np.ndarray:
+    """A pose from ``{"xyz": [...], "rpy": [...]}`` (m, rad; missing: zeros) or a 4x4 rigid
+    transform; ``what`` names the argument in the error."""
+    if isinstance(value, dict):
+        unknown = sorted(set(value) - {"xyz", "rpy"})
+        if unknown:
+            raise CellsightError(f"{what}: unknown keys {unknown}; expected xyz and rpy")
+        xyz = _numbers(value.get("xyz", [0, 0, 0]), f"{what}.xyz", (3,))
+        rpy = _numbers(value.get("rpy", [0, 0, 0]), f"{what}.rpy", (3,))
+        return pose_from_xyz_rpy(xyz, rpy)
+    T = _numbers(value, what, (4, 4))
+    if not is_rigid(T):
+        raise CellsightError(f"{what}: expected a rigid transform (rotation with det +1, "
+                             f"last row 0 0 0 1), got {short_repr(value)}")
+    return T
