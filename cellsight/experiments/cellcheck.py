@@ -1,0 +1,192 @@
+"""The checks of a cell file before anything runs (``cellsight check``): one line per problem.
+
+- **Size and units:** each robot's reach (the farthest its TCP, or flange, gets from its base
+  over ``REACH_SAMPLES`` random joint vectors inside the limits) against industrial arms'
+  ``REACH_M`` range, and each workpiece's size against ``PART_M``: a file in inches, tenths
+  of an inch or millimetres read as metres is 25.4x, 2.54x or 1000x too large.
+- **Joint limits:** HOME, FINAL and the crossing's waypoints inside every joint's limits by at
+  least ``LIMIT_MARGIN`` (rad or m): a joint on its limit passes the loader and stops the run
+  at its first control step.
+- **Key poses in view:** the part at its start, at the conveyor's end, and held at the grasping
+  robot's HOME and FINAL (by its grasp): every feature point inside each camera's image by
+  ``margin_px``; an error when outside, a warning when within the margin.
+- **Experiment 3's crossing:** along the crossing (every ``step_s``), the part on the conveyor
+  and the grasping robot at HOME, the features each camera sees (the occlusion predictor) with
+  the crossing robot where its waypoints put it, against the same with it left at HOME. A
+  camera is blinded while it sees at most half of them; the crossing must blind one.
+
+Each finding has a ``level``: ``error`` (the run would fail, or measure nothing the user
+meant), ``warning`` (worth a look) or ``ok`` (a check passed, with its figure).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from cellsight.model.cell import Cell
+from cellsight.model.robot import Robot
+from cellsight.occlusion.predictor import VisibilityPredictor
+from cellsight.world.grasp import default_grasp_pose
+from cellsight.world.paths import ConveyorPath, JointTask, Waypoint
+
+REACH_M = (0.2, 4.0)  # m: the reach of industrial and collaborative arms, with room
+PART_M = (0.005, 2.0)  # m: a workpiece's bounding-box diagonal
+REACH_SAMPLES = 400
+LIMIT_MARGIN = 1e-6  # rad or m
+
+
+@dataclass(frozen=True)
+class Finding:
+    """One check's outcome: ``level`` (error, warning, ok) and one line saying it."""
+
+    level: str
+    line: str
+
+
+def check_cell(cell: Cell, *, margin_px: float = 20.0, step_s: float = 0.1) -> list[Finding]:
+    """Every check of the module docstring on ``cell``, in that order."""
+    findings = _units(cell) + _limits(cell) + _key_poses(cell, margin_px)
+    return findings + _crossing(cell, step_s)
+
+
+def _units(cell: Cell) -> list[Finding]:
+    out = []
+    rng = np.random.default_rng(0)
+    for robot in cell.robots:
+        reach = max(_reach(robot, robot.chain.random_q(rng)) for _ in range(REACH_SAMPLES))
+        if not REACH_M[0] <= reach <= REACH_M[1]:
+            out.append(Finding("error", f"robot {robot.name}: reaches {reach:.2f} m from its base"
+                                        f", outside the {REACH_M[0]}-{REACH_M[1]} m of real arms"
+                                        f"{_scale_hint(reach, 1.2)}"))
+        else:
+            out.append(Finding("ok", f"robot {robot.name}: reaches {reach:.2f} m"))
+    for part in cell.workpieces:
+        v = part.solid.vertices
+        size = float(np.linalg.norm(v.max(axis=0) - v.min(axis=0)))
+        if not PART_M[0] <= size <= PART_M[1]:
+            out.append(Finding("error", f"workpiece {part.name}: {size:.3f} m across, outside "
+                                        f"{PART_M[0]}-{PART_M[1]} m{_scale_hint(size, 0.2)}"))
+    return out
+
+
+def _reach(robot: Robot, q: np.ndarray) -> float:
+    T = robot.tcp_pose(q) if robot.tool is not None else robot.link_poses(q)[-1]
+    return float(np.linalg.norm(T[:3, 3] - robot.T_base_robot[:3, 3]))
+
+
+def _scale_hint(value: float, typical: float) -> str:
+    """Which unit mistakes ``value`` (m) looks like: those that bring it within 3x of a
+    ``typical`` value, the closest first."""
+    if value <= REACH_M[1]:
+        return ""
+    units = (("inches", 1 / 0.0254), ("tenths of an inch", 1 / 0.00254),
+             ("millimetres", 1000.0), ("centimetres", 100.0))
+    near = sorted((abs(np.log(value / factor / typical)), name, factor)
+                  for name, factor in units if abs(np.log(value / factor / typical)) < np.log(3))
+    if not near:
+        return ""
+    guesses = " or ".join(f"{name} (x {factor:g})" for _, name, factor in near)
+    return f": is the file in {guesses}? set its unit in the cell file"
+
+
+def _limits(cell: Cell) -> list[Finding]:
+    out = []
+    setup = cell.experiments
+    for robot in cell.robots:
+        named = [("HOME", robot.home)] + ([("FINAL", robot.final)] if robot.final is not None
+                                          else [])
+        if setup.crossing_robot == robot.name:
+            named += [(f"crossing waypoint at {t:g} s", q) for t, q in setup.crossing_waypoints]
+        for what, q in named:
+            out += _joint_limits(robot, what, np.asarray(q, dtype=float))
+    return out or [Finding("ok", "joint vectors: inside their limits")]
+
+
+def _joint_limits(robot: Robot, what: str, q: np.ndarray) -> list[Finding]:
+    qlim = robot.chain.qlim
+    out = []
+    for j in np.flatnonzero((q < qlim[:, 0] + LIMIT_MARGIN) | (q > qlim[:, 1] - LIMIT_MARGIN)):
+        where = "past" if not qlim[j, 0] <= q[j] <= qlim[j, 1] else "on"
+        out.append(Finding("error", f"robot {robot.name}: {what}: joint {j + 1} = {q[j]:.6g} is "
+                                    f"{where} its limit [{qlim[j, 0]:.6g}, {qlim[j, 1]:.6g}]"))
+    return out
+
+
+def _key_poses(cell: Cell, margin_px: float) -> list[Finding]:
+    setup = cell.experiments
+    if not cell.workpieces or not cell.cameras:
+        return []
+    part = cell.workpiece(setup.workpiece) if setup.workpiece else cell.workpieces[0]
+    poses = [("at its start", part.T_base_part)]
+    if setup.conveyor_points is not None and len(setup.conveyor_points):
+        end = part.T_base_part.copy()
+        end[:2, 3] = setup.conveyor_points[-1]
+        poses.append(("at the conveyor's end", end))
+    robot = _grasping(cell)
+    if robot is not None and robot.tool is not None:
+        grasp = part.T_part_grasp if part.T_part_grasp is not None else default_grasp_pose(
+            part.solid, robot.tool)
+        T_tcp_part = np.linalg.inv(grasp)
+        poses.append((f"held at {robot.name}'s HOME", robot.tcp_pose(robot.home) @ T_tcp_part))
+        if robot.final is not None:
+            poses.append((f"held at {robot.name}'s FINAL",
+                          robot.tcp_pose(robot.final) @ T_tcp_part))
+    out = []
+    for what, T in poses:
+        points = part.feature_points @ T[:3, :3].T + T[:3, 3]
+        for cam in cell.cameras:
+            px = cam.project(points)
+            edge = np.min(np.stack([px[:, 0] + 0.5, cam.width - 0.5 - px[:, 0], px[:, 1] + 0.5,
+                                    cam.height - 0.5 - px[:, 1]]), axis=0)
+            worst = float(np.nanmin(np.where(np.isfinite(edge), edge, -np.inf)))
+            level = "error" if worst < 0 else "warning" if worst < margin_px else "ok"
+            text = (f"{-worst:.0f} px out of" if worst < 0 else f"{worst:.0f} px inside")
+            out.append(Finding(level, f"part {what}: {text} {cam.name}'s image"
+                                      + (f" (margin {margin_px:g} px)" if level != "ok" else "")))
+    return out
+
+
+def _grasping(cell: Cell) -> Robot | None:
+    setup = cell.experiments
+    if setup.robot is not None:
+        return cell.robot(setup.robot)
+    return next((r for r in cell.robots if r.tool is not None), None)
+
+
+def _crossing(cell: Cell, step_s: float) -> list[Finding]:
+    setup = cell.experiments
+    if setup.crossing_robot is None or not setup.crossing_waypoints or not cell.workpieces:
+        return []
+    crosser = cell.robot(setup.crossing_robot)
+    task = JointTask(crosser.home, [Waypoint(t, q) for t, q in setup.crossing_waypoints])
+    part = cell.workpiece(setup.workpiece) if setup.workpiece else cell.workpieces[0]
+    predictor = VisibilityPredictor(cell)
+    times = np.arange(0.0, setup.crossing_waypoints[-1][0] + step_s, step_s)
+    conveyor = (None if setup.conveyor_points is None or not len(setup.conveyor_points) else
+                ConveyorPath(np.asarray(setup.conveyor_points, dtype=float), setup.conveyor_speed,
+                             setup.conveyor_t_start))
+    seen = np.zeros((2, len(times), len(cell.cameras)), dtype=int)
+    for k, t in enumerate(times):
+        T = part.T_base_part.copy()
+        if conveyor is not None:
+            T[:2, 3] = conveyor.position(t)
+        for m, q in enumerate((task.at(t), crosser.home)):
+            views = predictor.predict({crosser.name: q}, {part.name: T})[part.name]
+            seen[m, k] = [v.count for v in views]
+    blinded = (seen[0] * 2 <= seen[1]) & (seen[1] > 0)
+    out = []
+    for c, cam in enumerate(cell.cameras):
+        if blinded[:, c].any():
+            ks = np.flatnonzero(blinded[:, c])
+            out.append(Finding("ok", f"experiment 3: {crosser.name} blinds {cam.name} from "
+                                     f"{times[ks[0]]:.1f} to {times[ks[-1]]:.1f} s (fewest "
+                                     f"visible {seen[0, ks, c].min()} of "
+                                     f"{seen[1, ks, c].max()})"))
+    if not out:
+        fewest = ", ".join(f"{cam.name} {seen[0, :, c].min()}" for c, cam
+                           in enumerate(cell.cameras))
+        out.append(Finding("error", f"experiment 3: {crosser.name}'s crossing blinds no camera "
+                                    f"(fewest features visible: {fewest})"))
+    return out

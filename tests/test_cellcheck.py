@@ -1,0 +1,102 @@
+"""``cellsight check`` (cellsight.experiments.cellcheck): the built-in cells pass, and broken
+copies of the dual-arm cell get one error line each for what is broken: a robot 25.4x too
+large, HOME on a joint limit, FINAL holding the part out of view, a crossing that blinds
+nothing, a workpiece in millimetres."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from pathlib import Path
+
+import pytest
+
+from cellsight import load_cell
+from cellsight.cli import main
+from cellsight.experiments.cellcheck import check_cell
+from cellsight.kinematics import DHChain
+from cellsight.model import Cell
+
+
+def _with(cell: Cell, robots=None, workpieces=None, experiments=None) -> Cell:
+    return Cell(cell.name, robots or cell.robots, workpieces or cell.workpieces, cell.static,
+                cell.cameras, cell.source, experiments or cell.experiments)
+
+
+def _robot(cell: Cell, name: str, **changes) -> Cell:
+    return _with(cell, robots=[replace(r, **changes) if r.name == name else r
+                               for r in cell.robots])
+
+
+def _errors(cell: Cell) -> list[str]:
+    return [f.line for f in check_cell(cell) if f.level == "error"]
+
+
+@pytest.fixture(scope="module")
+def cell() -> Cell:
+    return load_cell()
+
+
+@pytest.mark.parametrize("name", [None, "ur-cell"])
+def test_the_built_in_cells_pass(name):
+    findings = check_cell(load_cell(name))
+    assert not [f for f in findings if f.level != "ok"]
+    assert sum("blinds" in f.line for f in findings) == 2
+
+
+def test_a_robot_in_inches_is_found(cell):
+    r6 = cell.robot("R6AX")
+    links = [replace(k, a=k.a * 25.4, d=k.d * 25.4) for k in r6.chain.links]
+    errors = _errors(_robot(cell, "R6AX", chain=DHChain(links, r6.chain.name)))
+    units = [e for e in errors if "robot R6AX: reaches" in e]
+    assert len(units) == 1 and "inches (x 39.3701)" in units[0]
+
+
+def test_home_on_a_limit_is_found(cell):
+    r7 = cell.robot("R7AX")
+    home = r7.home.copy()
+    home[3] = r7.chain.qlim[3, 1]
+    errors = _errors(_robot(cell, "R7AX", home=home))
+    assert errors[0] == (f"robot R7AX: HOME: joint 4 = {home[3]:.6g} is on its limit "
+                         f"[{r7.chain.qlim[3, 0]:.6g}, {r7.chain.qlim[3, 1]:.6g}]")
+    # the arm so turned also takes the held part out of camera 1's view: said too
+    assert all("held at R7AX's HOME" in e for e in errors[1:])
+
+
+def test_final_holding_the_part_out_of_view_is_found(cell):
+    r7 = cell.robot("R7AX")
+    final = r7.final.copy()
+    final[0] -= 0.9  # the track carries the held part far aside
+    errors = _errors(_robot(cell, "R7AX", final=final))
+    assert errors and all("part held at R7AX's FINAL" in e and "px out of" in e
+                          for e in errors)
+
+
+def test_a_crossing_that_blinds_nothing_is_found(cell):
+    r6 = cell.robot("R6AX")
+    still = tuple((t, r6.home.copy()) for t, _ in cell.experiments.crossing_waypoints)
+    errors = _errors(_with(cell, experiments=replace(cell.experiments,
+                                                     crossing_waypoints=still)))
+    assert len(errors) == 1 and errors[0].startswith("experiment 3: R6AX's crossing blinds no")
+
+
+def test_a_part_in_millimetres_is_found(cell):
+    part = cell.workpieces[0]
+    solid = replace(part.solid, vertices=part.solid.vertices * 1000.0)
+    errors = [e for e in _errors(_with(cell, workpieces=[replace(part, solid=solid)]))
+              if "workpiece" in e]
+    assert len(errors) == 1 and "millimetres (x 1000)" in errors[0]
+
+
+def test_the_command_prints_one_line_per_problem_and_fails(tmp_path, capsys):
+    assert main(["check"]) == 0
+    out = capsys.readouterr().out
+    assert "0 error(s), 0 warning(s)" in out and out.count("ok ") >= 10
+    text = Path(load_cell().source).read_text()
+    home = "home: [0.499, -0.051, 0.259, 0.65, 0.0, 0.664, -0.051]"
+    assert home in text
+    broken = tmp_path / "cell.yaml"
+    broken.write_text(text.replace(home, "home: [0.499, -0.051, 0.259, 0.65, 0.0, 0.664, 4.7]"))
+    assert main(["check", "--cell", str(broken), "--quiet"]) == 1
+    lines = capsys.readouterr().out.strip().splitlines()
+    assert len(lines) == 2 and "HOME: joint 7 = 4.7 is on its limit" in lines[0]
+    assert lines[1].endswith("1 error(s), 0 warning(s)")
