@@ -100,3 +100,14 @@ def test_the_command_prints_one_line_per_problem_and_fails(tmp_path, capsys):
     lines = capsys.readouterr().out.strip().splitlines()
     assert len(lines) == 2 and "HOME: joint 7 = 4.7 is on its limit" in lines[0]
     assert lines[1].endswith("1 error(s), 0 warning(s)")
+
+
+def test_a_crossing_into_the_other_robot_is_found(cell):
+    """R6AX's base moved 0.5 m towards R7AX: its crossing runs into R7AX's arm (MuJoCo's
+    distance between their solids below zero)."""
+    T = cell.robot("R6AX").T_base_robot.copy()
+    T[1, 3] -= 0.5
+    errors = _errors(_robot(cell, "R6AX", T_base_robot=T))
+    near = [e for e in errors if "keeps" in e]
+    assert len(near) == 1 and "closest: R7AX." in near[0] and near[0].endswith("under 5 cm")
+    assert float(near[0].split("keeps ")[1].split(" cm")[0]) < 2.0

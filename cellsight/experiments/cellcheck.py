@@ -13,7 +13,9 @@
 - **Experiment 3's crossing:** along the crossing (every ``step_s``), the part on the conveyor
   and the grasping robot at HOME, the features each camera sees (the occlusion predictor) with
   the crossing robot where its waypoints put it, against the same with it left at HOME. A
-  camera is blinded while it sees at most half of them; the crossing must blind one.
+  camera is blinded while it sees at most half of them; the crossing must blind one. And the
+  crossing robot's clearance to the other robots and the part there (MuJoCo's distances
+  between their solids): an error below ``CLEARANCE_M``.
 
 Each finding has a ``level``: ``error`` (the run would fail, or measure nothing the user
 meant), ``warning`` (worth a look) or ``ok`` (a check passed, with its figure).
@@ -28,6 +30,7 @@ import numpy as np
 from cellsight.model.cell import Cell
 from cellsight.model.robot import Robot
 from cellsight.occlusion.predictor import VisibilityPredictor
+from cellsight.world import ReplayWorld
 from cellsight.world.grasp import default_grasp_pose
 from cellsight.world.paths import ConveyorPath, JointTask, Waypoint
 
@@ -35,6 +38,7 @@ REACH_M = (0.2, 4.0)  # m: the reach of industrial and collaborative arms, with 
 PART_M = (0.005, 2.0)  # m: a workpiece's bounding-box diagonal
 REACH_SAMPLES = 400
 LIMIT_MARGIN = 1e-6  # rad or m
+CLEARANCE_M = 0.05  # m: the crossing robot's least distance to the other robots and the part
 
 
 @dataclass(frozen=True)
@@ -175,18 +179,55 @@ def _crossing(cell: Cell, step_s: float) -> list[Finding]:
         for m, q in enumerate((task.at(t), crosser.home)):
             views = predictor.predict({crosser.name: q}, {part.name: T})[part.name]
             seen[m, k] = [v.count for v in views]
+    out = _blinding(cell, crosser.name, times, seen)
+    return out + _clearance(cell, crosser.name, task, times, conveyor, part.name)
+
+
+def _blinding(cell: Cell, crosser: str, times: np.ndarray, seen: np.ndarray) -> list[Finding]:
+    """Which camera the crossing blinds and when, from the features seen (2, T, C): with the
+    crossing robot on its way, and left at HOME."""
     blinded = (seen[0] * 2 <= seen[1]) & (seen[1] > 0)
     out = []
     for c, cam in enumerate(cell.cameras):
         if blinded[:, c].any():
             ks = np.flatnonzero(blinded[:, c])
-            out.append(Finding("ok", f"experiment 3: {crosser.name} blinds {cam.name} from "
+            out.append(Finding("ok", f"experiment 3: {crosser} blinds {cam.name} from "
                                      f"{times[ks[0]]:.1f} to {times[ks[-1]]:.1f} s (fewest "
                                      f"visible {seen[0, ks, c].min()} of "
                                      f"{seen[1, ks, c].max()})"))
     if not out:
         fewest = ", ".join(f"{cam.name} {seen[0, :, c].min()}" for c, cam
                            in enumerate(cell.cameras))
-        out.append(Finding("error", f"experiment 3: {crosser.name}'s crossing blinds no camera "
+        out.append(Finding("error", f"experiment 3: {crosser}'s crossing blinds no camera "
                                     f"(fewest features visible: {fewest})"))
     return out
+
+
+def _clearance(cell: Cell, crosser: str, task: JointTask, times: np.ndarray,
+               conveyor: ConveyorPath | None, part: str) -> list[Finding]:
+    """The crossing robot's least distance to the other robots' solids and the part along the
+    crossing (MuJoCo ``mj_geomDistance``, up to 1 m)."""
+    import mujoco  # after cellsight.world, which chooses MuJoCo's OpenGL back-end
+
+    world = ReplayWorld(cell)
+    model, data = world.scene.model, world.scene.data
+    names = [model.geom(g).name for g in range(model.ngeom)]
+    mine = [g for g, n in enumerate(names) if n.startswith(f"{crosser}.")]
+    others = [g for g, n in enumerate(names) if n == part or (
+        "." in n and n.split(".")[0] in {r.name for r in cell.robots} - {crosser})]
+    fromto, least, when, what = np.zeros(6), np.inf, 0.0, ""
+    T = cell.workpiece(part).T_base_part.copy()
+    for t in times[::2]:
+        if conveyor is not None:
+            T[:2, 3] = conveyor.position(t)
+        world.show_state({crosser: task.at(t)}, {part: T})
+        for i in mine:
+            for j in others:
+                d = mujoco.mj_geomDistance(model, data, i, j, 1.0, fromto)
+                if d < least:
+                    least, when, what = d, float(t), names[j]
+    world.close()
+    line = (f"experiment 3: {crosser} keeps {least * 100:.1f} cm from the other robots and "
+            f"the part (closest: {what}, at {when:.1f} s)")
+    return [Finding("error" if least < CLEARANCE_M else "ok",
+                    line + (f", under {CLEARANCE_M * 100:g} cm" if least < CLEARANCE_M else ""))]
