@@ -16,7 +16,17 @@ import argparse
 import sys
 
 from cellsight import threads
-from cellsight.commands import cameras, cells, check, compare, ik, run, show, visibility
+from cellsight.commands import (
+    cameras,
+    cells,
+    check,
+    compare,
+    diagnose,
+    ik,
+    run,
+    show,
+    visibility,
+)
 from cellsight.commands.text import debug, one_line
 from cellsight.errors import CellsightError
 from cellsight.export import command as export_command
@@ -26,7 +36,7 @@ from cellsight.sweep import command as sweep_command
 from cellsight.view import command as view_command
 
 COMMANDS = (show, visibility, run, cells, compare, sweep_command, realism_command,
-            placement_command, export_command, view_command, cameras, ik, check)
+            placement_command, export_command, view_command, cameras, ik, check, diagnose)
 """Every sub-command's module, in ``--help`` order."""
 
 

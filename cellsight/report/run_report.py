@@ -34,6 +34,7 @@ from cellsight.rates import VISION_HZ
 from cellsight.runfolder.framelog import FrameLog, camera_column, timing_column
 from cellsight.runfolder.metrics import read_metrics
 from cellsight.runfolder.writes import write_figure, write_file
+from cellsight.runfolder.wrong_corners import wrong_corner_spans
 from cellsight.tracking.timing import STAGES
 
 PHASE_COLOURS = {
@@ -508,6 +509,28 @@ def _video_html(run_dir: Path) -> str:
             f'type="video/mp4"></video>{link}')
 
 
+def _wrong_corners_html(run_dir: Path, shown: int = 12) -> str:
+    """The run's wrong corners by camera, feature and span of time, most accepted first
+    (:mod:`cellsight.runfolder.wrong_corners`; ``cellsight diagnose`` prints them all)."""
+    try:
+        spans = wrong_corner_spans(run_dir)
+    except (OSError, ValueError, KeyError):
+        return ""
+    if not spans:
+        return ""
+    head = "".join(f"<th>{h}</th>" for h in ("camera", "feature", "t [s]", "phase", "frames",
+                                             "accepted", "rejected", "truly", "predicted"))
+    body = "".join(
+        "<tr>" + "".join(f"<td>{html.escape(str(v))}</td>" for v in (
+            s.camera, s.feature, f"{s.t_start:.2f}-{s.t_end:.2f}", s.phase, s.frames,
+            s.accepted, s.rejected, s.truth, s.predicted)) + "</tr>" for s in spans[:shown])
+    more = f" (the first {shown} of {len(spans)} spans)" if len(spans) > shown else ""
+    return (f"<h2>Wrong corners</h2><p>Corners measured more than 3 px from the true "
+            f"projection, by camera (<code>camN</code>: the N-th) and feature (<code>#j</code>: "
+            f"its 0-based index), "
+            f"most accepted first{more}.</p><table><tr>{head}</tr>{body}</table>")
+
+
 def _log_html(run_dir: Path) -> str:
     """``run.log`` in a collapsed block."""
     path = run_dir / "run.log"
@@ -546,7 +569,7 @@ def write_report(run_dir: Path, metrics: dict | None = None) -> Path:
     run = report_inputs(Path(run_dir), metrics)
     body = "".join([_header_html(run), _metrics_html(run.metrics),
                     _figures_html(write_figures(run)), _keyframes_html(run.dir),
-                    _video_html(run.dir), _log_html(run.dir)])
+                    _video_html(run.dir), _wrong_corners_html(run.dir), _log_html(run.dir)])
     m = run.metrics
     title = f"cellsight run: experiment {m.get('experiment', '?')}, seed {m.get('seed', '?')}"
     page = (f"<!DOCTYPE html><html lang=en><head><meta charset=utf-8>"

@@ -35,8 +35,8 @@ c = 1..C, F features; an empty field is a missing value):
   fraction of selected, predicted-visible features not found, ``rejfrac_c{c}`` the fraction
   of measured features the gate rejected;
 - ``t_{stage}_ms`` for each stage of :data:`cellsight.tracking.timing.STAGES` (occlusion,
-  selection, windowing, extraction, ekf = prediction + update, total): the tracker's stage
-  times (ms).
+  selection, windowing, extraction, ekf = prediction + update, total; then grab, the cameras'
+  reading of the windows, in no other stage): the tracker's stage times (ms).
 
 Strings are quoted (``csv.QUOTE_NONNUMERIC``); read the 0/1 columns as strings (pandas:
 ``dtype=str``) or their leading zeros are lost. :class:`FrameWriter` writes the file,

@@ -1,0 +1,52 @@
+"""``cellsight diagnose`` (cellsight.runfolder.wrong_corners): a rendered run's wrong corners
+grouped into spans, counted against the run's own metrics and against ``frames.csv`` read with
+the csv module."""
+
+from __future__ import annotations
+
+import csv
+import json
+from pathlib import Path
+
+import pytest
+
+from cellsight.cli import main
+from cellsight.runfolder.wrong_corners import wrong_corner_spans
+
+
+@pytest.fixture(scope="module")
+def lab_run(tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("diagnose") / "run"
+    assert main(["run", "3", "--realism", "lab", "--duration", "1", "--out", str(out),
+                 "--quiet"]) == 0
+    return out
+
+
+def test_spans_count_every_wrong_corner_and_what_the_gate_did(lab_run):
+    metrics = json.loads((lab_run / "metrics.json").read_text())
+    spans = wrong_corner_spans(lab_run)
+    assert metrics["wrong_measurements"] > 0
+    assert sum(s.frames for s in spans) == metrics["wrong_measurements"]
+    assert sum(s.accepted for s in spans) == metrics["wrong_accepted"]
+    # the same wrong corners, counted straight from the log
+    with (lab_run / "frames.csv").open() as f:
+        rows = list(csv.DictReader(f))
+    for c in (1, 2):
+        wrong = sum(r[f"wrong_c{c}"].count("1") for r in rows)
+        accepted = sum(w == "1" and j == "0" for r in rows
+                       for w, j in zip(r[f"wrong_c{c}"], r[f"rej_c{c}"], strict=False))
+        mine = [s for s in spans if s.camera == f"cam{c}"]
+        assert sum(s.frames for s in mine) == wrong
+        assert sum(s.accepted for s in mine) == accepted
+    assert [s.accepted for s in spans] == sorted((s.accepted for s in spans), reverse=True)
+    assert all(s.truth and s.predicted and s.phase for s in spans)
+
+
+def test_the_command_names_cameras_and_features(lab_run, capsys):
+    assert main(["diagnose", str(lab_run), "--json"]) == 0
+    listed = json.loads(capsys.readouterr().out)
+    assert listed and {s["camera"] for s in listed} <= {"cam1", "cam2"}
+    assert all(s["feature"].startswith("f") and s["feature"] != "f0" for s in listed)
+    assert main(["diagnose", str(lab_run)]) == 0
+    assert "accepted by the gate" in capsys.readouterr().out
+    assert main(["diagnose", str(lab_run / "nothing")]) == 2
