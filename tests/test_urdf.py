@@ -5,6 +5,7 @@ Pinocchio is the independent oracle for the kinematics; MuJoCo's ray casts for v
 from __future__ import annotations
 
 import json
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -259,3 +260,38 @@ def test_bad_mesh_and_flange_name_the_urdf(tmp_path):
     with pytest.raises(CellFileError) as info:
         load_cell(path)
     assert info.value.field == "robots[0].urdf.flange" and "'tip'" in str(info.value)
+
+
+def _in_inches(urdf: str) -> str:
+    """The toy URDF with every length in inches: origins, sizes, radii, lengths, the
+    prismatic limits and the mesh's scale (the mesh file itself stays in metres)."""
+    def scaled(match: re.Match) -> str:
+        values = " ".join(f"{float(v) / 0.0254:.12g}" for v in match.group(2).split())
+        return f'{match.group(1)}"{values}"'
+    pattern = r'(<origin xyz=|size=|radius=|length=|lower=|upper=|scale=)"([^"]*)"'
+    return re.sub(pattern, scaled, urdf)
+
+
+def test_a_urdf_in_inches_loads_in_metres_with_its_unit(tmp_path):
+    (tmp_path / "m").mkdir()
+    (tmp_path / "in").mkdir()
+    metres = load_cell(_toy_cell(tmp_path / "m"))
+    inches = _toy_cell(tmp_path / "in", urdf="toy/toy_in.urdf")
+    (tmp_path / "in" / "toy" / "toy_in.urdf").write_text(_in_inches(_PRIMITIVES))
+    text = inches.read_text()
+    inches.write_text(text.replace("urdf: {file: toy/toy_in.urdf}",
+                                   "urdf: {file: toy/toy_in.urdf, scale: inch}"))
+    scaled = load_cell(inches)
+    a, b = metres.robot("T"), scaled.robot("T")
+    np.testing.assert_allclose(b.chain.qlim, a.chain.qlim, atol=1e-12)
+    rng = np.random.default_rng(2)
+    for _ in range(20):
+        q = a.chain.random_q(rng)
+        np.testing.assert_allclose(b.chain.fkine(q), a.chain.fkine(q), atol=1e-12)
+    solids = {o.name: o.solid.vertices for o in metres.objects}
+    for o in scaled.objects:
+        np.testing.assert_allclose(o.solid.vertices, solids[o.name], atol=1e-12)
+    # without its unit the same file is 39.37x too large: refused, naming the way out
+    inches.write_text(text)
+    with pytest.raises(CellFileError, match=r"43.31 m from the root link.*scale: inch"):
+        load_cell(inches)

@@ -128,7 +128,8 @@ def _urdf(rs: RobotSpec, at: str, file: str, packages: dict[str, Path],
     spec = rs.urdf
     try:
         path = resolve_uri(spec.file, packages, folder)
-        return load_urdf_robot(path, rs.name, spec.geometry, spec.flange, packages)
+        return load_urdf_robot(path, rs.name, spec.geometry, spec.flange, packages,
+                               spec.metres)
     except UrdfError as exc:
         value = getattr(spec, exc.field, spec.file)
         raise CellFileError(file, f"{at}.urdf.{exc.field}", value, str(exc)) from exc

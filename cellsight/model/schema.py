@@ -169,14 +169,27 @@ class GripperSpec(_Strict):
     tcp: Vec3 = [0.0, 0.0, 0.0]
 
 
+URDF_UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001, "inch": 0.0254, "tenth-inch": 0.00254}
+"""The length units a URDF may be written in (``urdf: {scale: inch}``), in metres."""
+
+
 class UrdfSpec(_Strict):
     """A URDF robot: the file (relative to the cell file, or ``package://NAME/...``), which
-    geometry becomes its solids, and the flange link the tool mounts on (default: ``tool0`` when
-    it is fixed to the last actuated link, else that link)."""
+    geometry becomes its solids, the flange link the tool mounts on (default: ``tool0`` when
+    it is fixed to the last actuated link, else that link), and ``scale``: the file's length
+    unit in metres, a number or a name of :data:`URDF_UNITS` (``inch``: every joint origin,
+    prismatic limit and geometry times 0.0254)."""
 
     file: Annotated[str, Field(min_length=1)]
     geometry: Literal["collision", "visual"] = "collision"
     flange: Annotated[str, Field(min_length=1)] | None = None
+    scale: Positive | Literal["m", "cm", "mm", "inch", "tenth-inch"] = 1.0
+
+    @property
+    def metres(self) -> float:
+        """``scale`` as metres per unit of the file."""
+        return float(URDF_UNITS.get(self.scale, self.scale)) if isinstance(
+            self.scale, str) else float(self.scale)
 
 
 class RobotSpec(_Strict):

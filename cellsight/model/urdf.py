@@ -362,9 +362,23 @@ def _shape(geometry, name: str, packages: Mapping[str, Path], folder: Path) -> P
     return Polyhedron(name, solid.vertices * (scale / scale[0]), solid.faces, solid.closed)
 
 
+def _scale_walk(walk: _Walk, scale: float) -> None:
+    """Lengths of the file's unit in metres: joint origins, link placements, prismatic
+    limits."""
+    if scale == 1.0:
+        return
+    for T in walk.origins:
+        T[:3, 3] *= scale
+    for _, T in walk.link_frame.values():
+        T[:3, 3] *= scale
+    walk.qlim = [(lo * scale, hi * scale) if kind == "prismatic" else (lo, hi)
+                 for (lo, hi), kind in zip(walk.qlim, walk.kinds, strict=True)]
+
+
 def _solids(robot, walk: _Walk, geometry: str, robot_name: str, packages: Mapping[str, Path],
-            path: Path) -> tuple[list[list[Polyhedron]], list[list[str]]]:
-    """Per chain frame, the solids of the links it carries (in that frame) and their links."""
+            path: Path, scale: float = 1.0) -> tuple[list[list[Polyhedron]], list[list[str]]]:
+    """Per chain frame, the solids of the links it carries (in that frame) and their links;
+    the file's lengths times ``scale`` (m)."""
     n = len(walk.origins)
     solids: list[list[Polyhedron]] = [[] for _ in range(n + 1)]
     links: list[list[str]] = [[] for _ in range(n + 1)]
@@ -379,6 +393,10 @@ def _solids(robot, walk: _Walk, geometry: str, robot_name: str, packages: Mappin
                 raise UrdfError("geometry", f"URDF file {path}: link {link.name!r}, "
                                 f"{geometry} {k}: {exc}") from exc
             origin = np.eye(4) if element.origin is None else np.asarray(element.origin, float)
+            if scale != 1.0:
+                shape = shape.transformed(np.diag([scale, scale, scale, 1.0]))
+                origin = origin.copy()
+                origin[:3, 3] *= scale
             placed = shape.vertices @ origin[:3, :3].T + origin[:3, 3]
             reach = float(np.linalg.norm(placed, axis=1).max())
             if reach > MAX_REACH:
@@ -406,7 +424,8 @@ def _check_reach(walk: _Walk, path: Path) -> None:
         raise UrdfError("file", f"URDF file {path}: link {far!r} is up to {reach[far]:.4g} m "
                         f"from the root link (joint origins and prismatic travel), over "
                         f"{MAX_REACH:g} m: lengths must be metres (a URDF in mm or inches? "
-                        f"scale its origin xyz, limits and geometry to metres)")
+                        f"give its unit in the cell file: urdf: {{file: ..., scale: inch}}, "
+                        f"or mm, cm, tenth-inch, or metres per unit)")
 
 
 def _flange(walk: _Walk, flange: str | None, path: Path) -> tuple[str, np.ndarray]:
@@ -441,14 +460,18 @@ def urdf_files(path: Path, geometry: str = "collision",
 
 def load_urdf_robot(path: Path, robot_name: str, geometry: str = "collision",
                     flange: str | None = None,
-                    packages: Mapping[str, Path] | None = None) -> UrdfRobot:
+                    packages: Mapping[str, Path] | None = None,
+                    scale: float = 1.0) -> UrdfRobot:
     """Chain, solids and flange of the URDF robot in ``path`` (see the module docstring);
-    ``geometry`` is ``collision`` or ``visual``; a :class:`UrdfError` naming the URDF file."""
+    ``geometry`` is ``collision`` or ``visual``; ``scale``: metres per length unit of the file
+    (0.0254 for a URDF in inches: joint origins, prismatic limits and geometry scaled); a
+    :class:`UrdfError` naming the URDF file."""
     packages = dict(packages or {})
     robot = _parse(path)
     walk = _walk(robot, path)
+    _scale_walk(walk, float(scale))
     _check_reach(walk, path)
-    solids, links = _solids(robot, walk, geometry, robot_name, packages, path)
+    solids, links = _solids(robot, walk, geometry, robot_name, packages, path, float(scale))
     name, T_last_flange = _flange(walk, flange, path)
     try:
         chain = SerialChain(np.array(walk.origins), np.array(walk.axes), walk.kinds, walk.qlim,
