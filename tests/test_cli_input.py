@@ -8,8 +8,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from oracle import cell_scene, segment_oracle
 
+from cellsight import load_cell
 from cellsight.cli import main
+from cellsight.world.grasp import default_grasp_pose
 
 
 @pytest.mark.parametrize(("args", "message"), [
@@ -147,3 +150,29 @@ def test_compare_shows_brackets_as_text(tmp_path: Path, capsys, monkeypatch) -> 
     assert main(["compare", "[red]", "[red]"]) == 0
     out = capsys.readouterr().out
     assert "[/red]" in out and "[red]" in out.replace("[/red]", "")
+
+
+def test_jaw_openings_reach_the_prediction(capsys) -> None:
+    """``--openings`` in ``cellsight visibility``: the part held at R7AX's HOME, its jaws open
+    and closed; each answer against the segment oracle on the cell at those openings, and the
+    two differ (the jaws hide other features)."""
+    cell = load_cell()
+    robot, part = cell.robot("R7AX"), cell.workpiece("part")
+    T_part = robot.tcp_pose(robot.home) @ np.linalg.inv(default_grasp_pose(part.solid,
+                                                                          robot.tool))
+    pose = json.dumps({"part": T_part.tolist()})
+    answers = {}
+    for opening in (0.0, robot.tool.max_opening):
+        assert main(["visibility", "--part-pose", pose, "--openings",
+                     json.dumps({"R7AX": opening}), "--json"]) == 0
+        views = json.loads(capsys.readouterr().out)["part"]
+        snapshot = cell.snapshot({}, {"part": T_part}, {"R7AX": opening})
+        polygons, _, features = cell_scene(cell, snapshot)
+        for c, cam in enumerate(cell.cameras):
+            seen = cam.sees(features)
+            oracle = segment_oracle(polygons, features[seen], cam.center, 2e-3, prune=True)
+            got = np.array([f["visible"] for f in views[c]["features"]])[seen]
+            sure = ~oracle.ambiguous
+            np.testing.assert_array_equal(got[sure], oracle.visible[sure])
+        answers[opening] = [[f["reason"] for f in v["features"]] for v in views]
+    assert answers[0.0] != answers[robot.tool.max_opening]

@@ -8,7 +8,7 @@ from pathlib import Path
 
 from cellsight.commands.text import add_state_args
 from cellsight.errors import CellsightError
-from cellsight.model.arguments import parse_joints, parse_part_poses
+from cellsight.model.arguments import parse_joints, parse_openings, parse_part_poses
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -31,7 +31,8 @@ def cmd_show(args: argparse.Namespace) -> int:
     from cellsight.runfolder.writes import WriteError
 
     cell = load_cell(args.cell)
-    snapshot = cell.snapshot(parse_joints(args.joints), parse_part_poses(args.part_pose))
+    snapshot = cell.snapshot(parse_joints(args.joints), parse_part_poses(args.part_pose),
+                             parse_openings(args.openings))
     out = Path(args.out)
     check_new_files(out, show_files(cell), args.overwrite, "--out")
     visibility = VisibilityPredictor(cell).predict_snapshot(snapshot)

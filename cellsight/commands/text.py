@@ -22,9 +22,11 @@ def one_line(text: object, limit: int = 300) -> str:
 
 
 def add_state_args(parser: argparse.ArgumentParser) -> None:
-    """``--cell``, ``--joints`` and ``--part-pose``: a cell in one state."""
+    """``--cell``, ``--joints``, ``--part-pose`` and ``--openings``: a cell in one state."""
     parser.add_argument("--cell", help=CELL_HELP)
     parser.add_argument("--joints", help='JSON (or a JSON file): {"R7AX": [q1, ...], ...}; '
                                          "robots left out stay at HOME")
     parser.add_argument("--part-pose",
                         help='JSON (or file): {"part": {"xyz": [..], "rpy": [..]}}')
+    parser.add_argument("--openings", help='JSON (or file): {"R7AX": 0.03}: jaw openings (m); '
+                                           "grippers left out are open")

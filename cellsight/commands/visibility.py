@@ -9,7 +9,7 @@ import json
 import numpy as np
 
 from cellsight.commands.text import add_state_args
-from cellsight.model.arguments import parse_joints, parse_part_poses
+from cellsight.model.arguments import parse_joints, parse_openings, parse_part_poses
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -29,7 +29,8 @@ def cmd_visibility(args: argparse.Namespace) -> int:
 
     cell = load_cell(args.cell)
     result = VisibilityPredictor(cell).predict(parse_joints(args.joints),
-                                               parse_part_poses(args.part_pose))
+                                               parse_part_poses(args.part_pose),
+                                               parse_openings(args.openings))
     if args.json:
         out = {
             part: [

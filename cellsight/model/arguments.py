@@ -75,6 +75,23 @@ def parse_joints(text: str | None) -> dict[str, np.ndarray]:
     return {name: _numbers(q, f"--joints: robot {name!r}") for name, q in data.items()}
 
 
+def parse_openings(text: str | None) -> dict[str, float]:
+    """``{"R7AX": 0.03, ...}`` (JSON or a JSON file) -> robot name -> jaw opening (m); the
+    range is the cell's to check (:meth:`Cell.snapshot <cellsight.model.Cell.snapshot>`)."""
+    data = json_value(text, "openings") or {}
+    if not isinstance(data, dict):
+        raise CellsightError(f"--openings: expected an object robot -> opening in metres, got "
+                             f"{short_repr(data)}")
+    out = {}
+    for name, value in data.items():
+        if isinstance(value, bool) or not isinstance(value, int | float) \
+                or not np.isfinite(value):
+            raise CellsightError(f"--openings: robot {name!r}: expected a finite number of "
+                                 f"metres, got {short_repr(value)}")
+        out[name] = float(value)
+    return out
+
+
 def parse_part_poses(text: str | None) -> dict[str, np.ndarray]:
     """``{"part": {"xyz": [...], "rpy": [...]}}`` or a 4x4 rigid transform per workpiece."""
     data = json_value(text, "part-pose") or {}

@@ -42,23 +42,26 @@ def overview_camera(cell: Cell) -> tuple[np.ndarray, np.ndarray]:
 class ViewApp:
     """``cellsight view`` serving on ``host:port`` (0: any free port).
 
-    Without ``replay``: the cell at ``joints`` / ``part_poses`` (robots and parts left out at
-    HOME and nominal), features coloured by the predictor. With ``replay``: the run's frames,
-    starting at the frame nearest ``start_time`` (s; default the first). Bad joints or part
+    Without ``replay``: the cell at ``joints`` / ``part_poses`` / ``openings`` (robots, parts
+    and grippers left out at HOME, nominal and open), features coloured by the predictor. With
+    ``replay``: the run's frames, starting at the frame nearest ``start_time`` (s; default the
+    first). Bad joints or part
     names and a busy port are :class:`~cellsight.errors.CellsightError` before anything is
     served.
     """
 
     def __init__(self, cell: Cell, *, replay: RunReplay | None = None,
                  joints: Mapping[str, np.ndarray] | None = None,
-                 part_poses: Mapping[str, np.ndarray] | None = None, host: str = "127.0.0.1",
+                 part_poses: Mapping[str, np.ndarray] | None = None,
+                 openings: Mapping[str, float] | None = None, host: str = "127.0.0.1",
                  port: int = 8080, start_time: float | None = None,
                  image_interval: float = IMAGE_INTERVAL_S) -> None:
         self.cell, self.replay = cell, replay
         self._lock = threading.RLock()
         self._last_images: Sequence[np.ndarray] | None = None
         start = 0 if replay is None or start_time is None else replay.frame_at(start_time)
-        self.state = replay.state(start) if replay else static_state(cell, joints, part_poses)
+        self.state = (replay.state(start) if replay
+                      else static_state(cell, joints, part_poses, openings=openings))
         cell.snapshot(self.state.joints, self.state.part_poses, self.state.openings)  # checks
         check_port(host, port)
         with contextlib.redirect_stdout(io.StringIO()):  # viser's banner: we print the URL

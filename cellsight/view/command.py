@@ -25,6 +25,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                                     "left out stay at HOME (not with RUN_DIR)")
     p.add_argument("--part-pose", help='JSON (or file): {"part": {"xyz": [..], "rpy": [..]}} '
                                        "(not with RUN_DIR)")
+    p.add_argument("--openings", help='JSON (or file): {"R7AX": 0.03}: jaw openings (m); '
+                                      "grippers left out are open (not with RUN_DIR)")
     p.add_argument("--time", type=float, metavar="S",
                    help="with RUN_DIR: start the timeline at the frame nearest S seconds")
     p.add_argument("--host", default="127.0.0.1", help="address to serve on (127.0.0.1)")
@@ -43,9 +45,10 @@ def register(sub) -> argparse.ArgumentParser:
 
 
 def _check(args: argparse.Namespace) -> None:
-    if args.run_dir is not None and (args.joints is not None or args.part_pose is not None):
-        raise CellsightError("--joints / --part-pose: not with RUN_DIR (the run's log gives "
-                             "the joints and poses of every frame)")
+    if args.run_dir is not None and (args.joints is not None or args.part_pose is not None
+                                     or args.openings is not None):
+        raise CellsightError("--joints / --part-pose / --openings: not with RUN_DIR (the run's "
+                             "log gives the joints, poses and openings of every frame)")
     if args.run_dir is None and args.time is not None:
         raise CellsightError("--time: only with RUN_DIR")
     if args.time is not None and not math.isfinite(args.time):
@@ -57,7 +60,7 @@ def _check(args: argparse.Namespace) -> None:
 
 def start_view(args: argparse.Namespace):
     """The :class:`~cellsight.view.app.ViewApp` the arguments describe, serving."""
-    from cellsight.model.arguments import parse_joints, parse_part_poses
+    from cellsight.model.arguments import parse_joints, parse_openings, parse_part_poses
     from cellsight.model.loader import load_cell
     from cellsight.view.app import ViewApp
     from cellsight.view.replay import RunReplay
@@ -68,7 +71,8 @@ def start_view(args: argparse.Namespace):
         replay = RunReplay(args.run_dir, args.cell)
         return ViewApp(replay.cell, replay=replay, start_time=args.time, **common)
     joints, part_poses = parse_joints(args.joints), parse_part_poses(args.part_pose)
-    return ViewApp(load_cell(args.cell), joints=joints, part_poses=part_poses, **common)
+    return ViewApp(load_cell(args.cell), joints=joints, part_poses=part_poses,
+                   openings=parse_openings(args.openings), **common)
 
 
 def cmd_view(args: argparse.Namespace) -> int:

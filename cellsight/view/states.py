@@ -63,11 +63,13 @@ class FrameState:
 
 def static_state(cell: Cell, joints: Mapping[str, np.ndarray] | None = None,
                  part_poses: Mapping[str, np.ndarray] | None = None,
-                 predictor: VisibilityPredictor | None = None) -> FrameState:
+                 predictor: VisibilityPredictor | None = None,
+                 openings: Mapping[str, float] | None = None) -> FrameState:
     """The cell at ``joints`` (robots left out at HOME) with its workpieces at ``part_poses``
-    (left out: nominal), every workpiece's features coloured by the predictor's answer.
+    (left out: nominal) and its grippers at ``openings`` (m; left out: open), every
+    workpiece's features coloured by the predictor's answer.
     Joints are checked (length, limits) and part names too: errors name the robot or part."""
-    snapshot = cell.snapshot(joints or {}, part_poses or {})
+    snapshot = cell.snapshot(joints or {}, part_poses or {}, openings or {})
     views = (predictor or VisibilityPredictor(cell)).predict_snapshot(snapshot)
     features = {
         part: FeatureState(visible=np.array([v.visible for v in per_camera], dtype=bool),
