@@ -21,6 +21,7 @@ from cellsight.commands import (
     cells,
     check,
     compare,
+    design_crossing,
     diagnose,
     ik,
     run,
@@ -36,7 +37,8 @@ from cellsight.sweep import command as sweep_command
 from cellsight.view import command as view_command
 
 COMMANDS = (show, visibility, run, cells, compare, sweep_command, realism_command,
-            placement_command, export_command, view_command, cameras, ik, check, diagnose)
+            placement_command, export_command, view_command, cameras, ik, check, diagnose,
+            design_crossing)
 """Every sub-command's module, in ``--help`` order."""
 
 
