@@ -50,6 +50,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                      help="render every camera's whole image every frame (default: only the "
                           "region of the windows the tracker reads, and whole images where it "
                           "needs them; the same pixels)")
+    run.add_argument("--no-check", action="store_true",
+                     help="run even when the cell file fails cellsight check's quick checks "
+                          "(units, joint limits, key poses in view)")
     run.add_argument("--quiet", action="store_true", help="no progress bar")
     run.add_argument("--overwrite", action="store_true",
                      help="clear --out first if it holds an earlier run (only a run's outputs; "
@@ -69,7 +72,23 @@ def _check_run_args(args: argparse.Namespace) -> Path:
         raise CellsightError(f"--seed: expected a whole number >= 0, got {args.seed}")
     out = Path(args.out or f"out/experiment{args.experiment}")
     check_out_folder(out, args.overwrite, "--out", "--overwrite")
+    if not args.no_check:
+        _check_cell(args.cell)
     return out
+
+
+def _check_cell(cell_arg: str | None) -> None:
+    """``cellsight check``'s checks of the cell file that need no simulation (size and units,
+    joint limits, key poses in view): errors are refused before anything runs, all named in
+    one line."""
+    from cellsight.experiments.cellcheck import check_cell
+    from cellsight.model.loader import load_cell
+
+    cell = load_cell(cell_arg)
+    errors = [f.line for f in check_cell(cell, crossing=False) if f.level == "error"]
+    if errors:
+        raise CellsightError(f"{cell.source}: {len(errors)} problem(s) (cellsight check; "
+                             f"--no-check runs anyway): " + "; ".join(errors))
 
 
 def _run_failed(exc: Exception, out: Path) -> int:
