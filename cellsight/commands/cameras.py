@@ -29,6 +29,7 @@ import argparse
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from cellsight.commands.text import CELL_HELP
 from cellsight.errors import CellsightError
 from cellsight.model.yaml_input import with_absolute_paths
 
@@ -181,8 +182,7 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     """Add ``cameras`` to ``cellsight``'s sub-commands; returns its parser."""
     cameras = sub.add_parser("cameras", help="the cell's cameras: a table, or calibration files "
                                              "(--write)")
-    cameras.add_argument("--cell", help="a built-in cell's name (dual-arm, the default; ur-cell: "
-                                        "see 'cellsight cells') or a YAML cell file")
+    cameras.add_argument("--cell", help=CELL_HELP)
     cameras.add_argument("--write", metavar="DIR",
                          help="write each camera's intrinsics and hand-eye files, cameras.yaml "
                               "and cell.yaml (which loads them) in DIR")

@@ -163,8 +163,12 @@ def _grasping(cell: Cell) -> Robot | None:
 
 def _crossing(cell: Cell, step_s: float) -> list[Finding]:
     setup = cell.experiments
-    if setup.crossing_robot is None or not setup.crossing_waypoints or not cell.workpieces:
+    if not cell.workpieces:
         return []
+    if setup.crossing_robot is None or not setup.crossing_waypoints:
+        return [Finding("warning", "experiment 3: the cell file has no crossing "
+                                   "(experiments.crossing: robot, waypoints); experiment 3 "
+                                   "cannot run")]
     crosser = cell.robot(setup.crossing_robot)
     task = JointTask(crosser.home, [Waypoint(t, q) for t, q in setup.crossing_waypoints])
     part = cell.workpiece(setup.workpiece) if setup.workpiece else cell.workpieces[0]

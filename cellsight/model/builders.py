@@ -40,7 +40,14 @@ from cellsight.model.schema import (
     SolidSpec,
     UrdfSpec,
 )
-from cellsight.model.urdf import UrdfError, UrdfRobot, load_urdf_robot, resolve_uri, urdf_files
+from cellsight.model.urdf import (
+    UrdfError,
+    UrdfRobot,
+    load_urdf_robot,
+    package_folder,
+    resolve_uri,
+    urdf_files,
+)
 
 
 def _solid(spec: SolidSpec, name: str, where: str, file: str, folder: Path) -> Polyhedron:
@@ -234,9 +241,20 @@ def _cameras(spec: CellSpec, file: str, folder: Path,
     return cameras
 
 
+def _packages(spec: CellSpec, file: str, folder: Path) -> dict[str, Path]:
+    """The ``packages`` map's folders (:func:`~cellsight.model.urdf.package_folder`)."""
+    out = {}
+    for name, value in spec.packages.items():
+        try:
+            out[name] = package_folder(value, folder)
+        except UrdfError as exc:
+            raise CellFileError(file, f"packages.{name}", value, str(exc)) from exc
+    return out
+
+
 def build_cell(spec: CellSpec, file: str, folder: Path) -> Cell:
     """Turn a validated :class:`CellSpec` into a :class:`Cell`."""
-    packages = {name: folder / sub for name, sub in spec.packages.items()}
+    packages = _packages(spec, file, folder)
     robots = [_robot(rs, f"robots[{r}]", file, folder, packages)
               for r, rs in enumerate(spec.robots)]
     parts = _workpieces(spec, file, folder)

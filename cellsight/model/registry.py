@@ -30,6 +30,8 @@ BUILTIN_CELLS: dict[str, BuiltinCell] = {cell.name: cell for cell in (
                 "two cameras, a conveyor"),
     BuiltinCell("ur-cell", "ur_cell.yaml",
                 "two UR5 (example-robot-data URDF, collision meshes), three cameras, a conveyor"),
+    BuiltinCell("kr16-cell", "kr16_cell.yaml",
+                "two KUKA KR16-2 (rtb-data URDF, collision meshes), three cameras, a conveyor"),
 )}
 DEFAULT_CELL = "dual-arm"
 

@@ -8,7 +8,8 @@ a segment, for links), inline ``vertices`` + ``faces`` (CCW seen from outside), 
 the ``conveyor`` path and a ``crossing`` robot's timed joint waypoints. A robot is either a DH
 table (``links``) or a URDF file (``urdf: {file, geometry, flange}``, :mod:`cellsight.model.urdf`;
 ``package://NAME/...`` through the top-level ``packages: {NAME: folder}`` map, folders relative
-to the cell file, or an installed package). A camera's intrinsics may come from a calibration file
+to the cell file or ``python://MODULE/sub/path`` inside an installed Python package, or an
+installed package). A camera's intrinsics may come from a calibration file
 (``calibration: FILE`` or ``{file, format: opencv|ros}``) and its pose from an eye-to-hand
 hand-eye result (``hand_eye: FILE`` or ``{file, format: opencv|easy_handeye, robot}``),
 files relative to the cell file (:mod:`cellsight.model.calibration`). Lengths in metres, angles

@@ -33,6 +33,7 @@ travel (a URDF or a mesh in millimetres or inches).
 
 from __future__ import annotations
 
+import importlib.util
 import io
 import logging
 import site
@@ -94,14 +95,39 @@ class UrdfRobot:
 
 def installed_package_folder(name: str) -> Path | None:
     """The share folder of an installed package ``name`` (``<prefix>/share/<name>`` or
-    ``<site-packages>/cmeel.prefix/share/<name>``), or None."""
+    ``<site-packages>/cmeel.prefix/share/<name>``), else the folder of an importable Python
+    package ``name`` (such as ``rtbdata``), or None."""
     roots = [Path(sys.prefix) / "share"]
     for sp in [*site.getsitepackages(), *sys.path]:
         roots.append(Path(sp) / "cmeel.prefix" / "share")
     for root in roots:
         if (root / name).is_dir():
             return root / name
-    return None
+    return python_package_folder(name)
+
+
+def python_package_folder(name: str) -> Path | None:
+    """The folder of the importable Python package ``name`` (not imported), or None."""
+    try:
+        spec = importlib.util.find_spec(name)
+    except (ImportError, ValueError):
+        return None
+    if spec is None or not spec.submodule_search_locations:
+        return None
+    return Path(next(iter(spec.submodule_search_locations)))
+
+
+def package_folder(value: str, folder: Path) -> Path:
+    """A ``packages`` map's folder: ``python://MODULE/sub/path`` inside an installed Python
+    package (portable: wherever it is installed), else a path relative to ``folder``; a
+    :class:`UrdfError` (field ``packages``) for a Python package not installed."""
+    if not value.startswith("python://"):
+        return folder / value
+    name, _, rest = value[len("python://"):].partition("/")
+    root = python_package_folder(name)
+    if root is None:
+        raise UrdfError("packages", f"{value}: no installed Python package {name!r}")
+    return root / rest
 
 
 def resolve_uri(uri: str, packages: Mapping[str, Path], folder: Path) -> Path:
