@@ -1,7 +1,8 @@
-"""``cellsight design-crossing`` (cellsight.experiments.crossing_design) on the built-in cell:
-the paper's pattern asked for (camera 2 blind during the approach and grasp, camera 1 during
-the lift) is what experiment 3 then shows in the simulator's own ray casts, and the crossing
-robot keeps 10 cm from the other robot and the part along the run (MuJoCo's distances)."""
+"""``cellsight design-crossing`` (cellsight.experiments.crossing_design) on the built-in cell and
+the tutorial's kr16-cell: the paper's pattern asked for (camera 2 blind during the approach and
+grasp, camera 1 during the lift) is what experiment 3 then shows in the simulator's own ray
+casts, and the crossing robot keeps 10 cm from the other robot and the part along the run
+(MuJoCo's distances)."""
 
 from __future__ import annotations
 
@@ -19,51 +20,59 @@ from cellsight.geometry.transforms import pose_from_xyz_rpy
 from cellsight.runfolder import FrameLog
 from cellsight.world import ReplayWorld
 
-BLOCKS = [Block("cam2", 8.5, 15.0), Block("cam1", 20.0, 22.5)]
+CASES = {
+    "dual-arm": ("R7AX", "R6AX", [Block("cam2", 8.5, 15.0), Block("cam1", 20.0, 22.5)]),
+    "kr16-cell": ("KR16A", "KR16B", [Block("cam2", 9.5, 15.0), Block("cam1", 21.0, 22.5)]),
+}
 
 
-@pytest.fixture(scope="module")
-def designed(tmp_path_factory):
-    cell = load_cell()
-    folder = tmp_path_factory.mktemp("design")
-    run_experiment(RunConfig(2, folder / "e2", sensor="ideal", progress=False, video_every=0))
-    design = design_crossing(cell, BLOCKS, TaskPath(folder / "e2"))
-    crossed = with_crossing(cell, "R6AX", design.waypoints)
+@pytest.fixture(scope="module", params=list(CASES))
+def designed(request, tmp_path_factory):
+    name = request.param
+    grasping, crossing, blocks = CASES[name]
+    cell = load_cell(name)
+    folder = tmp_path_factory.mktemp(f"design-{name}")
+    run_experiment(RunConfig(2, folder / "e2", cell=name, sensor="ideal", progress=False,
+                             video_every=0))
+    design = design_crossing(cell, blocks, TaskPath(folder / "e2"))
     cell_file = folder / "crossed.yaml"
     text = Path(cell.source).read_text()
-    section = re.search(r"^  crossing:\n(?:    .*\n?)*", text, flags=re.MULTILINE)
-    cell_file.write_text(text[:section.start()] + design.yaml("R6AX") + "\n"
+    section = re.search(r"^  crossing:\n(?:(?:    .*)?\n?)*", text, flags=re.MULTILINE)
+    cell_file.write_text(text[:section.start()] + design.yaml(crossing) + "\n"
                          + text[section.end():])
+    crossed = load_cell(cell_file)
+    assert crossed.experiments.crossing_waypoints[1][0] == pytest.approx(design.waypoints[1][0],
+                                                                         abs=0.01)
     run_experiment(RunConfig(3, folder / "e3", cell=cell_file, sensor="ideal", progress=False,
                              video_every=0))
-    return design, crossed, folder / "e3"
+    return design, with_crossing(cell, crossing, design.waypoints), folder / "e3", CASES[name]
 
 
 def test_the_cameras_are_blind_when_asked_in_the_simulators_truth(designed):
-    design, _, run = designed
+    design, _, run, (_, crossing, blocks) = designed
     log = FrameLog.read(run / "frames.csv")
     t = log.floats("t")
-    for block, most in zip(BLOCKS, (2, 0), strict=True):
+    for block, most in zip(blocks, (2, 0), strict=True):
         c = int(block.camera[-1])
         during = (t >= block.t0) & (t <= block.t1)
         seen = log.bits(f"vis_true_c{c}")[during].sum(axis=1)
         assert during.sum() > 20 and seen.max() <= most, (block, seen.max())
     metrics = json.loads((run / "metrics.json").read_text())
     assert metrics["grasp_success"] and metrics["collision_count"] == 0
-    assert design.yaml("R6AX").startswith("  crossing:\n    robot: R6AX")
+    assert design.yaml(crossing).startswith(f"  crossing:\n    robot: {crossing}")
 
 
 def test_the_crossing_keeps_ten_centimetres_along_the_run(designed):
     import mujoco  # after cellsight.world, which chooses MuJoCo's OpenGL back-end
 
-    design, crossed, run = designed
+    design, crossed, run, (grasping, crossing, _) = designed
     log = FrameLog.read(run / "frames.csv")
     world = ReplayWorld(crossed)
     m, d = world.scene.model, world.scene.data
     names = [m.geom(g).name for g in range(m.ngeom)]
-    mine = [g for g, n in enumerate(names) if n.startswith("R6AX.")]
-    others = [g for g, n in enumerate(names) if n.startswith("R7AX.") or n == "part"]
-    joints = {r: log.joints(r) for r in ("R6AX", "R7AX")}
+    mine = [g for g, n in enumerate(names) if n.startswith(f"{crossing}.")]
+    others = [g for g, n in enumerate(names) if n.startswith(f"{grasping}.") or n == "part"]
+    joints = {r: log.joints(r) for r in (grasping, crossing)}
     part = log.poses("true")
     fromto, least = np.zeros(6), np.inf
     for k in range(0, log.n, 3):
