@@ -111,3 +111,16 @@ def test_a_crossing_into_the_other_robot_is_found(cell):
     near = [e for e in errors if "keeps" in e]
     assert len(near) == 1 and "closest: R7AX." in near[0] and near[0].endswith("under 5 cm")
     assert float(near[0].split("keeps ")[1].split(" cm")[0]) < 2.0
+
+
+def test_a_gripper_inside_the_wrist_is_found():
+    """The KR16's gripper mounted 65.5 mm short of the flange (a URDF whose flange link sits at
+    the wrist centre, the tutorial's first user met one): a warning naming the mount."""
+    cell = load_cell("kr16-cell")
+    robot = cell.robot("KR16A")
+    short = robot.tool.T_flange_tool.copy()
+    short[:3, 3] -= 0.0655 * short[:3, 2]
+    moved = _robot(cell, "KR16A", tool=replace(robot.tool, T_flange_tool=short))
+    warnings = [f.line for f in check_cell(moved, crossing=False) if f.level == "warning"]
+    assert len(warnings) == 1 and warnings[0].startswith("robot KR16A: link_6 reaches 66 mm past")
+    assert "tool.mount" in warnings[0]

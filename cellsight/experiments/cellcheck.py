@@ -4,6 +4,11 @@
   over ``REACH_SAMPLES`` random joint vectors inside the limits) against industrial arms'
   ``REACH_M`` range, and each workpiece's size against ``PART_M``: a file in inches, tenths
   of an inch or millimetres read as metres is 25.4x, 2.54x or 1000x too large.
+- **The tool on its flange:** along the tool's z (its approach), the flange link's solids
+  should end near the tool frame's origin: reaching more than ``MOUNT_M`` past it puts the
+  gripper inside the arm (a flange link short of the real flange, such as a ``tool0`` at the
+  wrist centre: set the tool's ``mount``), ending more than ``MOUNT_M`` before it leaves the
+  gripper in the air; a warning either way.
 - **Joint limits:** HOME, FINAL and the crossing's waypoints inside every joint's limits by at
   least ``LIMIT_MARGIN`` (rad or m): a joint on its limit passes the loader and stops the run
   at its first control step.
@@ -39,6 +44,7 @@ PART_M = (0.005, 2.0)  # m: a workpiece's bounding-box diagonal
 REACH_SAMPLES = 400
 LIMIT_MARGIN = 1e-6  # rad or m
 CLEARANCE_M = 0.05  # m: the crossing robot's least distance to the other robots and the part
+MOUNT_M = 0.05  # m: how far the flange link may end from the tool frame along its approach
 
 
 @dataclass(frozen=True)
@@ -53,7 +59,7 @@ def check_cell(cell: Cell, *, margin_px: float = 20.0, step_s: float = 0.1,
                crossing: bool = True) -> list[Finding]:
     """Every check of the module docstring on ``cell``, in that order; ``crossing``: with
     experiment 3's crossing (the slow ones: the predictor and MuJoCo along the crossing)."""
-    findings = _units(cell) + _limits(cell) + _key_poses(cell, margin_px)
+    findings = _units(cell) + _mounts(cell) + _limits(cell) + _key_poses(cell, margin_px)
     return findings + (_crossing(cell, step_s) if crossing else [])
 
 
@@ -74,6 +80,30 @@ def _units(cell: Cell) -> list[Finding]:
         if not PART_M[0] <= size <= PART_M[1]:
             out.append(Finding("error", f"workpiece {part.name}: {size:.3f} m across, outside "
                                         f"{PART_M[0]}-{PART_M[1]} m{_scale_hint(size, 0.2)}"))
+    return out
+
+
+def _mounts(cell: Cell) -> list[Finding]:
+    out = []
+    for robot in cell.robots:
+        if robot.tool is None:
+            continue
+        frame, link, solids = robot.link_groups()[-1]
+        T_tool = robot.tool_pose(robot.home)
+        T_link = robot.link_poses(robot.home)[frame]
+        if not solids:
+            continue
+        v = np.vstack([s.vertices for s in solids]) @ T_link[:3, :3].T + T_link[:3, 3]
+        end = float(((v - T_tool[:3, 3]) @ T_tool[:3, 2]).max())
+        if end > MOUNT_M:
+            out.append(Finding("warning", f"robot {robot.name}: {link} reaches {end * 1e3:.0f} mm "
+                                          f"past the tool's mount along its approach: the "
+                                          f"gripper sits inside the arm (is the flange link "
+                                          f"short of the real flange? set tool.mount)"))
+        elif end < -MOUNT_M:
+            out.append(Finding("warning", f"robot {robot.name}: {link} ends {-end * 1e3:.0f} mm "
+                                          f"before the tool's mount: the gripper floats off "
+                                          f"the flange (tool.mount)"))
     return out
 
 
