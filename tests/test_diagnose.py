@@ -8,6 +8,7 @@ import csv
 import json
 from pathlib import Path
 
+import cv2
 import pytest
 
 from cellsight.cli import main
@@ -50,3 +51,15 @@ def test_the_command_names_cameras_and_features(lab_run, capsys):
     assert main(["diagnose", str(lab_run)]) == 0
     assert "accepted by the gate" in capsys.readouterr().out
     assert main(["diagnose", str(lab_run / "nothing")]) == 2
+
+
+def test_the_report_shows_the_worst_accepted_wrong_corners(lab_run):
+    accepted = [s for s in wrong_corner_spans(lab_run) if s.accepted]
+    report = (lab_run / "report.html").read_text()
+    assert "<h2>Wrong corners</h2>" in report
+    for i in range(1, min(len(accepted), 4) + 1):
+        picture = cv2.imread(str(lab_run / f"fig_wrong_corner_{i}.png"))
+        assert picture is not None and picture.shape == (192, 192, 3)
+        assert f'src="fig_wrong_corner_{i}.png"' in report
+        # the green cross at the crop's true projection
+        assert (picture[..., 1] > 150).sum() > 20 and (picture[..., 0] < 50).sum() > 20

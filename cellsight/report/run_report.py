@@ -31,6 +31,7 @@ from matplotlib.patches import Patch
 
 from cellsight.geometry.transforms import pose_errors
 from cellsight.rates import VISION_HZ
+from cellsight.report.corner_crops import wrong_corner_crops
 from cellsight.runfolder.framelog import FrameLog, camera_column, timing_column
 from cellsight.runfolder.metrics import read_metrics
 from cellsight.runfolder.writes import write_figure, write_file
@@ -509,7 +510,7 @@ def _video_html(run_dir: Path) -> str:
             f'type="video/mp4"></video>{link}')
 
 
-def _wrong_corners_html(run_dir: Path, shown: int = 12) -> str:
+def _wrong_corners_html(run_dir: Path, metrics: dict, shown: int = 12) -> str:
     """The run's wrong corners by camera, feature and span of time, most accepted first
     (:mod:`cellsight.runfolder.wrong_corners`; ``cellsight diagnose`` prints them all)."""
     try:
@@ -525,10 +526,19 @@ def _wrong_corners_html(run_dir: Path, shown: int = 12) -> str:
             s.camera, s.feature, f"{s.t_start:.2f}-{s.t_end:.2f}", s.phase, s.frames,
             s.accepted, s.rejected, s.truth, s.predicted)) + "</tr>" for s in spans[:shown])
     more = f" (the first {shown} of {len(spans)} spans)" if len(spans) > shown else ""
+    try:
+        crops = wrong_corner_crops(run_dir, spans, metrics=metrics)
+    except Exception as exc:  # a picture the report can go without; said in it
+        note = html.escape(str(exc))
+        crops, body = [], body + f"<tr><td colspan=9>(no pictures: {note})</td></tr>"
+    pictures = "".join(f'<figure><img src="{p.name}" alt="{p.stem}"><figcaption>{p.stem}'
+                       "</figcaption></figure>" for p in crops)
     return (f"<h2>Wrong corners</h2><p>Corners measured more than 3 px from the true "
             f"projection, by camera (<code>camN</code>: the N-th) and feature (<code>#j</code>: "
             f"its 0-based index), "
-            f"most accepted first{more}.</p><table><tr>{head}</tr>{body}</table>")
+            f"most accepted first{more}. Pictures: the worst accepted spans' first frames, "
+            f"re-rendered, around the feature's true projection (green cross).</p>"
+            f"<table><tr>{head}</tr>{body}</table>{pictures}")
 
 
 def _log_html(run_dir: Path) -> str:
@@ -569,7 +579,8 @@ def write_report(run_dir: Path, metrics: dict | None = None) -> Path:
     run = report_inputs(Path(run_dir), metrics)
     body = "".join([_header_html(run), _metrics_html(run.metrics),
                     _figures_html(write_figures(run)), _keyframes_html(run.dir),
-                    _video_html(run.dir), _wrong_corners_html(run.dir), _log_html(run.dir)])
+                    _video_html(run.dir), _wrong_corners_html(run.dir, run.metrics),
+                    _log_html(run.dir)])
     m = run.metrics
     title = f"cellsight run: experiment {m.get('experiment', '?')}, seed {m.get('seed', '?')}"
     page = (f"<!DOCTYPE html><html lang=en><head><meta charset=utf-8>"

@@ -185,10 +185,13 @@ def _visibility(frames: FrameLog, cell: Cell, part: Workpiece, name: str):
     return bits, present
 
 
-def load_run(folder: str | Path, cell: str | Path | None = None) -> RunData:
-    """Read and check a run folder (module docstring); ``cell`` overrides metrics.json's."""
+def load_run(folder: str | Path, cell: str | Path | None = None,
+             metrics: dict | None = None) -> RunData:
+    """Read and check a run folder (module docstring); ``cell`` overrides metrics.json's;
+    ``metrics``: the run's metrics when its metrics.json is not written yet (a run's report,
+    written just before it)."""
     folder = Path(folder)
-    metrics = read_metrics(folder)
+    metrics = read_metrics(folder) if metrics is None else metrics
     the_cell = run_cell(metrics, folder, cell)
     path = folder / "metrics.json"
     part_name = _text_field(metrics, "workpiece", path)
