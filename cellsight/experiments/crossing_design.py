@@ -16,12 +16,15 @@ Every fraction of ``FRACTIONS`` is tried; a design is judged along the whole cro
 
 - blinding: per block, the most features its camera still sees during ``t0..t1`` (the
   occlusion predictor), against the most it sees with the crossing robot left at HOME;
+- blinding elsewhere: the seconds a camera sees at most half its features (against the
+  crossing robot at HOME) outside its own blocks, every ``2 STEP_S`` of the crossing (the
+  robot on its way between blocks may pass through another view);
 - clearance: the crossing robot's least distance to the other robots and the part (MuJoCo
   ``mj_geomDistance`` between their solids).
 
-The design kept is the one that blinds best (fewest features left, summed over the blocks)
-among those whose clearance is at least ``clearance_m``, else the one with the largest
-clearance.
+The design kept is the one that blinds best (fewest features left, summed over the blocks),
+then blinds least elsewhere, among those whose clearance is at least ``clearance_m``, else the
+one with the largest clearance.
 """
 
 from __future__ import annotations
@@ -60,13 +63,15 @@ class Block:
 @dataclass(frozen=True)
 class Design:
     """A crossing: its ``waypoints`` ((t, q) pairs), the ``fraction`` used, per block the most
-    features its camera sees during it (``left``) and without the crossing (``of``), and the
-    least ``clearance_m`` with where (``closest``: solid, time)."""
+    features its camera sees during it (``left``) and without the crossing (``of``), the seconds
+    a camera is blinded outside its blocks (``elsewhere_s``), and the least ``clearance_m``
+    with where (``closest``: solid, time)."""
 
     waypoints: list[tuple[float, np.ndarray]]
     fraction: float
     left: list[int]
     of: list[int]
+    elsewhere_s: float
     clearance_m: float
     closest: tuple[str, float]
 
@@ -115,7 +120,7 @@ def design_crossing(cell: Cell, blocks: Sequence[Block], path: TaskPath, *,
                              f"sight at fractions {FRACTIONS} of the way to the cameras")
     clear = [d for d in designs if d.clearance_m >= clearance_m]
     if clear:
-        return min(clear, key=lambda d: (sum(d.left), -d.clearance_m))
+        return min(clear, key=lambda d: (sum(d.left), d.elsewhere_s, -d.clearance_m))
     return max(designs, key=lambda d: d.clearance_m)
 
 
@@ -203,8 +208,26 @@ def _judged(cell: Cell, robot: Robot, part: str, blocks: Sequence[Block], path: 
             seen.append((on.count, off.count))
         left.append(max(s[0] for s in seen))
         of.append(max(s[1] for s in seen))
+    elsewhere = _elsewhere(cell, robot, part, blocks, path, task, waypoints[-1][0], predictor)
     clearance, closest = _clearance(cell, robot, part, path, task, waypoints[-1][0])
-    return Design(waypoints, fraction, left, of, clearance, closest)
+    return Design(waypoints, fraction, left, of, elsewhere, clearance, closest)
+
+
+def _elsewhere(cell: Cell, robot: Robot, part: str, blocks: Sequence[Block], path: TaskPath,
+               task: JointTask, t_end: float, predictor: VisibilityPredictor) -> float:
+    """Seconds, summed over the cameras, that one sees at most half its features (against the
+    crossing robot at HOME) outside its blocks."""
+    names = [cam.name for cam in cell.cameras]
+    step, total = 2 * STEP_S, 0.0
+    for t in np.arange(0.0, t_end + 1e-9, step):
+        T_part, joints = path.at(t)
+        on = predictor.predict({**joints, robot.name: task.at(t)}, {part: T_part})[part]
+        off = predictor.predict({**joints, robot.name: robot.home}, {part: T_part})[part]
+        for c, name in enumerate(names):
+            inside = any(b.camera == name and b.t0 - 1.0 <= t <= b.t1 + 1.0 for b in blocks)
+            if not inside and off[c].count > 0 and 2 * on[c].count <= off[c].count:
+                total += step
+    return total
 
 
 def _clearance(cell: Cell, robot: Robot, part: str, path: TaskPath, task: JointTask,
