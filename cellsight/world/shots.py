@@ -24,7 +24,7 @@ from cellsight.world.render import GrayRenderer
 class Shot:
     """One camera's exposure (module docstring): ``data`` the simulation's state then (not
     changed afterwards), ``camera`` its index, ``t`` (s) its time, ``offset`` its noise
-    offset (:meth:`Imager.exposure`). ``grabbed_px`` counts the pixels rendered for it."""
+    offset (:meth:`Imager.exposure`)."""
 
     def __init__(self, renderer: GrayRenderer, imager: Imager | None, data, camera: int,
                  t: float, offset: int) -> None:
@@ -33,13 +33,11 @@ class Shot:
         width, height = renderer.size(camera)
         self.shape = (height, width)
         self._whole: np.ndarray | None = None
-        self.grabbed_px = 0
 
     def whole(self) -> np.ndarray:
         """(H, W) uint8: the whole image (rendered once)."""
         if self._whole is None:
             image = self._renderer.render(self._data, [self.camera])[self.camera]
-            self.grabbed_px += image.size
             self._whole = image if self._imager is None else self._imager.finish(
                 self._imager.develop(image, (0, 0), self.shape, self.t, self.offset))
         return self._whole
@@ -86,12 +84,10 @@ class Shot:
         the image effects."""
         u0, v0, u1, v1 = region
         if self._imager is None:
-            self.grabbed_px += (u1 - u0) * (v1 - v0)
             return self._renderer.render_region(self._data, self.camera, region)
         h, w = self.shape
         m = self._imager.margin()
         p0, q0, p1, q1 = max(u0 - m, 0), max(v0 - m, 0), min(u1 + m, w), min(v1 + m, h)
         raw = self._renderer.render_region(self._data, self.camera, (p0, q0, p1, q1))
-        self.grabbed_px += raw.size
         developed = self._imager.develop(raw, (p0, q0), self.shape, self.t, self.offset)
         return self._imager.finish(developed[v0 - q0:v1 - q0, u0 - p0:u1 - p0])
