@@ -66,10 +66,6 @@ class IKSolution:
     limit_margin: np.ndarray
     sigma_min: float
 
-    @property
-    def label(self) -> str:
-        return ", ".join(f"{k} {v}" for k, v in self.branch.items())
-
 
 @dataclass(frozen=True)
 class IKResult:
