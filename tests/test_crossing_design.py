@@ -15,7 +15,7 @@ import pytest
 
 from cellsight import load_cell
 from cellsight.experiments import RunConfig, run_experiment
-from cellsight.experiments.crossing_design import Block, TaskPath, design_crossing, with_crossing
+from cellsight.experiments.crossing_design import Block, TaskPath, design_crossing
 from cellsight.geometry.transforms import pose_from_xyz_rpy
 from cellsight.runfolder import FrameLog
 from cellsight.world import ReplayWorld
@@ -45,7 +45,7 @@ def designed(request, tmp_path_factory):
                                                                          abs=0.01)
     run_experiment(RunConfig(3, folder / "e3", cell=cell_file, sensor="ideal", progress=False,
                              video_every=0))
-    return design, with_crossing(cell, crossing, design.waypoints), folder / "e3", CASES[name]
+    return design, crossed, folder / "e3", CASES[name]
 
 
 def test_the_cameras_are_blind_when_asked_in_the_simulators_truth(designed):

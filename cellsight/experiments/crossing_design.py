@@ -38,7 +38,7 @@ import numpy as np
 from cellsight.control.ik import IKError, solve_ik, tcp_frame
 from cellsight.errors import CellsightError
 from cellsight.geometry.transforms import pose_from_xyz_rpy
-from cellsight.model.cell import Cell, ExperimentSetup
+from cellsight.model.cell import Cell
 from cellsight.model.robot import Robot
 from cellsight.occlusion.predictor import VisibilityPredictor
 from cellsight.runfolder.framelog import FrameLog
@@ -122,17 +122,6 @@ def design_crossing(cell: Cell, blocks: Sequence[Block], path: TaskPath, *,
     if clear:
         return min(clear, key=lambda d: (sum(d.left), d.elsewhere_s, -d.clearance_m))
     return max(designs, key=lambda d: d.clearance_m)
-
-
-def with_crossing(cell: Cell, robot: str, waypoints: list[tuple[float, np.ndarray]]) -> Cell:
-    """``cell`` with its experiments' crossing replaced."""
-    setup = cell.experiments
-    experiments = ExperimentSetup(setup.robot, setup.workpiece, setup.conveyor_points,
-                                  setup.conveyor_speed, setup.conveyor_t_start, robot,
-                                  tuple((float(t), np.asarray(q, float)) for t, q in waypoints),
-                                  setup.source)
-    return Cell(cell.name, cell.robots, cell.workpieces, cell.static, cell.cameras,
-                cell.source, experiments)
 
 
 def _crossing_robot(cell: Cell) -> Robot:
