@@ -49,6 +49,20 @@ def default_joint_velocity_limits(robot: Robot) -> np.ndarray:
     return np.where(robot.chain.prismatic, PRISMATIC_SPEED, REVOLUTE_SPEED)
 
 
+def tcp_pose_and_jacobian(robot: Robot, q: np.ndarray,
+                          T_flange_tcp: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The pose (4x4, cell base frame) of the point ``T_flange_tcp`` fixed to the robot's last
+    frame (its TCP) and its geometric Jacobian (6, n, base frame), from one forward-kinematics
+    evaluation."""
+    frames = robot.chain.fkine(q)
+    T_robot_tcp = frames[-1] @ T_flange_tcp
+    J = robot.chain.jacobian_at(frames, T_robot_tcp[:3, 3])
+    R = robot.T_base_robot[:3, :3]
+    J[:3] = R @ J[:3]
+    J[3:] = R @ J[3:]
+    return robot.T_base_robot @ T_robot_tcp, J
+
+
 def rotation_error(R_desired: np.ndarray, R: np.ndarray) -> np.ndarray:
     """Rotation vector (rad, base frame) of ``R_desired @ R.T``: the turn that takes ``R`` to
     ``R_desired``."""
@@ -94,20 +108,13 @@ class Clik:
         self.null_gain = float(null_gain)
         self.qlim = chain.qlim.copy()
         self._band = limit_margin * (self.qlim[:, 1] - self.qlim[:, 0])
-        self._R_base_robot = robot.T_base_robot[:3, :3]
         self._T_flange_tcp = robot.tool.T_flange_tool @ robot.tool.T_tool_tcp
         self._damp2 = self.damping**2 * np.eye(6)
 
     def tcp_pose_and_jacobian(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """TCP pose in the cell base frame (4x4) and its geometric Jacobian (6, n) in the base
-        frame, from one forward-kinematics evaluation."""
-        chain = self.robot.chain
-        frames = chain.fkine(q)
-        T_robot_tcp = frames[-1] @ self._T_flange_tcp
-        J = chain.jacobian_at(frames, T_robot_tcp[:3, 3])
-        J[:3] = self._R_base_robot @ J[:3]
-        J[3:] = self._R_base_robot @ J[3:]
-        return self.robot.T_base_robot @ T_robot_tcp, J
+        frame (:func:`tcp_pose_and_jacobian`)."""
+        return tcp_pose_and_jacobian(self.robot, q, self._T_flange_tcp)
 
     def secondary_velocity(self, q: np.ndarray) -> np.ndarray:
         """The joint velocity ``dq0`` to project onto the null space (zero unless near a limit)."""

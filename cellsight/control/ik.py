@@ -36,7 +36,7 @@ from itertools import product
 
 import numpy as np
 
-from cellsight.control.clik import rotation_error
+from cellsight.control.clik import rotation_error, tcp_pose_and_jacobian
 from cellsight.errors import CellsightError
 from cellsight.model.robot import Robot
 
@@ -77,14 +77,11 @@ class IKResult:
 
 
 def tcp_frame(robot: Robot, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The TCP pose (4, 4, base frame) and its geometric Jacobian (6, n, base frame)."""
-    frames = robot.chain.fkine(q)
+    """The TCP pose (4, 4, base frame; the flange without a tool) and its geometric Jacobian
+    (6, n, base frame)."""
     T_flange_tcp = np.eye(4) if robot.tool is None else (robot.tool.T_flange_tool
                                                          @ robot.tool.T_tool_tcp)
-    T_chain_tcp = frames[-1] @ T_flange_tcp
-    J = robot.chain.jacobian_at(frames, T_chain_tcp[:3, 3])
-    R = robot.T_base_robot[:3, :3]
-    return robot.T_base_robot @ T_chain_tcp, np.vstack([R @ J[:3], R @ J[3:]])
+    return tcp_pose_and_jacobian(robot, q, T_flange_tcp)
 
 
 def solve_ik(robot: Robot, T_base_tcp: np.ndarray, *, seeds: int = 48, tol_m: float = 1e-6,
