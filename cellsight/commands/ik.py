@@ -76,14 +76,12 @@ def _grasp(workpiece, robot) -> np.ndarray:
     """``T_part_tcp`` of the robot holding the part: the cell file's grasp, else the world's
     default top-down grasp."""
     from cellsight.errors import CellsightError
-    from cellsight.world.grasp import default_grasp_pose
+    from cellsight.world.grasp import grasp_pose
 
-    if workpiece.T_part_grasp is not None:
-        return workpiece.T_part_grasp
-    if robot.tool is None:
+    if robot.tool is None and workpiece.T_part_grasp is None:
         raise CellsightError(f"--part-pose: robot {robot.name!r} has no tool to hold "
                              f"{workpiece.name!r}")
-    return default_grasp_pose(workpiece.solid, robot.tool)
+    return grasp_pose(workpiece, robot.tool)
 
 
 def _views(cell, robot, q, part) -> list[dict]:

@@ -36,7 +36,7 @@ from cellsight.model.cell import Cell
 from cellsight.model.robot import Robot
 from cellsight.occlusion.predictor import VisibilityPredictor
 from cellsight.world import ReplayWorld
-from cellsight.world.grasp import default_grasp_pose
+from cellsight.world.grasp import grasp_pose
 from cellsight.world.paths import ConveyorPath, JointTask, Waypoint
 
 REACH_M = (0.2, 4.0)  # m: the reach of industrial and collaborative arms, with room
@@ -162,9 +162,7 @@ def _key_poses(cell: Cell, margin_px: float) -> list[Finding]:
         poses.append(("at the conveyor's end", end))
     robot = _grasping(cell)
     if robot is not None and robot.tool is not None:
-        grasp = part.T_part_grasp if part.T_part_grasp is not None else default_grasp_pose(
-            part.solid, robot.tool)
-        T_tcp_part = np.linalg.inv(grasp)
+        T_tcp_part = np.linalg.inv(grasp_pose(part, robot.tool))
         poses.append((f"held at {robot.name}'s HOME", robot.tcp_pose(robot.home) @ T_tcp_part))
         if robot.final is not None:
             poses.append((f"held at {robot.name}'s FINAL",

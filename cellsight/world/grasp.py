@@ -16,7 +16,7 @@ from scipy.spatial.transform import Rotation
 
 from cellsight.geometry.polyhedron import Polyhedron
 from cellsight.geometry.transforms import invert_pose, make_pose, transform_points
-from cellsight.model import Cell, ParallelGripper
+from cellsight.model import Cell, ParallelGripper, Workpiece
 from cellsight.world.mjcf import body_name, tcp_site_name
 from cellsight.world.paths import PartMotion
 from cellsight.world.scene import Scene
@@ -108,6 +108,14 @@ class PartSection:
         return (float(y.min()), float(y.max())) if y.size else None
 
 
+def grasp_pose(part: Workpiece, tool: ParallelGripper | None) -> np.ndarray:
+    """``T_part_tcp`` of ``tool`` holding ``part``: the cell file's ``grasp``, else
+    :func:`default_grasp_pose` (which needs the tool)."""
+    if part.T_part_grasp is not None:
+        return part.T_part_grasp.copy()
+    return default_grasp_pose(part.solid, tool)
+
+
 def grasp_poses(cell: Cell, overrides: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
     """``T_part_tcp`` of each workpiece's grasp: ``overrides`` (workpiece name -> pose), else
     the cell file's ``grasp``, else :func:`default_grasp_pose` for the first robot's gripper (a
@@ -118,10 +126,8 @@ def grasp_poses(cell: Cell, overrides: Mapping[str, np.ndarray]) -> dict[str, np
     for part in cell.workpieces:
         if part.name in overrides:
             out[part.name] = np.asarray(overrides.pop(part.name), dtype=float)
-        elif part.T_part_grasp is not None:
-            out[part.name] = part.T_part_grasp.copy()
-        elif gripper is not None:
-            out[part.name] = default_grasp_pose(part.solid, gripper)
+        elif part.T_part_grasp is not None or gripper is not None:
+            out[part.name] = grasp_pose(part, gripper)
     if overrides:
         raise KeyError(f"grasp_poses: no workpiece named {sorted(overrides)}")
     return out
