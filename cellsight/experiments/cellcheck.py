@@ -28,6 +28,7 @@ meant), ``warning`` (worth a look) or ``ok`` (a check passed, with its figure).
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import dataclass
 
 import numpy as np
@@ -240,28 +241,44 @@ def _blinding(cell: Cell, crosser: str, times: np.ndarray, seen: np.ndarray) -> 
 def _clearance(cell: Cell, crosser: str, task: JointTask, times: np.ndarray,
                conveyor: ConveyorPath | None, part: str) -> list[Finding]:
     """The crossing robot's least distance to the other robots' solids and the part along the
-    crossing (MuJoCo ``mj_geomDistance``, up to 1 m)."""
+    crossing (:func:`least_distance`), the other robots at HOME, the part on the conveyor."""
+    def states():
+        T = cell.workpiece(part).T_base_part.copy()
+        for t in times[::2]:
+            if conveyor is not None:
+                T[:2, 3] = conveyor.position(t)
+            yield float(t), {crosser: task.at(t)}, T
+    least, what, when = least_distance(cell, crosser, part, states())
+    line = (f"experiment 3: {crosser} keeps {least * 100:.1f} cm from the other robots and "
+            f"the part (closest: {what}, at {when:.1f} s)")
+    return [Finding("error" if least < CLEARANCE_M else "ok",
+                    line + (f", under {CLEARANCE_M * 100:g} cm" if least < CLEARANCE_M else ""))]
+
+
+def least_distance(cell: Cell, robot: str, part: str,
+                   states: Iterable[tuple[float, dict, np.ndarray]]) -> tuple[float, str, float]:
+    """The least distance (m; MuJoCo ``mj_geomDistance``, up to 1 m) between ``robot``'s solids
+    and the other robots' and the workpiece ``part``'s, over ``states`` (time s, robot name ->
+    joints (robots left out keep their last, at first HOME), the part's pose); with the
+    closest solid's name and the time."""
     import mujoco  # after cellsight.world, which chooses MuJoCo's OpenGL back-end
 
     world = ReplayWorld(cell)
     model, data = world.scene.model, world.scene.data
     names = [model.geom(g).name for g in range(model.ngeom)]
-    mine = [g for g, n in enumerate(names) if n.startswith(f"{crosser}.")]
-    others = [g for g, n in enumerate(names) if n == part or (
-        "." in n and n.split(".")[0] in {r.name for r in cell.robots} - {crosser})]
-    fromto, least, when, what = np.zeros(6), np.inf, 0.0, ""
-    T = cell.workpiece(part).T_base_part.copy()
-    for t in times[::2]:
-        if conveyor is not None:
-            T[:2, 3] = conveyor.position(t)
-        world.show_state({crosser: task.at(t)}, {part: T})
-        for i in mine:
-            for j in others:
-                d = mujoco.mj_geomDistance(model, data, i, j, 1.0, fromto)
-                if d < least:
-                    least, when, what = d, float(t), names[j]
-    world.close()
-    line = (f"experiment 3: {crosser} keeps {least * 100:.1f} cm from the other robots and "
-            f"the part (closest: {what}, at {when:.1f} s)")
-    return [Finding("error" if least < CLEARANCE_M else "ok",
-                    line + (f", under {CLEARANCE_M * 100:g} cm" if least < CLEARANCE_M else ""))]
+    others = {r.name for r in cell.robots} - {robot}
+    mine = [g for g, n in enumerate(names) if n.startswith(f"{robot}.")]
+    theirs = [g for g, n in enumerate(names) if n == part or (
+        "." in n and n.split(".")[0] in others)]
+    fromto, least, what, when = np.zeros(6), np.inf, "", 0.0
+    try:
+        for t, joints, T_part in states:
+            world.show_state(joints, {part: T_part})
+            for i in mine:
+                for j in theirs:
+                    d = mujoco.mj_geomDistance(model, data, i, j, 1.0, fromto)
+                    if d < least:
+                        least, what, when = d, names[j], t
+    finally:
+        world.close()
+    return float(least), what, float(when)

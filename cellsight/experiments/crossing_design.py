@@ -37,12 +37,12 @@ import numpy as np
 
 from cellsight.control.ik import IKError, solve_ik, tcp_frame
 from cellsight.errors import CellsightError
+from cellsight.experiments.cellcheck import least_distance
 from cellsight.geometry.transforms import pose_from_xyz_rpy
 from cellsight.model.cell import Cell
 from cellsight.model.robot import Robot
 from cellsight.occlusion.predictor import VisibilityPredictor
 from cellsight.runfolder.framelog import FrameLog
-from cellsight.world import ReplayWorld
 from cellsight.world.paths import JointTask, Waypoint
 
 FRACTIONS = (0.25, 0.35, 0.45, 0.55, 0.65)
@@ -221,22 +221,11 @@ def _elsewhere(cell: Cell, robot: Robot, part: str, blocks: Sequence[Block], pat
 
 def _clearance(cell: Cell, robot: Robot, part: str, path: TaskPath, task: JointTask,
                t_end: float) -> tuple[float, tuple[str, float]]:
-    import mujoco  # after cellsight.world, which chooses MuJoCo's OpenGL back-end
-
-    world = ReplayWorld(cell)
-    model, data = world.scene.model, world.scene.data
-    names = [model.geom(g).name for g in range(model.ngeom)]
-    others = {r.name for r in cell.robots} - {robot.name}
-    mine = [g for g, n in enumerate(names) if n.startswith(f"{robot.name}.")]
-    theirs = [g for g, n in enumerate(names) if n == part or n.split(".")[0] in others]
-    fromto, least, closest = np.zeros(6), np.inf, ("", 0.0)
-    for t in np.arange(0.0, t_end + 1e-9, 2 * STEP_S):
-        T_part, joints = path.at(t)
-        world.show_state({**joints, robot.name: task.at(t)}, {part: T_part})
-        for i in mine:
-            for j in theirs:
-                d = mujoco.mj_geomDistance(model, data, i, j, 1.0, fromto)
-                if d < least:
-                    least, closest = d, (names[j], float(t))
-    world.close()
-    return float(least), closest
+    """The least distance to the other robots and the part along the run's path
+    (:func:`~cellsight.experiments.cellcheck.least_distance`), every ``2 STEP_S``."""
+    def states():
+        for t in np.arange(0.0, t_end + 1e-9, 2 * STEP_S):
+            T_part, joints = path.at(t)
+            yield float(t), {**joints, robot.name: task.at(t)}, T_part
+    least, what, when = least_distance(cell, robot.name, part, states())
+    return least, (what, when)
