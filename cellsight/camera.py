@@ -251,19 +251,19 @@ class Camera:
         return self.project_camera(self.to_camera(points_base))
 
     def in_image(self, pixels: np.ndarray, margin: float = 0.0) -> np.ndarray:
-        """Boolean mask: the pixel lies inside the image, at least ``margin`` px from its border.
+        """Boolean mask: the pixel lies inside the image, at least ``margin`` px from its border
+        (:meth:`border_distance`)."""
+        return self.border_distance(pixels) >= margin
 
-        The image spans ``[-0.5, width - 0.5] x [-0.5, height - 0.5]`` (pixel centres at integers).
-        """
+    def border_distance(self, pixels: np.ndarray) -> np.ndarray:
+        """(N,) px: each pixel's distance inside the image's border, negative outside, -inf for
+        a NaN pixel. The image spans ``[-0.5, width - 0.5] x [-0.5, height - 0.5]`` (pixel
+        centres at integers)."""
         px = np.atleast_2d(pixels)
         u, v = px[:, 0], px[:, 1]
-        with np.errstate(invalid="ignore"):
-            return (
-                (u >= -0.5 + margin)
-                & (u <= self.width - 0.5 - margin)
-                & (v >= -0.5 + margin)
-                & (v <= self.height - 0.5 - margin)
-            )
+        d = np.minimum(np.minimum(u + 0.5, self.width - 0.5 - u),
+                       np.minimum(v + 0.5, self.height - 0.5 - v))
+        return np.where(np.isnan(d), -np.inf, d)
 
     def sees(self, points_base: np.ndarray, margin: float = 0.0) -> np.ndarray:
         """Boolean mask: in front of the camera (depth > :data:`MIN_DEPTH_M`) and projecting

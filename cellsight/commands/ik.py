@@ -97,10 +97,8 @@ def _views(cell, robot, q, part) -> list[dict]:
                                               {robot.name: 0.0})[workpiece.name]
     out = []
     for cam, view in zip(cell.cameras, views, strict=True):
-        px = cam.project(workpiece.feature_points @ T[:3, :3].T + T[:3, 3])
-        margin = np.min(np.stack([px[:, 0], cam.width - 1 - px[:, 0], px[:, 1],
-                                  cam.height - 1 - px[:, 1]]), axis=0)
-        margin = np.where(np.isfinite(margin), margin, -np.inf)
+        margin = cam.border_distance(cam.project(workpiece.feature_points @ T[:3, :3].T
+                                                 + T[:3, 3]))
         out.append({"camera": cam.name, "inside": int((margin >= 0).sum()),
                     "margin_px": round(float(margin.min()), 1), "visible": int(view.count)})
     return out

@@ -172,10 +172,7 @@ def _key_poses(cell: Cell, margin_px: float) -> list[Finding]:
     for what, T in poses:
         points = part.feature_points @ T[:3, :3].T + T[:3, 3]
         for cam in cell.cameras:
-            px = cam.project(points)
-            edge = np.min(np.stack([px[:, 0] + 0.5, cam.width - 0.5 - px[:, 0], px[:, 1] + 0.5,
-                                    cam.height - 0.5 - px[:, 1]]), axis=0)
-            worst = float(np.nanmin(np.where(np.isfinite(edge), edge, -np.inf)))
+            worst = float(cam.border_distance(cam.project(points)).min())
             level = "error" if worst < 0 else "warning" if worst < margin_px else "ok"
             text = (f"{-worst:.0f} px out of" if worst < 0 else f"{worst:.0f} px inside")
             out.append(Finding(level, f"part {what}: {text} {cam.name}'s image"
