@@ -62,8 +62,12 @@ class Imager:
     def apply(self, images: list[np.ndarray | None], t: float) -> list[np.ndarray | None]:
         """The images (H, W) uint8 as grabbed at time ``t`` (s), one exposure each; None stays
         None."""
-        return [None if img is None else self.finish(
-            self.develop(img, (0, 0), img.shape, t, self.exposure())) for img in images]
+        return [None if img is None else self.whole(img, t, self.exposure()) for img in images]
+
+    def whole(self, image: np.ndarray, t: float, offset: int) -> np.ndarray:
+        """Every effect (steps 1-4) on a whole image exposed at ``t`` (s) with noise
+        ``offset``."""
+        return self.finish(self.develop(image, (0, 0), image.shape, t, offset))
 
     def exposure(self) -> int:
         """A new exposure's noise offset into the bank (module docstring)."""

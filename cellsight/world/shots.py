@@ -38,8 +38,8 @@ class Shot:
         """(H, W) uint8: the whole image (rendered once)."""
         if self._whole is None:
             image = self._renderer.render(self._data, [self.camera])[self.camera]
-            self._whole = image if self._imager is None else self._imager.finish(
-                self._imager.develop(image, (0, 0), self.shape, self.t, self.offset))
+            self._whole = image if self._imager is None else self._imager.whole(
+                image, self.t, self.offset)
         return self._whole
 
     def preview(self, scale: float) -> np.ndarray:
@@ -50,8 +50,7 @@ class Shot:
         if self._whole is not None:
             return self._whole
         image = self._renderer.render_preview(self._data, self.camera, scale)
-        return image if self._imager is None else self._imager.finish(
-            self._imager.develop(image, (0, 0), self.shape, self.t, self.offset))
+        return image if self._imager is None else self._imager.whole(image, self.t, self.offset)
 
     def grab(self, boxes: Sequence[Sequence[int]]) -> np.ndarray:
         """(H, W) uint8: the image's pixels in the bounding box of ``boxes`` (half-open
