@@ -208,11 +208,18 @@ def _crossing(cell: Cell, step_s: float) -> list[Finding]:
         T = part.T_base_part.copy()
         if conveyor is not None:
             T[:2, 3] = conveyor.position(t)
-        for m, q in enumerate((task.at(t), crosser.home)):
-            views = predictor.predict({crosser.name: q}, {part.name: T})[part.name]
-            seen[m, k] = [v.count for v in views]
+        seen[:, k] = seen_with_and_without(predictor, {}, crosser, task.at(t), part.name, T)
     out = _blinding(cell, crosser.name, times, seen)
     return out + _clearance(cell, crosser.name, task, times, conveyor, part.name)
+
+
+def seen_with_and_without(predictor: VisibilityPredictor, joints: dict, robot: Robot,
+                          q: np.ndarray, part: str, T_part: np.ndarray) -> np.ndarray:
+    """(2, C): the features of ``part`` (at ``T_part``) each camera sees with ``robot`` at
+    ``q``, and with it at HOME; the other robots at ``joints`` (left out: HOME)."""
+    return np.array([[v.count for v in predictor.predict({**joints, robot.name: at},
+                                                         {part: T_part})[part]]
+                     for at in (q, robot.home)])
 
 
 def _blinding(cell: Cell, crosser: str, times: np.ndarray, seen: np.ndarray) -> list[Finding]:

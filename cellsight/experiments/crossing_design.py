@@ -37,7 +37,7 @@ import numpy as np
 
 from cellsight.control.ik import IKError, solve_ik, tcp_frame
 from cellsight.errors import CellsightError
-from cellsight.experiments.cellcheck import least_distance
+from cellsight.experiments.cellcheck import least_distance, seen_with_and_without
 from cellsight.geometry.transforms import pose_from_xyz_rpy
 from cellsight.model.cell import Cell
 from cellsight.model.robot import Robot
@@ -108,13 +108,14 @@ def design_crossing(cell: Cell, blocks: Sequence[Block], path: TaskPath, *,
     setup = cell.experiments
     crosser = _crossing_robot(cell)
     part = cell.workpiece(setup.workpiece) if setup.workpiece else cell.workpieces[0]
-    designs = []
+    designs, predictor = [], VisibilityPredictor(cell)
     for fraction in FRACTIONS:
         try:
             waypoints = _waypoints(cell, crosser, part.feature_points, blocks, path, fraction)
         except IKError:
             continue
-        designs.append(_judged(cell, crosser, part.name, blocks, path, fraction, waypoints))
+        designs.append(_judged(cell, crosser, part.name, blocks, path, fraction, waypoints,
+                               predictor))
     if not designs:
         raise CellsightError(f"design-crossing: {crosser.name} cannot reach any of the lines of "
                              f"sight at fractions {FRACTIONS} of the way to the cameras")
@@ -183,18 +184,18 @@ def _lead(q_from: np.ndarray, q_to: np.ndarray) -> float:
 
 
 def _judged(cell: Cell, robot: Robot, part: str, blocks: Sequence[Block], path: TaskPath,
-            fraction: float, waypoints: list[tuple[float, np.ndarray]]) -> Design:
+            fraction: float, waypoints: list[tuple[float, np.ndarray]],
+            predictor: VisibilityPredictor) -> Design:
     task = JointTask(robot.home, [Waypoint(t, q) for t, q in waypoints])
-    predictor = VisibilityPredictor(cell)
     left, of = [], []
     for block in blocks:
         c = [cam.name for cam in cell.cameras].index(block.camera)
         seen = []
         for t in np.arange(block.t0, block.t1 + 1e-9, STEP_S):
             T_part, joints = path.at(t)
-            on = predictor.predict({**joints, robot.name: task.at(t)}, {part: T_part})[part][c]
-            off = predictor.predict({**joints, robot.name: robot.home}, {part: T_part})[part][c]
-            seen.append((on.count, off.count))
+            on, off = seen_with_and_without(predictor, joints, robot, task.at(t), part,
+                                            T_part)[:, c]
+            seen.append((on, off))
         left.append(max(s[0] for s in seen))
         of.append(max(s[1] for s in seen))
     elsewhere = _elsewhere(cell, robot, part, blocks, path, task, waypoints[-1][0], predictor)
@@ -210,11 +211,10 @@ def _elsewhere(cell: Cell, robot: Robot, part: str, blocks: Sequence[Block], pat
     step, total = 2 * STEP_S, 0.0
     for t in np.arange(0.0, t_end + 1e-9, step):
         T_part, joints = path.at(t)
-        on = predictor.predict({**joints, robot.name: task.at(t)}, {part: T_part})[part]
-        off = predictor.predict({**joints, robot.name: robot.home}, {part: T_part})[part]
+        on, off = seen_with_and_without(predictor, joints, robot, task.at(t), part, T_part)
         for c, name in enumerate(names):
             inside = any(b.camera == name and b.t0 - 1.0 <= t <= b.t1 + 1.0 for b in blocks)
-            if not inside and off[c].count > 0 and 2 * on[c].count <= off[c].count:
+            if not inside and off[c] > 0 and 2 * on[c] <= off[c]:
                 total += step
     return total
 
