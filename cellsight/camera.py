@@ -252,18 +252,8 @@ class Camera:
 
     def in_image(self, pixels: np.ndarray, margin: float = 0.0) -> np.ndarray:
         """Boolean mask: the pixel lies inside the image, at least ``margin`` px from its border
-        (:meth:`border_distance`)."""
-        return self.border_distance(pixels) >= margin
-
-    def border_distance(self, pixels: np.ndarray) -> np.ndarray:
-        """(N,) px: each pixel's distance inside the image's border, negative outside, -inf for
-        a NaN pixel. The image spans ``[-0.5, width - 0.5] x [-0.5, height - 0.5]`` (pixel
-        centres at integers)."""
-        px = np.atleast_2d(pixels)
-        u, v = px[:, 0], px[:, 1]
-        d = np.minimum(np.minimum(u + 0.5, self.width - 0.5 - u),
-                       np.minimum(v + 0.5, self.height - 0.5 - v))
-        return np.where(np.isnan(d), -np.inf, d)
+        (:func:`border_distance`)."""
+        return border_distance(self, pixels) >= margin
 
     def sees(self, points_base: np.ndarray, margin: float = 0.0) -> np.ndarray:
         """Boolean mask: in front of the camera (depth > :data:`MIN_DEPTH_M`) and projecting
@@ -274,3 +264,14 @@ class Camera:
     def depth(self, points_base: np.ndarray) -> np.ndarray:
         """Depth along the optical axis (m) of base-frame points."""
         return self.to_camera(points_base)[:, 2]
+
+
+def border_distance(camera: Camera, pixels: np.ndarray) -> np.ndarray:
+    """(N,) px: each pixel's distance inside ``camera``'s image border, negative outside, -inf
+    for a NaN pixel. The image spans ``[-0.5, width - 0.5] x [-0.5, height - 0.5]`` (pixel
+    centres at integers)."""
+    px = np.atleast_2d(pixels)
+    u, v = px[:, 0], px[:, 1]
+    d = np.minimum(np.minimum(u + 0.5, camera.width - 0.5 - u),
+                   np.minimum(v + 0.5, camera.height - 0.5 - v))
+    return np.where(np.isnan(d), -np.inf, d)

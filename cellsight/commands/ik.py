@@ -90,6 +90,7 @@ def _views(cell, robot, q, part) -> list[dict]:
     robots at HOME, the jaws closed on the part); none without a part."""
     if part is None:
         return []
+    from cellsight.camera import border_distance
     from cellsight.occlusion.predictor import VisibilityPredictor
 
     workpiece, T = part
@@ -97,8 +98,8 @@ def _views(cell, robot, q, part) -> list[dict]:
                                               {robot.name: 0.0})[workpiece.name]
     out = []
     for cam, view in zip(cell.cameras, views, strict=True):
-        margin = cam.border_distance(cam.project(workpiece.feature_points @ T[:3, :3].T
-                                                 + T[:3, 3]))
+        margin = border_distance(cam, cam.project(workpiece.feature_points @ T[:3, :3].T
+                                                  + T[:3, 3]))
         out.append({"camera": cam.name, "inside": int((margin >= 0).sum()),
                     "margin_px": round(float(margin.min()), 1), "visible": int(view.count)})
     return out

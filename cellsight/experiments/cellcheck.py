@@ -33,6 +33,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from cellsight.camera import border_distance
 from cellsight.model.cell import Cell
 from cellsight.model.robot import Robot
 from cellsight.occlusion.predictor import VisibilityPredictor
@@ -172,7 +173,7 @@ def _key_poses(cell: Cell, margin_px: float) -> list[Finding]:
     for what, T in poses:
         points = part.feature_points @ T[:3, :3].T + T[:3, 3]
         for cam in cell.cameras:
-            worst = float(cam.border_distance(cam.project(points)).min())
+            worst = float(border_distance(cam, cam.project(points)).min())
             level = "error" if worst < 0 else "warning" if worst < margin_px else "ok"
             text = (f"{-worst:.0f} px out of" if worst < 0 else f"{worst:.0f} px inside")
             out.append(Finding(level, f"part {what}: {text} {cam.name}'s image"
