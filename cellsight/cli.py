@@ -26,6 +26,7 @@ from cellsight.commands import (
     ik,
     run,
     show,
+    track,
     visibility,
 )
 from cellsight.commands.text import debug, one_line
@@ -38,7 +39,7 @@ from cellsight.view import command as view_command
 
 COMMANDS = (show, visibility, run, cells, compare, sweep_command, realism_command,
             placement_command, export_command, view_command, cameras, ik, check, diagnose,
-            design_crossing)
+            design_crossing, track)
 """Every sub-command's module, in ``--help`` order."""
 
 

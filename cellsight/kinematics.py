@@ -42,6 +42,8 @@ class KinematicChain(Protocol):
 
     name: str
     qlim: np.ndarray
+    joint_names: tuple[str, ...]
+    """The joints' names, 1..n (a URDF's joint names; ``joint<i>`` otherwise)."""
 
     @property
     def n(self) -> int: ...
@@ -155,6 +157,7 @@ class DHChain:
             raise KinematicsError(f"{name}: a DH chain needs at least one link")
         self.links = tuple(links)
         self.name = name
+        self.joint_names = tuple(f"joint{i}" for i in range(1, len(self.links) + 1))
         self._a = np.array([lk.a for lk in self.links])
         self._alpha = np.array([lk.alpha for lk in self.links])
         self._d = np.array([lk.d for lk in self.links])
@@ -277,7 +280,8 @@ def serial_fkine_kernel(origins: np.ndarray, axes: np.ndarray, prismatic: np.nda
 class SerialChain:
     """A URDF-style serial chain (module docstring): per joint a fixed ``origin`` (4x4, frame i
     at q = 0 in frame i-1), a unit ``axis`` in frame i, a kind and limits; ``link_names`` names
-    frames 0..n (the URDF's links).
+    frames 0..n (the URDF's links), ``joint_names`` the joints 1..n (the URDF's joints; default
+    ``joint1`` .. ``joint<n>``).
 
     >>> chain = SerialChain(np.eye(4)[None], [[0.0, 0.0, 1.0]], ["revolute"], [(-3.0, 3.0)])
     >>> bool(np.allclose(chain.fkine([np.pi / 2])[-1][:2, 0], [0.0, 1.0]))
@@ -285,7 +289,8 @@ class SerialChain:
     """
 
     def __init__(self, origins, axes, kinds, qlim, name: str = "chain",
-                 link_names: tuple[str, ...] | None = None) -> None:
+                 link_names: tuple[str, ...] | None = None,
+                 joint_names: tuple[str, ...] | None = None) -> None:
         self.origins = np.ascontiguousarray(origins, dtype=float).reshape(-1, 4, 4)
         n = len(self.origins)
         if n == 0:
@@ -306,6 +311,8 @@ class SerialChain:
         self.name = name
         self.link_names = tuple(link_names) if link_names else tuple(
             f"link{i}" for i in range(n + 1))
+        self.joint_names = tuple(joint_names) if joint_names else tuple(
+            f"joint{i}" for i in range(1, n + 1))
 
     @property
     def n(self) -> int:

@@ -21,7 +21,7 @@ LAYERS = [
     {"occlusion", "tracking", "control"},
     {"world", "framelog", "runfolder", "realism"},
     {"report"},
-    {"experiments", "sweep", "view", "export", "placement"},
+    {"experiments", "sweep", "view", "export", "placement", "recording"},
     {"cli", "commands", "__init__", "__main__", "data"},
 ]
 

@@ -50,6 +50,11 @@ def register(sub: argparse._SubParsersAction) -> None:
                      help="render every camera's whole image every frame (default: only the "
                           "region of the windows the tracker reads, and whole images where it "
                           "needs them; the same pixels)")
+    run.add_argument("--record", metavar="FILE",
+                     help="record the sensor data as a real cell would (images, joint states, "
+                          "the part's true pose) in an MCAP file, for cellsight track")
+    run.add_argument("--record-jpeg", type=int, metavar="QUALITY",
+                     help="record the images as JPEG of this quality (1-100; default lossless)")
     run.add_argument("--no-check", action="store_true",
                      help="run even when the cell file fails cellsight check's quick checks "
                           "(units, joint limits, key poses in view)")
@@ -72,6 +77,8 @@ def _check_run_args(args: argparse.Namespace) -> Path:
         raise CellsightError(f"--seed: expected a whole number >= 0, got {args.seed}")
     out = Path(args.out or f"out/experiment{args.experiment}")
     check_out_folder(out, args.overwrite, "--out", "--overwrite")
+    if args.record_jpeg is not None and args.record is None:
+        raise CellsightError("--record-jpeg: needs --record FILE")
     if not args.no_check:
         _check_cell(args.cell)
     return out
@@ -123,6 +130,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         kinematic_prior=args.kinematic_prior, unknown_occluders=args.unknown_occluders,
         duration=args.duration, progress=not args.quiet, full_frames=args.full_frames,
         overwrite=args.overwrite, realism=args.realism, structure=args.structure,
+        record=None if args.record is None else Path(args.record), record_jpeg=args.record_jpeg,
     )
     try:
         metrics = run_experiment(config)

@@ -15,6 +15,7 @@ import numpy as np
 from cellsight.camera import Camera
 from cellsight.tracking.measurement import Observation, PinholeMeasurement
 from cellsight.tracking.pnp import estimate_pose
+from cellsight.tracking.tracker import Tracker
 
 
 class PnPBaseline:
@@ -29,6 +30,12 @@ class PnPBaseline:
         self.hold_s = float(hold_s)
         self._models = [PinholeMeasurement(cam, self.sigma_px) for cam in self.cameras]
         self._last: tuple[float, np.ndarray] | None = None  # (t, T_base_part) of the last fix
+
+    @classmethod
+    def of(cls, tracker: Tracker, feature_points: np.ndarray) -> PnPBaseline:
+        """The baseline beside ``tracker``: its cameras, pixel noise and loss time."""
+        return cls(tracker.cameras, feature_points, tracker.config.sigma_px,
+                   tracker.components.loss.lost_after_s)
 
     def update(self, t: float, measured: np.ndarray) -> np.ndarray | None:
         """``T_base_part`` at time ``t`` (s) from this frame's measured pixels (C, F, 2), as in

@@ -8,7 +8,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cellsight.control import GraspTask
 from cellsight.experiments.plant import GroundTruth, SimulatedCell
 from cellsight.model.robot import Robot
 from cellsight.runfolder.framelog import (
@@ -51,11 +50,12 @@ class PartTruth:
 
 @dataclass(frozen=True)
 class FrameTruth:
-    """The simulator's truth at one vision frame, read once: the workpiece's (``part``), every
-    robot's true ``joints`` (rad, m), and of the grasping robot: its jaw opening (m), its jaws
-    closed on the part, the grasp engaged."""
+    """The simulator's truth at one vision frame, read once: the workpiece's (``part``; None
+    where nothing knows it, e.g. a recording without the part's pose), every robot's true
+    ``joints`` (rad, m), and of the grasping robot: its jaw opening (m), its jaws closed on the
+    part, the grasp engaged."""
 
-    part: PartTruth
+    part: PartTruth | None
     joints: dict[str, np.ndarray]
     jaw_opening: float
     jaws_closed: bool
@@ -78,13 +78,14 @@ class FrameRows:
         self.n_cameras = n_cameras
         self.pixel_errors = pixel_errors
 
-    def row(self, t: float, task: GraspTask, frame: TrackerFrame, rec: PartFrame,
+    def row(self, t: float, phase: str, stage: str, frame: TrackerFrame, rec: PartFrame,
             truth: FrameTruth, pnp: np.ndarray | None) -> dict:
-        """The row of the frame at time ``t`` (s)."""
-        row: dict[str, object] = {"t": round(t, 5), "phase": str(task.phase),
-                                  "stage": task.stage, "status": rec.status_text}
+        """The row of the frame at time ``t`` (s), in the task's ``phase`` and ``stage``."""
+        row: dict[str, object] = {"t": round(t, 5), "phase": phase, "stage": stage,
+                                  "status": rec.status_text}
         estimate = rec.T_base_part if rec.status.has_estimate else None
-        for prefix, T in (("true", truth.part.T_base_part), ("est", estimate), ("pnp", pnp)):
+        true_pose = None if truth.part is None else truth.part.T_base_part
+        for prefix, T in (("true", true_pose), ("est", estimate), ("pnp", pnp)):
             row.update(pose_fields(prefix, T))
         row.update(self._gripper(truth))
         row.update(joint_fields(truth.joints))
@@ -103,27 +104,30 @@ class FrameRows:
                 "jaw_opening": truth.jaw_opening, "jaws_closed": int(truth.jaws_closed),
                 "grasped": int(truth.grasped)}
 
-    def _camera(self, c: int, rec: PartFrame, truth: PartTruth,
+    def _camera(self, c: int, rec: PartFrame, truth: PartTruth | None,
                 reasons: list[str] | None) -> dict:
         """Camera ``c``'s columns (0-based; columns are numbered from 1); ``reasons``: the
-        prediction's, None when nothing was predicted."""
-        view = truth.views[c]
+        prediction's, None when nothing was predicted; without a ``truth`` its columns
+        (``vis_true``, ``occ_true``, ``wrong``, ``err_px``) are empty."""
         measured = np.all(np.isfinite(rec.measured[c]), axis=1)
-        err = np.linalg.norm(rec.measured[c, measured] - view.pixels[measured], axis=1)
-        wrong = np.zeros_like(measured)
-        wrong[measured] = ~(err <= WRONG_PX)
         plan = rec.windows[c]
         values = {
             "vis_pred": encode_bits(rec.predicted_visible[c]),
-            "vis_true": encode_bits(view.visible),
             "sel": encode_bits(rec.selected[c]), "meas": encode_bits(measured),
-            "rej": encode_bits(rec.rejected[c]), "wrong": encode_bits(wrong),
+            "rej": encode_bits(rec.rejected[c]),
             "occ_pred": None if reasons is None else encode_labels(reasons),
-            "occ_true": encode_labels(view.reason),
             "grab": 0.0 if plan is None else plan.fraction,
-            "err_px": float(np.median(err)) if len(err) and self.pixel_errors else None,
             **_health_fields(rec.health, c),
         }
+        if truth is not None:
+            view = truth.views[c]
+            err = np.linalg.norm(rec.measured[c, measured] - view.pixels[measured], axis=1)
+            wrong = np.zeros_like(measured)
+            wrong[measured] = ~(err <= WRONG_PX)
+            values.update({
+                "vis_true": encode_bits(view.visible), "wrong": encode_bits(wrong),
+                "occ_true": encode_labels(view.reason),
+                "err_px": float(np.median(err)) if len(err) and self.pixel_errors else None})
         return {camera_column(name, c + 1): v for name, v in values.items()}
 
 

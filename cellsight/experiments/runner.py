@@ -43,7 +43,7 @@ import signal
 import threading
 import time
 from contextlib import suppress
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
 
@@ -67,12 +67,13 @@ from cellsight.experiments.plant import SimulatedCell
 from cellsight.experiments.rows import FrameRows, FrameTruth, PartTruth
 from cellsight.experiments.scenario import Scenario, scenario
 from cellsight.experiments.sensors import IdealExtractor
+from cellsight.export.mcap_run import check_output
 from cellsight.model.cell import Cell
 from cellsight.model.loader import load_cell
-from cellsight.occlusion.predictor import OBJECT_BVH, STRUCTURES, VisibilityPredictor
-from cellsight.occlusion.projection import ProjectionOnly
+from cellsight.occlusion.predictor import OBJECT_BVH, STRUCTURES
 from cellsight.rates import VISION_HZ
 from cellsight.realism import FrameClock, Profile, draw_world
+from cellsight.recording.recorder import Recorder, check_jpeg
 from cellsight.report.run_report import write_report
 from cellsight.report.video import VideoWriter
 from cellsight.runfolder import (
@@ -87,9 +88,10 @@ from cellsight.runfolder import (
     make_out_folder,
     write_metrics,
 )
-from cellsight.tracking import Tracker, TrackerConfig, TrackerParts, UnknownOccluderRule
+from cellsight.runfolder.writes import log_to, stop_logging_to
 from cellsight.tracking.grabbing import grabbed
 from cellsight.tracking.records import PartFrame
+from cellsight.tracking.setup import build_tracker
 from cellsight.world import World
 from cellsight.world.shots import Shot
 
@@ -112,7 +114,10 @@ class RunConfig:
     vision frames. ``full_frames``: the rendered cameras render every frame whole, instead of
     only the region the tracker reads (:mod:`cellsight.world.shots`; the same pixels, see
     :mod:`cellsight.world.render`). ``overwrite``: clear ``out`` first when it holds an earlier run
-    (:func:`check_out_folder`; else a non-empty ``out`` is refused)."""
+    (:func:`check_out_folder`; else a non-empty ``out`` is refused). ``record``: an MCAP file
+    to record the sensor data in as the run goes (:mod:`cellsight.recording.recorder`; the
+    rendered sensor only), its images JPEG of quality ``record_jpeg`` (None: lossless); a
+    recorded run renders whole frames, so that the tracker reads the very pixels recorded."""
 
     experiment: int
     out: Path
@@ -132,8 +137,14 @@ class RunConfig:
     overwrite: bool = False
     realism: str | Path | Profile = "exact"
     structure: str = OBJECT_BVH
+    record: Path | None = None
+    record_jpeg: int | None = None
 
     def __post_init__(self) -> None:
+        check_jpeg(self.record_jpeg)
+        if self.record is not None and self.sensor != "rendered":
+            raise CellsightError("--record: the ideal sensor takes no images to record; use the "
+                                 "rendered sensor")
         duration = self.duration
         if duration is not None and not (duration > 0 and math.isfinite(duration)):
             raise CellsightError(f"RunConfig.duration: expected a positive, finite number of "
@@ -183,6 +194,8 @@ class ExperimentRun:
         self.config = config
         self.out = Path(config.out)
         stale = check_out_folder(self.out, config.overwrite)
+        if config.record is not None:
+            check_output(config.record, config.overwrite, self.out, "--record")
         self.stop = StopSignals()
         self.cell: Cell = load_cell(config.cell)
         self.draws = draw_world(config.realism, self.cell, config.seed)
@@ -193,30 +206,26 @@ class ExperimentRun:
             world if world is not None
             else World(self.draws.cell, seed=config.seed, conveyor=sc.conveyor, tasks=sc.tasks,
                        errors=self.draws.errors))
-        predictor = (VisibilityPredictor(cell, structure=config.structure)
-                     if config.occlusion_prediction else ProjectionOnly(cell))
         self.clock = FrameClock(self.draws.profile.timing, config.seed)
         self.deliveries = Deliveries()
         self.frames_dropped = 0
         kidnap = self.draws.errors.kidnap
         self.kidnap = None if kidnap is None else KidnapMonitor(kidnap)
         self.exposures = Exposures(self.world, self.draws.trigger_skew_s, config.sensor == "ideal",
-                                   self.part.name, config.full_frames)
+                                   self.part.name, config.full_frames or config.record is not None)
         self.ideal = (IdealExtractor(config.ideal_sigma_px, config.seed)
                       if config.sensor == "ideal" else None)
-        tracking, parts = TrackerConfig(), TrackerParts()
-        if config.unknown_occluders:
-            tracking = replace(tracking, resume_support=3)
-            parts = replace(parts, unknown=UnknownOccluderRule())
-        self.tracker = Tracker.from_cell(cell, predictor, self.ideal, tracking, parts)
+        self.tracker = build_tracker(cell, occlusion_prediction=config.occlusion_prediction,
+                                     unknown_occluders=config.unknown_occluders,
+                                     structure=config.structure, extractor=self.ideal)
         self.task = GraspTask(self.robot, self.part)
-        self.baseline = PnPBaseline(cell.cameras, self.part.feature_points, tracking.sigma_px,
-                                    parts.loss.lost_after_s)
+        self.baseline = PnPBaseline.of(self.tracker, self.part.feature_points)
         self.grasp = GraspMonitor(self.world, self.robot.name)
         self.events = OcclusionEvents([c.name for c in cell.cameras])
         self.rows = FrameRows(self.robot, len(cell.cameras), config.sensor == "rendered")
         self.crossing = next(iter(sc.tasks), None)
         self.writes = RunWrites(self.out)
+        self.recorder: Recorder | None = None
         self.metrics: dict | None = None  # made after the loop, written last (:meth:`_finish`)
         make_out_folder(self.out, stale)
         self.cell_files = keep_cell(self.out, cell)
@@ -228,15 +237,15 @@ class ExperimentRun:
         ``report.html`` and then ``metrics.json`` are written, and signals during that are
         ignored. A failed write is recorded in the metrics and raised at the end (module
         docstring)."""
-        handler = _log_to(self.writes)
+        handler = log_to(self.writes)
         with self.stop:
             try:
                 self._run_logged()
             except BaseException:
-                _stop_logging_to(handler, self.writes)
+                stop_logging_to(handler, self.writes)
                 self._finish(failed=True)
                 raise
-            _stop_logging_to(handler, self.writes)
+            stop_logging_to(handler, self.writes)
             return self._finish(failed=False)
 
     def _finish(self, failed: bool) -> dict | None:
@@ -275,6 +284,11 @@ class ExperimentRun:
                  + ("; unknown occluders learned" if cfg.unknown_occluders else ""))
         writer = FrameWriter(self.out / "frames.csv", len(self.cell.cameras),
                              {r.name: r.n_joints for r in self.cell.robots})
+        recorder = None
+        if cfg.record is not None:
+            with self.writes.guard(cfg.record):
+                recorder = self.recorder = Recorder(cfg.record, self.cell, self.part.name,
+                                                    cfg.record_jpeg)
         video = None
         if cfg.sensor == "rendered" and cfg.video_every > 0:
             video = VideoWriter(self.out / "views.mp4", fps=VISION_HZ / cfg.video_every)
@@ -290,9 +304,12 @@ class ExperimentRun:
             ending = self._ending(exc)
             raise
         finally:
-            _close_all(self.writes, [(writer.path, writer.close),
-                                     (video.path, video.close) if video is not None else None,
-                                     (None, self.world.close)])
+            _close_all(self.writes, [
+                (writer.path, writer.close),
+                (video.path, video.close) if video is not None else None,
+                (recorder.path, lambda: recorder.close(not ending["interrupted"]))
+                if recorder is not None else None,
+                (None, self.world.close)])
             self.metrics = self._metrics(time.perf_counter() - wall, ending)
 
     def _ending(self, exc: BaseException | None) -> dict:
@@ -371,8 +388,12 @@ class ExperimentRun:
             self.kidnap.update(t, str(rec.status), _error_mm(rec, truth.part),
                                int(truth.part.visible.sum(axis=1).max(initial=0)))
         pnp = self.baseline.update(t, rec.measured)
+        if self.recorder is not None:
+            with self.writes.guard(self.recorder.path):
+                self.recorder.frame(t, observed, None if dropped else self.exposures.stamps,
+                                    joints, openings, truth.part.T_base_part)
         with self.writes.guard(writer.path):
-            writer.write(self.rows.row(t, self.task, frame, rec, truth, pnp))
+            writer.write(self.rows.row(t, phase, self.task.stage, frame, rec, truth, pnp))
 
         def draw(caption: str, scale: float = 1.0) -> np.ndarray:
             complete = self.ideal is None and all(i is not None for i in observed)
@@ -472,22 +493,6 @@ class ExperimentRun:
         log.info("metrics: %s", json.dumps({k: v for k, v in metrics.items()
                                             if not isinstance(v, list | dict)}))
         return metrics
-
-
-def _log_to(writes: RunWrites) -> logging.Handler:
-    """Send the package's log (INFO and up) to the run's ``run.log`` as it goes, one message
-    per line; a failed write is recorded in ``writes``."""
-    handler = writes.log_file("run.log")
-    handler.setFormatter(logging.Formatter("%(message)s"))
-    root = logging.getLogger("cellsight")
-    root.addHandler(handler)
-    root.setLevel(logging.INFO)
-    return handler
-
-
-def _stop_logging_to(handler: logging.FileHandler, writes: RunWrites) -> None:
-    logging.getLogger("cellsight").removeHandler(handler)
-    writes.close(handler.baseFilename, handler.close)
 
 
 def _close_all(writes: RunWrites, closers: list) -> None:

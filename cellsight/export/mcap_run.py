@@ -101,21 +101,23 @@ class _Bag:
         self._writer.finish()
 
 
-def check_output(path: str | Path, overwrite: bool, run_folder: Path) -> Path:
-    """The output file, checked touching nothing: not a folder, not one of the run's own
-    files (nor a link to one), not existing unless ``overwrite``, its folder creatable."""
+def check_output(path: str | Path, overwrite: bool, run_folder: Path,
+                 option: str = "--mcap") -> Path:
+    """The output file (of command-line ``option``), checked touching nothing: not a folder,
+    not one of the run's own files (nor a link to one), not existing unless ``overwrite``, its
+    folder creatable."""
 
     path = Path(path)
     if path.is_dir():
-        raise CellsightError(f"--mcap: {str(path)!r} is a folder; expected a file name")
+        raise CellsightError(f"{option}: {str(path)!r} is a folder; expected a file name")
     target = path.resolve()  # through links: a link to frames.csv is frames.csv
     if target.name in RUN_FILES and target.parent == run_folder.resolve():
-        raise CellsightError(f"--mcap: {str(path)!r} is the run's own {target.name}")
+        raise CellsightError(f"{option}: {str(path)!r} is the run's own {target.name}")
     if path.exists() and not overwrite:
-        raise CellsightError(f"--mcap: {str(path)!r} exists; pass --overwrite to replace it")
+        raise CellsightError(f"{option}: {str(path)!r} exists; pass --overwrite to replace it")
     parent = next((p for p in path.absolute().parents if p.exists()), None)
     if parent is not None and not parent.is_dir():
-        raise CellsightError(f"--mcap: {str(path)!r} is under {str(parent)!r}, a file")
+        raise CellsightError(f"{option}: {str(path)!r} is under {str(parent)!r}, a file")
     return path
 
 

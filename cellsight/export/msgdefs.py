@@ -34,6 +34,9 @@ MSG: dict[str, str] = {
         "std_msgs/Header header\nuint32 height\nuint32 width\nstring encoding\n"
         "uint8 is_bigendian\nuint32 step\nuint8[] data\n"),
     "sensor_msgs/CompressedImage": "std_msgs/Header header\nstring format\nuint8[] data\n",
+    "sensor_msgs/JointState": (
+        "std_msgs/Header header\nstring[] name\nfloat64[] position\nfloat64[] velocity\n"
+        "float64[] effort\n"),
     "diagnostic_msgs/KeyValue": "string key\nstring value\n",
     "diagnostic_msgs/DiagnosticStatus": (
         "byte OK=0\nbyte WARN=1\nbyte ERROR=2\nbyte STALE=3\nbyte level\nstring name\n"

@@ -42,7 +42,7 @@ import warnings
 from collections import Counter
 from collections.abc import Iterator, Mapping
 from contextlib import contextmanager
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -272,6 +272,7 @@ class _Walk:
     qlim: list
     joint_links: list
     link_frame: dict
+    joint_names: list = field(default_factory=list)
 
 
 def _actuated(walk: _Walk, j, frame: int, T_frame_parent: np.ndarray, path: Path) -> None:
@@ -299,6 +300,7 @@ def _actuated(walk: _Walk, j, frame: int, T_frame_parent: np.ndarray, path: Path
     walk.kinds.append(_KINDS[j.type])
     walk.qlim.append((lo, hi))
     walk.joint_links.append(j.child)
+    walk.joint_names.append(j.name)
 
 
 def _walk(robot, path: Path) -> _Walk:
@@ -501,7 +503,8 @@ def load_urdf_robot(path: Path, robot_name: str, geometry: str = "collision",
     name, T_last_flange = _flange(walk, flange, path)
     try:
         chain = SerialChain(np.array(walk.origins), np.array(walk.axes), walk.kinds, walk.qlim,
-                            name=robot_name, link_names=tuple(walk.joint_links))
+                            name=robot_name, link_names=tuple(walk.joint_links),
+                            joint_names=tuple(walk.joint_names))
     except CellsightError as exc:
         raise UrdfError("file", f"URDF file {path}: {exc}") from exc
     return UrdfRobot(chain, tuple(map(tuple, solids)), tuple(map(tuple, links)), T_last_flange,

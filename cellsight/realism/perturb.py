@@ -106,7 +106,7 @@ def chain_as_built(chain: KinematicChain, links: np.ndarray) -> KinematicChain:
         origins = chain.origins.copy()
         origins[:, :3, 3] += links
         return SerialChain(origins, chain.axes, chain.kinds, chain.qlim, chain.name,
-                           chain.link_names)
+                           chain.link_names, chain.joint_names)
     raise TypeError(f"no link errors for a {type(chain).__name__}")
 
 

@@ -269,3 +269,19 @@ class RunWrites:
         lines = [first] if first else []
         lines += [f for f in self.failures if not first or f not in first]
         return "; ".join(lines)[:1000] or None
+
+
+def log_to(writes: RunWrites) -> logging.Handler:
+    """Send the package's log (INFO and up) to the run's ``run.log`` as it goes, one message
+    per line; a failed write is recorded in ``writes``."""
+    handler = writes.log_file("run.log")
+    handler.setFormatter(logging.Formatter("%(message)s"))
+    root = logging.getLogger("cellsight")
+    root.addHandler(handler)
+    root.setLevel(logging.INFO)
+    return handler
+
+
+def stop_logging_to(handler: logging.FileHandler, writes: RunWrites) -> None:
+    logging.getLogger("cellsight").removeHandler(handler)
+    writes.close(handler.baseFilename, handler.close)

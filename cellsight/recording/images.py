@@ -1,0 +1,74 @@
+"""Camera images of a recording as the (H, W) uint8 grayscale arrays the tracker takes.
+
+``sensor_msgs/msg/Image`` in ``mono8``, ``mono16`` (its high byte: value / 256, rounded down),
+``rgb8``, ``bgr8``, ``rgba8`` or ``bgra8`` (to gray by OpenCV's weights), rows of ``step``
+bytes; ``sensor_msgs/msg/CompressedImage`` in JPEG or PNG (decoded by OpenCV to gray). Any
+other encoding, or an image whose size is not the camera's, is a
+:class:`~cellsight.recording.reader.RecordingError` naming the topic and the message.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import cv2
+import numpy as np
+
+from cellsight.recording.names import COMPRESSED
+from cellsight.recording.reader import RecordingError
+
+_CHANNELS = {"mono8": 1, "rgb8": 3, "bgr8": 3, "rgba8": 4, "bgra8": 4}
+_TO_GRAY = {"rgb8": cv2.COLOR_RGB2GRAY, "bgr8": cv2.COLOR_BGR2GRAY,
+            "rgba8": cv2.COLOR_RGBA2GRAY, "bgra8": cv2.COLOR_BGRA2GRAY}
+ENCODINGS = (*_CHANNELS, "mono16")
+
+
+def gray_image(kind: str, msg: Any, where: str, size: tuple[int, int]) -> np.ndarray:
+    """The grayscale image of message ``msg`` of type ``kind``; ``where`` names it in errors
+    (``/cam1/image_raw, message 12``); ``size``: the camera's (width, height)."""
+    image = _compressed(msg, where) if kind == COMPRESSED else _raw(msg, where)
+    if image.shape != (size[1], size[0]):
+        raise RecordingError(f"{where}: a {image.shape[1]}x{image.shape[0]} image; the cell's "
+                             f"camera takes {size[0]}x{size[1]}")
+    return image
+
+
+def _buffer(data: Any) -> np.ndarray:
+    """A message's ``uint8[]`` as a flat uint8 array (bytes from one reader, arrays or lists
+    from others)."""
+    if isinstance(data, bytes | bytearray | memoryview):
+        return np.frombuffer(data, dtype=np.uint8)
+    return np.asarray(data, dtype=np.uint8).ravel()
+
+
+def _raw(msg: Any, where: str) -> np.ndarray:
+    encoding = str(msg.encoding).lower()
+    if encoding not in ENCODINGS:
+        raise RecordingError(f"{where}: image encoding {msg.encoding!r} is not supported; "
+                             f"expected one of {', '.join(ENCODINGS)}")
+    h, w, step = int(msg.height), int(msg.width), int(msg.step)
+    data = _buffer(msg.data)
+    depth = 2 if encoding == "mono16" else _CHANNELS[encoding]
+    if step < w * depth or data.size < step * h:
+        raise RecordingError(f"{where}: {data.size} bytes for a {w}x{h} {encoding} image "
+                             f"with rows of {step} bytes")
+    rows = data[:step * h].reshape(h, step)[:, :w * depth]
+    if encoding == "mono16":
+        order = ">u2" if int(msg.is_bigendian) else "<u2"
+        return (rows.copy().view(order) >> 8).astype(np.uint8)
+    if encoding == "mono8":
+        return np.ascontiguousarray(rows)
+    return cv2.cvtColor(np.ascontiguousarray(rows.reshape(h, w, depth)), _TO_GRAY[encoding])
+
+
+def _compressed(msg: Any, where: str) -> np.ndarray:
+    fmt = str(msg.format).lower()
+    if "jpeg" not in fmt and "jpg" not in fmt and "png" not in fmt:
+        raise RecordingError(f"{where}: compressed format {msg.format!r} is not supported; "
+                             f"expected JPEG or PNG")
+    data = _buffer(msg.data)
+    image = cv2.imdecode(data, cv2.IMREAD_GRAYSCALE)
+    if image is None:
+        raise RecordingError(f"{where}: {len(data)} bytes that OpenCV cannot decode as "
+                             f"{msg.format!r}")
+    return image

@@ -1,0 +1,127 @@
+"""Where a recording keeps what the tracker needs: the topic and joint-name conventions, and
+the YAML topic map for recordings that name things otherwise.
+
+Conventions (``<cam>``, ``<part>``: the cell's camera and workpiece names as ROS name tokens,
+:func:`~cellsight.export.ros.topic_token`):
+
+- ``/<cam>/image_raw`` (``sensor_msgs/msg/Image``) or ``/<cam>/image_raw/compressed``
+  (``sensor_msgs/msg/CompressedImage``): each camera's images, stamped with their exposure
+  time;
+- ``/<cam>/camera_info`` (``sensor_msgs/msg/CameraInfo``, optional): checked against the cell;
+- ``/joint_states`` (``sensor_msgs/msg/JointState``): every robot's joints, named
+  ``<robot>/<joint>`` (the URDF's joint names; ``joint1`` .. ``joint<n>`` for DH robots), and
+  each gripper's jaw opening (m) as the joint ``<robot>/jaw_opening``;
+- ``/<part>/true_pose`` (``geometry_msgs/msg/PoseStamped`` in the cell's base frame,
+  optional): the part's true pose, where something measured it (the simulator, a motion
+  capture), for the metrics.
+
+A topic map (``--topics FILE``) names other topics and joints; everything it leaves out
+follows the conventions::
+
+    cameras: {cam1: /left/image_raw, cam2: /right/image_raw/compressed}
+    camera_info: {cam1: /left/camera_info}
+    joint_states: [/robot_a/joint_states, /robot_b/joint_states]
+    joints: {a_shoulder_pan_joint: UR5A/shoulder_pan_joint}   # recorded name -> robot/joint
+    openings: {a_gripper_opening: UR5A}                       # recorded name -> robot (m)
+    ignore_joints: [conveyor_belt]                            # recorded names not used
+    truth: {part: /mocap/part_pose}
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+
+from cellsight.errors import CellFileError
+from cellsight.export.ros import topic_token
+from cellsight.model.cell import Cell
+from cellsight.model.yaml_input import load_yaml, read_cell_text
+
+JOINT_STATES = "/joint_states"
+IMAGE, COMPRESSED, CAMERA_INFO, JOINT_STATE, POSE = (
+    "sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage", "sensor_msgs/msg/CameraInfo",
+    "sensor_msgs/msg/JointState", "geometry_msgs/msg/PoseStamped")
+OPENING = "jaw_opening"
+
+
+def joint_name(robot: str, joint: str) -> str:
+    """The conventional name of a robot's joint in ``/joint_states``."""
+    return f"{robot}/{joint}"
+
+
+def image_topic(camera: str) -> str:
+    return f"/{topic_token(camera)}/image_raw"
+
+
+def compressed_topic(camera: str) -> str:
+    return f"{image_topic(camera)}/compressed"
+
+
+def camera_info_topic(camera: str) -> str:
+    return f"/{topic_token(camera)}/camera_info"
+
+
+def truth_topic(part: str) -> str:
+    return f"/{topic_token(part)}/true_pose"
+
+
+class TopicMap(BaseModel):
+    """Topics and joint names of a recording that departs from the conventions (module
+    docstring); an empty map means the conventions throughout."""
+
+    model_config = ConfigDict(extra="forbid", strict=True)
+
+    cameras: dict[str, str] = Field(default_factory=dict)
+    camera_info: dict[str, str] = Field(default_factory=dict)
+    joint_states: list[str] = Field(default_factory=lambda: [JOINT_STATES])
+    joints: dict[str, str] = Field(default_factory=dict)
+    openings: dict[str, str] = Field(default_factory=dict)
+    ignore_joints: list[str] = Field(default_factory=list)
+    truth: dict[str, str] = Field(default_factory=dict)
+    file: str = "<topic map>"
+
+    def check(self, cell: Cell) -> None:
+        """Every camera, robot, joint and workpiece the map names is the cell's (a
+        :class:`CellFileError` naming the map's file and field otherwise)."""
+        cameras = [c.name for c in cell.cameras]
+        for field, names in (("cameras", self.cameras), ("camera_info", self.camera_info)):
+            for name in names:
+                if name not in cameras:
+                    raise CellFileError(self.file, f"{field}.{name}", name,
+                                        f"a camera of cell {cell.source}: {', '.join(cameras)}")
+        joints = {joint_name(r.name, j) for r in cell.robots for j in r.chain.joint_names}
+        for recorded, target in self.joints.items():
+            if target not in joints:
+                raise CellFileError(self.file, f"joints.{recorded}", target,
+                                    f"ROBOT/JOINT of the cell: {', '.join(sorted(joints))}")
+        grippers = [r.name for r in cell.robots if r.tool is not None]
+        for recorded, robot in self.openings.items():
+            if robot not in grippers:
+                raise CellFileError(self.file, f"openings.{recorded}", robot,
+                                    f"a robot with a gripper: {', '.join(grippers) or 'none'}")
+        parts = [p.name for p in cell.workpieces]
+        for part in self.truth:
+            if part not in parts:
+                raise CellFileError(self.file, f"truth.{part}", part,
+                                    f"a workpiece of the cell: {', '.join(parts)}")
+
+
+def load_topic_map(path: str | Path | None) -> TopicMap:
+    """The topic map in the YAML file ``path`` (None: the conventions); a malformed one is a
+    :class:`CellFileError` naming the file, the field and the value."""
+    if path is None:
+        return TopicMap()
+    file = str(path)
+    if not Path(path).is_file():
+        raise CellFileError(file, "<file>", file, "an existing YAML topic map")
+    raw = load_yaml(read_cell_text(Path(path)), file) or {}
+    if not isinstance(raw, dict):
+        raise CellFileError(file, "<root>", raw, "a mapping (cameras, joint_states, joints, "
+                            "openings, ignore_joints, camera_info, truth)")
+    try:
+        return TopicMap.model_validate({**raw, "file": file})
+    except ValidationError as exc:
+        err = exc.errors()[0]
+        loc = ".".join(str(p) for p in err["loc"])
+        raise CellFileError(file, loc, err.get("input"), err["msg"]) from exc

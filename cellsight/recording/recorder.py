@@ -1,0 +1,135 @@
+"""``cellsight run --record FILE``: a run's sensor data written as a real cell records it, in
+an MCAP file of ROS 2 messages, as the run goes.
+
+Per vision frame at time ``t`` (log time ``t``; topics: :mod:`.names`):
+
+- ``/joint_states``: every robot's joints as the encoders read them (what the tracker was
+  given), ``<robot>/<joint>``, and each gripper's jaw opening ``<robot>/jaw_opening`` (m),
+  stamped ``t``;
+- per camera, unless the frame was dropped: its whole image as the camera exposed it (with the
+  realism profile's image effects), ``/<cam>/image_raw`` (mono8, lossless) or, with a JPEG
+  quality, ``/<cam>/image_raw/compressed``; and ``/<cam>/camera_info`` (the cell's
+  calibration), both stamped with the exposure time;
+- ``/<part>/true_pose``: the part's true pose in the base frame (the simulator's truth),
+  stamped ``t``;
+- once, ``/tf_static``: the cell's fixed frames (:mod:`cellsight.export.frames`).
+
+``cellsight track`` over the file gives the run's estimates again (the same images, joints,
+openings and stamps reach the tracker). Time: ROS time ``t`` ns from the Unix epoch, as the
+export (:mod:`cellsight.export.ros`). The file is written under a temporary name and takes its
+name when closed; a run that ends early closes it with the frames so far (its ``cellsight``
+metadata says ``complete: false``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from cellsight.errors import CellsightError
+from cellsight.export import frames as tf
+from cellsight.export import ros
+from cellsight.export.msgdefs import msgdef, schema_name
+from cellsight.model.cell import Cell
+from cellsight.recording import names
+from cellsight.runfolder.writes import AtomicFile
+from cellsight.world.shots import Shot
+
+JOINT_STATE, IMAGE, COMPRESSED, CAMERA_INFO, POSE, TF = (
+    "sensor_msgs/JointState", "sensor_msgs/Image", "sensor_msgs/CompressedImage",
+    "sensor_msgs/CameraInfo", "geometry_msgs/PoseStamped", "tf2_msgs/TFMessage")
+
+
+def check_jpeg(quality: int | None) -> None:
+    if quality is not None and not (isinstance(quality, int) and 1 <= quality <= 100):
+        raise CellsightError(f"--record-jpeg: expected a JPEG quality 1 to 100, got {quality!r}")
+
+
+class Recorder:
+    """Writes a run's sensor data to ``path`` (module docstring); ``jpeg``: JPEG quality of
+    the images (None: lossless mono8)."""
+
+    def __init__(self, path: Path, cell: Cell, part: str, jpeg: int | None = None) -> None:
+        from mcap_ros2.writer import Writer
+
+        check_jpeg(jpeg)
+        self.path, self.cell, self.part, self.jpeg = Path(path), cell, part, jpeg
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self._file = AtomicFile(self.path)
+        self._writer = Writer(self._file)
+        self._schemas: dict[str, object] = {}
+        self.frames = 0
+        self._names = {r.name: [names.joint_name(r.name, j) for j in r.chain.joint_names]
+                       for r in cell.robots}
+
+    def _write(self, topic: str, kind: str, message: dict, ns: int) -> None:
+        schema = self._schemas.get(kind)
+        if schema is None:
+            schema = self._schemas[kind] = self._writer.register_msgdef(schema_name(kind),
+                                                                        msgdef(kind))
+        self._writer.write_message(topic, schema, message, log_time=ns, publish_time=ns)
+
+    def frame(self, t: float, observed: Sequence | None, stamps: Sequence[float | None] | None,
+              joints: Mapping[str, np.ndarray], openings: Mapping[str, float],
+              T_true: np.ndarray) -> None:
+        """Record frame ``t`` (s): ``observed`` the cameras' exposures (images or shots; None
+        for a camera, or the whole frame, that gave nothing), ``stamps`` their exposure times
+        (None: ``t``), the measured ``joints``, the jaw ``openings`` and the part's true pose."""
+        ns = ros.time_ns(t)
+        if self.frames == 0:
+            static = tf.static_transforms(self.cell, self.part)
+            self._write("/tf_static", TF, {"transforms": [ros.transform(ns, *s)
+                                                          for s in static]}, ns)
+        self._write(names.JOINT_STATES, JOINT_STATE, self._joint_state(ns, joints, openings), ns)
+        for c, cam in enumerate(self.cell.cameras):
+            image = None if observed is None else observed[c]
+            if image is None:
+                continue
+            stamp = stamps[c] if stamps is not None and stamps[c] is not None else t
+            self._image(c, image, ros.time_ns(stamp), ns)
+            info = ros.camera_info(ros.time_ns(stamp), tf.optical_frame(cam.name), cam)
+            self._write(names.camera_info_topic(cam.name), CAMERA_INFO, info, ns)
+        self._write(names.truth_topic(self.part), POSE, ros.pose_stamped(ns, tf.ROOT, T_true),
+                    ns)
+        self.frames += 1
+
+    def _joint_state(self, ns: int, joints: Mapping[str, np.ndarray],
+                     openings: Mapping[str, float]) -> dict:
+        names_, values = [], []
+        for robot, q in joints.items():
+            names_ += self._names[robot]
+            values += [float(v) for v in q]
+        for robot, opening in openings.items():
+            names_.append(names.joint_name(robot, names.OPENING))
+            values.append(float(opening))
+        return {"header": ros.header(ns, ""), "name": names_, "position": values,
+                "velocity": [], "effort": []}
+
+    def _image(self, c: int, observed: object, stamp_ns: int, ns: int) -> None:
+        cam = self.cell.cameras[c]
+        image = observed.whole() if isinstance(observed, Shot) else np.asarray(observed)
+        frame = tf.optical_frame(cam.name)
+        if self.jpeg is None:
+            self._write(names.image_topic(cam.name), IMAGE,
+                        ros.mono8_image(stamp_ns, frame, image), ns)
+            return
+        ok, data = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, self.jpeg])
+        if not ok:
+            raise CellsightError(f"--record: OpenCV could not encode {cam.name}'s image as JPEG")
+        self._write(names.compressed_topic(cam.name), COMPRESSED,
+                    {"header": ros.header(stamp_ns, frame), "format": "jpeg",
+                     "data": data.tobytes()}, ns)
+
+    def close(self, complete: bool) -> None:
+        """Finish the file (its metadata says whether the run ended ``complete``) and give it
+        its name."""
+        self._writer.add_metadata("cellsight", {
+            "cell": str(self.cell.source), "part": self.part, "frames": str(self.frames),
+            "images": "mono8" if self.jpeg is None else f"jpeg quality {self.jpeg}",
+            "time": "stamps and log times: the run's time t (s) from the Unix epoch",
+            "complete": "true" if complete else "false"})
+        self._writer.finish()
+        self._file.commit()

@@ -1,0 +1,243 @@
+"""``cellsight track``: the tracker over a recording, into a run folder.
+
+Per frame of the recording (:mod:`.frames`): every robot's joints and jaw openings at the
+frame's time (:mod:`.series`), the images and their exposure stamps into
+:meth:`~cellsight.tracking.tracker.Tracker.step` (the tracker of ``cellsight run``:
+:func:`~cellsight.tracking.setup.build_tracker`, built on the cell, with the recording's
+calibration where asked: :mod:`.calibration`). No robot is driven and no task runs: the
+frames' phase is ``recorded``.
+
+Written into the output folder as it goes, the files of a ``cellsight run`` folder:
+``frames.csv`` (the same columns; the ``q_*`` columns and the gripper's hold the recorded
+joints; where the recording has the part's true pose, the ``true_*`` columns hold it and
+``vis_true``/``occ_true``/``wrong`` are the cell's geometry seen at it, else they are empty),
+``run.log`` (what was read, each gap, each hold of the joints), ``run_cell.yaml``; at the
+end ``report.html`` and ``metrics.json`` (the figures of ``cellsight run`` where the truth
+allows, and the recording's facts: its file, the time origin, the frames, gaps and holds). A
+bad recording is one :class:`~cellsight.recording.reader.RecordingError`, raised before any
+frame is tracked where the checks allow, and otherwise after the frames before it are written
+(the metrics then say ``error``).
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+
+from cellsight.experiments.baseline import PnPBaseline
+from cellsight.experiments.metrics import frame_metrics
+from cellsight.experiments.rows import FrameRows, FrameTruth, PartTruth
+from cellsight.model.cell import Cell
+from cellsight.model.loader import load_cell
+from cellsight.occlusion.predictor import VisibilityPredictor
+from cellsight.recording.calibration import checked_cell
+from cellsight.recording.frames import Frame, FrameGrouper, resolve_topics
+from cellsight.recording.names import TopicMap, load_topic_map
+from cellsight.recording.reader import Recording, RecordingError, open_recording
+from cellsight.recording.series import Signals, read_signals
+from cellsight.report.run_report import write_report
+from cellsight.runfolder import (
+    FrameLog,
+    FrameWriter,
+    RunWrites,
+    cell_digest,
+    check_out_folder,
+    checked_metrics,
+    keep_cell,
+    make_out_folder,
+    write_metrics,
+)
+from cellsight.runfolder.writes import log_to, stop_logging_to
+from cellsight.tracking.setup import build_tracker
+
+log = logging.getLogger(__name__)
+
+PHASE = "recorded"
+HOLD_WARN_S = 0.1  # joints held this long past their samples are reported
+TRUTH_HOLD_S = 0.05  # a true pose further than this from its samples is no truth
+
+
+@dataclass
+class TrackOptions:
+    """How to track: ``topics`` a topic map file (None: the conventions); ``tolerance_s``:
+    images of several cameras within it form one frame; ``calibration_from_bag``: the
+    recording's CameraInfo replaces the cell's intrinsics; ``part``: the workpiece logged
+    (default the cell's first); the tracker's options as in ``cellsight run``."""
+
+    topics: str | Path | None = None
+    tolerance_s: float = 0.019
+    calibration_from_bag: bool = False
+    part: str | None = None
+    occlusion_prediction: bool = True
+    unknown_occluders: bool = False
+    overwrite: bool = False
+    progress: bool = True
+
+
+@dataclass
+class TrackResult:
+    """What was tracked: the run folder, its metrics, the frames (``gaps`` of them empty)."""
+
+    out: Path
+    metrics: dict
+    frames: int = 0
+    gaps: list = field(default_factory=list)
+
+
+class _Session:
+    """One recording tracked into one folder (module docstring)."""
+
+    def __init__(self, cell: Cell, recording: Recording, out: Path, options: TrackOptions,
+                 topic_map: TopicMap) -> None:
+        self.recording, self.out, self.options = recording, out, options
+        part_names = [p.name for p in cell.workpieces]
+        self.part = next((p for p in cell.workpieces if p.name == options.part), None) if \
+            options.part else cell.workpieces[0]
+        if self.part is None:
+            raise RecordingError(f"--part {options.part!r}: no workpiece of cell {cell.source} "
+                                 f"({', '.join(part_names)})")
+        self.topics = resolve_topics(recording, list(cell.cameras), part_names, topic_map)
+        self.cell, self.calibration = checked_cell(cell, recording, self.topics.camera_info,
+                                                   options.calibration_from_bag)
+        self.signals: Signals = read_signals(recording, self.cell, topic_map, self.topics.truth)
+        self.tracker = build_tracker(self.cell, occlusion_prediction=options.occlusion_prediction,
+                                     unknown_occluders=options.unknown_occluders)
+        self.baseline = PnPBaseline.of(self.tracker, self.part.feature_points)
+        self.truth_views = VisibilityPredictor(self.cell)
+        robot = next((r for r in self.cell.robots if r.tool is not None), self.cell.robots[0])
+        self.robot = robot
+        self.rows = FrameRows(robot, len(self.cell.cameras), pixel_errors=True)
+        start = recording.span_ns[0]
+        self.origin_ns = start - start % 1_000_000_000  # the whole second of the first message
+        self.grouper = FrameGrouper(recording, list(self.cell.cameras), self.topics,
+                                    options.tolerance_s, self.origin_ns)
+        self.frames = 0
+        self.held_s = 0.0
+
+    def run(self, writer: FrameWriter, writes: RunWrites) -> None:
+        for line in self.calibration:
+            log.info("%s", line)
+        span = (self.recording.span_ns[1] - self.origin_ns) / 1e9
+        with _progress(self.options.progress) as bar:
+            task = bar.add_task("tracking", total=max(span, 1e-9))
+            for frame in self.grouper.frames():
+                row = self._frame(frame)
+                with writes.guard(writer.path):
+                    writer.write(row)
+                self.frames += 1
+                bar.update(task, completed=frame.t)
+        for gap in self.grouper.gaps:
+            log.warning("gap: no images from %.3f s to %.3f s (%d frames missing); the tracker "
+                        "predicted through it", gap.t_from, gap.t_to, gap.frames)
+
+    def _frame(self, frame: Frame) -> dict:
+        joints, held = self.signals.joints_at(frame.ns)
+        if held > HOLD_WARN_S and held > self.held_s + HOLD_WARN_S:
+            log.warning("t = %.3f s: joints held %.3f s past their last sample", frame.t, held)
+        self.held_s = max(self.held_s, held)
+        openings = self.signals.openings_at(frame.ns)
+        result = self.tracker.step(frame.images, joints, frame.t, openings or None,
+                                   stamps=frame.stamps)
+        rec = result.parts[self.part.name]
+        T_true = self.signals.truth_at(self.part.name, frame.ns, TRUTH_HOLD_S)
+        part_truth = None
+        if T_true is not None:
+            views = self.truth_views.predict(joints, {self.part.name: T_true}, openings)
+            part_truth = PartTruth(T_true, views[self.part.name])
+        opening = openings.get(self.robot.name, float("nan"))
+        truth = FrameTruth(part_truth, joints, opening, False, False)
+        pnp = self.baseline.update(frame.t, rec.measured)
+        return self.rows.row(frame.t, PHASE, "", result, rec, truth, pnp)
+
+    def facts(self) -> dict:
+        """The recording's facts for ``metrics.json``."""
+        return {"recording": str(self.recording.path),
+                "recording_topics": {
+                    "images": [t for t, _ in self.topics.images],
+                    "camera_info": self.topics.camera_info, "truth": self.topics.truth},
+                "time_origin_ns": self.origin_ns, "frames_tracked": self.frames,
+                "gaps": [[round(g.t_from, 4), round(g.t_to, 4), g.frames]
+                         for g in self.grouper.gaps],
+                "frames_dropped": sum(g.frames for g in self.grouper.gaps),
+                "joints_held_s": round(self.held_s, 4),
+                "calibration": self.calibration,
+                "truth": "the recorded pose; vis_true: the cell's geometry at it"
+                         if self.topics.truth else None}
+
+
+def _progress(enabled: bool) -> Progress:
+    return Progress(TextColumn("[bold]{task.description}"), BarColumn(),
+                    TextColumn("t = {task.completed:6.2f} / {task.total:.2f} s"),
+                    TimeElapsedColumn(), disable=not enabled, transient=False)
+
+
+def track_recording(cell: str | Path | Cell | None, recording: str | Path, out: str | Path,
+                    options: TrackOptions | None = None) -> TrackResult:
+    """Track the workpieces through ``recording`` with the cell ``cell`` (a built-in cell's
+    name, a cell file or a loaded cell; None: the built-in cell) into the folder ``out``
+    (module docstring). Returns the folder and its metrics."""
+    options = options or TrackOptions()
+    if not (options.tolerance_s > 0 and np.isfinite(options.tolerance_s)):
+        raise RecordingError(f"--sync-tolerance: expected a positive number of seconds, got "
+                             f"{options.tolerance_s!r}")
+    out = Path(out)
+    stale = check_out_folder(out, options.overwrite, "--out", "--overwrite")
+    cell = cell if isinstance(cell, Cell) else load_cell(cell)
+    topic_map = load_topic_map(options.topics)
+    topic_map.check(cell)
+    with open_recording(recording) as rec:
+        session = _Session(cell, rec, out, options, topic_map)
+        make_out_folder(out, stale, "--out")
+        writes = RunWrites(out)
+        cell_files = keep_cell(out, cell)
+        return _tracked(session, writes, cell_files)
+
+
+def _tracked(session: _Session, writes: RunWrites, cell_files: dict) -> TrackResult:
+    """Run the session, logging, then write the report and the metrics (also on failure)."""
+    out = session.out
+    handler = log_to(writes)
+    log.info("tracking %s with cell %s into %s", session.recording.path, session.cell.source,
+             out)
+    writer = FrameWriter(out / "frames.csv", len(session.cell.cameras),
+                         {r.name: r.n_joints for r in session.cell.robots})
+    wall = time.perf_counter()
+    error: BaseException | None = None
+    try:
+        session.run(writer, writes)
+    except BaseException as exc:
+        error = exc
+        log.error("failed after %d frames: %s: %s", session.frames, type(exc).__name__, exc)
+        raise
+    finally:
+        writes.close(writer.path, writer.close)
+        metrics = _metrics(session, cell_files, time.perf_counter() - wall, error)
+        stop_logging_to(handler, writes)
+        write_report(out, metrics)
+        metrics = write_metrics(out, metrics)
+    return TrackResult(out, metrics, session.frames, session.grouper.gaps)
+
+
+def _metrics(session: _Session, cell_files: dict, wall_s: float,
+             error: BaseException | None) -> dict:
+    frames = FrameLog.read(session.out / "frames.csv")
+    cell = session.cell
+    metrics = {"description": f"tracked from recording {session.recording.path.name}",
+               "cell": cell.source, "cell_sha256": cell_digest(cell), "cell_files": cell_files,
+               "sensor": "recorded", "occlusion_prediction": session.options.occlusion_prediction,
+               "unknown_occluders": session.options.unknown_occluders,
+               **session.facts(), **frame_metrics(frames), "wall_s": round(wall_s, 2),
+               "interrupted": isinstance(error, KeyboardInterrupt),
+               "cameras": [c.name for c in cell.cameras],
+               "features": len(session.part.feature_points), "robot": session.robot.name,
+               "workpiece": session.part.name,
+               "t_end_s": round(float(frames.floats("t")[-1]), 3) if frames.n else 0.0}
+    if error is not None and not isinstance(error, KeyboardInterrupt):
+        metrics["error"] = f"{type(error).__name__}: {error}"[:1000]
+    log.info("tracked %d frames in %.1f s", session.frames, wall_s)
+    return checked_metrics(session.out, metrics)

@@ -1,0 +1,35 @@
+"""The tracker a run uses, built in one place for ``cellsight run`` and ``cellsight track``.
+
+:func:`build_tracker` gives the :class:`~cellsight.tracking.tracker.Tracker` of every workpiece
+of a cell, acquiring each around its nominal pose, with the occlusion predictor
+(``occlusion_prediction``; else projection only: every feature in the image counts as visible)
+on the chosen ``structure``, and, with ``unknown_occluders``, the map of unknown occluders
+(:mod:`.unknown`) and a coasting track that resumes only on three features passing the gate
+together.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+from cellsight.model.cell import Cell
+from cellsight.occlusion.predictor import OBJECT_BVH, VisibilityPredictor
+from cellsight.occlusion.projection import ProjectionOnly
+from cellsight.tracking.config import TrackerConfig, TrackerParts
+from cellsight.tracking.interfaces import Extractor
+from cellsight.tracking.tracker import Tracker
+from cellsight.tracking.unknown import UnknownOccluderRule
+
+
+def build_tracker(cell: Cell, *, occlusion_prediction: bool = True,
+                  unknown_occluders: bool = False, structure: str = OBJECT_BVH,
+                  extractor: Extractor | None = None) -> Tracker:
+    """The tracker of the cell's workpieces (module docstring); ``extractor``: the sensor
+    (default: corners in images)."""
+    predictor = (VisibilityPredictor(cell, structure=structure) if occlusion_prediction
+                 else ProjectionOnly(cell))
+    config, parts = TrackerConfig(), TrackerParts()
+    if unknown_occluders:
+        config = replace(config, resume_support=3)
+        parts = replace(parts, unknown=UnknownOccluderRule())
+    return Tracker.from_cell(cell, predictor, extractor, config, parts)
