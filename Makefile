@@ -4,7 +4,7 @@ STAMP   := .venv/.installed
 DEV     := .venv/.installed-dev
 export MUJOCO_GL ?= egl
 
-.PHONY: venv dev test demo experiments bench fuzz lint clean
+.PHONY: venv dev test demo experiments recordings bench fuzz lint clean
 
 # `venv`: what cellsight needs to run; `dev`: plus the test tools and the benchmark peers.
 venv: $(STAMP)
@@ -47,6 +47,17 @@ experiments: venv
 		--seeds 0 1 2 3 4
 	$(SWEEP) --out out/faults --seeds 0 1 2 3 4 --realism harsh/cameras harsh/robots \
 		harsh/servo harsh/geometry harsh/unmodelled harsh/images harsh/timing harsh/scenario
+
+# The README's recording table: experiment 3 in the lab world recorded lossless and as JPEG,
+# each tracked back with `cellsight track`, against the run (docs/recording_roundtrip.png).
+REC := .venv/bin/cellsight run 3 --realism lab --seed 0 --quiet --overwrite
+recordings: venv
+	$(REC) --out out/recordings/run --record out/recordings/lossless.mcap
+	$(REC) --out out/recordings/run-jpeg --record out/recordings/jpeg90.mcap --record-jpeg 90
+	.venv/bin/cellsight track out/recordings/lossless.mcap --out out/recordings/lossless --quiet --overwrite
+	.venv/bin/cellsight track out/recordings/jpeg90.mcap --out out/recordings/jpeg90 --quiet --overwrite
+	$(PY) scripts/recording_roundtrip.py out/recordings/run out/recordings/lossless \
+		out/recordings/jpeg90 --out docs/recording_roundtrip.png
 
 # Hostile and random input, 10^5 cases (about a thousand run in `make test`); tests/fuzzing.py.
 fuzz: dev

@@ -81,7 +81,7 @@ def checked_cell(cell: Cell, recording: Recording, topics: list[str | None],
         _compare(camera, topic, K, D)
         cameras.append(camera)
         notes.append(f"{camera.name}: {topic} agrees with the cell")
-    if cameras == list(cell.cameras):
+    if all(a is b for a, b in zip(cameras, cell.cameras, strict=True)):
         return cell, notes
     return Cell(cell.name, cell.robots, cell.workpieces, cell.static, cameras, cell.source,
                 cell.experiments, cell.files), notes

@@ -132,7 +132,7 @@ class _Session:
                 self.frames += 1
                 bar.update(task, completed=frame.t)
         for gap in self.grouper.gaps:
-            log.warning("gap: no images from %.3f s to %.3f s (%d frames missing); the tracker "
+            log.warning("gap: no images from %.3f s to %.3f s (%d missing frame(s)); the tracker "
                         "predicted through it", gap.t_from, gap.t_to, gap.frames)
 
     def _frame(self, frame: Frame) -> dict:

@@ -1,0 +1,226 @@
+"""``cellsight run --record`` and ``cellsight track`` (cellsight.recording): a rendered run
+recorded, tracked back from the MCAP file and from a rosbag2 SQLite folder written by
+``rosbags`` under other names, against the run's own estimates; each bad recording refused in
+one line."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from recordings import read_mcap, write_rosbag2
+
+from cellsight import load_cell
+from cellsight.errors import CellFileError
+from cellsight.experiments import RunConfig, run_experiment
+from cellsight.recording import TopicMap
+from cellsight.recording.reader import RecordingError
+from cellsight.recording.track import TrackOptions, track_recording
+from cellsight.runfolder import FrameLog
+
+DURATION = 3.0
+
+
+def _run(folder: Path, jpeg: int | None = None) -> tuple[Path, Path]:
+    record = folder / "rec.mcap"
+    run_experiment(RunConfig(3, folder / "run", duration=DURATION, progress=False,
+                             record=record, record_jpeg=jpeg))
+    return folder / "run", record
+
+
+@pytest.fixture(scope="module")
+def recorded(tmp_path_factory) -> tuple[Path, Path]:
+    return _run(tmp_path_factory.mktemp("recorded"))
+
+
+def _track(recording: Path, out: Path, **options) -> FrameLog:
+    track_recording(None, recording, out, TrackOptions(progress=False, **options))
+    return FrameLog.read(out / "frames.csv")
+
+
+def _estimates(log: FrameLog) -> np.ndarray:
+    return log.poses("est")
+
+
+def test_the_recording_holds_what_the_tracker_was_given(recorded):
+    run, record = recorded
+    log = FrameLog.read(run / "frames.csv")
+    messages = read_mcap(record)
+    kinds = {topic: kind for topic, kind, _, _ in messages}
+    assert kinds["/cam1/image_raw"] == "sensor_msgs/msg/Image"
+    assert kinds["/joint_states"] == "sensor_msgs/msg/JointState"
+    states = [m for topic, _, _, m in messages if topic == "/joint_states"]
+    assert len(states) == log.n
+    assert "R6AX/joint1" in states[0].name and "R7AX/jaw_opening" in states[0].name
+    truth = [m for topic, _, _, m in messages if topic == "/part/true_pose"]
+    xyz = np.array([[m.pose.position.x, m.pose.position.y, m.pose.position.z] for m in truth])
+    assert np.allclose(xyz, log.poses("true")[:, :3], atol=1e-12)
+
+
+def test_tracking_the_recording_gives_the_runs_estimates(recorded, tmp_path):
+    run, record = recorded
+    ran = FrameLog.read(run / "frames.csv")
+    tracked = _track(record, tmp_path / "track")
+    assert tracked.n == ran.n
+    assert np.array_equal(ran.floats("t"), tracked.floats("t"))
+    est_run, est_track = _estimates(ran), _estimates(tracked)
+    assert np.array_equal(np.isnan(est_run), np.isnan(est_track))
+    assert np.nanmax(np.abs(est_run[:, :3] - est_track[:, :3])) < 1e-9
+    assert np.nanmax(np.abs(est_run[:, 3:] - est_track[:, 3:])) < 1e-9
+    assert ran.text("meas_c1") == tracked.text("meas_c1")
+    metrics = json.loads((tmp_path / "track" / "metrics.json").read_text())
+    assert metrics["frames_tracked"] == ran.n and metrics["gaps"] == []
+    assert (tmp_path / "track" / "report.html").is_file()
+
+
+def test_a_jpeg_recording_tracks_within_a_tenth_of_a_millimetre(tmp_path):
+    run, record = _run(tmp_path, jpeg=90)
+    assert any(t == "/cam1/image_raw/compressed" for t, _, _, _ in read_mcap(record))
+    track_recording(None, record, tmp_path / "track", TrackOptions(progress=False))
+    a = json.loads((run / "metrics.json").read_text())["position_rmse_mm"]
+    b = json.loads((tmp_path / "track" / "metrics.json").read_text())["position_rmse_mm"]
+    assert abs(a - b) < 0.1
+
+
+NAMES = {"/cam1/image_raw": "/left/image", "/cam2/image_raw": "/right/image",
+         "/cam1/camera_info": "/left/info", "/joint_states": "/robot/joints"}
+
+
+def test_a_rosbag2_sqlite_folder_under_other_names_tracks_the_same(recorded, tmp_path):
+    run, record = recorded
+    joints = {f"R6AX/joint{j}": f"r6ax_joint_{j}" for j in range(1, 7)}
+    bag = write_rosbag2(record, tmp_path / "bag", topics=NAMES,
+                        joints={**joints, "R7AX/jaw_opening": "gripper"})
+    topic_map = tmp_path / "topics.yaml"
+    topic_map.write_text(
+        "cameras: {cam1: /left/image, cam2: /right/image}\n"
+        "camera_info: {cam1: /left/info}\n"
+        "joint_states: [/robot/joints]\n"
+        "joints: {" + ", ".join(f"{v}: {k}" for k, v in joints.items()) + "}\n"
+        "openings: {gripper: R7AX}\n")
+    tracked = _track(bag, tmp_path / "track", topics=topic_map)
+    ran = FrameLog.read(run / "frames.csv")
+    assert tracked.n == ran.n
+    assert np.nanmax(np.abs(_estimates(ran) - _estimates(tracked))) < 1e-9
+
+
+def _bag(recorded, tmp_path: Path, frames: int = 8, **kwargs) -> Path:
+    return write_rosbag2(recorded[1], tmp_path / "bag", frames=frames, **kwargs)
+
+
+def _refused(bag: Path, tmp_path: Path, *needles: str, **options) -> str:
+    with pytest.raises(RecordingError) as err:
+        track_recording(None, bag, tmp_path / "out", TrackOptions(progress=False, **options))
+    text = str(err.value)
+    assert "\n" not in text
+    for needle in needles:
+        assert needle in text
+    return text
+
+
+def test_a_truncated_mcap_file_is_refused(recorded, tmp_path):
+    data = recorded[1].read_bytes()
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(data[: len(data) // 2])
+    _refused(cut, tmp_path, "cut.mcap", "truncated")
+
+
+def test_a_missing_camera_topic_is_refused_with_what_the_recording_holds(recorded, tmp_path):
+    bag = _bag(recorded, tmp_path, edit=lambda topic, m, k: None if "cam2" in topic else m)
+    text = _refused(bag, tmp_path, "camera cam2", "/cam2/image_raw", "/cam1/image_raw (Image")
+    assert "topic map" in text
+
+
+def test_an_unknown_joint_name_is_refused(recorded, tmp_path):
+    bag = _bag(recorded, tmp_path, joints={"R6AX/joint3": "elbow"})
+    _refused(bag, tmp_path, "/joint_states", "'elbow'", "ignore_joints")
+
+
+def test_stamps_going_backwards_are_refused(recorded, tmp_path):
+    def back(topic, m, k):
+        if topic == "/cam1/image_raw" and k == 5:
+            m.header.stamp.sec, m.header.stamp.nanosec = 0, 1000
+        return m
+
+    _refused(_bag(recorded, tmp_path, edit=back), tmp_path, "/cam1/image_raw, message 5",
+             "backwards")
+
+
+def test_an_unsupported_encoding_is_refused(recorded, tmp_path):
+    def yuv(topic, m, k):
+        if topic == "/cam2/image_raw":
+            m.encoding = "yuv422"
+        return m
+
+    _refused(_bag(recorded, tmp_path, edit=yuv), tmp_path, "/cam2/image_raw", "'yuv422'",
+             "mono8")
+
+
+def _wider(topic, m, k):
+    if topic == "/cam1/camera_info":
+        m.k = m.k.copy()
+        m.k[0] += 12.0
+    return m
+
+
+def test_a_camera_info_against_the_cell_is_refused_or_used_when_asked(recorded, tmp_path):
+    bag = _bag(recorded, tmp_path, edit=_wider)
+    fx = load_cell().cameras[0].K[0, 0]
+    _refused(bag, tmp_path, "/cam1/camera_info", f"fx = {fx + 12:.6g}", f"{fx:.6g}",
+             "--calibration-from-bag")
+    track_recording(None, bag, tmp_path / "used", TrackOptions(progress=False,
+                                                                 calibration_from_bag=True))
+    log = (tmp_path / "used" / "run.log").read_text()
+    assert f"cam1: calibration from /cam1/camera_info (fx {fx + 12:.2f} px)" in log
+
+
+def test_a_fisheye_camera_info_is_refused(recorded, tmp_path):
+    def fisheye(topic, m, k):
+        if topic == "/cam1/camera_info":
+            m.distortion_model = "equidistant"
+            m.d = np.array([0.1, 0.01, 0.0, 0.0])
+        return m
+
+    _refused(_bag(recorded, tmp_path, edit=fisheye), tmp_path, "'equidistant'", "fisheye")
+
+
+def test_a_dropped_image_is_a_prediction_step_and_reported(recorded, tmp_path):
+    def drop(topic, m, k):
+        return None if topic.endswith("image_raw") and k in (6, 7) else m
+
+    log = _track(_bag(recorded, tmp_path, frames=12, edit=drop), tmp_path / "out")
+    t = log.floats("t")
+    assert len(t) == 12 and np.allclose(np.diff(t), 1 / 26, atol=2.1e-3)
+    assert log.text("meas_c1")[5:7] == ["0" * 16] * 2 and "1" in log.text("meas_c1")[7]
+    metrics = json.loads((tmp_path / "out" / "metrics.json").read_text())
+    assert metrics["frames_dropped"] == 2 and len(metrics["gaps"]) == 1
+    assert "gap: no images from" in (tmp_path / "out" / "run.log").read_text()
+
+
+def test_a_bad_topic_map_names_the_file_and_field(tmp_path):
+    path = tmp_path / "topics.yaml"
+    path.write_text("cameras: {cam9: /x}\n")
+    from cellsight.recording import load_topic_map
+
+    with pytest.raises(CellFileError, match=r"topics.yaml: field 'cameras.cam9'"):
+        load_topic_map(path).check(load_cell())
+    path.write_text("camras: {cam1: /x}\n")
+    with pytest.raises(CellFileError, match=r"field 'camras'"):
+        load_topic_map(path)
+    assert TopicMap().joint_states == ["/joint_states"]
+
+
+def test_the_command_line_tracks_and_refuses_in_one_line(recorded, tmp_path):
+    cli = [sys.executable, "-m", "cellsight.cli", "track"]
+    done = subprocess.run([*cli, str(recorded[1]), "--out", str(tmp_path / "ok"), "--quiet"],
+                          capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    assert "position_rmse_mm" in done.stdout
+    bad = subprocess.run([*cli, str(tmp_path / "none.mcap"), "--out", str(tmp_path / "no")],
+                         capture_output=True, text=True, timeout=300)
+    assert bad.returncode != 0
+    assert bad.stderr.strip().count("\n") == 0 and "no such file" in bad.stderr
