@@ -188,6 +188,15 @@ def test_a_fisheye_camera_info_is_refused(recorded, tmp_path):
     _refused(_bag(recorded, tmp_path, edit=fisheye), tmp_path, "'equidistant'", "fisheye")
 
 
+def test_a_recording_without_truth_tracks_with_no_error_figures(recorded, tmp_path):
+    bag = _bag(recorded, tmp_path, edit=lambda topic, m, k: None if "true_pose" in topic else m)
+    log = _track(bag, tmp_path / "out")
+    assert log.n == 8 and log.present("est_x").all() and not log.present("true_x").any()
+    metrics = json.loads((tmp_path / "out" / "metrics.json").read_text())
+    assert metrics["position_rmse_mm"] is None and metrics["visibility_accuracy"] is None
+    assert metrics["wrong_accepted"] is None and metrics["truth"] is None
+
+
 def test_a_dropped_image_is_a_prediction_step_and_reported(recorded, tmp_path):
     def drop(topic, m, k):
         return None if topic.endswith("image_raw") and k in (6, 7) else m
@@ -216,10 +225,16 @@ def test_a_bad_topic_map_names_the_file_and_field(tmp_path):
 
 def test_the_command_line_tracks_and_refuses_in_one_line(recorded, tmp_path):
     cli = [sys.executable, "-m", "cellsight.cli", "track"]
-    done = subprocess.run([*cli, str(recorded[1]), "--out", str(tmp_path / "ok"), "--quiet"],
+    done = subprocess.run([*cli, str(recorded[1]), "--out", str(tmp_path / "ok"), "--quiet",
+                           "--mcap", str(tmp_path / "ok.mcap")],
                           capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr
     assert "position_rmse_mm" in done.stdout
+    log = FrameLog.read(tmp_path / "ok" / "frames.csv")
+    poses = [m for topic, _, _, m in read_mcap(tmp_path / "ok.mcap") if topic == "/part/est_pose"]
+    assert len(poses) == int(log.present("est_x").sum()) > 0
+    last = poses[-1].pose.position
+    assert np.allclose([last.x, last.y, last.z], log.poses("est")[-1, :3], atol=1e-12)
     bad = subprocess.run([*cli, str(tmp_path / "none.mcap"), "--out", str(tmp_path / "no")],
                          capture_output=True, text=True, timeout=300)
     assert bad.returncode != 0

@@ -31,6 +31,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     track.add_argument("--calibration-from-bag", action="store_true",
                        help="use the recording's CameraInfo (K, D) instead of the cell's when "
                             "they disagree (default: a disagreement is an error)")
+    track.add_argument("--mcap", metavar="FILE",
+                       help="also write the tracked run as an MCAP file for Foxglove and ROS 2 "
+                            "tools (cellsight export --no-images: TF, the estimate, visibility "
+                            "markers, the tracker's status)")
     track.add_argument("--part", help="the workpiece logged in frames.csv (default: the first)")
     track.add_argument("--no-occlusion-prediction", action="store_true",
                        help="every feature in the image counts as visible")
@@ -46,6 +50,7 @@ def cmd_track(args: argparse.Namespace) -> int:
     from rich.console import Console
     from rich.table import Table
 
+    from cellsight.export.mcap_run import check_output, export_mcap
     from cellsight.recording.track import TrackOptions, track_recording
     from cellsight.report.run_report import format_value
 
@@ -54,7 +59,12 @@ def cmd_track(args: argparse.Namespace) -> int:
                            occlusion_prediction=not args.no_occlusion_prediction,
                            unknown_occluders=args.unknown_occluders, overwrite=args.overwrite,
                            progress=not args.quiet)
+    if args.mcap is not None:
+        check_output(args.mcap, args.overwrite, Path(args.out))
     result = track_recording(args.cell, args.recording, Path(args.out), options)
+    if args.mcap is not None:
+        export_mcap(result.out, args.mcap, images=False, overwrite=args.overwrite,
+                    progress=not args.quiet)
     table = Table(title=f"tracked {result.frames} frames of {args.recording}")
     table.add_column("metric")
     table.add_column("value", justify="right")
@@ -62,6 +72,6 @@ def cmd_track(args: argparse.Namespace) -> int:
         table.add_row(key, format_value(value))
     console = Console()
     console.print(table)
-    console.print(f"wrote {result.out}/ (report.html, frames.csv, metrics.json, run.log)",
-                  soft_wrap=True)
+    console.print(f"wrote {result.out}/ (report.html, frames.csv, metrics.json, run.log)"
+                  + (f" and {args.mcap}" if args.mcap else ""), soft_wrap=True)
     return 0

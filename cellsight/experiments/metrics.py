@@ -10,6 +10,10 @@ Which frames count:
   task (approach, grasp, manipulate, release and after): nothing is left out because the
   estimate is no longer used for control.
 
+A frame without a truth (a tracked recording that has no true pose there: empty ``vis_true``)
+is never in view; a log without any truth has no estimation, visibility or wrong-corner
+figures (None).
+
 Estimation errors over the evaluated frames that have an estimate: ``position_rmse_mm``,
 ``orientation_rmse_deg`` (the angle of ``R_est^T R_true``), ``max_position_error_mm``; the
 per-frame PnP baseline on the same measurements over the evaluated frames where it has a pose:
@@ -75,7 +79,7 @@ def evaluated_frames(log: FrameLog) -> np.ndarray:
     """(N,) bool: in view and at or after the first estimate (module docstring)."""
     has_estimate = log.present("est_x")
     start = int(np.argmax(has_estimate)) if has_estimate.any() else log.n
-    in_view = in_image(log).any(axis=(1, 2))
+    in_view = in_image(log).any(axis=(1, 2)) & _truth_rows(log)
     return in_view & (np.arange(log.n) >= start)
 
 
@@ -119,7 +123,7 @@ def _estimation(log: FrameLog) -> dict:
     return {
         "first_estimate_s": None if first is None else float(t[first]),
         "in_view_fraction": (float(evaluated.sum() / after_first.sum())
-                             if after_first.any() else None),
+                             if after_first.any() and _truth_rows(log).any() else None),
         **_errors(est, pnp, truth, evaluated, period),
         "phases": {p: _errors(est, pnp, truth, evaluated & (phase == p), period)
                    for p in PHASES},
@@ -127,9 +131,15 @@ def _estimation(log: FrameLog) -> dict:
 
 
 def _visibility(log: FrameLog) -> dict:
-    """Predicted against true visibility labels (module docstring)."""
-    pred, true = _per_camera(log, "vis_pred", "bits"), _per_camera(log, "vis_true", "bits")
-    inside = in_image(log)
+    """Predicted against true visibility labels (module docstring), over the frames that have
+    a truth (a recording may have none: then None)."""
+    known = _truth_rows(log)
+    if not known.any():
+        return dict.fromkeys(("visibility_accuracy", "visibility_accuracy_all", "false_visible",
+                              "false_hidden"))
+    pred = _per_camera(log, "vis_pred", "bits")[known]
+    true = _per_camera(log, "vis_true", "bits")[known]
+    inside = in_image(log)[known]
     agree = pred == true
     return {
         "visibility_accuracy": (int(np.sum(agree & inside)) / int(inside.sum())
@@ -165,8 +175,9 @@ def _measurements(log: FrameLog) -> dict:
     return {
         "measurements": int(meas.sum()),
         "rejected_measurements": int(rej.sum()),
-        "wrong_measurements": int(wrong.sum()),
-        "wrong_accepted": int(np.sum((wrong & ~rej)[_used(log)])),
+        "wrong_measurements": int(wrong.sum()) if _truth_rows(log).any() else None,
+        "wrong_accepted": (int(np.sum((wrong & ~rej)[_used(log)])) if _truth_rows(log).any()
+                           else None),
         "pixels_grabbed_fraction": float(np.mean(grabbed)) if grabbed.size else None,
         "extraction_error_px_median": float(np.median(px)) if px.size else None,
     }
@@ -198,10 +209,18 @@ def _timing(log: FrameLog) -> dict[str, float | None]:
 def fewest_visible(log: FrameLog) -> dict[str, list[int]]:
     """Per working phase, per camera: the fewest features truly visible in any of its frames
     (how deeply an occluder blinded each camera; an experiment's meaning, checked per seed)."""
-    visible = _per_camera(log, "vis_true", "bits").sum(axis=2)
-    phases = np.array(log.text("phase"))
+    known = _truth_rows(log)
+    visible = _per_camera(log, "vis_true", "bits").sum(axis=2)[known]
+    phases = np.array(log.text("phase"))[known]
     return {p: visible[phases == p].min(axis=0).astype(int).tolist()
             for p in PHASES if np.any(phases == p)}
+
+
+def _truth_rows(log: FrameLog) -> np.ndarray:
+    """(N,) bool: the frames with the simulator's (or a recording's) visibility truth."""
+    if log.n_cameras == 0:
+        return np.zeros(log.n, dtype=bool)
+    return log.present(camera_column("vis_true", 1))
 
 
 def frame_metrics(log: FrameLog) -> dict:

@@ -184,24 +184,35 @@ class _Frames:
         true_frame, est_frame = tf.part_frames(run.part.name)
         transforms = [t for r in run.cell.robots
                       for t in tf.robot_transforms(r, run.joints[r.name][k])]
-        transforms.append((tf.ROOT, true_frame, run.T_true[k]))
+        has_true = bool(np.all(np.isfinite(run.T_true[k])))
         has_est = bool(np.all(np.isfinite(run.T_est[k])))
+        if has_true:
+            transforms.append((tf.ROOT, true_frame, run.T_true[k]))
         if has_est:
             transforms.append((tf.ROOT, est_frame, run.T_est[k]))
-        out = [("/tf", TF, {"transforms": [ros.transform(ns, *t) for t in transforms]}),
-               (f"/{self.part}/true_pose", POSE, ros.pose_stamped(ns, tf.ROOT, run.T_true[k]))]
-        if has_est:
-            out.append((f"/{self.part}/est_pose", POSE,
-                        ros.pose_stamped(ns, tf.ROOT, run.T_est[k])))
-        points = transform_points(run.T_true[k], run.part.feature_points)
+        out = [("/tf", TF, {"transforms": [ros.transform(ns, *t) for t in transforms]})]
+        for name, T, has in (("true_pose", run.T_true[k], has_true),
+                             ("est_pose", run.T_est[k], has_est)):
+            if has:
+                out.append((f"/{self.part}/{name}", POSE, ros.pose_stamped(ns, tf.ROOT, T)))
+        out += self._markers(k, ns, run.T_true[k] if has_true else run.T_est[k])
+        out.append(("/diagnostics", DIAGNOSTICS, self._diagnostics(k, ns)))
+        if k % self.every == 0:
+            out += self._camera_messages(k, ns)
+        return out
+
+    def _markers(self, k: int, ns: int, T_part: np.ndarray) -> list[tuple[str, str, dict]]:
+        """Each camera's visibility markers at the part's pose ``T_part`` (the truth, else
+        the estimate; none without either)."""
+        if not np.all(np.isfinite(T_part)):
+            return []
+        run, out = self.run, []
+        points = transform_points(T_part, run.part.feature_points)
         for c, (cam, token) in enumerate(zip(run.cell.cameras, self.cams, strict=True)):
             out.append((f"/{token}/visibility", MARKERS, markers.visibility_markers(
                 ns, points, run.part.feature_names, cam.center, run.vis_pred[c][k],
                 bool(run.vis_pred_present[c][k]), run.vis_true[c][k],
                 bool(run.vis_true_present[c][k]), self.size)))
-        out.append(("/diagnostics", DIAGNOSTICS, self._diagnostics(k, ns)))
-        if k % self.every == 0:
-            out += self._camera_messages(k, ns)
         return out
 
     def _diagnostics(self, k: int, ns: int) -> dict:
@@ -271,6 +282,10 @@ def export_mcap(run_dir: str | Path, out: str | Path, *, every: int = 1, images:
         raise CellsightError(f"--every: expected a whole number >= 1, got {every!r}")
     run = load_run(run_dir, cell)
     path = check_output(out, overwrite, run.folder)
+    if images and "recording" in run.metrics:
+        raise CellsightError(f"{run_dir}: tracked from recording {run.metrics['recording']}, "
+                             f"which holds its images; no world to render them again: pass "
+                             f"--no-images")
     result = ExportResult(path, total=run.n)
     renderer = _Images(run) if images else None
     source = _Frames(run, every, renderer)

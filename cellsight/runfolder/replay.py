@@ -28,7 +28,8 @@ from cellsight.runfolder.metrics import RunDataError, read_metrics
 @dataclass
 class RunData:
     """A run's log, checked. ``t`` (N,) s; ``joints``: robot -> (N, n); ``T_true`` (N, 4, 4)
-    the part's true pose; ``T_est`` (N, 4, 4), NaN where the tracker had no estimate;
+    the part's true pose (NaN in a tracked recording's frames without one); ``T_est``
+    (N, 4, 4), NaN where the tracker had no estimate;
     ``opening`` (N,) the grasping robot's jaw opening (m, NaN where not logged);
     ``vis_pred`` / ``vis_true``: per camera (N, F) bool and ``*_present`` (N,) bool."""
 
@@ -207,7 +208,8 @@ def load_run(folder: str | Path, cell: str | Path | None = None,
         raise RunDataError(f"{csv_path}: {frames.n_cameras} cameras logged (vis_pred_c*); cell "
                            f"{the_cell.source} has {len(the_cell.cameras)}")
     joints = _joints(frames, the_cell, t, csv_path)
-    T_true = _poses(_finite_columns(frames, t, [f"true_{a}" for a in POSE]))
+    T_true = (_poses(frames.poses("true")) if "recording" in metrics  # truth where recorded
+              else _poses(_finite_columns(frames, t, [f"true_{a}" for a in POSE])))
     T_est = _poses(frames.poses("est"))
     opening = frames.floats("jaw_opening")
     vis_pred, pred_present = _visibility(frames, the_cell, part, "vis_pred")
