@@ -55,6 +55,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                           "the part's true pose) in an MCAP file, for cellsight track")
     run.add_argument("--record-jpeg", type=int, metavar="QUALITY",
                      help="record the images as JPEG of this quality (1-100; default lossless)")
+    run.add_argument("--live", nargs="?", const="127.0.0.1:8765", metavar="[HOST:]PORT",
+                     help="stream the run to Foxglove as it happens: a Foxglove WebSocket "
+                          "server (default 127.0.0.1:8765)")
     run.add_argument("--no-check", action="store_true",
                      help="run even when the cell file fails cellsight check's quick checks "
                           "(units, joint limits, key poses in view)")
@@ -131,6 +134,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         duration=args.duration, progress=not args.quiet, full_frames=args.full_frames,
         overwrite=args.overwrite, realism=args.realism, structure=args.structure,
         record=None if args.record is None else Path(args.record), record_jpeg=args.record_jpeg,
+        live=args.live,
     )
     try:
         metrics = run_experiment(config)

@@ -35,6 +35,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                        help="also write the tracked run as an MCAP file for Foxglove and ROS 2 "
                             "tools (cellsight export --no-images: TF, the estimate, visibility "
                             "markers, the tracker's status)")
+    track.add_argument("--live", nargs="?", const="127.0.0.1:8765", metavar="[HOST:]PORT",
+                       help="stream the tracking to Foxglove as it happens: a Foxglove "
+                            "WebSocket server (default 127.0.0.1:8765)")
     track.add_argument("--part", help="the workpiece logged in frames.csv (default: the first)")
     track.add_argument("--no-occlusion-prediction", action="store_true",
                        help="every feature in the image counts as visible")
@@ -58,7 +61,7 @@ def cmd_track(args: argparse.Namespace) -> int:
                            calibration_from_bag=args.calibration_from_bag, part=args.part,
                            occlusion_prediction=not args.no_occlusion_prediction,
                            unknown_occluders=args.unknown_occluders, overwrite=args.overwrite,
-                           progress=not args.quiet)
+                           progress=not args.quiet, live=args.live)
     if args.mcap is not None:
         check_output(args.mcap, args.overwrite, Path(args.out))
     result = track_recording(args.cell, args.recording, Path(args.out), options)

@@ -67,6 +67,7 @@ from cellsight.experiments.plant import SimulatedCell
 from cellsight.experiments.rows import FrameRows, FrameTruth, PartTruth
 from cellsight.experiments.scenario import Scenario, scenario
 from cellsight.experiments.sensors import IdealExtractor
+from cellsight.export.live import LiveStream, parse_address
 from cellsight.export.mcap_run import check_output
 from cellsight.model.cell import Cell
 from cellsight.model.loader import load_cell
@@ -117,7 +118,9 @@ class RunConfig:
     (:func:`check_out_folder`; else a non-empty ``out`` is refused). ``record``: an MCAP file
     to record the sensor data in as the run goes (:mod:`cellsight.recording.recorder`; the
     rendered sensor only), its images JPEG of quality ``record_jpeg`` (None: lossless); a
-    recorded run renders whole frames, so that the tracker reads the very pixels recorded."""
+    recorded run renders whole frames, so that the tracker reads the very pixels recorded.
+    ``live``: ``[HOST:]PORT`` of a Foxglove WebSocket server streaming the run as it happens
+    (:mod:`cellsight.export.live`)."""
 
     experiment: int
     out: Path
@@ -139,9 +142,12 @@ class RunConfig:
     structure: str = OBJECT_BVH
     record: Path | None = None
     record_jpeg: int | None = None
+    live: str | None = None
 
     def __post_init__(self) -> None:
         check_jpeg(self.record_jpeg)
+        if self.live is not None:
+            parse_address(self.live)
         if self.record is not None and self.sensor != "rendered":
             raise CellsightError("--record: the ideal sensor takes no images to record; use the "
                                  "rendered sensor")
@@ -226,6 +232,7 @@ class ExperimentRun:
         self.crossing = next(iter(sc.tasks), None)
         self.writes = RunWrites(self.out)
         self.recorder: Recorder | None = None
+        self.live: LiveStream | None = None
         self.metrics: dict | None = None  # made after the loop, written last (:meth:`_finish`)
         make_out_folder(self.out, stale)
         self.cell_files = keep_cell(self.out, cell)
@@ -289,6 +296,9 @@ class ExperimentRun:
             with self.writes.guard(cfg.record):
                 recorder = self.recorder = Recorder(cfg.record, self.cell, self.part.name,
                                                     cfg.record_jpeg)
+        live = None
+        if cfg.live is not None:
+            live = self.live = LiveStream(self.cell, self.part.name, *parse_address(cfg.live))
         video = None
         if cfg.sensor == "rendered" and cfg.video_every > 0:
             video = VideoWriter(self.out / "views.mp4", fps=VISION_HZ / cfg.video_every)
@@ -309,6 +319,7 @@ class ExperimentRun:
                 (video.path, video.close) if video is not None else None,
                 (recorder.path, lambda: recorder.close(not ending["interrupted"]))
                 if recorder is not None else None,
+                (None, live.close) if live is not None else None,
                 (None, self.world.close)])
             self.metrics = self._metrics(time.perf_counter() - wall, ending)
 
@@ -388,6 +399,9 @@ class ExperimentRun:
             self.kidnap.update(t, str(rec.status), _error_mm(rec, truth.part),
                                int(truth.part.visible.sum(axis=1).max(initial=0)))
         pnp = self.baseline.update(t, rec.measured)
+        if self.live is not None:
+            self.live.frame(t, joints, rec, frame.unknown,
+                            None if self.ideal is not None else observed, truth.part.T_base_part)
         if self.recorder is not None:
             with self.writes.guard(self.recorder.path):
                 self.recorder.frame(t, observed, None if dropped else self.exposures.stamps,

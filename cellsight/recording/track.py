@@ -32,6 +32,7 @@ from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 from cellsight.experiments.baseline import PnPBaseline
 from cellsight.experiments.metrics import frame_metrics
 from cellsight.experiments.rows import FrameRows, FrameTruth, PartTruth
+from cellsight.export.live import LiveStream, parse_address
 from cellsight.model.cell import Cell
 from cellsight.model.loader import load_cell
 from cellsight.occlusion.predictor import VisibilityPredictor
@@ -67,7 +68,8 @@ class TrackOptions:
     """How to track: ``topics`` a topic map file (None: the conventions); ``tolerance_s``:
     images of several cameras within it form one frame; ``calibration_from_bag``: the
     recording's CameraInfo replaces the cell's intrinsics; ``part``: the workpiece logged
-    (default the cell's first); the tracker's options as in ``cellsight run``."""
+    (default the cell's first); the tracker's options as in ``cellsight run``; ``live``:
+    ``[HOST:]PORT`` to stream the tracking to Foxglove (:mod:`cellsight.export.live`)."""
 
     topics: str | Path | None = None
     tolerance_s: float = 0.019
@@ -77,6 +79,7 @@ class TrackOptions:
     unknown_occluders: bool = False
     overwrite: bool = False
     progress: bool = True
+    live: str | None = None
 
 
 @dataclass
@@ -118,6 +121,7 @@ class _Session:
                                     options.tolerance_s, self.origin_ns)
         self.frames = 0
         self.held_s = 0.0
+        self.live: LiveStream | None = None
 
     def run(self, writer: FrameWriter, writes: RunWrites) -> None:
         for line in self.calibration:
@@ -152,6 +156,8 @@ class _Session:
         opening = openings.get(self.robot.name, float("nan"))
         truth = FrameTruth(part_truth, joints, opening, False, False)
         pnp = self.baseline.update(frame.t, rec.measured)
+        if self.live is not None:
+            self.live.frame(frame.t, joints, rec, result.unknown, frame.images, T_true)
         return self.rows.row(frame.t, PHASE, "", result, rec, truth, pnp)
 
     def facts(self) -> dict:
@@ -208,6 +214,9 @@ def _tracked(session: _Session, writes: RunWrites, cell_files: dict) -> TrackRes
                          {r.name: r.n_joints for r in session.cell.robots})
     wall = time.perf_counter()
     error: BaseException | None = None
+    if session.options.live is not None:
+        session.live = LiveStream(session.cell, session.part.name,
+                                  *parse_address(session.options.live))
     try:
         session.run(writer, writes)
     except BaseException as exc:
@@ -215,6 +224,8 @@ def _tracked(session: _Session, writes: RunWrites, cell_files: dict) -> TrackRes
         log.error("failed after %d frames: %s: %s", session.frames, type(exc).__name__, exc)
         raise
     finally:
+        if session.live is not None:
+            session.live.close()
         writes.close(writer.path, writer.close)
         metrics = _metrics(session, cell_files, time.perf_counter() - wall, error)
         stop_logging_to(handler, writes)
