@@ -406,7 +406,16 @@ BAD_INTRINSICS = [  # (case, the calibration file's text, key, what the message 
      r"with fx, fy > 0"),
     ("fisheye model", GOOD_ROS.replace("plumb_bob", "equidistant"), "distortion_model",
      r"got 'equidistant'; expected a distortion model cellsight can use: plumb_bob, or "
-     r"rational_polynomial with k4 = k5 = k6 = 0"),
+     r"rational_polynomial with k4 = k5 = k6 = 0 \(the fisheye \(equidistant, Kannala-Brandt\) "
+     r"model is not supported"),
+    ("kannala_brandt model", _ros_text(K_OK, [0.1, 0.01, 0, 0], "kannala_brandt"),
+     "distortion_model", r"got 'kannala_brandt'; .*the fisheye .* model is not supported"),
+    ("unknown model", GOOD_ROS.replace("plumb_bob", "pinhole"), "distortion_model",
+     r"got 'pinhole'; expected a distortion model cellsight can use: plumb_bob, or "
+     r"rational_polynomial with k4 = k5 = k6 = 0$"),
+    ("fisheye_model: 1 (OpenCV)", _cv(fisheye_model=1, distortion_coefficients=np.zeros((4, 1))),
+     "fisheye_model", r"got 1; expected 0, the pinhole model: the fisheye \(equidistant, "
+                      r"Kannala-Brandt\) model is not supported"),
     ("rational with k4", _ros_text(K_OK, [0.1, 0, 0, 0, 0, 0.3, 0, 0], "rational_polynomial"),
      "distortion_coefficients", r"the coefficients after the fifth \(k4 k5 k6 \.\.\.\) must be "
                                 r"zero"),
@@ -462,6 +471,42 @@ def test_bad_intrinsics_files_name_cell_field_file_and_key(tmp_path, case, text,
         calib.write_text(text)
     cell = _cell(tmp_path, [{"name": "cam1", "calibration": calib.name, "look_at": LOOK}])
     _refused(cell, "cameras[0].calibration", calib, key, pattern)
+
+
+def _fisheye_sample(path: Path, fisheye: int, K: np.ndarray, D: np.ndarray) -> Path:
+    """A calibration file written by cv2.FileStorage in the order and with the keys of OpenCV's
+    calibration sample (camera_calibration.cpp, saveCameraParams), which writes
+    ``fisheye_model`` and, for the fisheye model, 4 coefficients k1..k4 (4x1)."""
+    return _write_storage(path, {
+        "calibration_time": "Tue 14 May 2024 09:12:44 CEST", "nr_of_frames": 30,
+        "image_width": 768, "image_height": 576, "board_width": 9, "board_height": 6,
+        "square_size": 0.025, "flags": 14 if fisheye else 0, "fisheye_model": fisheye,
+        "camera_matrix": K, "distortion_coefficients": D.reshape(4, 1),
+        "avg_reprojection_error": 0.31})
+
+
+def test_a_fisheye_calibration_is_refused_not_misread(tmp_path) -> None:
+    """Read as k1 k2 p1 p2, a fisheye result's corners land hundreds of pixels from where
+    cv2.fisheye.projectPoints puts them: the file is refused, naming the file, the key and the
+    value; the same file with fisheye_model 0 loads and projects like cv2.projectPoints."""
+    K = np.array([[420.0, 0.0, 383.5], [0.0, 421.0, 287.5], [0.0, 0.0, 1.0]])
+    D = np.array([-0.03, 0.005, -0.002, 0.0004])
+    corner = cv2.fisheye.undistortPoints(np.array([[[5.0, 5.0]]]), K, D).reshape(2)
+    ray = np.array([[[corner[0], corner[1], 1.0]]])
+    fisheye, _ = cv2.fisheye.projectPoints(ray, np.zeros(3), np.zeros(3), K, D)
+    pinhole, _ = cv2.projectPoints(ray, np.zeros(3), np.zeros(3), K, D)
+    assert np.linalg.norm(fisheye - pinhole) > 40  # what reading it as plumb_bob would cost
+    calib = _fisheye_sample(tmp_path / "fisheye.yml", 1, K, D)
+    assert "fisheye_model: 1" in calib.read_text()
+    cell = _cell(tmp_path, [{"name": "cam1", "calibration": calib.name, "look_at": LOOK}])
+    message = _refused(cell, "cameras[0].calibration", calib, "fisheye_model",
+                       r"got 1; expected 0, the pinhole model: the fisheye \(equidistant, "
+                       r"Kannala-Brandt\) model is not supported")
+    assert "k1 k2 p1 p2 k3" in message
+    _fisheye_sample(calib, 0, K, D)
+    (camera,) = load_cell(cell).cameras
+    T = look_at(LOOK["eye"], LOOK["target"])
+    _assert_projects_like_opencv(camera, T[:3, :3], T[:3, 3], K, D)
 
 
 def test_a_file_read_as_the_wrong_format(tmp_path) -> None:

@@ -6,7 +6,9 @@ Intrinsics (image size, ``K``, distortion), two formats:
   it: ``image_width``, ``image_height`` (integers, px), ``camera_matrix`` (or ``K``: a 3x3
   ``opencv-matrix``) and ``distortion_coefficients`` (or ``D``, ``dist_coeffs``: 4, 5, 8, 12
   or 14 numbers, ``k1 k2 p1 p2 [k3 [k4 k5 k6 [s1..s4 [tx ty]]]]``). Read with
-  ``cv2.FileStorage`` itself, from memory (after the checks below); other keys are ignored.
+  ``cv2.FileStorage`` itself, from memory (after the checks below); other keys are ignored,
+  but for ``fisheye_model`` (OpenCV's calibration sample writes it): a nonzero one, the
+  ``cv2.fisheye`` model, is refused.
 - ``ros``: a ROS ``camera_info`` YAML as ``camera_calibration`` writes it: ``image_width``,
   ``image_height``, ``camera_name``, ``camera_matrix: {rows: 3, cols: 3, data: [9]}``,
   ``distortion_model`` (``plumb_bob``: 5 numbers; ``rational_polynomial``: 8),
@@ -14,7 +16,9 @@ Intrinsics (image size, ``K``, distortion), two formats:
   ``projection_matrix`` (stereo rectification) are not used: cellsight models the raw image.
 
 cellsight's lens model is OpenCV's ``k1 k2 p1 p2 k3`` (:mod:`cellsight.camera`): coefficients
-beyond the fifth (rational, thin-prism, tilt) must be zero, or the file is refused.
+beyond the fifth (rational, thin-prism, tilt) must be zero, or the file is refused. The fisheye
+(equidistant, Kannala-Brandt) model is refused: its 4 coefficients ``k1..k4`` of the angle
+``theta`` read as ``k1 k2 p1 p2`` would put points tens of pixels off.
 
 Hand-eye poses of a fixed (eye-to-hand, "eye on base") camera, two formats; both give the
 pose of the camera's optical frame (x right, y down, z forward: the frame OpenCV-based trackers
@@ -73,6 +77,9 @@ K_KEYS = ("camera_matrix", "K")
 DIST_KEYS = ("distortion_coefficients", "D", "dist_coeffs")
 DIST_SIZES = (4, 5, 8, 12, 14)  # numbers in an OpenCV distortion vector
 ROS_MODELS = {"plumb_bob": 5, "rational_polynomial": 8}  # distortion model -> numbers
+FISHEYE_MODELS = ("equidistant", "fisheye", "kannala_brandt")  # ROS names, lower case
+NO_FISHEYE = ("the fisheye (equidistant, Kannala-Brandt) model is not supported: cellsight's "
+              "cameras are pinhole with OpenCV's k1 k2 p1 p2 k3 distortion")
 HAND_EYE_KEYS = (("R_base_camera", "t_base_camera"), ("R_cam2base", "t_cam2base"))
 EYE_ON_HAND_KEYS = ("R_cam2gripper", "t_cam2gripper", "R_gripper2cam", "t_gripper2cam")
 QUATERNION_KEYS = ("qx", "qy", "qz", "qw")
@@ -363,14 +370,19 @@ def _yaml_mapping(file: str, text: str) -> dict:
 def _distortion_model(file: str, model: object) -> int:
     """The number of coefficients of a ROS distortion model cellsight can use."""
     if model not in ROS_MODELS:
+        fisheye = isinstance(model, str) and model.lower() in FISHEYE_MODELS
         raise CalibrationError(file, "distortion_model", model, "a distortion model cellsight "
-                               "can use: plumb_bob, or rational_polynomial with k4 = k5 = k6 = 0")
+                               "can use: plumb_bob, or rational_polynomial with k4 = k5 = k6 = 0"
+                               + (f" ({NO_FISHEYE})" if fisheye else ""))
     return ROS_MODELS[model]
 
 
 def _opencv_intrinsics(file: str, keys: dict) -> Intrinsics:
     if "distortion_model" in keys:  # a ROS file read by cv2.FileStorage: mind its model
         _distortion_model(file, keys["distortion_model"])
+    if keys.get("fisheye_model", 0) != 0:  # OpenCV's calibration sample's cv2.fisheye result
+        raise CalibrationError(file, "fisheye_model", keys["fisheye_model"],
+                               f"0, the pinhole model: {NO_FISHEYE}")
     width = _size(file, "image_width", _entry(file, keys, "image_width"))
     height = _size(file, "image_height", _entry(file, keys, "image_height"))
     k_key = _first(file, keys, K_KEYS, "a 3x3 camera matrix")
