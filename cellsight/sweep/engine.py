@@ -84,7 +84,8 @@ def map_jobs(fn: Callable[[Any], Any], jobs: Sequence[Any], *, workers: int = 1,
              scheduler: Any = None, progress: bool = True, label: str = "jobs",
              connect_s: float = 20.0) -> Iterator[tuple[int, Any]]:
     """``(i, fn(jobs[i]))`` for every job, as each finishes (module docstring); ``connect_s``:
-    how long to try reaching the scheduler (s)."""
+    how long to try reaching the scheduler, to wait for a first worker, and to wait once every
+    worker is gone before giving up (s)."""
     if workers < 1:
         raise CellsightError(f"--jobs: expected a whole number >= 1, got {workers}")
     with Progress(TextColumn(f"[bold]{label}"), BarColumn(), MofNCompleteColumn(),
@@ -155,7 +156,7 @@ def _stop_pool(pool: ProcessPoolExecutor) -> None:
 
 def _on_dask(fn: Callable, jobs: Sequence, scheduler: Any,
              connect_s: float) -> Iterator[tuple[int, Any]]:
-    from distributed import Client, as_completed
+    from distributed import Client
 
     own = not isinstance(scheduler, Client)
     try:
@@ -164,13 +165,63 @@ def _on_dask(fn: Callable, jobs: Sequence, scheduler: Any,
         raise CellsightError(f"--scheduler: cannot reach the Dask scheduler at {scheduler!r} "
                              f"({exc})") from exc
     try:
+        check_workers(client, connect_s)
         futures = client.map(fn, list(jobs), pure=False)
         index = {f.key: i for i, f in enumerate(futures)}
         try:
-            for future in as_completed(futures):
-                yield index[future.key], future.result()
+            yield from _results(client, futures, index, connect_s)
         finally:
             client.cancel(futures)
     finally:
         if own:
             client.close()
+
+
+def _importable(module: str) -> bool:
+    import importlib.util
+
+    return importlib.util.find_spec(module) is not None
+
+
+def check_workers(client: Any, wait_s: float, module: str = "cellsight") -> None:
+    """The cluster has a worker within ``wait_s`` seconds, and the scheduler and every worker
+    can import ``module`` (else one :class:`CellsightError` naming them: a job would fail to
+    unpickle there with a long traceback)."""
+    try:
+        client.wait_for_workers(1, timeout=wait_s)
+    except TimeoutError as exc:
+        raise CellsightError(f"--scheduler: the Dask scheduler has no worker after {wait_s:g} "
+                             f"s; start some (dask worker ADDRESS)") from exc
+    missing = sorted(w for w, ok in client.run(_importable, module).items() if not ok)
+    if not client.run_on_scheduler(_importable, module):
+        missing.insert(0, "the scheduler")
+    if missing:
+        raise CellsightError(f"--scheduler: {', '.join(missing)} cannot import {module}; install "
+                             f"it there (pip install cellsight, or -e of this checkout) and "
+                             f"start them again")
+
+
+def _results(client: Any, futures: list, index: dict, grace_s: float,
+             poll_s: float = 2.0) -> Iterator[tuple[int, Any]]:
+    """Each job's result as it finishes; when the cluster has had no worker for ``grace_s``
+    seconds, one :class:`CellsightError` saying how many finished (instead of waiting for
+    ever)."""
+    from distributed import wait
+
+    pending, alone_since = set(futures), None
+    while pending:
+        try:
+            done, pending = wait(list(pending), timeout=poll_s, return_when="FIRST_COMPLETED")
+        except TimeoutError:
+            done = set()
+        for future in done:
+            yield index[future.key], future.result()
+        if done or client.scheduler_info().get("workers"):
+            alone_since = None
+            continue
+        alone_since = alone_since or time.monotonic()
+        if time.monotonic() - alone_since > grace_s:
+            raise CellsightError(
+                f"--scheduler: every Dask worker is gone (none for {grace_s:g} s); "
+                f"{len(futures) - len(pending)} of {len(futures)} jobs finished (their runs "
+                f"are kept: the same sweep again resumes)")
