@@ -14,6 +14,12 @@ Intrinsics (image size, ``K``, distortion), two formats:
   ``distortion_model`` (``plumb_bob``: 5 numbers; ``rational_polynomial``: 8),
   ``distortion_coefficients: {rows, cols, data}``; ``rectification_matrix`` and
   ``projection_matrix`` (stereo rectification) are not used: cellsight models the raw image.
+  Also a ``sensor_msgs/CameraInfo`` message as ``ros2 topic echo /cam/camera_info`` prints it
+  (``header``, ``height``, ``width``, ``distortion_model``, ``d``, ``k``, ``r``, ``p``: flat
+  row-major lists; ``binning_x``, ``binning_y``, ``roi``; ROS 1's ``rostopic echo``: ``D K R
+  P``), each message ended by a line ``---``: the first message is read (a document without
+  ``k`` / ``camera_matrix`` before it, ``--include-message-info``'s, is skipped). A binned or
+  cropped (``roi``) image is refused: its ``K`` is the full sensor's.
 
 cellsight's lens model is OpenCV's ``k1 k2 p1 p2 k3`` (:mod:`cellsight.camera`): coefficients
 beyond the fifth (rational, thin-prism, tilt) must be zero, or the file is refused. The fisheye
@@ -83,6 +89,9 @@ NO_FISHEYE = ("the fisheye (equidistant, Kannala-Brandt) model is not supported:
 HAND_EYE_KEYS = (("R_base_camera", "t_base_camera"), ("R_cam2base", "t_cam2base"))
 EYE_ON_HAND_KEYS = ("R_cam2gripper", "t_cam2gripper", "R_gripper2cam", "t_gripper2cam")
 QUATERNION_KEYS = ("qx", "qy", "qz", "qw")
+DOCUMENT_START = re.compile(r"^---(?=[ \t]|$)", re.MULTILINE)  # a YAML "---" line
+MESSAGE_K_KEYS, MESSAGE_D_KEYS = ("k", "K"), ("d", "D")  # CameraInfo: ROS 2, ROS 1 names
+CAMERA_INFO_KEYS = (*MESSAGE_K_KEYS, "camera_matrix")  # a YAML document of a camera_info
 
 
 class CalibrationError(CellsightError, ValueError):
@@ -405,14 +414,89 @@ def _ros_intrinsics(file: str, raw: dict) -> Intrinsics:
     return Intrinsics(width, height, K, dist, name if isinstance(name, str) else None)
 
 
+def _documents(text: str) -> list[tuple[int, str]]:
+    """``(offset, text)`` of each YAML document of ``text``, split at ``---`` lines; parts of
+    comments only are dropped, directives (``%YAML``) kept with the document they precede."""
+    docs, start = [], 0
+    for m in [*DOCUMENT_START.finditer(text), None]:
+        end, after = (m.start(), m.end()) if m else (len(text), len(text))
+        lines = [line for line in text[start:end].splitlines()
+                 if line.strip() and not line.lstrip().startswith("#")]
+        if lines and all(line.startswith("%") for line in lines):
+            continue  # directives: part of the next document
+        if lines:
+            docs.append((start, text[start:end]))
+        start = after
+    return docs
+
+
+def _first_camera_info(file: str, text: str) -> dict:
+    """The YAML mapping of a ROS file. Of a stream of documents (``ros2 topic echo``: each
+    message ended by ``---``), the first, or the second when it has one of
+    ``CAMERA_INFO_KEYS`` and the first has not (``--include-message-info`` puts the message's
+    stamps before it). Line numbers in errors are the file's."""
+    if not DOCUMENT_START.search(text):
+        return _yaml_mapping(file, text)
+    found: list[dict] = []
+    for start, chunk in _documents(text)[:2]:
+        found.append(_yaml_mapping(file, "\n" * text.count("\n", 0, start) + chunk))
+        if any(key in found[-1] for key in CAMERA_INFO_KEYS):
+            return found[-1]
+    if not found:
+        raise CalibrationError(file, "<file>", "", "a ROS camera_info (the file has only "
+                               "'---' lines, comments and directives)")
+    return found[0]
+
+
+def _full_image(file: str, raw: dict, width: int, height: int) -> None:
+    """Refuse a CameraInfo of a binned or cropped image (its K is the full sensor's)."""
+    for key in ("binning_x", "binning_y"):
+        value = raw.get(key, 0)
+        if isinstance(value, bool) or value not in (0, 1):
+            raise CalibrationError(file, key, value, "0 or 1: a binned image's K is the full "
+                                   "sensor's; cellsight models the image as published")
+    roi = raw.get("roi", {})
+    if not isinstance(roi, dict):
+        raise CalibrationError(file, "roi", roi, "a mapping {x_offset, y_offset, height, width, "
+                               "do_rectify}")
+    offset = (roi.get("x_offset", 0), roi.get("y_offset", 0))
+    size = (roi.get("width", 0), roi.get("height", 0))
+    if offset != (0, 0) or size not in ((0, 0), (width, height)):
+        raise CalibrationError(file, "roi", roi, "no region of interest (all zeros, or the whole "
+                               f"{width}x{height} image): a cropped image's K is the full "
+                               "sensor's")
+
+
+def _message_intrinsics(file: str, raw: dict) -> Intrinsics:
+    """A ``sensor_msgs/CameraInfo`` as ``ros2 topic echo`` (or ROS 1's ``rostopic echo``)
+    prints it: ``width``, ``height`` (px), ``k`` (9 numbers, row-major), ``distortion_model``
+    and ``d``."""
+    width = _size(file, "width", _entry(file, raw, "width"))
+    height = _size(file, "height", _entry(file, raw, "height"))
+    _full_image(file, raw, width, height)
+    k_key = _first(file, raw, MESSAGE_K_KEYS, "the camera matrix (9 numbers, row-major)")
+    K = _camera_matrix(file, k_key, _finite(file, k_key, raw[k_key], (3, 3)))
+    model = _entry(file, raw, "distortion_model")
+    size = _distortion_model(file, model)
+    d_key = _first(file, raw, MESSAGE_D_KEYS, "the distortion coefficients")
+    if not isinstance(raw[d_key], list) or len(raw[d_key]) != size:
+        raise CalibrationError(file, d_key, raw[d_key], f"a list of {size} numbers ({model})")
+    dist = _lens(file, d_key, _finite(file, d_key, raw[d_key], (size,)))
+    return Intrinsics(width, height, K, dist)
+
+
 def read_intrinsics(path: str | Path, fmt: str | None = None) -> Intrinsics:
     """Image size, ``K`` and distortion from an OpenCV FileStorage (``fmt="opencv"``) or ROS
-    ``camera_info`` (``"ros"``) file; None: guessed (:func:`guess_format`)."""
+    (``"ros"``: a ``camera_info`` file, or a CameraInfo message echoed) file; None: guessed
+    (:func:`guess_format`)."""
     path = Path(path)
     text = read_text(path)
     if _format(path, text, fmt, INTRINSICS_FORMATS) == OPENCV:
         return _opencv_intrinsics(str(path), opencv_storage(str(path), text))
-    return _ros_intrinsics(str(path), _yaml_mapping(str(path), text))
+    raw = _first_camera_info(str(path), text)
+    if "image_width" not in raw and any(k in raw for k in (*MESSAGE_K_KEYS, "width")):
+        return _message_intrinsics(str(path), raw)
+    return _ros_intrinsics(str(path), raw)
 
 
 # ------------------------------------------------------------------------------ hand-eye in

@@ -1,0 +1,159 @@
+"""Calibration files as their other writers leave them (issue 15, part 3): CameraInfo messages
+dumped by ``ros2 topic echo``.
+
+Oracles, independent of cellsight's readers: the dumps are written here the way the tools
+write them (``ros2 topic echo`` prints ``rosidl_runtime_py.message_to_yaml``, a block-style
+``yaml.dump`` of the fields in order, then ``---``); the projection of ``cv2.projectPoints``
+with the message's K and D.
+"""
+
+from __future__ import annotations
+
+import copy
+import re
+import sys
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+import yaml
+
+from cellsight.errors import CellFileError
+from cellsight.geometry.transforms import look_at
+from cellsight.model.loader import builtin_cell_path, load_cell
+
+BUILTIN = yaml.safe_load(builtin_cell_path().read_text())
+LOOK = {"eye": [0.25, 1.15, 1.75], "target": [0.72, -0.1, 0.68]}
+K_MSG = [1200.0, 0.0, 330.5, 0.0, 1210.0, 245.25, 0.0, 0.0, 1.0]
+D_MSG = [-0.28, 0.09, -0.0004, 0.0007, -0.01]
+P_MSG = [1180.5, 0.0, 328.0, 0.0, 0.0, 1190.25, 244.5, 0.0, 0.0, 0.0, 1.0, 0.0]
+
+
+def _cell(folder: Path, cameras: list[dict]) -> Path:
+    """The built-in cell with these cameras, written in ``folder``."""
+    data = copy.deepcopy(BUILTIN)
+    data["cameras"] = cameras
+    path = folder / "cell.yaml"
+    path.write_text(yaml.safe_dump(data))
+    return path
+
+
+def _message(k=K_MSG, d=D_MSG, p=P_MSG, model: str = "plumb_bob", **changes) -> dict:
+    """A sensor_msgs/CameraInfo (ROS 2 field names, in the message's order) of 640x480 px."""
+    message = {"header": {"stamp": {"sec": 1715671964, "nanosec": 120034567},
+                          "frame_id": "cam1_optical_frame"},
+               "height": 480, "width": 640, "distortion_model": model, "d": list(d),
+               "k": list(k), "r": [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0], "p": list(p),
+               "binning_x": 0, "binning_y": 0,
+               "roi": {"x_offset": 0, "y_offset": 0, "height": 0, "width": 0,
+                       "do_rectify": False}}
+    message.update(changes)
+    return message
+
+
+def _echo(*messages: dict) -> str:
+    """What ``ros2 topic echo /cam1/camera_info`` prints for these messages: per message,
+    ``print(message_to_yaml(msg), end='---\\n')``, message_to_yaml being
+    ``yaml.dump(fields, allow_unicode=True, width=sys.maxsize, default_flow_style=False)``
+    with the fields in the message's order."""
+    return "".join(yaml.dump(m, allow_unicode=True, width=sys.maxsize, default_flow_style=False,
+                             sort_keys=False) + "---\n" for m in messages)
+
+
+def _assert_projects_like_opencv(camera, T: np.ndarray, K: np.ndarray, D: np.ndarray) -> None:
+    """``camera`` (at ``T`` = T_base_cam) projects points in its view as cv2.projectPoints
+    does with K and D."""
+    rng = np.random.default_rng(0)
+    z = rng.uniform(1.0, 3.0, 60)
+    cam = np.column_stack([rng.uniform(-0.2, 0.2, 60) * z, rng.uniform(-0.15, 0.15, 60) * z, z])
+    points = cam @ T[:3, :3].T + T[:3, 3]
+    R_cam_base = T[:3, :3].T
+    rvec, _ = cv2.Rodrigues(R_cam_base)
+    expected, _ = cv2.projectPoints(points.reshape(-1, 1, 3), rvec, -R_cam_base @ T[:3, 3], K, D)
+    assert np.allclose(camera.project(points), expected.reshape(-1, 2), rtol=0, atol=1e-7)
+
+
+def _load_refused(tmp_path: Path, text: str, key: str, pattern: str) -> str:
+    """Loading a cell whose camera's calibration is ``text`` fails in one line naming the cell
+    file, the field, the calibration file, the key; the rest matches ``pattern``."""
+    calib = tmp_path / "info.yaml"
+    calib.write_text(text)
+    cell = _cell(tmp_path, [{"name": "cam1", "calibration": calib.name, "look_at": LOOK}])
+    with pytest.raises(CellFileError) as info:
+        load_cell(cell)
+    message = str(info.value)
+    assert message.startswith(f"{cell}: field 'cameras[0].calibration': got "), message
+    assert f"; expected {calib}: key '{key}': " in message and "\n" not in message, message
+    flat = message.replace(f"expected {calib}: key '{key}': ", "expected ")  # got V; expected E
+    assert re.search(pattern, flat), message
+    return message
+
+
+# ------------------------------------------------------------------ ros2 topic echo dumps
+
+
+@pytest.mark.parametrize("model", ["plumb_bob", "rational_polynomial"])
+def test_a_ros2_topic_echo_dump_gives_the_messages_camera(tmp_path, model) -> None:
+    """Two messages; the first is read (the second has another K)."""
+    d = D_MSG + [0.0] * 3 if model == "rational_polynomial" else D_MSG
+    other = _message(k=[900.0, 0.0, 320.0, 0.0, 900.0, 240.0, 0.0, 0.0, 1.0], d=d, model=model)
+    text = _echo(_message(d=d, model=model), other)
+    assert text.startswith("header:\n  stamp:\n    sec: 1715671964\n")
+    assert "\nk:\n- 1200.0\n" in text
+    assert text.count("\n---\n") == 2 and text.endswith("do_rectify: false\n---\n")
+    (tmp_path / "info.yaml").write_text(text)
+    cell = load_cell(_cell(tmp_path, [{"name": "cam1", "calibration": "info.yaml",
+                                       "look_at": LOOK}]))
+    (camera,) = cell.cameras
+    assert (camera.width, camera.height, camera.name) == (640, 480, "cam1")
+    _assert_projects_like_opencv(camera, look_at(LOOK["eye"], LOOK["target"]),
+                                 np.reshape(K_MSG, (3, 3)), np.array(d))
+
+
+def test_message_info_before_the_message_and_ros1_names(tmp_path) -> None:
+    """``ros2 topic echo --include-message-info`` prints the stamps as a document before the
+    message; ROS 1's ``rostopic echo`` names the arrays D K R P (flow lists)."""
+    info = yaml.dump({"source_timestamp": 1715671964120034567,
+                      "received_timestamp": 1715671964121000000}) + "---\n"
+    ros1 = _message()
+    for key in ("d", "k", "r", "p"):
+        ros1[key.upper()] = ros1.pop(key)
+    ros1["header"] = {"seq": 7, "stamp": {"secs": 1715671964, "nsecs": 120034567},
+                      "frame_id": "cam1_optical_frame"}
+    for text in (info + _echo(_message()), yaml.safe_dump(ros1, sort_keys=False,
+                                                          default_flow_style=None) + "---\n"):
+        (tmp_path / "info.yaml").write_text(text)
+        (camera,) = load_cell(_cell(tmp_path, [{"name": "cam1", "calibration": "info.yaml",
+                                                "look_at": LOOK}])).cameras
+        _assert_projects_like_opencv(camera, look_at(LOOK["eye"], LOOK["target"]),
+                                     np.reshape(K_MSG, (3, 3)), np.array(D_MSG))
+
+
+BAD_MESSAGES = [  # (case, the dump, key, what the message says)
+    ("equidistant", _echo(_message(d=D_MSG[:4], model="equidistant")), "distortion_model",
+     r"got 'equidistant'; expected .*the fisheye \(equidistant, Kannala-Brandt\) model is not "
+     r"supported"),
+    ("binned", _echo(_message(binning_x=2, binning_y=2)), "binning_x",
+     r"got 2; expected 0 or 1: a binned image's K is the full sensor's"),
+    ("cropped", _echo(_message(roi={"x_offset": 64, "y_offset": 0, "height": 480, "width": 512,
+                                    "do_rectify": False})), "roi",
+     r"expected no region of interest \(all zeros, or the whole 640x480 image\)"),
+    ("uncalibrated", _echo(_message(k=[0.0] * 9, d=[], p=[0.0] * 12)), "k",
+     r"with fx, fy > 0"),
+    ("4 numbers for plumb_bob", _echo(_message(d=D_MSG[:4])), "d",
+     r"got \[-0.28, .*\]; expected a list of 5 numbers \(plumb_bob\)"),
+    ("8 numbers for k", _echo(_message(k=K_MSG[:8])), "k", r"9 numbers \(a 3x3 matrix\)"),
+    ("no width", _echo({k: v for k, v in _message().items() if k != "width"}), "width",
+     r"got <missing>; expected a key 'width'"),
+    ("only ---", "# dumped\n---\n---\n", "<file>",
+     r"got ''; expected a ROS camera_info \(the file has only '---' lines"),
+    ("broken after message info", "source_timestamp: 1\n---\nk: [1, 2\n---\n", "line 4",
+     r"expected valid YAML"),
+]
+
+
+@pytest.mark.parametrize(("case", "text", "key", "pattern"), BAD_MESSAGES,
+                         ids=[c[0] for c in BAD_MESSAGES])
+def test_bad_echo_dumps_are_one_line_errors(tmp_path, case, text, key, pattern) -> None:
+    _load_refused(tmp_path, text, key, pattern)
