@@ -111,9 +111,9 @@ def _tf_tree(messages, k: int) -> dict[str, tuple[str, np.ndarray]]:
     return tree
 
 
-def _in_base(tree, frame: str) -> np.ndarray:
+def _in_world(tree, frame: str) -> np.ndarray:
     T = np.eye(4)
-    while frame != "base":
+    while frame != "world":
         parent, T_parent = tree[frame]
         T, frame = T_parent @ T, parent
     return T
@@ -211,13 +211,13 @@ def test_tf_chain_is_the_forward_kinematics_and_the_worlds_tcp(messages, rows, c
                 names = getattr(robot.chain, "link_names", None) or [
                     f"link{i}" for i in range(robot.n_joints + 1)]
                 for i, name in enumerate(names):
-                    assert np.allclose(_in_base(tree, f"{robot.name}/{name}"), links[i],
+                    assert np.allclose(_in_world(tree, f"{robot.name}/{name}"), links[i],
                                        atol=1e-9)
-                tcp = _in_base(tree, f"{robot.name}/tcp")
+                tcp = _in_world(tree, f"{robot.name}/tcp")
                 assert np.allclose(tcp, robot.tcp_pose(joints[robot.name]), atol=1e-9)
                 assert np.allclose(tcp, world.grippers.tcp_pose(robot.name), atol=1e-6)
             gripper = [float(rows[k][f"gripper_{a}"]) for a in "xyz"]
-            assert np.allclose(_in_base(tree, "R7AX/tcp")[:3, 3], gripper, atol=1e-9)
+            assert np.allclose(_in_world(tree, "R7AX/tcp")[:3, 3], gripper, atol=1e-9)
     finally:
         world.close()
 
@@ -236,19 +236,19 @@ def test_tf_tree_of_urdf_robots_is_their_forward_kinematics() -> None:
     for robot in cell.robots:
         links = robot.link_poses(joints[robot.name])
         for i, name in enumerate(robot.chain.link_names):
-            assert np.allclose(_in_base(tree, f"{robot.name}/{name}"), links[i], atol=1e-9)
-        assert np.allclose(_in_base(tree, f"{robot.name}/tcp"),
+            assert np.allclose(_in_world(tree, f"{robot.name}/{name}"), links[i], atol=1e-9)
+        assert np.allclose(_in_world(tree, f"{robot.name}/tcp"),
                            robot.tcp_pose(joints[robot.name]), atol=1e-9)
     for cam in cell.cameras:
-        assert np.allclose(_in_base(tree, f"{cam.name}_optical"), cam.T_base_cam)
+        assert np.allclose(_in_world(tree, f"{cam.name}_optical_frame"), cam.T_base_cam)
     for obj in cell.static:
-        assert np.allclose(_in_base(tree, obj.name), obj.T_base_obj)
+        assert np.allclose(_in_world(tree, obj.name), obj.T_base_obj)
 
 
 def test_part_poses_are_the_logged_ones(messages, rows) -> None:
     est_rows = [r for r in rows if r["est_x"]]
     for (_, _, msg), row in zip(messages["/part/true_pose"], rows, strict=True):
-        assert msg.header.frame_id == "base"
+        assert msg.header.frame_id == "world"
         assert np.allclose(_matrix(msg.pose.position, msg.pose.orientation), _pose(row, "true"),
                            atol=1e-12)
     for (_, _, msg), row in zip(messages["/part/est_pose"], est_rows, strict=True):
@@ -257,8 +257,8 @@ def test_part_poses_are_the_logged_ones(messages, rows) -> None:
                            atol=1e-12)
     k = max(i for i, row in enumerate(rows) if row["est_x"])
     tree = _tf_tree(messages, k)
-    assert np.allclose(_in_base(tree, "part_true"), _pose(rows[k], "true"), atol=1e-12)
-    assert np.allclose(_in_base(tree, "part_est"), _pose(rows[k], "est"), atol=1e-12)
+    assert np.allclose(_in_world(tree, "part_true"), _pose(rows[k], "true"), atol=1e-12)
+    assert np.allclose(_in_world(tree, "part_est"), _pose(rows[k], "est"), atol=1e-12)
 
 
 def test_camera_info_and_tf_project_features_where_the_camera_does(messages, rows,
@@ -268,13 +268,13 @@ def test_camera_info_and_tf_project_features_where_the_camera_does(messages, row
     for cam in cell.cameras:
         (_, _, info), = messages[f"/{cam.name}/camera_info"][:1]
         K, D = np.array(info.k).reshape(3, 3), np.array(info.d)
-        assert info.header.frame_id == f"{cam.name}_optical"
+        assert info.header.frame_id == f"{cam.name}_optical_frame"
         assert (info.width, info.height, info.distortion_model) == (cam.width, cam.height,
                                                                      "plumb_bob")
         assert np.array_equal(K, cam.K) and np.array_equal(D, cam.dist5)
         assert np.array_equal(np.array(info.r), np.eye(3).ravel())
         assert np.array_equal(np.array(info.p).reshape(3, 4)[:, :3], cam.K)
-        T_cam_base = invert_pose(_in_base(tree, f"{cam.name}_optical"))
+        T_cam_base = invert_pose(_in_world(tree, f"{cam.name}_optical_frame"))
         for k in (0, len(rows) - 1):
             points = (_pose(rows[k], "true") @ np.c_[part.feature_points,
                                                      np.ones(len(part.feature_points))].T)
@@ -287,7 +287,7 @@ def test_camera_info_of_a_distorted_camera_projects_like_it() -> None:
     T = look_at([1.0, 0.5, 1.0], [0.0, 0.0, 0.0])
     cam = Camera.from_intrinsics(640, 480, T, fx=600.0, fy=590.0, cx=330.0, cy=236.0,
                                  dist=np.array([-0.2, 0.05, 0.001, -0.002, 0.01]), name="d")
-    info = camera_info(0, "d_optical", cam)
+    info = camera_info(0, "d_optical_frame", cam)
     assert info["distortion_model"] == "plumb_bob"
     points = np.random.default_rng(1).uniform(-0.2, 0.2, (20, 3))
     rvec, _ = cv2.Rodrigues(cam.T_cam_base[:3, :3])
@@ -310,7 +310,7 @@ def test_images_are_the_world_rendered_at_the_logged_state(messages, rows, cell)
         _, _, msg = messages[f"/{cam.name}/image_raw"][1]
         assert (msg.encoding, msg.width, msg.height, msg.step) == ("mono8", cam.width,
                                                                    cam.height, cam.width)
-        assert msg.header.frame_id == f"{cam.name}_optical"
+        assert msg.header.frame_id == f"{cam.name}_optical_frame"
         image = np.frombuffer(bytes(msg.data), np.uint8).reshape(msg.height, msg.step)
         assert image.std() > 5  # a picture, not a blank
         assert np.array_equal(image, expected[c])
@@ -330,7 +330,7 @@ def test_visibility_markers_sit_on_the_features_coloured_by_the_bits(messages, r
             T = _pose(row, "true")
             expected = part.feature_points @ T[:3, :3].T + T[:3, 3]
             points = np.array([[p.x, p.y, p.z] for p in spheres.points])
-            assert spheres.header.frame_id == "base" and np.allclose(points, expected)
+            assert spheres.header.frame_id == "world" and np.allclose(points, expected)
             predicted = [_colour(col) for col in spheres.colors]
             assert predicted == [GREEN if b == "1" else RED for b in row[f"vis_pred_c{c}"]]
             per_ring = len(ring.colors) // len(expected)

@@ -1,29 +1,67 @@
 """The cell's TF tree: frame names and the transforms between them, from the cell model.
 
-Root ``base`` (the cell base frame). Per robot ``R``: its chain frames 0..n as ``R/<link>``
-(DH robots: ``R/link0`` .. ``R/link<n>``; URDF robots: the URDF's link names), frame 0 at
-``T_base_robot`` in ``base``, frame i in frame i-1 from the forward kinematics at the logged
-joints; with a gripper, ``R/tool`` (on frame n, ``T_flange_tool``) and ``R/tcp`` (on the tool,
-its tool centre point). Per camera ``C``: ``C_optical`` in ``base``, the ROS optical
-convention (z forward, x right, y down: cellsight's camera frame). Per static object ``S``:
-``S`` in ``base``. Per workpiece ``P``: ``P_true`` (its true pose) and ``P_est`` (the
-tracker's estimate) in ``base``; a workpiece that was not logged rests at its nominal pose.
-Fixed transforms go on ``/tf_static``, the robots' joints and the parts on ``/tf``.
+Names follow REP 103 and REP 105. Root ``world`` (:data:`ROOT`: the fixed cell, cellsight's
+base frame). Per robot ``R`` (``R/`` is the prefix robot_state_publisher's ``frame_prefix``
+gives, so that several robots of one URDF keep distinct frames): its chain frames 0..n as
+``R/<link>`` (DH robots: ``R/link0`` .. ``R/link<n>``; URDF robots: the URDF's link names,
+frame 0 its root link), frame 0 at ``T_base_robot`` in ``world``, frame i in frame i-1 from
+the forward kinematics at the logged joints. A URDF robot's links on fixed joints
+(``base_link``, ``tool0``, ...) are ``R/<link>`` on their URDF parent link, at the fixed
+joint's origin (lengths in metres, the cell file's URDF ``scale`` applied), as
+robot_state_publisher publishes them; the URDF is read again from the cell file
+(``cell.source``; a cell not read from a file has none of these). With a gripper: ``R/tool``
+on the flange (a URDF robot's flange link, ``tool0`` by default; a DH robot's frame n) and
+``R/tcp`` on the tool, at its tool centre point. Per camera ``C``: ``C_optical_frame`` in
+``world``, the ROS optical convention (z forward, x right, y down: cellsight's camera frame).
+Per static object ``S``: ``S`` in ``world``. Per workpiece ``P``: ``P_true`` (its true pose)
+and ``P_est`` (the tracker's estimate) in ``world``; a workpiece that was not logged rests at
+its nominal pose. Fixed transforms go on ``/tf_static``, the robots' joints and the parts on
+``/tf``. Every frame has one parent; the names are checked unique.
 """
 
 from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
 from cellsight.errors import CellsightError
 from cellsight.geometry.transforms import invert_pose
 from cellsight.model.cell import Cell
+from cellsight.model.loader import parse_cell_text
 from cellsight.model.robot import Robot
+from cellsight.model.urdf import _flange, _parse, _scale_walk, _walk, package_folder, resolve_uri
+from cellsight.model.yaml_input import read_cell_text
 
-ROOT = "base"
+ROOT = "world"
 
 Transform = tuple[str, str, np.ndarray]
 """(parent frame, child frame, ``T_parent_child``)."""
+
+
+@dataclass(frozen=True)
+class UrdfFile:
+    """A URDF robot's file as its cell file names it: ``path``, ``metres`` per length unit of
+    the file, and the ``flange`` link its tool mounts on (None: the model's default)."""
+
+    path: Path
+    metres: float
+    flange: str | None
+
+
+def urdf_files(cell: Cell) -> dict[str, UrdfFile]:
+    """Robot name -> its URDF file, for every URDF robot of ``cell``, read again from the cell
+    file ``cell.source``; none for a cell not read from a file."""
+    source = Path(cell.source)
+    if not source.is_file():
+        return {}
+    spec, _ = parse_cell_text(read_cell_text(source), str(source), source.parent)
+    packages = {name: package_folder(value, source.parent)
+                for name, value in spec.packages.items()}
+    return {rs.name: UrdfFile(resolve_uri(rs.urdf.file, packages, source.parent),
+                              rs.urdf.metres, rs.urdf.flange)
+            for rs in spec.robots if rs.urdf is not None}
 
 
 def link_frames(robot: Robot) -> list[str]:
@@ -39,7 +77,8 @@ def tool_frames(robot: Robot) -> tuple[str, str]:
 
 
 def optical_frame(camera_name: str) -> str:
-    return f"{camera_name}_optical"
+    """The TF name of a camera's optical frame (z forward, x right, y down)."""
+    return f"{camera_name}_optical_frame"
 
 
 def part_frames(part_name: str) -> tuple[str, str]:
@@ -47,16 +86,52 @@ def part_frames(part_name: str) -> tuple[str, str]:
     return f"{part_name}_true", f"{part_name}_est"
 
 
+def urdf_fixed_frames(robot: Robot, urdf: UrdfFile) -> tuple[list[Transform], str, np.ndarray]:
+    """A URDF robot's fixed links, each on its URDF parent link at the fixed joint's origin
+    (m), and its flange: (transforms, the flange's TF name, ``T_flange_tool`` of the robot's
+    tool on it). A :class:`CellsightError` when the URDF's chain is no longer the robot's."""
+    model = _parse(urdf.path)
+    walk = _walk(model, urdf.path)
+    _scale_walk(walk, urdf.metres)
+    if tuple(walk.joint_links) != tuple(robot.chain.link_names):
+        raise CellsightError(f"robot {robot.name}: URDF file {urdf.path} has the links "
+                             f"{walk.joint_links}, the loaded robot {robot.chain.link_names}; "
+                             f"the file changed since the cell was loaded")
+    out = []
+    for joint in model.joints:
+        if joint.type == "fixed":
+            T_frame_parent = walk.link_frame[joint.parent][1]
+            T_frame_child = walk.link_frame[joint.child][1]
+            out.append((f"{robot.name}/{joint.parent}", f"{robot.name}/{joint.child}",
+                        invert_pose(T_frame_parent) @ T_frame_child))
+    flange, T_last_flange = _flange(walk, urdf.flange, urdf.path)
+    T_flange_tool = (None if robot.tool is None
+                     else invert_pose(T_last_flange) @ robot.tool.T_flange_tool)
+    return out, f"{robot.name}/{flange}", T_flange_tool
+
+
+def robot_static_transforms(robot: Robot, urdf: UrdfFile | None) -> list[Transform]:
+    """A robot's fixed transforms (module docstring): its base in ``world``, a URDF robot's
+    fixed links, and its gripper's tool and TCP."""
+    links = link_frames(robot)
+    out: list[Transform] = [(ROOT, links[0], robot.T_base_robot)]
+    flange = links[-1]
+    T_flange_tool = None if robot.tool is None else robot.tool.T_flange_tool
+    if urdf is not None:
+        fixed, flange, T_flange_tool = urdf_fixed_frames(robot, urdf)
+        out += fixed
+    if robot.tool is not None:
+        tool, tcp = tool_frames(robot)
+        out += [(flange, tool, T_flange_tool), (tool, tcp, robot.tool.T_tool_tcp)]
+    return out
+
+
 def static_transforms(cell: Cell, logged_part: str) -> list[Transform]:
     """Every fixed transform of the cell (module docstring), its frame names checked unique."""
+    urdfs = urdf_files(cell)
     out: list[Transform] = []
     for robot in cell.robots:
-        links = link_frames(robot)
-        out.append((ROOT, links[0], robot.T_base_robot))
-        if robot.tool is not None:
-            tool, tcp = tool_frames(robot)
-            out += [(links[-1], tool, robot.tool.T_flange_tool),
-                    (tool, tcp, robot.tool.T_tool_tcp)]
+        out += robot_static_transforms(robot, urdfs.get(robot.name))
     out += [(ROOT, optical_frame(c.name), c.T_base_cam) for c in cell.cameras]
     out += [(ROOT, s.name, s.T_base_obj) for s in cell.static]
     out += [(ROOT, part_frames(p.name)[0], p.T_base_part) for p in cell.workpieces
@@ -76,8 +151,10 @@ def _check_unique(cell: Cell, names: list[str]) -> None:
     for name in names:
         if name in seen:
             raise CellsightError(f"cell {cell.source}: two TF frames would be named {name!r} "
-                                 f"(robot links, tools, '<camera>_optical', static objects, "
-                                 f"'<workpiece>_true'/_est' and 'base' share one namespace)")
+                                 f"(robot links '<robot>/<link>', '<robot>/tool' and "
+                                 f"'<robot>/tcp', '<camera>_optical_frame', static objects, "
+                                 f"'<workpiece>_true'/'_est' and {ROOT!r} share one "
+                                 f"namespace)")
         seen.add(name)
 
 

@@ -1,7 +1,7 @@
 """``/<camera>/visibility``: the workpiece's feature points as markers, per camera.
 
-One ``visualization_msgs/MarkerArray`` per frame and camera, in the ``base`` frame, the
-features at the part's true pose:
+One ``visualization_msgs/MarkerArray`` per frame and camera, in the ``world`` frame
+(:data:`~cellsight.export.frames.ROOT`), the features at the part's true pose:
 
 - namespace ``predicted`` (id 0): a ``SPHERE_LIST``, one sphere per feature (feature order),
   green where the camera's prediction (``vis_pred``) says visible, red where hidden, grey in a
@@ -18,6 +18,7 @@ from __future__ import annotations
 import numpy as np
 
 from cellsight.export import ros
+from cellsight.export.frames import ROOT
 
 RING_SEGMENTS = 8
 
@@ -58,16 +59,16 @@ def visibility_markers(ns: int, points: np.ndarray, names: tuple[str, ...], eye:
                        predicted: np.ndarray, pred_present: bool, truth: np.ndarray,
                        true_present: bool, size: float) -> dict:
     """The ``MarkerArray`` of one camera in one frame (module docstring): ``points`` (F, 3) the
-    features in the base frame, ``eye`` the camera's centre, ``predicted`` / ``truth`` (F,)
+    features in the ``world`` frame, ``eye`` the camera's centre, ``predicted`` / ``truth`` (F,)
     bool."""
     ring_colours = [c for c in colours(truth, true_present) for _ in range(2 * RING_SEGMENTS)]
     markers = [
-        ros.marker(ns, "base", "predicted", 0, ros.SPHERE_LIST, scale=(size, size, size),
+        ros.marker(ns, ROOT, "predicted", 0, ros.SPHERE_LIST, scale=(size, size, size),
                    points=points, colors=colours(predicted, pred_present)),
-        ros.marker(ns, "base", "truth", 0, ros.LINE_LIST, scale=(0.2 * size, 0.0, 0.0),
+        ros.marker(ns, ROOT, "truth", 0, ros.LINE_LIST, scale=(0.2 * size, 0.0, 0.0),
                    points=rings(points, eye, 0.9 * size), colors=ring_colours),
     ]
-    markers += [ros.marker(ns, "base", "names", j, ros.TEXT_VIEW_FACING,
+    markers += [ros.marker(ns, ROOT, "names", j, ros.TEXT_VIEW_FACING,
                            scale=(0.0, 0.0, 1.5 * size), text=name,
                            position=p + np.array([0.0, 0.0, 1.2 * size]))
                 for j, (name, p) in enumerate(zip(names, points, strict=True))]

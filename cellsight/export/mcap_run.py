@@ -5,12 +5,13 @@ Topics (``<cam>``, ``<part>``: the camera's and the workpiece's names as ROS nam
 :func:`~cellsight.export.ros.topic_token`):
 
 - ``/tf_static`` (``tf2_msgs/msg/TFMessage``, once, at the first frame): the fixed frames of
-  :mod:`cellsight.export.frames`: robots' bases, tools and TCPs, cameras' optical frames,
-  static objects;
+  :mod:`cellsight.export.frames` (REP 103/105 names, root ``world``): robots' bases, a URDF
+  robot's fixed links (``<robot>/base_link``, ``<robot>/tool0``, ...), tools and TCPs,
+  cameras' optical frames ``<cam>_optical_frame``, static objects;
 - ``/tf`` (one per frame): every robot's chain frames at the logged joints, ``<part>_true``
   and, in frames where the tracker has one, ``<part>_est``;
 - ``/<part>/true_pose``, ``/<part>/est_pose`` (``geometry_msgs/msg/PoseStamped``, frame
-  ``base``; the estimate only in frames that have one);
+  ``world``; the estimate only in frames that have one);
 - ``/<cam>/visibility`` (``visualization_msgs/msg/MarkerArray``, one per frame):
   :mod:`cellsight.export.markers`;
 - ``/diagnostics`` (``diagnostic_msgs/msg/DiagnosticArray``, one per frame, Foxglove's
@@ -19,7 +20,7 @@ Topics (``<cam>``, ``<part>``: the camera's and the workpiece's names as ROS nam
   (``degraded: 96% not found in cam1``) as its message and the health figures of each camera
   (``nis_<cam>``, ``notfound_<cam>``, ``rejfrac_<cam>``; empty when not judged) as values;
 - ``/<cam>/camera_info`` (``sensor_msgs/msg/CameraInfo``) and ``/<cam>/image_raw``
-  (``sensor_msgs/msg/Image``, mono8, frame ``<cam>_optical``), every ``every``-th frame
+  (``sensor_msgs/msg/Image``, mono8, frame ``<cam>_optical_frame``), every ``every``-th frame
   (frames 0, every, 2 every, ...): the images are rendered again by MuJoCo at the logged state
   (robots' joints, the part at its true pose, the grasping robot's jaw opening), so the same
   for either sensor; ``images=False`` leaves the images out (the camera info stays).

@@ -1,0 +1,117 @@
+"""``cellsight export`` read as ROS 2 clients read it (issue: what real ROS 2 users found): the
+UR cell's export (URDF robots) and the built-in cell's, read back with the plain ``mcap``
+reader, ``mcap_ros2``'s decoder and ``rosbags`` (its ROS 2 Humble typestore and its rosbag2
+MCAP reader), checked against truths found here: the URDF read by ``yourdfpy`` and ``lxml``
+and its forward kinematics, frames.csv read with the csv module."""
+
+from __future__ import annotations
+
+import csv
+from collections import defaultdict
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yourdfpy
+from lxml import etree
+from mcap.reader import make_reader
+from mcap_ros2.decoder import DecoderFactory
+from scipy.spatial.transform import Rotation
+
+from cellsight import load_cell
+from cellsight.experiments import RunConfig, run_experiment
+from cellsight.export import export_mcap
+from cellsight.model.registry import builtin_cell_path
+
+UR_CELL = builtin_cell_path("ur-cell")
+
+
+@pytest.fixture(scope="module")
+def ur_run(tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("export_clients") / "ur"
+    run_experiment(RunConfig(3, out, cell=UR_CELL, sensor="ideal", duration=0.5,
+                             progress=False))
+    return out
+
+
+@pytest.fixture(scope="module")
+def ur_rows(ur_run: Path) -> list[dict[str, str]]:
+    with (ur_run / "frames.csv").open(newline="") as f:
+        return list(csv.DictReader(f))
+
+
+@pytest.fixture(scope="module")
+def ur_export(ur_run: Path) -> Path:
+    path = ur_run.parent / "ur.mcap"
+    export_mcap(ur_run, path, images=False, progress=False)
+    return path
+
+
+def decoded(path: Path) -> dict[str, list]:
+    """topic -> [(log time, message decoded by mcap_ros2)], in log-time order."""
+    out = defaultdict(list)
+    with path.open("rb") as f:
+        reader = make_reader(f, decoder_factories=[DecoderFactory()])
+        for _, channel, message, msg in reader.iter_decoded_messages(log_time_order=True):
+            out[channel.topic].append((message.log_time, msg))
+    return out
+
+
+def _matrix(transform) -> np.ndarray:
+    r, p = transform.rotation, transform.translation
+    T = np.eye(4)
+    T[:3, :3] = Rotation.from_quat([r.x, r.y, r.z, r.w]).as_matrix()
+    T[:3, 3] = [p.x, p.y, p.z]
+    return T
+
+
+def _edges(messages, k: int) -> list[tuple[str, str, np.ndarray]]:
+    """(parent, child, T) of every transform of /tf_static and of frame k's /tf."""
+    return [(ts.header.frame_id, ts.child_frame_id, _matrix(ts.transform))
+            for _, msg in messages["/tf_static"] + [messages["/tf"][k]]
+            for ts in msg.transforms]
+
+
+def _in_world(tree: dict, frame: str) -> np.ndarray:
+    T = np.eye(4)
+    while frame != "world":
+        parent, T_parent = tree[frame]
+        T, frame = T_parent @ T, parent
+    return T
+
+
+def _urdf_path(cell) -> Path:
+    (path,) = {Path(f) for f in cell.files if f.endswith(".urdf")}
+    return path
+
+
+def test_ur_cell_tf_tree_is_the_urdfs_links_under_one_world_root(ur_export, ur_rows) -> None:
+    """REP 103/105: one root ``world``; every frame has one parent; each UR5's frames are the
+    URDF's links (lxml reads their names), fixed links (base_link, tool0) included, placed as
+    yourdfpy's forward kinematics of the URDF places them at the logged joints."""
+    cell = load_cell(UR_CELL)
+    urdf_path = _urdf_path(cell)
+    links = etree.parse(str(urdf_path)).getroot().xpath("/robot/link/@name")
+    assert {"base_link", "tool0", "wrist_3_link"} <= set(links)
+    urdf = yourdfpy.URDF.load(str(urdf_path), load_meshes=False,
+                              build_collision_scene_graph=False, load_collision_meshes=False)
+    messages = decoded(ur_export)
+    for k in (0, len(ur_rows) - 1):
+        edges = _edges(messages, k)
+        children = [child for _, child, _ in edges]
+        assert len(children) == len(set(children)), "a frame with two parents"
+        assert {parent for parent, _, _ in edges} - set(children) == {"world"}
+        tree = {child: (parent, T) for parent, child, T in edges}
+        for robot in cell.robots:
+            q = [float(ur_rows[k][f"q_{robot.name}_{j}"]) for j in range(1, 7)]
+            urdf.update_cfg(dict(zip(urdf.actuated_joint_names, q, strict=True)))
+            for link in links:
+                T_root_link = urdf.get_transform(link, urdf.base_link)
+                assert np.allclose(_in_world(tree, f"{robot.name}/{link}"),
+                                   robot.T_base_robot @ T_root_link, atol=1e-9), link
+            assert tree[f"{robot.name}/tool"][0] == f"{robot.name}/tool0"
+            assert np.allclose(_in_world(tree, f"{robot.name}/tcp"), robot.tcp_pose(q),
+                               atol=1e-9)
+        for cam in cell.cameras:
+            assert tree[f"{cam.name}_optical_frame"][0] == "world"
+            assert np.allclose(_in_world(tree, f"{cam.name}_optical_frame"), cam.T_base_cam)
