@@ -64,7 +64,20 @@ def to_rosbags(kind: str, m) -> object | None:
 
 
 Edit = Callable[[str, object, int], object | None]
-"""(topic, rosbags message, its index on the topic) -> the message to write (None: left out)."""
+"""(topic, rosbags message, its index on the topic) -> the message to write (None: left out;
+a tuple (type, message): a message of another type)."""
+
+
+def tf_message(header, child: str, pose) -> object:
+    """A ``tf2_msgs/msg/TFMessage`` of one transform: ``pose`` (a rosbags Pose) of frame
+    ``child`` in ``header``'s frame."""
+    p, q = pose.position, pose.orientation
+    transform = T["geometry_msgs/msg/Transform"](
+        translation=T["geometry_msgs/msg/Vector3"](x=p.x, y=p.y, z=p.z),
+        rotation=T["geometry_msgs/msg/Quaternion"](x=q.x, y=q.y, z=q.z, w=q.w))
+    stamped = T["geometry_msgs/msg/TransformStamped"](header=header, child_frame_id=child,
+                                                      transform=transform)
+    return T["tf2_msgs/msg/TFMessage"](transforms=[stamped])
 
 
 def write_rosbag2(source: Path, out: Path, *, topics: dict[str, str] | None = None,
@@ -93,6 +106,8 @@ def write_rosbag2(source: Path, out: Path, *, topics: dict[str, str] | None = No
                 msg = edit(topic, msg, k)
                 if msg is None:
                     continue
+                if isinstance(msg, tuple):
+                    kind, msg = msg
             name = topics.get(topic, topic)
             if name not in connections:
                 connections[name] = writer.add_connection(name, kind, typestore=STORE)

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from recordings import read_mcap, write_rosbag2
+from recordings import read_mcap, tf_message, write_rosbag2
 
 from cellsight import load_cell
 from cellsight.errors import CellFileError
@@ -106,6 +106,22 @@ def test_a_rosbag2_sqlite_folder_under_other_names_tracks_the_same(recorded, tmp
     ran = FrameLog.read(run / "frames.csv")
     assert tracked.n == ran.n
     assert np.nanmax(np.abs(_estimates(ran) - _estimates(tracked))) < 1e-9
+
+
+def test_the_true_pose_from_a_tf_topic(recorded, tmp_path):
+    def to_tf(topic, m, k):
+        if topic != "/part/true_pose":
+            return m
+        return "tf2_msgs/msg/TFMessage", tf_message(m.header, "mocap/part", m.pose)
+
+    bag = write_rosbag2(recorded[1], tmp_path / "bag", frames=10, edit=to_tf,
+                        topics={"/part/true_pose": "/tf"})
+    topic_map = tmp_path / "topics.yaml"
+    topic_map.write_text("truth: {part: /tf}\ntruth_frames: {part: mocap/part}\n")
+    tracked = _track(bag, tmp_path / "track", topics=topic_map)
+    ran = FrameLog.read(recorded[0] / "frames.csv")
+    assert tracked.n == 10
+    assert np.allclose(tracked.poses("true"), ran.poses("true")[:10], atol=1e-12)
 
 
 def _bag(recorded, tmp_path: Path, frames: int = 8, **kwargs) -> Path:

@@ -13,7 +13,9 @@ Conventions (``<cam>``, ``<part>``: the cell's camera and workpiece names as ROS
   each gripper's jaw opening (m) as the joint ``<robot>/jaw_opening``;
 - ``/<part>/true_pose`` (``geometry_msgs/msg/PoseStamped`` in the cell's base frame,
   optional): the part's true pose, where something measured it (the simulator, a motion
-  capture), for the metrics.
+  capture), for the metrics. The topic map may name instead a ``TransformStamped`` topic or a
+  TF topic (``tf2_msgs/msg/TFMessage``), whose transform to the child frame ``<part>_true``
+  (or the map's ``truth_frames``) is the pose in the cell's base frame.
 
 A topic map (``--topics FILE``) names other topics and joints; everything it leaves out
 follows the conventions::
@@ -24,7 +26,8 @@ follows the conventions::
     joints: {a_shoulder_pan_joint: UR5A/shoulder_pan_joint}   # recorded name -> robot/joint
     openings: {a_gripper_opening: UR5A}                       # recorded name -> robot (m)
     ignore_joints: [conveyor_belt]                            # recorded names not used
-    truth: {part: /mocap/part_pose}
+    truth: {part: /tf}
+    truth_frames: {part: mocap/part}                          # the TF child frame
 """
 
 from __future__ import annotations
@@ -39,9 +42,11 @@ from cellsight.model.cell import Cell
 from cellsight.model.yaml_input import load_yaml, read_cell_text
 
 JOINT_STATES = "/joint_states"
-IMAGE, COMPRESSED, CAMERA_INFO, JOINT_STATE, POSE = (
+IMAGE, COMPRESSED, CAMERA_INFO, JOINT_STATE, POSE, TRANSFORM, TF = (
     "sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage", "sensor_msgs/msg/CameraInfo",
-    "sensor_msgs/msg/JointState", "geometry_msgs/msg/PoseStamped")
+    "sensor_msgs/msg/JointState", "geometry_msgs/msg/PoseStamped",
+    "geometry_msgs/msg/TransformStamped", "tf2_msgs/msg/TFMessage")
+TRUTH_TYPES = (POSE, TRANSFORM, TF)
 OPENING = "jaw_opening"
 
 
@@ -79,7 +84,12 @@ class TopicMap(BaseModel):
     openings: dict[str, str] = Field(default_factory=dict)
     ignore_joints: list[str] = Field(default_factory=list)
     truth: dict[str, str] = Field(default_factory=dict)
+    truth_frames: dict[str, str] = Field(default_factory=dict)
     file: str = "<topic map>"
+
+    def truth_frame(self, part: str) -> str:
+        """The TF child frame of a workpiece's true pose."""
+        return self.truth_frames.get(part, f"{part}_true")
 
     def check(self, cell: Cell) -> None:
         """Every camera, robot, joint and workpiece the map names is the cell's (a
@@ -101,10 +111,11 @@ class TopicMap(BaseModel):
                 raise CellFileError(self.file, f"openings.{recorded}", robot,
                                     f"a robot with a gripper: {', '.join(grippers) or 'none'}")
         parts = [p.name for p in cell.workpieces]
-        for part in self.truth:
-            if part not in parts:
-                raise CellFileError(self.file, f"truth.{part}", part,
-                                    f"a workpiece of the cell: {', '.join(parts)}")
+        for field, names in (("truth", self.truth), ("truth_frames", self.truth_frames)):
+            for part in names:
+                if part not in parts:
+                    raise CellFileError(self.file, f"{field}.{part}", part,
+                                        f"a workpiece of the cell: {', '.join(parts)}")
 
 
 def load_topic_map(path: str | Path | None) -> TopicMap:
@@ -118,7 +129,7 @@ def load_topic_map(path: str | Path | None) -> TopicMap:
     raw = load_yaml(read_cell_text(Path(path)), file) or {}
     if not isinstance(raw, dict):
         raise CellFileError(file, "<root>", raw, "a mapping (cameras, joint_states, joints, "
-                            "openings, ignore_joints, camera_info, truth)")
+                            "openings, ignore_joints, camera_info, truth, truth_frames)")
     try:
         return TopicMap.model_validate({**raw, "file": file})
     except ValidationError as exc:

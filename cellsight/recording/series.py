@@ -19,8 +19,22 @@ import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
 from cellsight.model.cell import Cell
-from cellsight.recording.names import OPENING, POSE, TopicMap, joint_name
+from cellsight.recording.names import (
+    OPENING,
+    POSE,
+    TRANSFORM,
+    TRUTH_TYPES,
+    TopicMap,
+    joint_name,
+)
 from cellsight.recording.reader import Recording, RecordingError
+
+
+@dataclass(frozen=True)
+class _Stamped:
+    """A bare header, read as a message by :func:`stamp_ns`."""
+
+    header: Any
 
 
 def stamp_ns(msg: Any, log_ns: int) -> int:
@@ -76,13 +90,24 @@ class PoseSeries(Series):
         return T
 
 
-def pose_matrix(pose: Any) -> np.ndarray:
-    """The 4x4 pose of a ``geometry_msgs/Pose``."""
-    p, q = pose.position, pose.orientation
+def pose_matrix(position: Any, orientation: Any) -> np.ndarray:
+    """The 4x4 pose of a ``geometry_msgs`` position (Point or Vector3) and Quaternion."""
+    q = orientation
     T = np.eye(4)
     T[:3, :3] = Rotation.from_quat([q.x, q.y, q.z, q.w]).as_matrix()
-    T[:3, 3] = [p.x, p.y, p.z]
+    T[:3, 3] = [position.x, position.y, position.z]
     return T
+
+
+def _true_poses(kind: str, msg: Any, frame: str) -> list[tuple[Any, np.ndarray]]:
+    """(header, pose) of a truth message: a PoseStamped, a TransformStamped, or the
+    transforms of a TFMessage to the child ``frame``."""
+    if kind == POSE:
+        return [(msg.header, pose_matrix(msg.pose.position, msg.pose.orientation))]
+    stamped = [msg] if kind == TRANSFORM else [t for t in msg.transforms
+                                               if t.child_frame_id == frame]
+    return [(t.header, pose_matrix(t.transform.translation, t.transform.rotation))
+            for t in stamped]
 
 
 @dataclass
@@ -138,7 +163,10 @@ class _SignalReader:
         self.cell, self.map = cell, topic_map
         self.targets = _targets(cell, topic_map)
         self.ignored = set(topic_map.ignore_joints)
-        self.truth_parts = {topic: part for part, topic in truth_topics.items()}
+        self.truth_parts: dict[str, list[str]] = {}
+        for part, topic in truth_topics.items():
+            self.truth_parts.setdefault(topic, []).append(part)
+        self.kinds: dict[str, str] = {}
         self.series: dict[str, Series] = {}
         self.openings: dict[str, Series] = {}
         self.truth = {part: PoseSeries(f"{part}'s true pose") for part in truth_topics}
@@ -147,10 +175,13 @@ class _SignalReader:
     def add(self, topic: str, log_ns: int, msg: Any) -> None:
         k = self.count[topic] = self.count.get(topic, 0) + 1
         where = f"{topic}, message {k}"
-        ns = stamp_ns(msg, log_ns)
         if topic in self.truth_parts:
-            self.truth[self.truth_parts[topic]].add(ns, pose_matrix(msg.pose), where)
+            for part in self.truth_parts[topic]:
+                frame = self.map.truth_frame(part)
+                for header, T in _true_poses(self.kinds[topic], msg, frame):
+                    self.truth[part].add(stamp_ns(_Stamped(header), log_ns), T, where)
             return
+        ns = stamp_ns(msg, log_ns)
         positions = np.asarray(msg.position, dtype=float)
         for i, name in enumerate(msg.name):
             if name in self.ignored:
@@ -186,14 +217,15 @@ class _SignalReader:
 def read_signals(recording: Recording, cell: Cell, topic_map: TopicMap,
                  truth_topics: dict[str, str]) -> Signals:
     """The joints, openings and true poses of a recording (one pass over their topics);
-    ``truth_topics``: workpiece -> its pose topic (``PoseStamped`` in the cell's base frame)."""
-    for part, topic in truth_topics.items():
-        kind = recording.topics[topic].type
-        if kind != POSE:
-            raise RecordingError(f"recording {recording.path}: {topic} (the true pose of "
-                                 f"{part}) is a {kind}; expected {POSE}")
+    ``truth_topics``: workpiece -> its pose topic (``PoseStamped``, ``TransformStamped`` or
+    ``TFMessage``, in the cell's base frame: :mod:`.names`)."""
     reader = _SignalReader(cell, topic_map, truth_topics)
-    topics = [*topic_map.joint_states, *truth_topics.values()]
+    for part, topic in truth_topics.items():
+        kind = reader.kinds[topic] = recording.topics[topic].type
+        if kind not in TRUTH_TYPES:
+            raise RecordingError(f"recording {recording.path}: {topic} (the true pose of "
+                                 f"{part}) is a {kind}; expected one of {', '.join(TRUTH_TYPES)}")
+    topics = list(dict.fromkeys([*topic_map.joint_states, *truth_topics.values()]))
     for topic, log_ns, msg in recording.messages(topics):
         reader.add(topic, log_ns, msg)
     return reader.signals(topic_map.joint_states)
