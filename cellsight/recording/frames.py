@@ -12,8 +12,9 @@ stamped beyond the tolerance, starts the next frame (the cameras missing from th
 nothing in it). A frame's time ``t`` is its latest log time (when the tracker has the
 images; never before an exposure), each camera's exposure its image's stamp. A camera whose
 stamps go back is an error; so is a frame time that does not increase. Where the frames stop
-for longer than 1.5 periods (the median interval so far), the missing frames are given as
-frames without images at that period (prediction steps), and each gap is reported.
+for longer than 1.5 periods (the median interval so far), the missing frames (the gap over
+the period, rounded) are given as frames without images, evenly spaced across the gap
+(prediction steps), and each gap is reported.
 """
 
 from __future__ import annotations
