@@ -556,8 +556,9 @@ def _header_html(run: Run) -> str:
     m = run.metrics
     occ = m.get("occlusion_prediction")
     occ_text = "?" if occ is None else ("on" if occ else "off")
-    sub = (f"experiment {m.get('experiment', '?')} · seed {m.get('seed', '?')} · "
-           f"sensor {m.get('sensor', '?')} · occlusion prediction {occ_text} · "
+    source = (f"tracked from recording {m['recording']}" if m.get("recording") else
+              f"experiment {m.get('experiment', '?')} · seed {m.get('seed', '?')}")
+    sub = (f"{source} · sensor {m.get('sensor', '?')} · occlusion prediction {occ_text} · "
            + ("kinematic prior on · " if m.get("kinematic_prior") else "")
            + f"{run.frames.n} frames")
     out = f"<h1>cellsight run report</h1><p class=sub>{html.escape(sub)}</p>"
@@ -582,7 +583,8 @@ def write_report(run_dir: Path, metrics: dict | None = None) -> Path:
                     _video_html(run.dir), _wrong_corners_html(run.dir, run.metrics),
                     _log_html(run.dir)])
     m = run.metrics
-    title = f"cellsight run: experiment {m.get('experiment', '?')}, seed {m.get('seed', '?')}"
+    title = (f"cellsight track: {Path(str(m['recording'])).name}" if m.get("recording") else
+             f"cellsight run: experiment {m.get('experiment', '?')}, seed {m.get('seed', '?')}")
     page = (f"<!DOCTYPE html><html lang=en><head><meta charset=utf-8>"
             f"<title>{html.escape(title)}</title><style>{CSS}</style></head>"
             f"<body>{body}</body></html>\n")
