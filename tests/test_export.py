@@ -369,7 +369,8 @@ def _stopping_render(monkeypatch, after: int, action) -> None:
 def _read_back(path: Path) -> tuple[dict[str, int], dict[str, str]]:
     counts = defaultdict(int, {topic: len(m) for topic, m in read_messages(path).items()})
     with path.open("rb") as f:
-        (metadata,) = [m.metadata for m in make_reader(f).iter_metadata()]
+        (metadata,) = [m.metadata for m in make_reader(f).iter_metadata()
+                       if m.name == "cellsight"]
     return counts, metadata
 
 

@@ -115,3 +115,27 @@ def test_ur_cell_tf_tree_is_the_urdfs_links_under_one_world_root(ur_export, ur_r
         for cam in cell.cameras:
             assert tree[f"{cam.name}_optical_frame"][0] == "world"
             assert np.allclose(_in_world(tree, f"{cam.name}_optical_frame"), cam.T_base_cam)
+
+
+def test_tf_static_is_latched_in_rosbag2s_qos_metadata(ur_export) -> None:
+    """The ``offered_qos_profiles`` channel metadata, read back by the mcap reader and parsed
+    by rosbags (as rosbag2 reads it), offers ``transient_local`` on /tf_static only; rosbags'
+    rosbag2 reader of the file finds the same."""
+    from rosbags.interfaces import QosDurability, QosReliability
+    from rosbags.rosbag2 import Reader
+    from rosbags.rosbag2.metadata import parse_qos
+
+    with ur_export.open("rb") as f:
+        reader = make_reader(f)
+        channels = {c.topic: c for c in reader.get_summary().channels.values()}
+        distro = {m.name: m.metadata for m in reader.iter_metadata()}["rosbag2"]
+    assert distro == {"ROS_DISTRO": "humble"}
+    for topic, channel in channels.items():
+        (qos,) = parse_qos(channel.metadata["offered_qos_profiles"])
+        assert qos.reliability == QosReliability.RELIABLE
+        assert qos.durability == (QosDurability.TRANSIENT_LOCAL if topic == "/tf_static"
+                                  else QosDurability.VOLATILE), topic
+    with Reader(ur_export) as bag:
+        (tf_static,) = [c for c in bag.connections if c.topic == "/tf_static"]
+        (qos,) = tf_static.ext.offered_qos_profiles
+        assert qos.durability == QosDurability.TRANSIENT_LOCAL and qos.depth == 1

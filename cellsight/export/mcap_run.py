@@ -4,7 +4,9 @@ Foxglove.
 Topics (``<cam>``, ``<part>``: the camera's and the workpiece's names as ROS name tokens,
 :func:`~cellsight.export.ros.topic_token`):
 
-- ``/tf_static`` (``tf2_msgs/msg/TFMessage``, once, at the first frame): the fixed frames of
+- ``/tf_static`` (``tf2_msgs/msg/TFMessage``, once, at the first frame, latched: its channel's
+  rosbag2 QoS metadata offers durability ``transient_local``, :func:`qos_profiles`, so that
+  ``ros2 bag play`` republishes it latched): the fixed frames of
   :mod:`cellsight.export.frames` (REP 103/105 names, root ``world``): robots' bases, a URDF
   robot's fixed links (``<robot>/base_link``, ``<robot>/tool0``, ...), tools and TCPs,
   cameras' optical frames ``<cam>_optical_frame``, static objects;
@@ -42,6 +44,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+import yaml
 
 from cellsight.errors import CellsightError
 from cellsight.export import frames as tf
@@ -58,6 +61,7 @@ TF, POSE, CAMERA_INFO, IMAGE, MARKERS, DIAGNOSTICS = (
 LEVELS = {"tracking": 0, "acquired": 0, "degraded": 1, "coasting": 1, "predicting": 1,
           "lost": 2}  # DiagnosticStatus levels of the tracker's statuses (else STALE, 3)
 HEALTH_COLUMNS = ("nis", "notfound", "rejfrac")  # frames.csv's health columns, per camera
+ROS_DISTRO = "humble"  # the message definitions' (msgdefs) and the QoS metadata's distribution
 
 
 class Stop(BaseException):  # a signal, like KeyboardInterrupt: not caught as an Exception
@@ -80,26 +84,67 @@ class ExportResult:
 
 
 class _Bag:
-    """The MCAP writer, its schemas registered on first use, and the message counts."""
+    """The MCAP file (``ros2`` profile): schemas and channels registered on first use, each
+    channel with rosbag2's QoS metadata (:func:`qos_profiles`), messages encoded to CDR by
+    ``mcap-ros2-support``; and the message counts. The plain ``mcap`` writer is used, as
+    ``mcap_ros2.writer.Writer`` registers its channels without metadata."""
 
     def __init__(self, stream, result: ExportResult) -> None:
-        from mcap_ros2.writer import Writer
+        from mcap.writer import Writer
 
-        self._writer = Writer(stream)
-        self._schemas: dict = {}
+        self._writer = Writer(stream)  # zstd chunks of 1 MiB, as mcap_ros2's writer
+        self._writer.start(profile="ros2", library="cellsight export (mcap, mcap-ros2-support)")
+        self._schemas: dict[str, tuple[int, Callable[[dict], bytes]]] = {}
+        self._channels: dict[str, int] = {}
         self.result = result
 
+    def _schema(self, kind: str) -> tuple[int, Callable[[dict], bytes]]:
+        """The schema id and the CDR encoder of message type ``kind``."""
+        found = self._schemas.get(kind)
+        if found is None:
+            from mcap_ros2._dynamic import serialize_dynamic
+
+            name, text = schema_name(kind), msgdef(kind)
+            found = self._schemas[kind] = (
+                self._writer.register_schema(name, "ros2msg", text.encode()),
+                serialize_dynamic(name, text)[name])
+        return found
+
     def write(self, topic: str, kind: str, message: dict, ns: int) -> None:
-        schema = self._schemas.get(kind)
-        if schema is None:
-            schema = self._schemas[kind] = self._writer.register_msgdef(schema_name(kind),
-                                                                        msgdef(kind))
-        self._writer.write_message(topic, schema, message, log_time=ns, publish_time=ns)
+        schema, encode = self._schema(kind)
+        channel = self._channels.get(topic)
+        if channel is None:
+            qos = {"offered_qos_profiles": qos_profiles(latched(topic))}
+            channel = self._channels[topic] = self._writer.register_channel(topic, "cdr",
+                                                                            schema, qos)
+        self._writer.add_message(channel, log_time=ns, data=encode(message), publish_time=ns)
         self.result.topics.setdefault(topic, [schema_name(kind), 0])[1] += 1
 
     def close(self, metadata: dict[str, str]) -> None:
+        self._writer.add_metadata("rosbag2", {"ROS_DISTRO": ROS_DISTRO})
         self._writer.add_metadata("cellsight", metadata)
         self._writer.finish()
+
+
+def latched(topic: str) -> bool:
+    """Whether a topic is latched (durability ``transient_local``): ``/tf_static``."""
+    return topic == "/tf_static"
+
+
+def qos_profiles(is_latched: bool) -> str:
+    """A channel's ``offered_qos_profiles`` (rosbag2's channel metadata): YAML of one profile as
+    ROS 2 Humble's rosbag2 writes it, its policies as rmw's integers (history 1 keep_last,
+    reliability 1 reliable, durability 1 transient_local or 2 volatile, liveliness 1
+    automatic; durations 0 s: the default), depth 1 when latched (as tf2's static broadcaster
+    offers), else 10. Humble's ``ros2 bag play`` reads only integers; later rosbag2 reads them
+    in a file whose ``rosbag2`` metadata record has no ``serialized_metadata`` (this one's
+    holds ``ROS_DISTRO``)."""
+    never = {"sec": 0, "nsec": 0}
+    profile = {"history": 1, "depth": 1 if is_latched else 10, "reliability": 1,
+               "durability": 1 if is_latched else 2, "deadline": never, "lifespan": never,
+               "liveliness": 1, "liveliness_lease_duration": never,
+               "avoid_ros_namespace_conventions": False}
+    return yaml.safe_dump([profile], sort_keys=False)
 
 
 def check_output(path: str | Path, overwrite: bool, run_folder: Path,
