@@ -69,6 +69,10 @@ class Camera:
     """A calibrated camera: intrinsics ``K`` (3x3, px), image size (px), pose ``T_base_cam``,
     distortion ``dist`` (k1, k2, p1, p2, k3) or None.
 
+    ``P`` (3x4, px, or None) is the projection matrix a calibration file gave (ROS
+    ``camera_info``'s, of the rectified image), kept only to be written out again; None means
+    ``[K | 0]``. cellsight projects with ``K`` and ``dist`` alone.
+
     Derived at construction: ``T_cam_base`` (the inverse pose), ``dist5`` (the distortion as a
     float64 5-vector, zeros when there is none: the form :mod:`cellsight._camera_kernel`
     takes) and ``focal_px`` (the mean focal length ``(fx + fy) / 2``, px).
@@ -80,6 +84,7 @@ class Camera:
     T_base_cam: np.ndarray
     dist: np.ndarray | None = None
     name: str = "camera"
+    P: np.ndarray | None = None
     T_cam_base: np.ndarray = field(init=False, repr=False)
     dist5: np.ndarray = field(init=False, repr=False)
     focal_px: float = field(init=False, repr=False)
@@ -124,6 +129,11 @@ class Camera:
             dist[: given.size] = given
             if not np.any(dist):
                 dist = None
+        if self.P is not None:
+            P = np.asarray(self.P, dtype=float)
+            if P.shape != (3, 4) or not np.all(np.isfinite(P)):
+                raise CameraError(f"camera {self.name}: P must be None or a finite 3x4 matrix")
+            object.__setattr__(self, "P", P)
         object.__setattr__(self, "K", K)
         object.__setattr__(self, "T_base_cam", T)
         object.__setattr__(self, "dist", dist)

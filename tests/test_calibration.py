@@ -222,12 +222,21 @@ def cameras(draw) -> Camera:
     T[:3, :3] = _quaternion_matrix(*q)
     T[:3, 3] = draw(st.lists(st.floats(-10.0, 10.0), min_size=3, max_size=3))
     K = np.array([[fx, skew, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
-    return Camera(K, width, height, T, np.array(dist), draw(st.sampled_from(["cam1", "true"])))
+    P = None
+    if draw(st.booleans()):  # a rectified image's projection, a stereo right camera's Tx
+        P = np.hstack([K * draw(st.floats(0.5, 1.5)), [[draw(st.floats(-500.0, 0.0))], [0.0],
+                                                       [0.0]]])
+        P[2, 2] = 1.0
+    return Camera(K, width, height, T, np.array(dist), draw(st.sampled_from(["cam1", "true"])),
+                  P)
 
 
 def _same_intrinsics(camera: Camera, read) -> None:
     assert (read.width, read.height) == (camera.width, camera.height)
     assert np.array_equal(read.K, camera.K)
+    K0 = np.hstack([camera.K, np.zeros((3, 1))])  # what a P of None stands for
+    assert np.array_equal(read.P if read.P is not None else K0,
+                          camera.P if camera.P is not None else K0)
     assert np.array_equal(read.dist if read.dist is not None else np.zeros(5), camera.dist5)
 
 
@@ -244,6 +253,7 @@ def test_written_files_read_back_the_same_camera(camera) -> None:
             assert np.array_equal(fs.getNode("distortion_coefficients").mat().ravel(),
                                   camera.dist5)
             assert int(fs.getNode("image_width").real()) == camera.width
+            assert fs.getNode("projection_matrix").empty() == (camera.P is None)
             path = write_opencv_hand_eye(folder / f"pose.{ext}", camera.T_base_cam)
             assert np.array_equal(read_hand_eye(path), camera.T_base_cam)
             fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
@@ -256,6 +266,8 @@ def test_written_files_read_back_the_same_camera(camera) -> None:
         assert ros["camera_matrix"]["data"] == camera.K.ravel().tolist()
         assert ros["distortion_coefficients"]["data"] == camera.dist5.tolist()
         assert ros["distortion_model"] == "plumb_bob"
+        P = camera.P if camera.P is not None else np.hstack([camera.K, np.zeros((3, 1))])
+        assert ros["projection_matrix"]["data"] == P.ravel().tolist()
         assert (ros["image_width"], ros["camera_name"]) == (camera.width, camera.name)
         path = write_easy_handeye(folder / "he.yaml", camera.T_base_cam)
         assert np.allclose(read_hand_eye(path), camera.T_base_cam, rtol=0, atol=1e-12)

@@ -1,16 +1,18 @@
 """Calibration files as their other writers leave them (issue 15, part 3): CameraInfo messages
-dumped by ``ros2 topic echo``.
+dumped by ``ros2 topic echo``; the projection matrix P a camera_info gives, kept and written
+out again.
 
 Oracles, independent of cellsight's readers: the dumps are written here the way the tools
 write them (``ros2 topic echo`` prints ``rosidl_runtime_py.message_to_yaml``, a block-style
 ``yaml.dump`` of the fields in order, then ``---``); the projection of ``cv2.projectPoints``
-with the message's K and D.
+with the message's K and D; written files read by ``yaml.safe_load`` and ``cv2.FileStorage``.
 """
 
 from __future__ import annotations
 
 import copy
 import re
+import shutil
 import sys
 from pathlib import Path
 
@@ -19,10 +21,14 @@ import numpy as np
 import pytest
 import yaml
 
-from cellsight.errors import CellFileError
+from cellsight.camera import Camera
+from cellsight.cli import main
+from cellsight.errors import CameraError, CellFileError
+from cellsight.export.ros import camera_info
 from cellsight.geometry.transforms import look_at
 from cellsight.model.loader import builtin_cell_path, load_cell
 
+DATA = Path(__file__).resolve().parent / "data" / "calibration"
 BUILTIN = yaml.safe_load(builtin_cell_path().read_text())
 LOOK = {"eye": [0.25, 1.15, 1.75], "target": [0.72, -0.1, 0.68]}
 K_MSG = [1200.0, 0.0, 330.5, 0.0, 1210.0, 245.25, 0.0, 0.0, 1.0]
@@ -144,6 +150,9 @@ BAD_MESSAGES = [  # (case, the dump, key, what the message says)
     ("4 numbers for plumb_bob", _echo(_message(d=D_MSG[:4])), "d",
      r"got \[-0.28, .*\]; expected a list of 5 numbers \(plumb_bob\)"),
     ("8 numbers for k", _echo(_message(k=K_MSG[:8])), "k", r"9 numbers \(a 3x3 matrix\)"),
+    ("P's last row", _echo(_message(p=P_MSG[:8] + [0.0, 0.0, 1.0, 0.5])), "p",
+     r"expected a projection matrix \[\[fx', s, cx', Tx\], \[0, fy', cy', Ty\], \[0, 0, 1, 0\]\]"),
+    ("P of 9", _echo(_message(p=K_MSG)), "p", r"12 numbers \(a 3x4 matrix\)"),
     ("no width", _echo({k: v for k, v in _message().items() if k != "width"}), "width",
      r"got <missing>; expected a key 'width'"),
     ("only ---", "# dumped\n---\n---\n", "<file>",
@@ -157,3 +166,67 @@ BAD_MESSAGES = [  # (case, the dump, key, what the message says)
                          ids=[c[0] for c in BAD_MESSAGES])
 def test_bad_echo_dumps_are_one_line_errors(tmp_path, case, text, key, pattern) -> None:
     _load_refused(tmp_path, text, key, pattern)
+
+
+# ------------------------------------------------------------ the projection matrix P, kept
+
+
+def _ros_p(path: Path) -> np.ndarray:
+    """The projection_matrix of a camera_calibration-layout file, by yaml.safe_load."""
+    return np.reshape(yaml.safe_load(path.read_text())["projection_matrix"]["data"],
+                      (3, 4)).astype(float)
+
+
+def test_a_kept_p_is_the_exported_camera_infos_p(tmp_path) -> None:
+    """camera_calibration's ost.yaml (P: the rectified image's, not [K | 0]) and an echo dump
+    keep their P on the camera, and the ROS CameraInfo export writes it; a camera without one
+    (all zeros in the dump, or a cell camera without a file) exports [K | 0]."""
+    shutil.copy(DATA / "ros_camera_info.yaml", tmp_path / "ost.yaml")
+    (tmp_path / "echo.yaml").write_text(_echo(_message()))
+    (tmp_path / "zero.yaml").write_text(_echo(_message(p=[0.0] * 12)))
+    expected = _ros_p(tmp_path / "ost.yaml")
+    K_file = np.reshape(yaml.safe_load((tmp_path / "ost.yaml").read_text())["camera_matrix"]
+                        ["data"], (3, 3))
+    assert abs(expected[0, 0] - K_file[0, 0]) > 30  # the file's P is not [K | 0]
+    cell = load_cell(_cell(tmp_path, [
+        {"name": name, "calibration": f"{name}.yaml", "look_at": LOOK}
+        for name in ("ost", "echo", "zero")] + [
+        {"name": "plain", "width": 640, "height": 480, "fx": 900.0, "look_at": LOOK}]))
+    ost, echo, zero, plain = cell.cameras
+    assert np.array_equal(ost.P, expected)
+    assert camera_info(0, "ost_optical", ost)["p"] == expected.ravel().tolist()
+    assert camera_info(0, "echo_optical", echo)["p"] == P_MSG
+    for camera in (zero, plain):
+        assert camera.P is None
+        assert camera_info(0, "f", camera)["p"] == np.hstack([camera.K, np.zeros((3, 1))]).ravel(
+            ).tolist()
+
+
+@pytest.mark.parametrize("fmt", ["ros", "opencv-yaml", "opencv-xml"])
+def test_cellsight_cameras_writes_the_kept_p(tmp_path, fmt, capsys) -> None:
+    """``cellsight cameras --write DIR``: the intrinsics file has the source's P (ROS:
+    projection_matrix, read back by yaml.safe_load; OpenCV: projection_matrix, read back by
+    cv2.FileStorage), and the written cell.yaml loads the same P back."""
+    shutil.copy(DATA / "ros_camera_info.yaml", tmp_path / "ost.yaml")
+    cell = _cell(tmp_path, [{"name": "cam1", "calibration": "ost.yaml", "look_at": LOOK}])
+    out = tmp_path / "out"
+    assert main(["cameras", "--cell", str(cell), "--write", str(out), "--format", fmt]) == 0
+    capsys.readouterr()
+    expected = _ros_p(tmp_path / "ost.yaml")
+    if fmt == "ros":
+        assert np.array_equal(_ros_p(out / "cam1_intrinsics.yaml"), expected)
+    else:
+        ext = ".xml" if fmt == "opencv-xml" else ".yaml"
+        fs = cv2.FileStorage(str(out / f"cam1_intrinsics{ext}"), cv2.FILE_STORAGE_READ)
+        assert np.array_equal(fs.getNode("projection_matrix").mat(), expected)
+    (camera,) = load_cell(out / "cell.yaml").cameras
+    assert np.array_equal(camera.P, expected)
+
+
+def test_a_camera_takes_a_3x4_p_or_none() -> None:
+    K = np.array([[900.0, 0.0, 320.0], [0.0, 900.0, 240.0], [0.0, 0.0, 1.0]])
+    for bad in (K, np.full((3, 4), np.nan)):
+        with pytest.raises(CameraError, match=r"^camera c: P must be None or a finite 3x4 "):
+            Camera(K, 640, 480, np.eye(4), None, "c", bad)
+    camera = Camera(K, 640, 480, np.eye(4), None, "c", [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0]])
+    assert camera.P.dtype == float and camera.P.shape == (3, 4)

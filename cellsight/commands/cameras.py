@@ -8,10 +8,12 @@ writes, per camera, an intrinsics file and a hand-eye pose file in the chosen fo
 (:mod:`cellsight.model.calibration`):
 
 - ``opencv-yaml`` / ``opencv-xml``: ``<name>_intrinsics.yaml|xml`` (OpenCV FileStorage:
-  ``image_width``, ``image_height``, ``camera_matrix``, ``distortion_coefficients``) and
+  ``image_width``, ``image_height``, ``camera_matrix``, ``distortion_coefficients``, and
+  ``projection_matrix`` for a camera that kept its calibration file's ``P``) and
   ``<name>_handeye.yaml|xml`` (``R_base_camera``, ``t_base_camera``);
-- ``ros``: ``<name>_intrinsics.yaml`` (ROS camera_info) and ``<name>_handeye.yaml``
-  (easy_handeye, ``robot_base_frame: base``, the cell's base frame);
+- ``ros``: ``<name>_intrinsics.yaml`` (ROS camera_info; ``projection_matrix``: the kept ``P``,
+  else ``[K | 0]``) and ``<name>_handeye.yaml`` (easy_handeye, ``robot_base_frame: base``, the
+  cell's base frame);
 
 and, to load them back, ``cameras.yaml`` (the ``cameras:`` section that refers to them, to
 paste into a cell file) and ``cell.yaml`` (the whole cell with that section; its other files,

@@ -88,11 +88,12 @@ def distortion(camera: Camera) -> tuple[str, list[float]]:
 
 
 def camera_info(ns: int, frame_id: str, camera: Camera) -> dict:
-    """``sensor_msgs/CameraInfo`` of a camera: K, D, R = I, P = [K | 0] (a monocular camera:
-    rectified images would keep ``K``)."""
+    """``sensor_msgs/CameraInfo`` of a camera: K, D, R = I and P, the camera's kept ``P`` (its
+    calibration file's, the rectified image's projection), else ``[K | 0]`` (a monocular
+    camera: rectified images would keep ``K``)."""
     model, d = distortion(camera)
     K = np.asarray(camera.K, dtype=float)
-    P = np.hstack([K, np.zeros((3, 1))])
+    P = camera.P if camera.P is not None else np.hstack([K, np.zeros((3, 1))])
     return {"header": header(ns, frame_id), "height": camera.height, "width": camera.width,
             "distortion_model": model, "d": d, "k": K.ravel().tolist(),
             "r": np.eye(3).ravel().tolist(), "p": P.ravel().tolist(), "binning_x": 0,

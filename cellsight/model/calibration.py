@@ -12,14 +12,17 @@ Intrinsics (image size, ``K``, distortion), two formats:
 - ``ros``: a ROS ``camera_info`` YAML as ``camera_calibration`` writes it: ``image_width``,
   ``image_height``, ``camera_name``, ``camera_matrix: {rows: 3, cols: 3, data: [9]}``,
   ``distortion_model`` (``plumb_bob``: 5 numbers; ``rational_polynomial``: 8),
-  ``distortion_coefficients: {rows, cols, data}``; ``rectification_matrix`` and
-  ``projection_matrix`` (stereo rectification) are not used: cellsight models the raw image.
+  ``distortion_coefficients: {rows, cols, data}``, ``projection_matrix`` (3x4, px: the
+  rectified image's ``P``, kept on the camera and written out again; all zeros or ``[K | 0]``:
+  None); the
+  ``rectification_matrix`` is not used: cellsight models the raw image.
   Also a ``sensor_msgs/CameraInfo`` message as ``ros2 topic echo /cam/camera_info`` prints it
   (``header``, ``height``, ``width``, ``distortion_model``, ``d``, ``k``, ``r``, ``p``: flat
-  row-major lists; ``binning_x``, ``binning_y``, ``roi``; ROS 1's ``rostopic echo``: ``D K R
-  P``), each message ended by a line ``---``: the first message is read (a document without
-  ``k`` / ``camera_matrix`` before it, ``--include-message-info``'s, is skipped). A binned or
-  cropped (``roi``) image is refused: its ``K`` is the full sensor's.
+  row-major lists, ``p`` kept as ``projection_matrix`` is; ``binning_x``, ``binning_y``,
+  ``roi``; ROS 1's ``rostopic echo``: ``D K R P``), each message ended by a line ``---``: the
+  first message is read (a document without ``k`` / ``camera_matrix`` before it,
+  ``--include-message-info``'s, is skipped). A binned or cropped (``roi``) image is refused:
+  its ``K`` is the full sensor's.
 
 cellsight's lens model is OpenCV's ``k1 k2 p1 p2 k3`` (:mod:`cellsight.camera`): coefficients
 beyond the fifth (rational, thin-prism, tilt) must be zero, or the file is refused. The fisheye
@@ -91,6 +94,7 @@ EYE_ON_HAND_KEYS = ("R_cam2gripper", "t_cam2gripper", "R_gripper2cam", "t_grippe
 QUATERNION_KEYS = ("qx", "qy", "qz", "qw")
 DOCUMENT_START = re.compile(r"^---(?=[ \t]|$)", re.MULTILINE)  # a YAML "---" line
 MESSAGE_K_KEYS, MESSAGE_D_KEYS = ("k", "K"), ("d", "D")  # CameraInfo: ROS 2, ROS 1 names
+MESSAGE_P_KEYS, P_KEY = ("p", "P"), "projection_matrix"
 CAMERA_INFO_KEYS = (*MESSAGE_K_KEYS, "camera_matrix")  # a YAML document of a camera_info
 
 
@@ -106,16 +110,18 @@ class CalibrationError(CellsightError, ValueError):
 @dataclass(frozen=True)
 class Intrinsics:
     """What an intrinsics file gives: image size (px), ``K`` (3x3, px), the distortion ``k1 k2
-    p1 p2 k3`` (None: none) and the camera's name in the file (ROS ``camera_name``, or None)."""
+    p1 p2 k3`` (None: none), the camera's name in the file (ROS ``camera_name``, or None) and
+    the projection matrix ``P`` (3x4, px; None: the file has none)."""
 
     width: int
     height: int
     K: np.ndarray
     dist: np.ndarray | None
     name: str | None = None
+    P: np.ndarray | None = None
 
     def camera(self, T_base_cam: np.ndarray, name: str) -> Camera:
-        return Camera(self.K, self.width, self.height, T_base_cam, self.dist, name)
+        return Camera(self.K, self.width, self.height, T_base_cam, self.dist, name, self.P)
 
 
 # ----------------------------------------------------------------------------- reading text
@@ -210,6 +216,19 @@ def _camera_matrix(file: str, key: str, K: np.ndarray) -> np.ndarray:
         raise CalibrationError(file, key, K.tolist(), "a camera matrix [[fx, s, cx], [0, fy, "
                                "cy], [0, 0, 1]] with fx, fy > 0")
     return K
+
+
+def _projection(file: str, key: str, P: np.ndarray, K: np.ndarray) -> np.ndarray | None:
+    """A camera_info's ``P = [[fx', s, cx', Tx], [0, fy', cy', Ty], [0, 0, 1, 0]]`` (px;
+    ``Tx``, ``Ty``: px m, a stereo pair's right camera's), or None for all zeros (none) and for
+    ``[K | 0]`` (what None stands for)."""
+    if not np.any(P) or np.array_equal(P, np.hstack([K, np.zeros((3, 1))])):
+        return None
+    if P[0, 0] <= 0 or P[1, 1] <= 0 or P[1, 0] or np.any(P[2] != [0.0, 0.0, 1.0, 0.0]):
+        raise CalibrationError(file, key, P.tolist(), "a projection matrix [[fx', s, cx', Tx], "
+                               "[0, fy', cy', Ty], [0, 0, 1, 0]] with fx', fy' > 0 (all zeros: "
+                               "none)")
+    return P
 
 
 def _lens(file: str, key: str, dist: np.ndarray) -> np.ndarray:
@@ -399,7 +418,9 @@ def _opencv_intrinsics(file: str, keys: dict) -> Intrinsics:
     d_key = _first(file, keys, DIST_KEYS, "the distortion coefficients")
     dist = _lens(file, d_key, _vector(file, d_key, keys[d_key], DIST_SIZES))
     name = keys.get("camera_name")
-    return Intrinsics(width, height, K, dist, name if isinstance(name, str) else None)
+    P = _projection(file, P_KEY, _matrix(file, P_KEY, keys[P_KEY], (3, 4)), K) \
+        if P_KEY in keys else None
+    return Intrinsics(width, height, K, dist, name if isinstance(name, str) else None, P)
 
 
 def _ros_intrinsics(file: str, raw: dict) -> Intrinsics:
@@ -411,7 +432,9 @@ def _ros_intrinsics(file: str, raw: dict) -> Intrinsics:
     d_key = "distortion_coefficients"
     dist = _lens(file, d_key, _vector(file, d_key, _entry(file, raw, d_key), (size,)))
     name = raw.get("camera_name")
-    return Intrinsics(width, height, K, dist, name if isinstance(name, str) else None)
+    P = _projection(file, P_KEY, _matrix(file, P_KEY, raw[P_KEY], (3, 4)), K) \
+        if P_KEY in raw else None
+    return Intrinsics(width, height, K, dist, name if isinstance(name, str) else None, P)
 
 
 def _documents(text: str) -> list[tuple[int, str]]:
@@ -469,8 +492,8 @@ def _full_image(file: str, raw: dict, width: int, height: int) -> None:
 
 def _message_intrinsics(file: str, raw: dict) -> Intrinsics:
     """A ``sensor_msgs/CameraInfo`` as ``ros2 topic echo`` (or ROS 1's ``rostopic echo``)
-    prints it: ``width``, ``height`` (px), ``k`` (9 numbers, row-major), ``distortion_model``
-    and ``d``."""
+    prints it: ``width``, ``height`` (px), ``k`` (9 numbers, row-major), ``distortion_model``,
+    ``d`` and ``p`` (12 numbers, row-major; optional)."""
     width = _size(file, "width", _entry(file, raw, "width"))
     height = _size(file, "height", _entry(file, raw, "height"))
     _full_image(file, raw, width, height)
@@ -482,7 +505,10 @@ def _message_intrinsics(file: str, raw: dict) -> Intrinsics:
     if not isinstance(raw[d_key], list) or len(raw[d_key]) != size:
         raise CalibrationError(file, d_key, raw[d_key], f"a list of {size} numbers ({model})")
     dist = _lens(file, d_key, _finite(file, d_key, raw[d_key], (size,)))
-    return Intrinsics(width, height, K, dist)
+    p_key = next((k for k in MESSAGE_P_KEYS if k in raw), None)
+    P = None if p_key is None else _projection(file, p_key,
+                                               _finite(file, p_key, raw[p_key], (3, 4)), K)
+    return Intrinsics(width, height, K, dist, None, P)
 
 
 def read_intrinsics(path: str | Path, fmt: str | None = None) -> Intrinsics:
@@ -583,14 +609,16 @@ def _storage_text(path: Path, items: list[tuple[str, object]], comment: str = ""
 
 
 def write_opencv_intrinsics(path: str | Path, camera: Camera) -> Path:
-    """``camera_name``, ``image_width``, ``image_height``, ``camera_matrix`` (3x3) and
-    ``distortion_coefficients`` (5x1, ``k1 k2 p1 p2 k3``) through ``cv2.FileStorage``: YAML,
-    or XML for an ``.xml`` name."""
+    """``camera_name``, ``image_width``, ``image_height``, ``camera_matrix`` (3x3),
+    ``distortion_coefficients`` (5x1, ``k1 k2 p1 p2 k3``) and, for a camera that kept one,
+    ``projection_matrix`` (3x4) through ``cv2.FileStorage``: YAML, or XML for an ``.xml``
+    name."""
     path = Path(path)
+    kept = [] if camera.P is None else [(P_KEY, camera.P)]
     return _save(path, _storage_text(path, [
         ("camera_name", camera.name), ("image_width", camera.width),
         ("image_height", camera.height), ("camera_matrix", camera.K),
-        ("distortion_coefficients", camera.dist5.reshape(5, 1))]))
+        ("distortion_coefficients", camera.dist5.reshape(5, 1)), *kept]))
 
 
 def _ros_matrix(M: np.ndarray) -> dict:
@@ -599,13 +627,13 @@ def _ros_matrix(M: np.ndarray) -> dict:
 
 def write_ros_camera_info(path: str | Path, camera: Camera) -> Path:
     """A ROS ``camera_info`` YAML in ``camera_calibration``'s layout (``plumb_bob``; identity
-    rectification, projection ``[K | 0]``)."""
-    P = np.hstack([camera.K, np.zeros((3, 1))])
+    rectification; projection: the camera's kept ``P``, else ``[K | 0]``)."""
+    P = camera.P if camera.P is not None else np.hstack([camera.K, np.zeros((3, 1))])
     data = {"image_width": camera.width, "image_height": camera.height,
             "camera_name": camera.name, "camera_matrix": _ros_matrix(camera.K),
             "distortion_model": "plumb_bob",
             "distortion_coefficients": _ros_matrix(camera.dist5.reshape(1, 5)),
-            "rectification_matrix": _ros_matrix(np.eye(3)), "projection_matrix": _ros_matrix(P)}
+            "rectification_matrix": _ros_matrix(np.eye(3)), P_KEY: _ros_matrix(P)}
     return _save(Path(path), yaml.safe_dump(data, sort_keys=False, default_flow_style=None))
 
 
