@@ -147,7 +147,8 @@ def test_message_counts_and_stamps(messages, rows, cell) -> None:
     n = len(rows)
     images = math.ceil(n / EVERY)
     assert len(messages["/tf_static"]) == 1
-    for topic in ["/tf", "/part/true_pose"] + [f"/{c.name}/visibility" for c in cell.cameras]:
+    for topic in ["/tf", "/joint_states", "/part/true_pose"] + [f"/{c.name}/visibility"
+                                                                for c in cell.cameras]:
         assert len(messages[topic]) == n, topic
     assert len(messages["/part/est_pose"]) == sum(bool(r["est_x"]) for r in rows)
     for c in cell.cameras:
@@ -169,7 +170,8 @@ def test_file_is_a_ros2_mcap_with_well_formed_schemas(exported: Path) -> None:
     names = {s.name for s in summary.schemas.values()}
     assert names == {"tf2_msgs/msg/TFMessage", "geometry_msgs/msg/PoseStamped",
                      "visualization_msgs/msg/MarkerArray", "sensor_msgs/msg/CameraInfo",
-                     "sensor_msgs/msg/Image", "diagnostic_msgs/msg/DiagnosticArray"}
+                     "sensor_msgs/msg/Image", "diagnostic_msgs/msg/DiagnosticArray",
+                     "sensor_msgs/msg/JointState"}
     assert {s.encoding for s in summary.schemas.values()} == {"ros2msg"}
     assert {c.message_encoding for c in summary.channels.values()} == {"cdr"}
     for schema in summary.schemas.values():  # every type used is defined once in the text
@@ -450,3 +452,12 @@ def test_a_bad_field_names_its_row_and_column(run_dir: Path, tmp_path: Path) -> 
     (bad / "metrics.json").write_text(json.dumps(metrics))
     with pytest.raises(CellsightError, match=r"metrics.json: field 'cell': .*gone.yaml.*--cell"):
         export_mcap(bad, tmp_path / "x.mcap", progress=False)
+
+
+def test_joint_states_of_dh_robots_are_joint1_to_n(messages, rows, cell) -> None:
+    for (log, _, msg), row in zip(messages["/joint_states"], rows, strict=True):
+        expected = {f"{r.name}/joint{j}": float(row[f"q_{r.name}_{j}"])
+                    for r in cell.robots for j in range(1, r.n_joints + 1)}
+        expected["R7AX/jaw_opening"] = float(row["jaw_opening"])
+        assert log == _ns(row["t"])
+        assert dict(zip(msg.name, msg.position, strict=True)) == expected

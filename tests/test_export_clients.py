@@ -139,3 +139,36 @@ def test_tf_static_is_latched_in_rosbag2s_qos_metadata(ur_export) -> None:
         (tf_static,) = [c for c in bag.connections if c.topic == "/tf_static"]
         (qos,) = tf_static.ext.offered_qos_profiles
         assert qos.durability == QosDurability.TRANSIENT_LOCAL and qos.depth == 1
+
+
+def _raw(path: Path, topic: str) -> list[tuple[str, int, bytes]]:
+    """(schema name, log time, CDR bytes) of every message of ``topic``, in log-time order."""
+    with path.open("rb") as f:
+        return [(schema.name, message.log_time, message.data) for schema, channel, message
+                in make_reader(f).iter_messages(topics=[topic], log_time_order=True)]
+
+
+def test_joint_states_are_frames_csvs_joints_by_urdf_joint_name(ur_export, ur_rows) -> None:
+    """/joint_states decoded by rosbags' ROS 2 Humble typestore: one per frame, stamped at the
+    frame, named ``<robot>/<URDF joint>`` (yourdfpy's actuated joints, in the URDF's order),
+    the positions frames.csv's ``q_<robot>_<j>``, the gripper's ``jaw_opening`` with them."""
+    from rosbags.typesys import Stores, get_typestore
+
+    humble = get_typestore(Stores.ROS2_HUMBLE)
+    cell = load_cell(UR_CELL)
+    urdf = yourdfpy.URDF.load(str(_urdf_path(cell)), load_meshes=False,
+                              build_collision_scene_graph=False, load_collision_meshes=False)
+    joints = list(urdf.actuated_joint_names)
+    states = _raw(ur_export, "/joint_states")
+    assert len(states) == len(ur_rows)
+    for (schema, log_time, data), row in zip(states, ur_rows, strict=True):
+        msg = humble.deserialize_cdr(data, schema)
+        assert log_time == msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec
+        assert log_time == round(float(row["t"]) * 1e9)
+        expected = {f"{r.name}/{joint}": float(row[f"q_{r.name}_{j}"])
+                    for r in cell.robots for j, joint in enumerate(joints, start=1)}
+        if row["jaw_opening"]:
+            expected["UR5A/jaw_opening"] = float(row["jaw_opening"])
+        assert dict(zip(msg.name, msg.position.tolist(), strict=True)) == expected
+        assert len(msg.velocity) == len(msg.effort) == 0
+    assert any(row["jaw_opening"] for row in ur_rows)

@@ -12,6 +12,11 @@ Topics (``<cam>``, ``<part>``: the camera's and the workpiece's names as ROS nam
   cameras' optical frames ``<cam>_optical_frame``, static objects;
 - ``/tf`` (one per frame): every robot's chain frames at the logged joints, ``<part>_true``
   and, in frames where the tracker has one, ``<part>_est``;
+- ``/joint_states`` (``sensor_msgs/msg/JointState``, one per frame): every robot's logged
+  (true) joints (rad, m), named ``<robot>/<joint>`` (the chain's joint names: the URDF's,
+  ``joint1`` .. for DH robots; :func:`cellsight.recording.names.joint_name`), and the grasping
+  robot's jaw opening (m) as ``<robot>/jaw_opening`` in frames that log it: the convention
+  ``cellsight track`` reads (:mod:`cellsight.recording.names`);
 - ``/<part>/true_pose``, ``/<part>/est_pose`` (``geometry_msgs/msg/PoseStamped``, frame
   ``world``; the estimate only in frames that have one);
 - ``/<cam>/visibility`` (``visualization_msgs/msg/MarkerArray``, one per frame):
@@ -55,9 +60,10 @@ from cellsight.runfolder import RUN_FILES, RunData, WriteError, load_run
 from cellsight.runfolder.framelog import camera_column
 from cellsight.runfolder.writes import AtomicFile
 
-TF, POSE, CAMERA_INFO, IMAGE, MARKERS, DIAGNOSTICS = (
+TF, POSE, CAMERA_INFO, IMAGE, MARKERS, DIAGNOSTICS, JOINT_STATE = (
     "tf2_msgs/TFMessage", "geometry_msgs/PoseStamped", "sensor_msgs/CameraInfo",
-    "sensor_msgs/Image", "visualization_msgs/MarkerArray", "diagnostic_msgs/DiagnosticArray")
+    "sensor_msgs/Image", "visualization_msgs/MarkerArray", "diagnostic_msgs/DiagnosticArray",
+    "sensor_msgs/JointState")
 LEVELS = {"tracking": 0, "acquired": 0, "degraded": 1, "coasting": 1, "predicting": 1,
           "lost": 2}  # DiagnosticStatus levels of the tracker's statuses (else STALE, 3)
 HEALTH_COLUMNS = ("nis", "notfound", "rejfrac")  # frames.csv's health columns, per camera
@@ -175,9 +181,7 @@ class _Images:
     def __init__(self, run: RunData) -> None:
         self.run = run
         self._world = None
-        tool = run.robot is not None and any(r.name == run.robot and r.tool is not None
-                                             for r in run.cell.robots)
-        self._gripper = run.robot if tool else None
+        self._gripper = gripper(run)
 
     def render(self, k: int) -> list[np.ndarray]:
         from cellsight.world import ReplayWorld
@@ -200,6 +204,13 @@ class _Images:
             self._world.close()
 
 
+def gripper(run: RunData) -> str | None:
+    """The robot whose jaw opening frames.csv logs: the grasping robot, when it has a tool."""
+    tool = run.robot is not None and any(r.name == run.robot and r.tool is not None
+                                         for r in run.cell.robots)
+    return run.robot if tool else None
+
+
 def _topic_tokens(run: RunData) -> tuple[list[str], str]:
     """The cameras' and the workpiece's names as topic tokens, checked distinct."""
     cams = [ros.topic_token(c.name) for c in run.cell.cameras]
@@ -214,10 +225,17 @@ class _Frames:
     interruption falls between frames."""
 
     def __init__(self, run: RunData, every: int, images: _Images | None) -> None:
+        from cellsight.recording import names  # not at the top: recording imports the export
+
         self.run, self.every, self.images = run, every, images
         self.cams, self.part = _topic_tokens(run)
         self.static = tf.static_transforms(run.cell, run.part.name)
         self.size = markers.marker_size(run.part.feature_points)
+        self.joint_states = names.JOINT_STATES
+        self.joint_names = {r.name: [names.joint_name(r.name, j) for j in r.chain.joint_names]
+                            for r in run.cell.robots}
+        holder = gripper(run)
+        self.opening = None if holder is None else names.joint_name(holder, names.OPENING)
 
     def tf_static(self) -> list[tuple[str, str, dict]]:
         ns = ros.time_ns(self.run.t[0])
@@ -236,7 +254,8 @@ class _Frames:
             transforms.append((tf.ROOT, true_frame, run.T_true[k]))
         if has_est:
             transforms.append((tf.ROOT, est_frame, run.T_est[k]))
-        out = [("/tf", TF, {"transforms": [ros.transform(ns, *t) for t in transforms]})]
+        out = [("/tf", TF, {"transforms": [ros.transform(ns, *t) for t in transforms]}),
+               (self.joint_states, JOINT_STATE, self._joint_state(k, ns))]
         for name, T, has in (("true_pose", run.T_true[k], has_true),
                              ("est_pose", run.T_est[k], has_est)):
             if has:
@@ -246,6 +265,19 @@ class _Frames:
         if k % self.every == 0:
             out += self._camera_messages(k, ns)
         return out
+
+    def _joint_state(self, k: int, ns: int) -> dict:
+        """Every robot's logged joints at frame ``k`` and the gripper's jaw opening (m), where
+        logged (module docstring)."""
+        names, values = [], []
+        for robot, q in self.run.joints.items():
+            names += self.joint_names[robot]
+            values += [float(v) for v in q[k]]
+        if self.opening is not None and np.isfinite(self.run.opening[k]):
+            names.append(self.opening)
+            values.append(float(self.run.opening[k]))
+        return {"header": ros.header(ns, ""), "name": names, "position": values,
+                "velocity": [], "effort": []}
 
     def _markers(self, k: int, ns: int, T_part: np.ndarray) -> list[tuple[str, str, dict]]:
         """Each camera's visibility markers at the part's pose ``T_part`` (the truth, else
