@@ -550,6 +550,8 @@ BAD_HAND_EYE = [  # (case, the hand-eye file's text, key, what the message says)
     ("eye_on_hand text", GOOD_HE.replace("eye_on_hand: false", "eye_on_hand: maybe"),
      "parameters.eye_on_hand", r"got 'maybe'; expected false \(0\)"),
     ("no parameters", GOOD_HE.replace("parameters:", "params:"), "parameters", r"<missing>"),
+    ("a number for the frame", GOOD_HE.replace("frame: cam1_optical_frame", "frame: 5"),
+     "parameters.tracking_base_frame", r"got 5; expected a frame name$"),
     ("no qw", GOOD_HE.replace("qw:", "w:"), "transformation.qw", r"got <missing>"),
     ("text x", GOOD_HE.replace("x: 0.2483", "x: abc"), "transformation.x",
      r"got 'abc'; expected numbers"),

@@ -1,16 +1,19 @@
 """Calibration files as their other writers leave them (issue 15, part 3): CameraInfo messages
 dumped by ``ros2 topic echo``; the projection matrix P a camera_info gives, kept and written
-out again.
+out again; easy_handeye results against a camera's body frame (``camera_link``).
 
 Oracles, independent of cellsight's readers: the dumps are written here the way the tools
 write them (``ros2 topic echo`` prints ``rosidl_runtime_py.message_to_yaml``, a block-style
 ``yaml.dump`` of the fields in order, then ``---``); the projection of ``cv2.projectPoints``
-with the message's K and D; written files read by ``yaml.safe_load`` and ``cv2.FileStorage``.
+with the message's K and D; written files read by ``yaml.safe_load`` and ``cv2.FileStorage``;
+REP 103's body-to-optical rotation built here from its axes, quaternions checked against their
+formula.
 """
 
 from __future__ import annotations
 
 import copy
+import logging
 import re
 import shutil
 import sys
@@ -20,12 +23,14 @@ import cv2
 import numpy as np
 import pytest
 import yaml
+from scipy.spatial.transform import Rotation
 
 from cellsight.camera import Camera
 from cellsight.cli import main
 from cellsight.errors import CameraError, CellFileError
 from cellsight.export.ros import camera_info
 from cellsight.geometry.transforms import look_at
+from cellsight.model.calibration import read_hand_eye, write_easy_handeye
 from cellsight.model.loader import builtin_cell_path, load_cell
 
 DATA = Path(__file__).resolve().parent / "data" / "calibration"
@@ -230,3 +235,78 @@ def test_a_camera_takes_a_3x4_p_or_none() -> None:
             Camera(K, 640, 480, np.eye(4), None, "c", bad)
     camera = Camera(K, 640, 480, np.eye(4), None, "c", [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0]])
     assert camera.P.dtype == float and camera.P.shape == (3, 4)
+
+
+# ------------------------------------------------- hand-eye results against a body frame
+
+
+def _link_optical() -> np.ndarray:
+    """REP 103: the optical frame (x right, y down, z forward) in the camera's body frame (x
+    forward, y left, z up): optical x = -body y, optical y = -body z, optical z = body x."""
+    ex, ey, ez = np.eye(3)
+    T = np.eye(4)
+    T[:3, :3] = np.column_stack([-ey, -ez, ex])
+    return T
+
+
+def _quaternion_matrix(x: float, y: float, z: float, w: float) -> np.ndarray:
+    """The rotation of a unit quaternion, by its formula."""
+    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+                     [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+                     [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+
+
+def _easy_handeye_text(T: np.ndarray, tracking_base_frame: str) -> str:
+    """An easy_handeye result (eye on base) of the pose ``T`` of ``tracking_base_frame``."""
+    q = Rotation.from_matrix(T[:3, :3]).as_quat()
+    assert np.allclose(_quaternion_matrix(*q), T[:3, :3], rtol=0, atol=1e-12)
+    return yaml.safe_dump({
+        "parameters": {"eye_on_hand": False, "freehand_robot_movement": False,
+                       "move_group": "manipulator", "namespace": "/cell_eye_on_base/",
+                       "robot_base_frame": "base", "robot_effector_frame": "tool0",
+                       "tracking_base_frame": tracking_base_frame,
+                       "tracking_marker_frame": "aruco_marker_frame"},
+        "transformation": dict(zip(("x", "y", "z", "qx", "qy", "qz", "qw"),
+                                   map(float, (*T[:3, 3], *q)), strict=True))})
+
+
+def test_a_hand_eye_result_against_camera_link_gives_the_optical_frame(tmp_path,
+                                                                        caplog) -> None:
+    """The file's pose is camera_link's, T_base_link = T_base_optical @ inv(T_link_optical):
+    the camera loads at T_base_optical, and a warning names the frame converted; against an
+    optical frame, the same pose loads unchanged and nothing is logged."""
+    T_base_optical = look_at(LOOK["eye"], LOOK["target"])
+    T_base_link = T_base_optical @ np.linalg.inv(_link_optical())
+    assert np.allclose(T_base_link[:3, 0], T_base_optical[:3, 2])  # camera_link's x looks ahead
+    shutil.copy(DATA / "ros_camera_info.yaml", tmp_path / "ost.yaml")
+    (tmp_path / "link.yaml").write_text(_easy_handeye_text(T_base_link, "camera_link"))
+    (tmp_path / "optical.yaml").write_text(
+        _easy_handeye_text(T_base_optical, "camera_color_optical_frame"))
+    cell = _cell(tmp_path, [{"name": name, "calibration": "ost.yaml", "hand_eye": f"{name}.yaml"}
+                            for name in ("link", "optical")])
+    with caplog.at_level(logging.WARNING, logger="cellsight.model.calibration"):
+        link, optical = load_cell(cell).cameras
+    for camera in (link, optical):
+        assert np.allclose(camera.T_base_cam, T_base_optical, rtol=0, atol=1e-9)
+    (record,) = caplog.records
+    assert record.name == "cellsight.model.calibration" and record.levelno == logging.WARNING
+    message = record.getMessage()
+    assert message.startswith(f"{tmp_path / 'link.yaml'}: tracking_base_frame 'camera_link' is "
+                              "not an optical frame")
+    assert "converted to the camera's optical frame" in message and "\n" not in message
+
+
+def test_easy_handeye_files_written_against_a_body_frame_read_back(tmp_path, caplog) -> None:
+    """Written against camera_link, the file holds the link's pose (quaternion by its formula)
+    and reads back as the optical frame's pose."""
+    T_base_optical = look_at([1.5, 1.1, 1.7], [0.72, -0.1, 0.68])
+    path = write_easy_handeye(tmp_path / "he.yaml", T_base_optical, "base", "camera_link")
+    data = yaml.safe_load(path.read_text())
+    assert data["parameters"]["tracking_base_frame"] == "camera_link"
+    tr = data["transformation"]
+    R_base_link = (T_base_optical @ np.linalg.inv(_link_optical()))[:3, :3]
+    assert np.allclose(_quaternion_matrix(tr["qx"], tr["qy"], tr["qz"], tr["qw"]), R_base_link,
+                       rtol=0, atol=1e-12)
+    with caplog.at_level(logging.WARNING, logger="cellsight.model.calibration"):
+        assert np.allclose(read_hand_eye(path), T_base_optical, rtol=0, atol=1e-12)
+    assert len(caplog.records) == 1

@@ -37,6 +37,10 @@ coordinates (``p_base = R p_camera + t``), the pose :class:`cellsight.camera.Cam
 - ``easy_handeye``: the YAML easy_handeye saves: ``parameters: {eye_on_hand: false,
   robot_base_frame, tracking_base_frame, ...}``, ``transformation: {x, y, z, qx, qy, qz, qw}``
   (the ``tracking_base_frame``'s pose in the ``robot_base_frame``; metres, unit quaternion).
+  A ``tracking_base_frame`` whose name does not end in ``optical_frame`` or ``_optical`` (say
+  ``camera_link``) is taken for a ROS body frame (REP 103: x forward, y left, z up) at the
+  optical frame's origin: its pose is turned into the optical frame's, ``T_base_link @
+  T_LINK_OPTICAL``, and a warning is logged (logger ``cellsight.model.calibration``).
 - ``opencv``: an OpenCV ``FileStorage`` (YAML or XML) with ``R_base_camera`` (3x3) and
   ``t_base_camera`` (3x1, metres), or the same under OpenCV's own names ``R_cam2base`` /
   ``t_cam2base`` (what ``cv2.calibrateHandEye`` returns when given base-to-gripper poses for
@@ -63,6 +67,7 @@ aside).
 
 from __future__ import annotations
 
+import logging
 import re
 from dataclasses import dataclass
 from pathlib import Path
@@ -75,6 +80,8 @@ from scipy.spatial.transform import Rotation
 from cellsight.camera import Camera
 from cellsight.errors import CellFileError, CellsightError, short_repr
 from cellsight.model.yaml_input import load_yaml
+
+log = logging.getLogger(__name__)
 
 MAX_CALIBRATION_BYTES = 2**20  # bytes: a calibration file is a few kilobytes
 MAX_NESTING = 64  # brackets / XML elements nested in a calibration file
@@ -92,6 +99,11 @@ NO_FISHEYE = ("the fisheye (equidistant, Kannala-Brandt) model is not supported:
 HAND_EYE_KEYS = (("R_base_camera", "t_base_camera"), ("R_cam2base", "t_cam2base"))
 EYE_ON_HAND_KEYS = ("R_cam2gripper", "t_cam2gripper", "R_gripper2cam", "t_gripper2cam")
 QUATERNION_KEYS = ("qx", "qy", "qz", "qw")
+OPTICAL_SUFFIXES = ("optical_frame", "_optical")  # a frame name's ending for an optical frame
+#: REP 103: a camera's optical frame (x right, y down, z forward) in its body frame (x forward,
+#: y left, z up), same origin; columns: optical x = -body y, optical y = -body z, z = body x
+T_LINK_OPTICAL = np.array([[0.0, 0.0, 1.0, 0.0], [-1.0, 0.0, 0.0, 0.0], [0.0, -1.0, 0.0, 0.0],
+                           [0.0, 0.0, 0.0, 1.0]])
 DOCUMENT_START = re.compile(r"^---(?=[ \t]|$)", re.MULTILINE)  # a YAML "---" line
 MESSAGE_K_KEYS, MESSAGE_D_KEYS = ("k", "K"), ("d", "D")  # CameraInfo: ROS 2, ROS 1 names
 MESSAGE_P_KEYS, P_KEY = ("p", "P"), "projection_matrix"
@@ -552,7 +564,29 @@ def _easy_handeye(file: str, raw: dict) -> np.ndarray:
     if abs(np.linalg.norm(q) - 1.0) > ROTATION_TOL:
         raise CalibrationError(file, "transformation.qx..qw", q.tolist(),
                                f"a unit quaternion (norm 1 within {ROTATION_TOL})")
-    return _pose(Rotation.from_quat(q / np.linalg.norm(q)).as_matrix(), np.array(xyz, float))
+    T = _pose(Rotation.from_quat(q / np.linalg.norm(q)).as_matrix(), np.array(xyz, float))
+    return _optical_pose(file, params.get("tracking_base_frame"), T)
+
+
+def _is_optical(frame: str) -> bool:
+    return frame.endswith(OPTICAL_SUFFIXES)
+
+
+def _optical_pose(file: str, frame: object, T: np.ndarray) -> np.ndarray:
+    """The optical frame's pose from ``T``, the pose of the frame named ``frame`` (None: not
+    named, taken for the optical frame): ``T`` itself for an optical frame, else ``T @
+    T_LINK_OPTICAL`` (a body frame), with a warning."""
+    if frame is None:
+        return T
+    if not isinstance(frame, str) or not frame:
+        raise CalibrationError(file, "parameters.tracking_base_frame", frame, "a frame name")
+    if _is_optical(frame):
+        return T
+    log.warning("%s: tracking_base_frame '%s' is not an optical frame (its name does not end in "
+                "optical_frame or _optical): taken for a ROS body frame (REP 103: x forward, y "
+                "left, z up) and converted to the camera's optical frame at the same origin "
+                "(optical z = body x, x = -body y, y = -body z)", file, frame)
+    return T @ T_LINK_OPTICAL
 
 
 def _opencv_hand_eye(file: str, keys: dict) -> np.ndarray:
@@ -639,9 +673,13 @@ def write_ros_camera_info(path: str | Path, camera: Camera) -> Path:
 
 def write_easy_handeye(path: str | Path, T_base_cam: np.ndarray, robot_base_frame: str = "base",
                        tracking_base_frame: str = "camera_optical_frame") -> Path:
-    """An easy_handeye YAML of a fixed camera (``eye_on_hand: false``): its optical frame's
-    pose ``T_base_cam`` as ``transformation: {x, y, z, qx, qy, qz, qw}``."""
+    """An easy_handeye YAML of a fixed camera (``eye_on_hand: false``): the pose of
+    ``tracking_base_frame`` as ``transformation: {x, y, z, qx, qy, qz, qw}``, ``T_base_cam``
+    (its optical frame's pose) itself for an optical frame's name, else the body frame's
+    ``T_base_cam @ inv(T_LINK_OPTICAL)`` (what :func:`read_hand_eye` turns back)."""
     T = np.asarray(T_base_cam, dtype=float)
+    if not _is_optical(tracking_base_frame):
+        T = T @ T_LINK_OPTICAL.T  # the inverse of a rotation about the origin
     q = Rotation.from_matrix(T[:3, :3]).as_quat()
     transformation = dict(zip(("x", "y", "z", *QUATERNION_KEYS),
                               (float(v) for v in (*T[:3, 3], *q)), strict=True))
