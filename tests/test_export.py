@@ -151,6 +151,7 @@ def test_message_counts_and_stamps(messages, rows, cell) -> None:
                                                                 for c in cell.cameras]:
         assert len(messages[topic]) == n, topic
     assert len(messages["/part/est_pose"]) == sum(bool(r["est_x"]) for r in rows)
+    assert not any(t.endswith("robot_description") for t in messages)  # DH robots: no URDF
     for c in cell.cameras:
         assert len(messages[f"/{c.name}/image_raw"]) == images
         assert len(messages[f"/{c.name}/camera_info"]) == images

@@ -7,11 +7,13 @@ and its forward kinematics, frames.csv read with the csv module."""
 from __future__ import annotations
 
 import csv
+import io
 from collections import defaultdict
 from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 import yourdfpy
 from lxml import etree
 from mcap.reader import make_reader
@@ -21,9 +23,11 @@ from scipy.spatial.transform import Rotation
 from cellsight import load_cell
 from cellsight.experiments import RunConfig, run_experiment
 from cellsight.export import export_mcap
+from cellsight.export.mcap_run import robot_descriptions
 from cellsight.model.registry import builtin_cell_path
 
 UR_CELL = builtin_cell_path("ur-cell")
+LATCHED = {"/tf_static", "/UR5A/robot_description", "/UR5B/robot_description"}
 
 
 @pytest.fixture(scope="module")
@@ -119,8 +123,8 @@ def test_ur_cell_tf_tree_is_the_urdfs_links_under_one_world_root(ur_export, ur_r
 
 def test_tf_static_is_latched_in_rosbag2s_qos_metadata(ur_export) -> None:
     """The ``offered_qos_profiles`` channel metadata, read back by the mcap reader and parsed
-    by rosbags (as rosbag2 reads it), offers ``transient_local`` on /tf_static only; rosbags'
-    rosbag2 reader of the file finds the same."""
+    by rosbags (as rosbag2 reads it), offers ``transient_local`` on /tf_static and the robot
+    descriptions only; rosbags' rosbag2 reader of the file finds the same."""
     from rosbags.interfaces import QosDurability, QosReliability
     from rosbags.rosbag2 import Reader
     from rosbags.rosbag2.metadata import parse_qos
@@ -133,8 +137,9 @@ def test_tf_static_is_latched_in_rosbag2s_qos_metadata(ur_export) -> None:
     for topic, channel in channels.items():
         (qos,) = parse_qos(channel.metadata["offered_qos_profiles"])
         assert qos.reliability == QosReliability.RELIABLE
-        assert qos.durability == (QosDurability.TRANSIENT_LOCAL if topic == "/tf_static"
+        assert qos.durability == (QosDurability.TRANSIENT_LOCAL if topic in LATCHED
                                   else QosDurability.VOLATILE), topic
+    assert LATCHED <= set(channels)
     with Reader(ur_export) as bag:
         (tf_static,) = [c for c in bag.connections if c.topic == "/tf_static"]
         (qos,) = tf_static.ext.offered_qos_profiles
@@ -172,3 +177,35 @@ def test_joint_states_are_frames_csvs_joints_by_urdf_joint_name(ur_export, ur_ro
         assert dict(zip(msg.name, msg.position.tolist(), strict=True)) == expected
         assert len(msg.velocity) == len(msg.effort) == 0
     assert any(row["jaw_opening"] for row in ur_rows)
+
+
+def test_robot_descriptions_are_the_urdf_files_text(ur_export) -> None:
+    """One latched std_msgs/String per UR5 (two URDF robots: a topic each), decoded by rosbags'
+    Humble typestore: the URDF file's text, which yourdfpy reads back with the file's links."""
+    from rosbags.typesys import Stores, get_typestore
+
+    humble = get_typestore(Stores.ROS2_HUMBLE)
+    path = _urdf_path(load_cell(UR_CELL))
+    links = set(etree.parse(str(path)).getroot().xpath("/robot/link/@name"))
+    for robot in ("UR5A", "UR5B"):
+        ((schema, log_time, data),) = _raw(ur_export, f"/{robot}/robot_description")
+        assert schema == "std_msgs/msg/String"
+        text = humble.deserialize_cdr(data, schema).data
+        assert text == path.read_text()
+        read = yourdfpy.URDF.load(io.BytesIO(text.encode()), load_meshes=False,
+                                  build_collision_scene_graph=False,
+                                  load_collision_meshes=False)
+        assert set(read.link_map) == links
+    assert "/robot_description" not in decoded(ur_export)
+
+
+def test_a_single_urdf_robot_is_described_on_robot_description(tmp_path) -> None:
+    """The UR cell with UR5A alone: its URDF on /robot_description."""
+    raw = yaml.safe_load(UR_CELL.read_text())
+    raw["robots"] = raw["robots"][:1]
+    raw["experiments"].pop("crossing")
+    (tmp_path / "one_ur5.yaml").write_text(yaml.safe_dump(raw))
+    cell = load_cell(tmp_path / "one_ur5.yaml")
+    ((topic, text),) = robot_descriptions(cell)
+    assert (topic, text) == ("/robot_description", _urdf_path(cell).read_text())
+    assert robot_descriptions(load_cell("dual-arm")) == []

@@ -10,6 +10,11 @@ Topics (``<cam>``, ``<part>``: the camera's and the workpiece's names as ROS nam
   :mod:`cellsight.export.frames` (REP 103/105 names, root ``world``): robots' bases, a URDF
   robot's fixed links (``<robot>/base_link``, ``<robot>/tool0``, ...), tools and TCPs,
   cameras' optical frames ``<cam>_optical_frame``, static objects;
+- ``/robot_description`` (``std_msgs/msg/String``, once, at the first frame, latched): a URDF
+  robot's URDF text (:func:`robot_descriptions`; ``/<robot>/robot_description`` each when the
+  cell has several; none for DH robots), so that Foxglove's URDF layer and ROS tools draw the
+  robot from TF (its links are ``<robot>/<link>``: set the layer's frame prefix to
+  ``<robot>/``);
 - ``/tf`` (one per frame): every robot's chain frames at the logged joints, ``<part>_true``
   and, in frames where the tracker has one, ``<part>_est``;
 - ``/joint_states`` (``sensor_msgs/msg/JointState``, one per frame): every robot's logged
@@ -56,6 +61,7 @@ from cellsight.export import frames as tf
 from cellsight.export import markers, ros
 from cellsight.export.msgdefs import msgdef, schema_name
 from cellsight.geometry.transforms import transform_points
+from cellsight.model.cell import Cell
 from cellsight.runfolder import RUN_FILES, RunData, WriteError, load_run
 from cellsight.runfolder.framelog import camera_column
 from cellsight.runfolder.writes import AtomicFile
@@ -64,6 +70,7 @@ TF, POSE, CAMERA_INFO, IMAGE, MARKERS, DIAGNOSTICS, JOINT_STATE = (
     "tf2_msgs/TFMessage", "geometry_msgs/PoseStamped", "sensor_msgs/CameraInfo",
     "sensor_msgs/Image", "visualization_msgs/MarkerArray", "diagnostic_msgs/DiagnosticArray",
     "sensor_msgs/JointState")
+STRING = "std_msgs/String"
 LEVELS = {"tracking": 0, "acquired": 0, "degraded": 1, "coasting": 1, "predicting": 1,
           "lost": 2}  # DiagnosticStatus levels of the tracker's statuses (else STALE, 3)
 HEALTH_COLUMNS = ("nis", "notfound", "rejfrac")  # frames.csv's health columns, per camera
@@ -133,8 +140,9 @@ class _Bag:
 
 
 def latched(topic: str) -> bool:
-    """Whether a topic is latched (durability ``transient_local``): ``/tf_static``."""
-    return topic == "/tf_static"
+    """Whether a topic is latched (durability ``transient_local``): ``/tf_static`` and the
+    robot descriptions."""
+    return topic == "/tf_static" or topic.endswith("/robot_description")
 
 
 def qos_profiles(is_latched: bool) -> str:
@@ -142,9 +150,9 @@ def qos_profiles(is_latched: bool) -> str:
     ROS 2 Humble's rosbag2 writes it, its policies as rmw's integers (history 1 keep_last,
     reliability 1 reliable, durability 1 transient_local or 2 volatile, liveliness 1
     automatic; durations 0 s: the default), depth 1 when latched (as tf2's static broadcaster
-    offers), else 10. Humble's ``ros2 bag play`` reads only integers; later rosbag2 reads them
-    in a file whose ``rosbag2`` metadata record has no ``serialized_metadata`` (this one's
-    holds ``ROS_DISTRO``)."""
+    and robot_state_publisher offer), else 10. Humble's ``ros2 bag play`` reads only
+    integers; later rosbag2 reads them in a file whose ``rosbag2`` metadata record has no
+    ``serialized_metadata`` (this one's holds ``ROS_DISTRO``)."""
     never = {"sec": 0, "nsec": 0}
     profile = {"history": 1, "depth": 1 if is_latched else 10, "reliability": 1,
                "durability": 1 if is_latched else 2, "deadline": never, "lifespan": never,
@@ -211,6 +219,16 @@ def gripper(run: RunData) -> str | None:
     return run.robot if tool else None
 
 
+def robot_descriptions(cell: Cell) -> list[tuple[str, str]]:
+    """(topic, URDF text) of each URDF robot of the cell: the file as it is (its lengths in
+    its own unit, ``package://`` names unresolved), on ``/robot_description`` when the cell has
+    one URDF robot, else on ``/<robot>/robot_description``; none for DH robots."""
+    files = tf.urdf_files(cell)
+    return [("/robot_description" if len(files) == 1
+             else f"/{ros.topic_token(robot)}/robot_description",
+             urdf.path.read_text(encoding="utf-8")) for robot, urdf in files.items()]
+
+
 def _topic_tokens(run: RunData) -> tuple[list[str], str]:
     """The cameras' and the workpiece's names as topic tokens, checked distinct."""
     cams = [ros.topic_token(c.name) for c in run.cell.cameras]
@@ -230,6 +248,7 @@ class _Frames:
         self.run, self.every, self.images = run, every, images
         self.cams, self.part = _topic_tokens(run)
         self.static = tf.static_transforms(run.cell, run.part.name)
+        self.descriptions = robot_descriptions(run.cell)
         self.size = markers.marker_size(run.part.feature_points)
         self.joint_states = names.JOINT_STATES
         self.joint_names = {r.name: [names.joint_name(r.name, j) for j in r.chain.joint_names]
@@ -237,9 +256,13 @@ class _Frames:
         holder = gripper(run)
         self.opening = None if holder is None else names.joint_name(holder, names.OPENING)
 
-    def tf_static(self) -> list[tuple[str, str, dict]]:
+    def once(self) -> list[tuple[str, str, dict]]:
+        """The messages written once, at the first frame: /tf_static, the robot
+        descriptions."""
         ns = ros.time_ns(self.run.t[0])
-        return [("/tf_static", TF, {"transforms": [ros.transform(ns, *t) for t in self.static]})]
+        return ([("/tf_static", TF, {"transforms": [ros.transform(ns, *t)
+                                                    for t in self.static]})]
+                + [(topic, STRING, {"data": text}) for topic, text in self.descriptions])
 
     def messages(self, k: int) -> list[tuple[str, str, dict]]:
         """Every message of frame ``k``: (topic, type, message)."""
@@ -407,7 +430,7 @@ def _write_all(bag: _Bag, source: _Frames, result: ExportResult,
                advance: Callable[[], None]) -> None:
     run = source.run
     for k in range(run.n):
-        batch = (source.tf_static() if k == 0 else []) + source.messages(k)
+        batch = (source.once() if k == 0 else []) + source.messages(k)
         ns = ros.time_ns(run.t[k])
         for topic, kind, message in batch:
             bag.write(topic, kind, message, ns)
