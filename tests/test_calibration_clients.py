@@ -1,6 +1,7 @@
 """Calibration files as their other writers leave them (issue 15, part 3): CameraInfo messages
 dumped by ``ros2 topic echo``; the projection matrix P a camera_info gives, kept and written
-out again; easy_handeye results against a camera's body frame (``camera_link``).
+out again; easy_handeye results against a camera's body frame (``camera_link``); ``cellsight
+cameras --json`` and its table when piped.
 
 Oracles, independent of cellsight's readers: the dumps are written here the way the tools
 write them (``ros2 topic echo`` prints ``rosidl_runtime_py.message_to_yaml``, a block-style
@@ -13,6 +14,7 @@ formula.
 from __future__ import annotations
 
 import copy
+import json
 import logging
 import re
 import shutil
@@ -310,3 +312,56 @@ def test_easy_handeye_files_written_against_a_body_frame_read_back(tmp_path, cap
     with caplog.at_level(logging.WARNING, logger="cellsight.model.calibration"):
         assert np.allclose(read_hand_eye(path), T_base_optical, rtol=0, atol=1e-12)
     assert len(caplog.records) == 1
+
+
+# --------------------------------------------------------- cellsight cameras: JSON and pipes
+
+
+def test_cameras_json_is_the_loaded_cells_cameras(capsys) -> None:
+    assert main(["cameras", "--json"]) == 0
+    records = json.loads(capsys.readouterr().out)
+    cameras = load_cell().cameras
+    assert [r["name"] for r in records] == [c.name for c in cameras]
+    for r, c in zip(records, cameras, strict=True):
+        assert (r["width"], r["height"]) == (c.width, c.height)
+        assert np.array_equal(r["K"], c.K) and np.array_equal(r["T_base_cam"], c.T_base_cam)
+        assert r["dist"] is None and c.dist is None and r["P"] is None
+        assert r["source_file"] == r["cell_file"] == str(builtin_cell_path().resolve())
+        assert r["hand_eye_file"] is None
+
+
+def test_cameras_json_names_the_calibration_files(tmp_path, capsys) -> None:
+    shutil.copy(DATA / "ros_camera_info.yaml", tmp_path / "ost.yaml")
+    shutil.copy(DATA / "easy_handeye_eye_on_base.yaml", tmp_path / "he.yaml")
+    cell = _cell(tmp_path, [{"name": "cam1", "calibration": "ost.yaml", "hand_eye": "he.yaml"}])
+    assert main(["cameras", "--cell", str(cell), "--json"]) == 0
+    (record,) = json.loads(capsys.readouterr().out)
+    (camera,) = load_cell(cell).cameras
+    ost = yaml.safe_load((tmp_path / "ost.yaml").read_text())
+    assert record["K"] == np.reshape(ost["camera_matrix"]["data"], (3, 3)).tolist()
+    assert record["dist"] == ost["distortion_coefficients"]["data"]
+    assert record["P"] == np.reshape(ost["projection_matrix"]["data"], (3, 4)).tolist()
+    assert np.array_equal(record["T_base_cam"], camera.T_base_cam)
+    assert (record["source_file"], record["hand_eye_file"], record["cell_file"]) == (
+        str(tmp_path.resolve() / "ost.yaml"), str(tmp_path.resolve() / "he.yaml"),
+        str(cell.resolve()))
+
+
+def test_the_table_does_not_wrap_in_a_pipe(tmp_path, capsys) -> None:
+    """Captured output is no terminal: the long cell path and every row stay on one line."""
+    folder = tmp_path / ("a_folder_with_a_long_name_" * 6)
+    folder.mkdir()
+    shutil.copy(DATA / "ros_camera_info.yaml", folder / "ost.yaml")
+    cell = _cell(folder, [{"name": "cam1", "calibration": "ost.yaml", "look_at": LOOK},
+                          {"name": "cam2", "width": 640, "height": 480, "fx": 900.0,
+                           "dist": [-0.2, 0.1, 0.001, -0.002, 0.05], "look_at": LOOK}])
+    assert len(str(cell)) > 160
+    assert main(["cameras", "--cell", str(cell)]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert any(str(cell) in line for line in lines)
+    for name, distortion in (("cam1", "-0.1901 0.1205 -0.000412 0.001134 0"),
+                             ("cam2", "-0.2 0.1 0.001 -0.002 0.05")):
+        (row,) = [line for line in lines if f" {name} " in line]
+        assert distortion in row and "[0.250, 1.150, 1.750]" in row
+    assert main(["cameras", "--cell", str(cell), "--write", str(folder / "out")]) == 0
+    assert str(folder / "out" / "cell.yaml") in capsys.readouterr().out.splitlines()[-1]

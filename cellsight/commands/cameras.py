@@ -1,7 +1,9 @@
 """``cellsight cameras``: a cell's cameras as a table, or written as calibration files.
 
 ``cellsight cameras [--cell NAME|FILE]`` prints one row per camera: name, image size, fx, fy,
-cx, cy (px), distortion (k1 k2 p1 p2 k3) and the optical centre in the base frame (m).
+cx, cy (px), distortion (k1 k2 p1 p2 k3) and the optical centre in the base frame (m); when
+the output is not a terminal (a pipe, a file) nothing wraps: a row is one line. ``--json``
+prints the cameras as a JSON list instead (:func:`camera_records`).
 
 ``cellsight cameras [--cell NAME|FILE] --write DIR [--format opencv-yaml|opencv-xml|ros]``
 writes, per camera, an intrinsics file and a hand-eye pose file in the chosen format
@@ -28,6 +30,7 @@ The command's ``register(sub)`` adds it to ``cellsight``'s sub-commands.
 from __future__ import annotations
 
 import argparse
+import json
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -36,7 +39,10 @@ from cellsight.errors import CellsightError
 from cellsight.model.yaml_input import with_absolute_paths
 
 if TYPE_CHECKING:  # imported where used: `cellsight --help` stays quick (no OpenCV)
+    from rich.console import Console
+
     from cellsight.camera import Camera
+    from cellsight.model.schema import CellSpec
 
 BASE_FRAME = "base"  # the cell's base frame's name in easy_handeye files
 #: --format -> (extension, intrinsics format, hand-eye format) of the files written
@@ -46,6 +52,7 @@ FORMATS = {
     "ros": (".yaml", "ros", "easy_handeye"),
 }
 CELL_FILE, CAMERAS_FILE = "cell.yaml", "cameras.yaml"
+PIPED_WIDTH = 10_000  # characters: the table's width limit when stdout is not a terminal
 
 
 def camera_files(name: str, fmt: str) -> tuple[str, str]:
@@ -153,8 +160,38 @@ def camera_rows(cameras: list[Camera]) -> list[tuple[str, ...]]:
              "[" + ", ".join(f"{v:.3f}" for v in c.center) + "]") for c in cameras]
 
 
-def cmd_cameras(args: argparse.Namespace) -> int:
+def camera_records(cell_file: Path, spec: CellSpec, cameras: list[Camera]) -> list[dict]:
+    """``--json``: per camera its ``name``, ``width`` and ``height`` (px), ``K`` (3x3, px),
+    ``dist`` (k1 k2 p1 p2 k3, or None), ``P`` (3x4, px: its calibration file's, or None for
+    ``[K | 0]``), ``T_base_cam`` (4x4, m: the optical frame in the cell's base frame), and the
+    files it comes from (absolute paths): ``source_file`` (the calibration file, or the cell
+    file that gives the intrinsics), ``hand_eye_file`` (or None) and ``cell_file``."""
+    specs = {cs.name: cs for cs in spec.cameras}
+    folder = cell_file.resolve().parent
+    records = []
+    for c in cameras:
+        cs = specs[c.name]
+        records.append({
+            "name": c.name, "width": c.width, "height": c.height, "K": c.K.tolist(),
+            "dist": None if c.dist is None else c.dist.tolist(),
+            "P": None if c.P is None else c.P.tolist(), "T_base_cam": c.T_base_cam.tolist(),
+            "source_file": str(folder / cs.calibration.file if cs.calibration is not None
+                               else cell_file.resolve()),
+            "hand_eye_file": None if cs.hand_eye is None else str(folder / cs.hand_eye.file),
+            "cell_file": str(cell_file.resolve())})
+    return records
+
+
+def _console() -> Console:
+    """A console that wraps nothing: text lines are never broken (soft wrap), and a table is
+    as wide as its rows when stdout is not a terminal (rich would use 80 columns)."""
     from rich.console import Console
+
+    console = Console(soft_wrap=True)
+    return console if console.is_terminal else Console(soft_wrap=True, width=PIPED_WIDTH)
+
+
+def cmd_cameras(args: argparse.Namespace) -> int:
     from rich.markup import escape
     from rich.table import Table
 
@@ -164,13 +201,17 @@ def cmd_cameras(args: argparse.Namespace) -> int:
     path = cell_path(args.cell)
     spec, raw = parse_cell_text(read_cell_text(path), str(path), path.parent)
     cameras = build_cell(spec, str(path), path.parent).cameras
-    console = Console()
+    if args.json:
+        print(json.dumps(camera_records(path, spec, cameras), indent=2))
+        return 0
+    console = _console()
     if args.write is not None:
         for written in write_cameras(path, raw, cameras, Path(args.write), args.format,
                                      args.overwrite):
             console.print(f"wrote [bold]{escape(str(written))}[/bold]")
         return 0
-    table = Table(title=f"cameras of {escape(str(path))}")
+    console.print(f"cameras of [bold]{escape(str(path))}[/bold]")
+    table = Table()
     for column in ("camera", "size", "fx", "fy", "cx", "cy", "distortion k1 k2 p1 p2 k3",
                    "position (m)"):
         table.add_column(column, justify="left" if column in ("camera", "size") else "right")
@@ -185,7 +226,11 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     cameras = sub.add_parser("cameras", help="the cell's cameras: a table, or calibration files "
                                              "(--write)")
     cameras.add_argument("--cell", help=CELL_HELP)
-    cameras.add_argument("--write", metavar="DIR",
+    output = cameras.add_mutually_exclusive_group()
+    output.add_argument("--json", action="store_true",
+                        help="print the cameras as JSON (name, size, K, dist, P, T_base_cam, "
+                             "the files they come from) instead of a table")
+    output.add_argument("--write", metavar="DIR",
                          help="write each camera's intrinsics and hand-eye files, cameras.yaml "
                               "and cell.yaml (which loads them) in DIR")
     cameras.add_argument("--format", choices=tuple(FORMATS), default="opencv-yaml",
