@@ -14,8 +14,7 @@ Intrinsics (image size, ``K``, distortion), two formats:
   ``distortion_model`` (``plumb_bob``: 5 numbers; ``rational_polynomial``: 8),
   ``distortion_coefficients: {rows, cols, data}``, ``projection_matrix`` (3x4, px: the
   rectified image's ``P``, kept on the camera and written out again; all zeros or ``[K | 0]``:
-  None); the
-  ``rectification_matrix`` is not used: cellsight models the raw image.
+  None); the ``rectification_matrix`` is not used: cellsight models the raw image.
   Also a ``sensor_msgs/CameraInfo`` message as ``ros2 topic echo /cam/camera_info`` prints it
   (``header``, ``height``, ``width``, ``distortion_model``, ``d``, ``k``, ``r``, ``p``: flat
   row-major lists, ``p`` kept as ``projection_matrix`` is; ``binning_x``, ``binning_y``,
@@ -27,7 +26,8 @@ Intrinsics (image size, ``K``, distortion), two formats:
 cellsight's lens model is OpenCV's ``k1 k2 p1 p2 k3`` (:mod:`cellsight.camera`): coefficients
 beyond the fifth (rational, thin-prism, tilt) must be zero, or the file is refused. The fisheye
 (equidistant, Kannala-Brandt) model is refused: its 4 coefficients ``k1..k4`` of the angle
-``theta`` read as ``k1 k2 p1 p2`` would put points tens of pixels off.
+``theta`` read as ``k1 k2 p1 p2`` would put points tens to hundreds of pixels off near the
+image's corners (``cv2.fisheye.projectPoints`` against ``cv2.projectPoints``).
 
 Hand-eye poses of a fixed (eye-to-hand, "eye on base") camera, two formats; both give the
 pose of the camera's optical frame (x right, y down, z forward: the frame OpenCV-based trackers
