@@ -170,6 +170,7 @@ def test_file_is_a_ros2_mcap_with_well_formed_schemas(exported: Path) -> None:
         summary = reader.get_summary()
     names = {s.name for s in summary.schemas.values()}
     assert names == {"tf2_msgs/msg/TFMessage", "geometry_msgs/msg/PoseStamped",
+                     "geometry_msgs/msg/PoseWithCovarianceStamped",
                      "visualization_msgs/msg/MarkerArray", "sensor_msgs/msg/CameraInfo",
                      "sensor_msgs/msg/Image", "diagnostic_msgs/msg/DiagnosticArray",
                      "sensor_msgs/msg/JointState"}
@@ -256,7 +257,8 @@ def test_part_poses_are_the_logged_ones(messages, rows) -> None:
                            atol=1e-12)
     for (_, _, msg), row in zip(messages["/part/est_pose"], est_rows, strict=True):
         assert msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec == _ns(row["t"])
-        assert np.allclose(_matrix(msg.pose.position, msg.pose.orientation), _pose(row, "est"),
+        pose = msg.pose.pose  # PoseWithCovarianceStamped
+        assert np.allclose(_matrix(pose.position, pose.orientation), _pose(row, "est"),
                            atol=1e-12)
     k = max(i for i, row in enumerate(rows) if row["est_x"])
     tree = _tf_tree(messages, k)

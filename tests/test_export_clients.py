@@ -209,3 +209,27 @@ def test_a_single_urdf_robot_is_described_on_robot_description(tmp_path) -> None
     ((topic, text),) = robot_descriptions(cell)
     assert (topic, text) == ("/robot_description", _urdf_path(cell).read_text())
     assert robot_descriptions(load_cell("dual-arm")) == []
+
+
+def test_estimate_is_a_pose_with_unknown_covariance(ur_export, ur_rows) -> None:
+    """/part/est_pose decoded by rosbags' Humble typestore: PoseWithCovarianceStamped in
+    ``world``, the pose frames.csv's ``est_*`` (roll-pitch-yaw: scipy's extrinsic xyz), the
+    covariance marked unknown (element 0 at -1, the rest 0), in the frames with an
+    estimate."""
+    from rosbags.typesys import Stores, get_typestore
+
+    humble = get_typestore(Stores.ROS2_HUMBLE)
+    estimates = _raw(ur_export, "/part/est_pose")
+    with_estimate = [row for row in ur_rows if row["est_x"]]
+    assert len(estimates) == len(with_estimate) > 0
+    for (schema, log_time, data), row in zip(estimates, with_estimate, strict=True):
+        assert schema == "geometry_msgs/msg/PoseWithCovarianceStamped"
+        msg = humble.deserialize_cdr(data, schema)
+        assert msg.header.frame_id == "world" and log_time == round(float(row["t"]) * 1e9)
+        p, r = msg.pose.pose.position, msg.pose.pose.orientation
+        xyz = [float(row[f"est_{a}"]) for a in "xyz"]
+        rpy = [float(row[f"est_{a}"]) for a in ("roll", "pitch", "yaw")]
+        assert np.allclose([p.x, p.y, p.z], xyz, atol=1e-12)
+        turn = Rotation.from_quat([r.x, r.y, r.z, r.w]) * Rotation.from_euler("xyz", rpy).inv()
+        assert turn.magnitude() < 1e-9
+        assert msg.pose.covariance[0] == -1.0 and not np.any(msg.pose.covariance[1:])

@@ -22,8 +22,10 @@ Topics (``<cam>``, ``<part>``: the camera's and the workpiece's names as ROS nam
   ``joint1`` .. for DH robots; :func:`cellsight.recording.names.joint_name`), and the grasping
   robot's jaw opening (m) as ``<robot>/jaw_opening`` in frames that log it: the convention
   ``cellsight track`` reads (:mod:`cellsight.recording.names`);
-- ``/<part>/true_pose``, ``/<part>/est_pose`` (``geometry_msgs/msg/PoseStamped``, frame
-  ``world``; the estimate only in frames that have one);
+- ``/<part>/true_pose`` (``geometry_msgs/msg/PoseStamped``, frame ``world``) and
+  ``/<part>/est_pose`` (``geometry_msgs/msg/PoseWithCovarianceStamped``, frame ``world``, only
+  in frames that have an estimate): frames.csv keeps no covariance of the estimate, so it is
+  marked unknown, the ROS convention: ``covariance[0] = -1``, the rest 0;
 - ``/<cam>/visibility`` (``visualization_msgs/msg/MarkerArray``, one per frame):
   :mod:`cellsight.export.markers`;
 - ``/diagnostics`` (``diagnostic_msgs/msg/DiagnosticArray``, one per frame, Foxglove's
@@ -70,7 +72,8 @@ TF, POSE, CAMERA_INFO, IMAGE, MARKERS, DIAGNOSTICS, JOINT_STATE = (
     "tf2_msgs/TFMessage", "geometry_msgs/PoseStamped", "sensor_msgs/CameraInfo",
     "sensor_msgs/Image", "visualization_msgs/MarkerArray", "diagnostic_msgs/DiagnosticArray",
     "sensor_msgs/JointState")
-STRING = "std_msgs/String"
+STRING, POSE_COV = "std_msgs/String", "geometry_msgs/PoseWithCovarianceStamped"
+UNKNOWN_COVARIANCE = [-1.0] + [0.0] * 35  # ROS: element 0 at -1, no covariance known
 LEVELS = {"tracking": 0, "acquired": 0, "degraded": 1, "coasting": 1, "predicting": 1,
           "lost": 2}  # DiagnosticStatus levels of the tracker's statuses (else STALE, 3)
 HEALTH_COLUMNS = ("nis", "notfound", "rejfrac")  # frames.csv's health columns, per camera
@@ -279,10 +282,13 @@ class _Frames:
             transforms.append((tf.ROOT, est_frame, run.T_est[k]))
         out = [("/tf", TF, {"transforms": [ros.transform(ns, *t) for t in transforms]}),
                (self.joint_states, JOINT_STATE, self._joint_state(k, ns))]
-        for name, T, has in (("true_pose", run.T_true[k], has_true),
-                             ("est_pose", run.T_est[k], has_est)):
-            if has:
-                out.append((f"/{self.part}/{name}", POSE, ros.pose_stamped(ns, tf.ROOT, T)))
+        if has_true:
+            out.append((f"/{self.part}/true_pose", POSE,
+                        ros.pose_stamped(ns, tf.ROOT, run.T_true[k])))
+        if has_est:
+            out.append((f"/{self.part}/est_pose", POSE_COV, {
+                "header": ros.header(ns, tf.ROOT),
+                "pose": {"pose": ros.pose(run.T_est[k]), "covariance": UNKNOWN_COVARIANCE}}))
         out += self._markers(k, ns, run.T_true[k] if has_true else run.T_est[k])
         out.append(("/diagnostics", DIAGNOSTICS, self._diagnostics(k, ns)))
         if k % self.every == 0:

@@ -21,6 +21,9 @@ MSG: dict[str, str] = {
     "geometry_msgs/Quaternion": "float64 x 0\nfloat64 y 0\nfloat64 z 0\nfloat64 w 1\n",
     "geometry_msgs/Pose": "Point position\nQuaternion orientation\n",
     "geometry_msgs/PoseStamped": "std_msgs/Header header\nPose pose\n",
+    "geometry_msgs/PoseWithCovariance": "Pose pose\nfloat64[36] covariance\n",
+    "geometry_msgs/PoseWithCovarianceStamped": (
+        "std_msgs/Header header\nPoseWithCovariance pose\n"),
     "geometry_msgs/Transform": "Vector3 translation\nQuaternion rotation\n",
     "geometry_msgs/TransformStamped": (
         "std_msgs/Header header\nstring child_frame_id\nTransform transform\n"),
