@@ -6,6 +6,7 @@ and its forward kinematics, frames.csv read with the csv module."""
 
 from __future__ import annotations
 
+import argparse
 import csv
 import io
 from collections import defaultdict
@@ -21,9 +22,11 @@ from mcap_ros2.decoder import DecoderFactory
 from scipy.spatial.transform import Rotation
 
 from cellsight import load_cell
+from cellsight.errors import CellsightError
 from cellsight.experiments import RunConfig, run_experiment
 from cellsight.export import export_mcap
-from cellsight.export.mcap_run import robot_descriptions
+from cellsight.export.command import register
+from cellsight.export.mcap_run import robot_descriptions, start_time_ns
 from cellsight.model.registry import builtin_cell_path
 
 UR_CELL = builtin_cell_path("ur-cell")
@@ -233,3 +236,64 @@ def test_estimate_is_a_pose_with_unknown_covariance(ur_export, ur_rows) -> None:
         turn = Rotation.from_quat([r.x, r.y, r.z, r.w]) * Rotation.from_euler("xyz", rpy).inv()
         assert turn.magnitude() < 1e-9
         assert msg.pose.covariance[0] == -1.0 and not np.any(msg.pose.covariance[1:])
+
+
+START = "2024-05-01T12:00:00.250Z"
+START_NS = 1714564800_250_000_000  # date -u -d 2024-05-01T12:00:00.25Z +%s%N
+
+
+def _export_cli(argv: list[str]) -> int:
+    parser = argparse.ArgumentParser(prog="cellsight")
+    register(parser.add_subparsers(dest="command", required=True))
+    args = parser.parse_args(["export", *argv])
+    return args.func(args)
+
+
+def _stamp_ns(msg) -> int | None:
+    """The header stamp (ns) of a message, or of a TFMessage's transforms (all equal)."""
+    if hasattr(msg, "transforms"):
+        (ns,) = {ts.header.stamp.sec * 10**9 + ts.header.stamp.nanosec for ts in msg.transforms}
+        return ns
+    header = getattr(msg, "header", None)
+    return None if header is None else header.stamp.sec * 10**9 + header.stamp.nanosec
+
+
+def test_start_time_shifts_every_stamp_and_log_time(ur_run, ur_rows, tmp_path, capsys) -> None:
+    """``--start-time``: rosbags' rosbag2 reader finds every message's log time and header
+    stamp at the start time plus the frame's t (frames.csv), none at 0."""
+    from rosbags.rosbag2 import Reader
+    from rosbags.typesys import Stores, get_typestore
+
+    humble = get_typestore(Stores.ROS2_HUMBLE)
+    path = tmp_path / "started.mcap"
+    assert _export_cli([str(ur_run), "--mcap", str(path), "--no-images", "--quiet",
+                        "--start-time", START]) == 0
+    assert "2024-05-01T12:00:00+00:00" in capsys.readouterr().out
+    frame_ns = {START_NS + round(float(row["t"]) * 1e9) for row in ur_rows}
+    seen = defaultdict(int)
+    with Reader(path) as bag:
+        assert bag.start_time == START_NS + round(float(ur_rows[0]["t"]) * 1e9)
+        for connection, log_time, data in bag.messages():
+            msg = humble.deserialize_cdr(data, connection.msgtype)
+            assert log_time in frame_ns, connection.topic
+            assert _stamp_ns(msg) in (log_time, None), connection.topic
+            seen[connection.topic] += 1
+    assert seen["/tf"] == seen["/joint_states"] == len(ur_rows)
+    assert seen["/tf_static"] == 1
+
+
+def test_start_time_forms_and_bad_ones() -> None:
+    assert start_time_ns(START) == start_time_ns(str(START_NS)) == START_NS
+    assert start_time_ns("2024-05-01T14:00:00.25+02:00") == START_NS
+    assert start_time_ns("2024-05-01 12:00:00.25") == START_NS  # no offset: UTC
+    assert start_time_ns(0) == start_time_ns("0") == 0
+    for bad in ("yesterday", "-5", "2040-01-01T00:00:00Z", "", 2**31 * 10**9, True):
+        with pytest.raises(CellsightError, match="--start-time: expected an ISO 8601 time"):
+            start_time_ns(bad)
+
+
+def test_a_run_ending_past_2038_is_refused(ur_run, tmp_path) -> None:
+    with pytest.raises(CellsightError, match="would end after 2038-01-19"):
+        export_mcap(ur_run, tmp_path / "late.mcap", images=False, progress=False,
+                    start_time="2038-01-19T03:14:07.9Z")
+    assert not (tmp_path / "late.mcap").exists()

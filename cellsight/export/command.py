@@ -12,6 +12,7 @@ import signal
 import sys
 import threading
 from contextlib import contextmanager
+from datetime import datetime, timezone
 
 CELL_HELP = ("the run's cell, a built-in cell's name or a YAML cell file (default: the one "
              "named by the run's metrics.json)")
@@ -22,16 +23,22 @@ def register(sub) -> argparse.ArgumentParser:
     export = sub.add_parser(
         "export", help="a run folder as an MCAP file of ROS 2 messages (ROS 2 tools, Foxglove)",
         description="Write a run folder (cellsight run) as an MCAP file of ROS 2 messages: "
-                    "/tf and /tf_static (robots from the logged joints, the part's true and "
-                    "estimated poses, the cameras' optical frames), /<cam>/image_raw and "
-                    "/<cam>/camera_info, /<part>/true_pose and est_pose, /<cam>/visibility "
-                    "markers. Stamps: the run's time t from the Unix epoch.")
+                    "/tf and latched /tf_static (REP 103/105 frames under 'world': robots from "
+                    "the logged joints, the part's true and estimated poses, the cameras' "
+                    "optical frames), /joint_states, /robot_description (URDF robots), "
+                    "/<cam>/image_raw (or image_raw/compressed) and /<cam>/camera_info, "
+                    "/<part>/true_pose and est_pose, /<cam>/visibility markers, /diagnostics. "
+                    "Stamps: --start-time plus the run's time t.")
     export.add_argument("run_dir", help="output folder of a run (cellsight run --out)")
     export.add_argument("--mcap", required=True, metavar="FILE", help="the MCAP file to write")
     export.add_argument("--every", type=int, default=1, metavar="N",
                         help="camera images and camera info every N-th vision frame (default 1)")
     export.add_argument("--no-images", action="store_true",
                         help="no camera images (no rendering; camera info stays)")
+    export.add_argument("--start-time", default="0", metavar="TIME",
+                        help="ROS time of the run's t = 0: ISO 8601 (2024-05-01T12:00:00Z; "
+                             "without an offset, UTC) or ns since the Unix epoch (default 0: "
+                             "1970, which tf2 may read as stamp 0, 'the latest')")
     export.add_argument("--cell", help=CELL_HELP)
     export.add_argument("--overwrite", action="store_true", help="replace FILE if it exists")
     export.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -69,7 +76,8 @@ def cmd_export(args: argparse.Namespace) -> int:
         with _sigterm_stops():
             result = export_mcap(args.run_dir, args.mcap, every=args.every,
                                  images=not args.no_images, overwrite=args.overwrite,
-                                 progress=not args.quiet, cell=args.cell)
+                                 progress=not args.quiet, cell=args.cell,
+                                 start_time=args.start_time)
     except Stop as stop:  # before the file was opened: nothing written
         print(f"cellsight: interrupted by {stop.args[0]} before writing {args.mcap}",
               file=sys.stderr)
@@ -82,8 +90,9 @@ def cmd_export(args: argparse.Namespace) -> int:
         table.add_row(escape(topic), kind, str(count))
     console.print(table)
     size = result.path.stat().st_size / 2**20
-    span = (f", t = {result.t_first:.3f} .. {result.t_last:.3f} s (stamps: t from the Unix "
-            f"epoch)" if result.frames else "")
+    start = datetime.fromtimestamp(result.start_ns // 10**9, timezone.utc).isoformat()
+    span = (f", t = {result.t_first:.3f} .. {result.t_last:.3f} s (stamps: t from "
+            f"{result.start_ns} ns, {start})" if result.frames else "")
     what = (f"{result.path} ({size:.1f} MiB): {result.frames} of {result.total} frames{span}")
     if result.stopped_by:
         print(f"cellsight: interrupted by {result.stopped_by}; {what}, readable", file=sys.stderr)

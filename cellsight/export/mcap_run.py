@@ -39,13 +39,17 @@ Topics (``<cam>``, ``<part>``: the camera's and the workpiece's names as ROS nam
   (robots' joints, the part at its true pose, the grasping robot's jaw opening), so the same
   for either sensor; ``images=False`` leaves the images out (the camera info stays).
 
-Time: message stamps, log and publish times are all the frame's run time ``t`` from the Unix
-epoch (:data:`~cellsight.export.ros.EPOCH_NS`). The file is written as the frames go, under a
-temporary name in its folder (:class:`~cellsight.runfolder.writes.AtomicFile`), and takes its
-name once closed properly; when interrupted (SIGINT, or the caller's :class:`Stop`) or failing,
-it is closed with the frames written so far (its ``cellsight`` metadata then says ``complete:
-false``). When writing the file itself fails (a full disk) nothing takes its name (a file there
-before, with ``overwrite``, is left as it was) and the failure is one
+Time: message stamps, log and publish times are all the start time (``start_time``,
+``--start-time``: ISO 8601 or ns since the Unix epoch, :func:`start_time_ns`; default 0, the
+Unix epoch) plus the frame's run time ``t``. Give a start time for tf2 and ROS tools: stamp 0
+means "the latest" to tf2, so a run at 1970 reads wrongly there.
+
+The file is written as the frames go, under a temporary name in its folder
+(:class:`~cellsight.runfolder.writes.AtomicFile`), and takes its name once closed properly;
+when interrupted (SIGINT, or the caller's :class:`Stop`) or failing, it is closed with the
+frames written so far (its ``cellsight`` metadata then says ``complete: false``). When writing
+the file itself fails (a full disk) nothing takes its name (a file there before, with
+``overwrite``, is left as it was) and the failure is one
 :class:`~cellsight.errors.CellsightError` naming the file and why.
 """
 
@@ -53,6 +57,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from datetime import datetime, timezone
 from pathlib import Path
 
 import numpy as np
@@ -74,6 +79,8 @@ TF, POSE, CAMERA_INFO, IMAGE, MARKERS, DIAGNOSTICS, JOINT_STATE = (
     "sensor_msgs/JointState")
 STRING, POSE_COV = "std_msgs/String", "geometry_msgs/PoseWithCovarianceStamped"
 UNKNOWN_COVARIANCE = [-1.0] + [0.0] * 35  # ROS: element 0 at -1, no covariance known
+END_NS = 2**31 * 10**9  # builtin_interfaces/Time's int32 seconds end on 2038-01-19T03:14:08Z
+UNIX_EPOCH = datetime(1970, 1, 1, tzinfo=timezone.utc)
 LEVELS = {"tracking": 0, "acquired": 0, "degraded": 1, "coasting": 1, "predicting": 1,
           "lost": 2}  # DiagnosticStatus levels of the tracker's statuses (else STALE, 3)
 HEALTH_COLUMNS = ("nis", "notfound", "rejfrac")  # frames.csv's health columns, per camera
@@ -96,6 +103,7 @@ class ExportResult:
     images: int = 0
     t_first: float = float("nan")
     t_last: float = float("nan")
+    start_ns: int = 0
     stopped_by: str | None = None
 
 
@@ -162,6 +170,31 @@ def qos_profiles(is_latched: bool) -> str:
                "liveliness": 1, "liveliness_lease_duration": never,
                "avoid_ros_namespace_conventions": False}
     return yaml.safe_dump([profile], sort_keys=False)
+
+
+def start_time_ns(value: int | str) -> int:
+    """The ROS time (ns since the Unix epoch) of a run's t = 0, from ``--start-time``: a whole
+    number of ns, or an ISO 8601 date and time (``2024-05-01T12:00:00Z``; without a UTC
+    offset, UTC; to the microsecond), before 2038-01-19T03:14:08Z (:data:`END_NS`)."""
+    given = value
+    if isinstance(value, str) and value.strip().isdigit():
+        value = int(value)
+    elif isinstance(value, str):
+        text = value.strip()
+        text = text[:-1] + "+00:00" if text[-1:] in ("Z", "z") else text
+        try:
+            when = datetime.fromisoformat(text)
+        except ValueError:
+            value = None
+        else:
+            when = when if when.tzinfo is not None else when.replace(tzinfo=timezone.utc)
+            delta = when - UNIX_EPOCH
+            value = (delta.days * 86400 + delta.seconds) * 10**9 + delta.microseconds * 1000
+    if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value < END_NS:
+        raise CellsightError(f"--start-time: expected an ISO 8601 time such as "
+                             f"2024-05-01T12:00:00Z, or ns since the Unix epoch, from 1970 to "
+                             f"2038-01-19T03:14:08Z (ROS time's int32 seconds), got {given!r}")
+    return value
 
 
 def check_output(path: str | Path, overwrite: bool, run_folder: Path,
@@ -245,10 +278,11 @@ class _Frames:
     """The messages of each frame of a run (module docstring), buffered per frame so that an
     interruption falls between frames."""
 
-    def __init__(self, run: RunData, every: int, images: _Images | None) -> None:
+    def __init__(self, run: RunData, every: int, images: _Images | None,
+                 start_ns: int = 0) -> None:
         from cellsight.recording import names  # not at the top: recording imports the export
 
-        self.run, self.every, self.images = run, every, images
+        self.run, self.every, self.images, self.start_ns = run, every, images, start_ns
         self.cams, self.part = _topic_tokens(run)
         self.static = tf.static_transforms(run.cell, run.part.name)
         self.descriptions = robot_descriptions(run.cell)
@@ -259,10 +293,14 @@ class _Frames:
         holder = gripper(run)
         self.opening = None if holder is None else names.joint_name(holder, names.OPENING)
 
+    def ns(self, k: int) -> int:
+        """The ROS time (ns) of frame ``k``: the start time plus the run's time ``t``."""
+        return self.start_ns + ros.time_ns(self.run.t[k])
+
     def once(self) -> list[tuple[str, str, dict]]:
         """The messages written once, at the first frame: /tf_static, the robot
         descriptions."""
-        ns = ros.time_ns(self.run.t[0])
+        ns = self.ns(0)
         return ([("/tf_static", TF, {"transforms": [ros.transform(ns, *t)
                                                     for t in self.static]})]
                 + [(topic, STRING, {"data": text}) for topic, text in self.descriptions])
@@ -270,7 +308,7 @@ class _Frames:
     def messages(self, k: int) -> list[tuple[str, str, dict]]:
         """Every message of frame ``k``: (topic, type, message)."""
         run = self.run
-        ns = ros.time_ns(run.t[k])
+        ns = self.ns(k)
         true_frame, est_frame = tf.part_frames(run.part.name)
         transforms = [t for r in run.cell.robots
                       for t in tf.robot_transforms(r, run.joints[r.name][k])]
@@ -361,16 +399,19 @@ def _progress_bar(enabled: bool):
                     disable=not enabled, transient=False)
 
 
-def _metadata(run: RunData, result: ExportResult, every: int, images: bool,
+def _metadata(source: _Frames, result: ExportResult,
               error: BaseException | None) -> dict[str, str]:
     """The file's ``cellsight`` metadata record: where it came from and how it ended."""
+    run = source.run
     m = run.metrics
     data = {"run": str(run.folder), "cell": str(run.cell.source),
             "experiment": str(m.get("experiment")), "seed": str(m.get("seed")),
             "sensor": str(m.get("sensor")),
-            "time": "stamps, log and publish times: the run's time t (s) from the Unix epoch",
-            "frames": f"{result.frames}/{result.total}", "image_every": str(every),
-            "images": "rendered by MuJoCo at the logged state" if images else "none",
+            "time": "stamps, log and publish times: start_time_ns + the run's time t (s)",
+            "start_time_ns": str(source.start_ns),
+            "frames": f"{result.frames}/{result.total}", "image_every": str(source.every),
+            "images": ("rendered by MuJoCo at the logged state" if source.images is not None
+                       else "none"),
             "complete": "true" if result.frames == result.total else "false"}
     if result.stopped_by:
         data["stopped_by"] = result.stopped_by
@@ -381,21 +422,26 @@ def _metadata(run: RunData, result: ExportResult, every: int, images: bool,
 
 def export_mcap(run_dir: str | Path, out: str | Path, *, every: int = 1, images: bool = True,
                 overwrite: bool = False, progress: bool = True,
-                cell: str | Path | None = None) -> ExportResult:
+                cell: str | Path | None = None, start_time: int | str = 0) -> ExportResult:
     """Write the run in ``run_dir`` to the MCAP file ``out`` (module docstring); ``cell``
-    overrides the cell named by the run's metrics.json. Returns what was written; stopped by
-    SIGINT (or :class:`Stop`), the file holds the frames before it and ``stopped_by`` says so."""
+    overrides the cell named by the run's metrics.json; ``start_time`` is the ROS time of the
+    run's t = 0 (:func:`start_time_ns`). Returns what was written; stopped by SIGINT (or
+    :class:`Stop`), the file holds the frames before it and ``stopped_by`` says so."""
     if isinstance(every, bool) or not isinstance(every, int) or every < 1:
         raise CellsightError(f"--every: expected a whole number >= 1, got {every!r}")
+    start_ns = start_time_ns(start_time)
     run = load_run(run_dir, cell)
+    if run.n and start_ns + ros.time_ns(run.t[-1]) >= END_NS:
+        raise CellsightError("--start-time: the run would end after 2038-01-19T03:14:08Z, "
+                             "past ROS time's int32 seconds")
     path = check_output(out, overwrite, run.folder)
     if images and "recording" in run.metrics:
         raise CellsightError(f"{run_dir}: tracked from recording {run.metrics['recording']}, "
                              f"which holds its images; no world to render them again: pass "
                              f"--no-images")
-    result = ExportResult(path, total=run.n)
+    result = ExportResult(path, total=run.n, start_ns=start_ns)
     renderer = _Images(run) if images else None
-    source = _Frames(run, every, renderer)
+    source = _Frames(run, every, renderer, start_ns)
     error: BaseException | None = None
     try:
         with _open_output(path) as file, _progress_bar(progress) as bar:
@@ -413,7 +459,7 @@ def export_mcap(run_dir: str | Path, out: str | Path, *, every: int = 1, images:
                 if renderer is not None:
                     renderer.close()
                 if not file.failed:  # a failed write leaves nothing to close: it is removed
-                    bag.close(_metadata(run, result, every, images, error))
+                    bag.close(_metadata(source, result, error))
                     file.commit()
     except WriteError as exc:
         raise CellsightError(f"--mcap: cannot write {str(path)!r} ({exc.reason}); it is left as "
@@ -437,7 +483,7 @@ def _write_all(bag: _Bag, source: _Frames, result: ExportResult,
     run = source.run
     for k in range(run.n):
         batch = (source.once() if k == 0 else []) + source.messages(k)
-        ns = ros.time_ns(run.t[k])
+        ns = source.ns(k)
         for topic, kind, message in batch:
             bag.write(topic, kind, message, ns)
         result.frames = k + 1
