@@ -4,8 +4,8 @@ The first ``sensor_msgs/msg/CameraInfo`` of each camera that has one is compared
 cell's camera: image size exactly, ``K`` within :data:`K_TOLERANCE_PX`, the distortion
 coefficients (OpenCV's order, zeros appended to 8) within :data:`D_TOLERANCE`. A
 disagreement is one :class:`~cellsight.recording.reader.RecordingError` naming the topic, the
-field and both values; with ``from_bag`` the recording's ``K`` and ``D`` replace the cell's
-instead (the pose stays the cell's, and the size must still agree). Only the ``plumb_bob``
+field and both values; with ``from_bag`` the recording's ``K``, ``D`` and ``P`` replace the
+cell's instead (the pose stays the cell's, and the size must still agree). Only the ``plumb_bob``
 and ``rational_polynomial`` models are read: a fisheye (``equidistant``) camera is refused in
 one line, never read as another model.
 """
@@ -46,6 +46,13 @@ def _padded(d: Any) -> np.ndarray:
     return np.concatenate([d, np.zeros(max(8 - d.size, 0))])[:max(8, d.size)]
 
 
+def _projection(info: Any, K: np.ndarray) -> np.ndarray | None:
+    """The message's P (3x4), None where it is empty or [K | 0]."""
+    P = np.asarray(info.p, dtype=float).reshape(3, 4)
+    plain = np.hstack([K, np.zeros((3, 1))])
+    return None if not np.any(P) or np.allclose(P, plain) else P
+
+
 def _recorded(camera: Camera, topic: str, info: Any) -> tuple[np.ndarray, np.ndarray]:
     """The recording's K and D for ``camera`` (size and model checked)."""
     model = str(info.distortion_model)
@@ -75,7 +82,7 @@ def checked_cell(cell: Cell, recording: Recording, topics: list[str | None],
         K, D = _recorded(camera, topic, info)
         if from_bag:
             dist = D if np.any(D) else None
-            cameras.append(replace(camera, K=K, dist=dist))
+            cameras.append(replace(camera, K=K, dist=dist, P=_projection(info, K)))
             notes.append(f"{camera.name}: calibration from {topic} (fx {K[0, 0]:.2f} px)")
             continue
         _compare(camera, topic, K, D)
