@@ -12,6 +12,7 @@ import io
 from collections import defaultdict
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 import yaml
@@ -297,3 +298,55 @@ def test_a_run_ending_past_2038_is_refused(ur_run, tmp_path) -> None:
         export_mcap(ur_run, tmp_path / "late.mcap", images=False, progress=False,
                     start_time="2038-01-19T03:14:07.9Z")
     assert not (tmp_path / "late.mcap").exists()
+
+
+def test_jpeg_images_decode_close_to_the_render(ur_run, ur_rows, tmp_path) -> None:
+    """``--jpeg 90``: /<cam>/image_raw/compressed (no image_raw), CompressedImage of format
+    jpeg decoded by rosbags' Humble typestore; cv2.imdecode gives the world's render at the
+    logged state (ReplayWorld, the part at its true pose) within JPEG's error (quality 90:
+    0.08-0.16 grey levels on average, at most 18, measured)."""
+    from rosbags.typesys import Stores, get_typestore
+
+    from cellsight.geometry.transforms import pose_from_xyz_rpy
+    from cellsight.world import ReplayWorld
+
+    humble = get_typestore(Stores.ROS2_HUMBLE)
+    path = tmp_path / "jpeg.mcap"
+    assert _export_cli([str(ur_run), "--mcap", str(path), "--jpeg", "90", "--every", "7",
+                        "--quiet"]) == 0
+    topics = set(decoded(path))
+    cell = load_cell(UR_CELL)
+    assert not any(t.endswith("/image_raw") for t in topics)
+    row = ur_rows[7]  # the second image
+    world = ReplayWorld(cell)
+    try:
+        world.show_state({r.name: np.array([float(row[f"q_{r.name}_{j}"]) for j in range(1, 7)])
+                          for r in cell.robots},
+                         {"part": pose_from_xyz_rpy(
+                             [float(row[f"true_{a}"]) for a in "xyz"],
+                             [float(row[f"true_{a}"]) for a in ("roll", "pitch", "yaw")])},
+                         {"UR5A": float(row["jaw_opening"])})
+        rendered = world.render()
+    finally:
+        world.close()
+    for c, cam in enumerate(cell.cameras):
+        images = _raw(path, f"/{cam.name}/image_raw/compressed")
+        assert len(images) == len(range(0, len(ur_rows), 7))
+        schema, log_time, data = images[1]
+        msg = humble.deserialize_cdr(data, schema)
+        assert (schema, msg.format) == ("sensor_msgs/msg/CompressedImage", "jpeg")
+        assert msg.header.frame_id == f"{cam.name}_optical_frame"
+        image = cv2.imdecode(np.frombuffer(bytes(msg.data), np.uint8), cv2.IMREAD_UNCHANGED)
+        assert image.shape == (cam.height, cam.width) and image.dtype == np.uint8
+        error = np.abs(image.astype(int) - rendered[c].astype(int))
+        assert rendered[c].std() > 5 and error.mean() < 0.5 and error.max() < 32, (
+            cam.name, error.mean(), error.max())
+
+
+def test_jpeg_quality_is_checked(ur_run, tmp_path) -> None:
+    for bad in (0, 101, True, 9.5):
+        with pytest.raises(CellsightError, match="--jpeg: expected a JPEG quality 1 to 100"):
+            export_mcap(ur_run, tmp_path / "x.mcap", jpeg=bad, progress=False)
+    with pytest.raises(CellsightError, match="--jpeg: without images"):
+        export_mcap(ur_run, tmp_path / "x.mcap", jpeg=90, images=False, progress=False)
+    assert not (tmp_path / "x.mcap").exists()

@@ -35,6 +35,9 @@ def register(sub) -> argparse.ArgumentParser:
                         help="camera images and camera info every N-th vision frame (default 1)")
     export.add_argument("--no-images", action="store_true",
                         help="no camera images (no rendering; camera info stays)")
+    export.add_argument("--jpeg", type=int, metavar="QUALITY",
+                        help="camera images as JPEG of this quality (1-100) on "
+                             "/<cam>/image_raw/compressed instead of raw mono8 on image_raw")
     export.add_argument("--start-time", default="0", metavar="TIME",
                         help="ROS time of the run's t = 0: ISO 8601 (2024-05-01T12:00:00Z; "
                              "without an offset, UTC) or ns since the Unix epoch (default 0: "
@@ -77,7 +80,7 @@ def cmd_export(args: argparse.Namespace) -> int:
             result = export_mcap(args.run_dir, args.mcap, every=args.every,
                                  images=not args.no_images, overwrite=args.overwrite,
                                  progress=not args.quiet, cell=args.cell,
-                                 start_time=args.start_time)
+                                 start_time=args.start_time, jpeg=args.jpeg)
     except Stop as stop:  # before the file was opened: nothing written
         print(f"cellsight: interrupted by {stop.args[0]} before writing {args.mcap}",
               file=sys.stderr)

@@ -34,7 +34,9 @@ Topics (``<cam>``, ``<part>``: the camera's and the workpiece's names as ROS nam
   (``degraded: 96% not found in cam1``) as its message and the health figures of each camera
   (``nis_<cam>``, ``notfound_<cam>``, ``rejfrac_<cam>``; empty when not judged) as values;
 - ``/<cam>/camera_info`` (``sensor_msgs/msg/CameraInfo``) and ``/<cam>/image_raw``
-  (``sensor_msgs/msg/Image``, mono8, frame ``<cam>_optical_frame``), every ``every``-th frame
+  (``sensor_msgs/msg/Image``, mono8, frame ``<cam>_optical_frame``; with a ``jpeg`` quality,
+  ``/<cam>/image_raw/compressed`` instead, ``sensor_msgs/msg/CompressedImage``, format
+  ``jpeg``, image_transport's topic), every ``every``-th frame
   (frames 0, every, 2 every, ...): the images are rendered again by MuJoCo at the logged state
   (robots' joints, the part at its true pose, the grasping robot's jaw opening), so the same
   for either sensor; ``images=False`` leaves the images out (the camera info stays).
@@ -77,7 +79,8 @@ TF, POSE, CAMERA_INFO, IMAGE, MARKERS, DIAGNOSTICS, JOINT_STATE = (
     "tf2_msgs/TFMessage", "geometry_msgs/PoseStamped", "sensor_msgs/CameraInfo",
     "sensor_msgs/Image", "visualization_msgs/MarkerArray", "diagnostic_msgs/DiagnosticArray",
     "sensor_msgs/JointState")
-STRING, POSE_COV = "std_msgs/String", "geometry_msgs/PoseWithCovarianceStamped"
+STRING, POSE_COV, COMPRESSED = ("std_msgs/String", "geometry_msgs/PoseWithCovarianceStamped",
+                                "sensor_msgs/CompressedImage")
 UNKNOWN_COVARIANCE = [-1.0] + [0.0] * 35  # ROS: element 0 at -1, no covariance known
 END_NS = 2**31 * 10**9  # builtin_interfaces/Time's int32 seconds end on 2038-01-19T03:14:08Z
 UNIX_EPOCH = datetime(1970, 1, 1, tzinfo=timezone.utc)
@@ -217,13 +220,32 @@ def check_output(path: str | Path, overwrite: bool, run_folder: Path,
     return path
 
 
+def check_jpeg(quality: int | None) -> None:
+    """``--jpeg``: None, or a JPEG quality 1 to 100."""
+    if quality is not None and (isinstance(quality, bool) or not isinstance(quality, int)
+                                or not 1 <= quality <= 100):
+        raise CellsightError(f"--jpeg: expected a JPEG quality 1 to 100, got {quality!r}")
+
+
+def jpeg_image(ns: int, frame_id: str, image: np.ndarray, quality: int) -> dict:
+    """``sensor_msgs/CompressedImage`` of an (H, W) uint8 grayscale image, JPEG of
+    ``quality`` (OpenCV's encoder), format ``jpeg``."""
+    import cv2
+
+    ok, data = cv2.imencode(".jpg", np.ascontiguousarray(image, dtype=np.uint8),
+                            [cv2.IMWRITE_JPEG_QUALITY, quality])
+    if not ok:
+        raise CellsightError(f"--jpeg: OpenCV could not encode an image of {frame_id} as JPEG")
+    return {"header": ros.header(ns, frame_id), "format": "jpeg", "data": data.tobytes()}
+
+
 class _Images:
     """The cameras' images re-rendered at logged states by a :class:`~cellsight.world.ReplayWorld`
     of the run's world (its cell as the realism profile drew it) without tasks (made on first
-    use)."""
+    use); ``jpeg``: their JPEG quality (None: raw mono8)."""
 
-    def __init__(self, run: RunData) -> None:
-        self.run = run
+    def __init__(self, run: RunData, jpeg: int | None = None) -> None:
+        self.run, self.jpeg = run, jpeg
         self._world = None
         self._gripper = gripper(run)
 
@@ -379,7 +401,10 @@ class _Frames:
         for c, (cam, token) in enumerate(zip(self.run.cell.cameras, self.cams, strict=True)):
             frame = tf.optical_frame(cam.name)
             out.append((f"/{token}/camera_info", CAMERA_INFO, ros.camera_info(ns, frame, cam)))
-            if images is not None:
+            if images is not None and self.images.jpeg is not None:
+                out.append((f"/{token}/image_raw/compressed", COMPRESSED,
+                            jpeg_image(ns, frame, images[c], self.images.jpeg)))
+            elif images is not None:
                 out.append((f"/{token}/image_raw", IMAGE, ros.mono8_image(ns, frame, images[c])))
         return out
 
@@ -399,6 +424,13 @@ def _progress_bar(enabled: bool):
                     disable=not enabled, transient=False)
 
 
+def _images_note(images: _Images | None) -> str:
+    if images is None:
+        return "none"
+    return "rendered by MuJoCo at the logged state" + (
+        "" if images.jpeg is None else f", JPEG quality {images.jpeg}")
+
+
 def _metadata(source: _Frames, result: ExportResult,
               error: BaseException | None) -> dict[str, str]:
     """The file's ``cellsight`` metadata record: where it came from and how it ended."""
@@ -410,8 +442,7 @@ def _metadata(source: _Frames, result: ExportResult,
             "time": "stamps, log and publish times: start_time_ns + the run's time t (s)",
             "start_time_ns": str(source.start_ns),
             "frames": f"{result.frames}/{result.total}", "image_every": str(source.every),
-            "images": ("rendered by MuJoCo at the logged state" if source.images is not None
-                       else "none"),
+            "images": _images_note(source.images),
             "complete": "true" if result.frames == result.total else "false"}
     if result.stopped_by:
         data["stopped_by"] = result.stopped_by
@@ -422,13 +453,18 @@ def _metadata(source: _Frames, result: ExportResult,
 
 def export_mcap(run_dir: str | Path, out: str | Path, *, every: int = 1, images: bool = True,
                 overwrite: bool = False, progress: bool = True,
-                cell: str | Path | None = None, start_time: int | str = 0) -> ExportResult:
+                cell: str | Path | None = None, start_time: int | str = 0,
+                jpeg: int | None = None) -> ExportResult:
     """Write the run in ``run_dir`` to the MCAP file ``out`` (module docstring); ``cell``
     overrides the cell named by the run's metrics.json; ``start_time`` is the ROS time of the
-    run's t = 0 (:func:`start_time_ns`). Returns what was written; stopped by SIGINT (or
-    :class:`Stop`), the file holds the frames before it and ``stopped_by`` says so."""
+    run's t = 0 (:func:`start_time_ns`); ``jpeg``: the images' JPEG quality (None: raw).
+    Returns what was written; stopped by SIGINT (or :class:`Stop`), the file holds the frames
+    before it and ``stopped_by`` says so."""
     if isinstance(every, bool) or not isinstance(every, int) or every < 1:
         raise CellsightError(f"--every: expected a whole number >= 1, got {every!r}")
+    check_jpeg(jpeg)
+    if jpeg is not None and not images:
+        raise CellsightError("--jpeg: without images (--no-images) there is nothing to encode")
     start_ns = start_time_ns(start_time)
     run = load_run(run_dir, cell)
     if run.n and start_ns + ros.time_ns(run.t[-1]) >= END_NS:
@@ -440,7 +476,7 @@ def export_mcap(run_dir: str | Path, out: str | Path, *, every: int = 1, images:
                              f"which holds its images; no world to render them again: pass "
                              f"--no-images")
     result = ExportResult(path, total=run.n, start_ns=start_ns)
-    renderer = _Images(run) if images else None
+    renderer = _Images(run, jpeg) if images else None
     source = _Frames(run, every, renderer, start_ns)
     error: BaseException | None = None
     try:
@@ -487,7 +523,7 @@ def _write_all(bag: _Bag, source: _Frames, result: ExportResult,
         for topic, kind, message in batch:
             bag.write(topic, kind, message, ns)
         result.frames = k + 1
-        result.images += sum(kind == IMAGE for _, kind, _ in batch)
+        result.images += sum(kind in (IMAGE, COMPRESSED) for _, kind, _ in batch)
         result.t_first = float(run.t[0])
         result.t_last = float(run.t[k])
         advance()
