@@ -151,6 +151,7 @@ def test_message_counts_and_stamps(messages, rows, cell) -> None:
                                                                 for c in cell.cameras]:
         assert len(messages[topic]) == n, topic
     assert len(messages["/part/est_pose"]) == sum(bool(r["est_x"]) for r in rows)
+    assert len(messages["/part/est_pose_with_covariance"]) == len(messages["/part/est_pose"])
     assert not any(t.endswith("robot_description") for t in messages)  # DH robots: no URDF
     for c in cell.cameras:
         assert len(messages[f"/{c.name}/image_raw"]) == images
@@ -257,8 +258,7 @@ def test_part_poses_are_the_logged_ones(messages, rows) -> None:
                            atol=1e-12)
     for (_, _, msg), row in zip(messages["/part/est_pose"], est_rows, strict=True):
         assert msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec == _ns(row["t"])
-        pose = msg.pose.pose  # PoseWithCovarianceStamped
-        assert np.allclose(_matrix(pose.position, pose.orientation), _pose(row, "est"),
+        assert np.allclose(_matrix(msg.pose.position, msg.pose.orientation), _pose(row, "est"),
                            atol=1e-12)
     k = max(i for i, row in enumerate(rows) if row["est_x"])
     tree = _tf_tree(messages, k)

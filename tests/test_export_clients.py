@@ -216,14 +216,14 @@ def test_a_single_urdf_robot_is_described_on_robot_description(tmp_path) -> None
 
 
 def test_estimate_is_a_pose_with_unknown_covariance(ur_export, ur_rows) -> None:
-    """/part/est_pose decoded by rosbags' Humble typestore: PoseWithCovarianceStamped in
-    ``world``, the pose frames.csv's ``est_*`` (roll-pitch-yaw: scipy's extrinsic xyz), the
-    covariance marked unknown (element 0 at -1, the rest 0), in the frames with an
-    estimate."""
+    """/part/est_pose_with_covariance decoded by rosbags' Humble typestore:
+    PoseWithCovarianceStamped in ``world``, the pose frames.csv's ``est_*`` (roll-pitch-yaw:
+    scipy's extrinsic xyz), the covariance marked unknown (element 0 at -1, the rest 0), in
+    the frames with an estimate."""
     from rosbags.typesys import Stores, get_typestore
 
     humble = get_typestore(Stores.ROS2_HUMBLE)
-    estimates = _raw(ur_export, "/part/est_pose")
+    estimates = _raw(ur_export, "/part/est_pose_with_covariance")
     with_estimate = [row for row in ur_rows if row["est_x"]]
     assert len(estimates) == len(with_estimate) > 0
     for (schema, log_time, data), row in zip(estimates, with_estimate, strict=True):

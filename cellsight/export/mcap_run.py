@@ -22,10 +22,11 @@ Topics (``<cam>``, ``<part>``: the camera's and the workpiece's names as ROS nam
   ``joint1`` .. for DH robots; :func:`cellsight.recording.names.joint_name`), and the grasping
   robot's jaw opening (m) as ``<robot>/jaw_opening`` in frames that log it: the convention
   ``cellsight track`` reads (:mod:`cellsight.recording.names`);
-- ``/<part>/true_pose`` (``geometry_msgs/msg/PoseStamped``, frame ``world``) and
-  ``/<part>/est_pose`` (``geometry_msgs/msg/PoseWithCovarianceStamped``, frame ``world``, only
-  in frames that have an estimate): frames.csv keeps no covariance of the estimate, so it is
-  marked unknown, the ROS convention: ``covariance[0] = -1``, the rest 0;
+- ``/<part>/true_pose``, ``/<part>/est_pose`` (``geometry_msgs/msg/PoseStamped``, frame
+  ``world``; the estimate only in frames that have one) and, with the estimate,
+  ``/<part>/est_pose_with_covariance`` (``geometry_msgs/msg/PoseWithCovarianceStamped``, for
+  ROS tools that take an estimator's output): frames.csv keeps no covariance of the estimate,
+  so it is marked unknown, the ROS convention: ``covariance[0] = -1``, the rest 0;
 - ``/<cam>/visibility`` (``visualization_msgs/msg/MarkerArray``, one per frame):
   :mod:`cellsight.export.markers`;
 - ``/diagnostics`` (``diagnostic_msgs/msg/DiagnosticArray``, one per frame, Foxglove's
@@ -346,9 +347,10 @@ class _Frames:
             out.append((f"/{self.part}/true_pose", POSE,
                         ros.pose_stamped(ns, tf.ROOT, run.T_true[k])))
         if has_est:
-            out.append((f"/{self.part}/est_pose", POSE_COV, {
-                "header": ros.header(ns, tf.ROOT),
-                "pose": {"pose": ros.pose(run.T_est[k]), "covariance": UNKNOWN_COVARIANCE}}))
+            out += [(f"/{self.part}/est_pose", POSE, ros.pose_stamped(ns, tf.ROOT, run.T_est[k])),
+                    (f"/{self.part}/est_pose_with_covariance", POSE_COV, {
+                        "header": ros.header(ns, tf.ROOT), "pose": {
+                            "pose": ros.pose(run.T_est[k]), "covariance": UNKNOWN_COVARIANCE}})]
         out += self._markers(k, ns, run.T_true[k] if has_true else run.T_est[k])
         out.append(("/diagnostics", DIAGNOSTICS, self._diagnostics(k, ns)))
         if k % self.every == 0:
