@@ -43,7 +43,21 @@ class Recording:
         """The log times (ns) of the first and the last message."""
 
     def messages(self, topics: Sequence[str]) -> Iterator[tuple[str, int, Any]]:
-        """(topic, log time in ns, decoded message) of ``topics``, in log-time order."""
+        """(topic, log time in ns, decoded message) of ``topics``, in log-time order; a
+        reader's failure is a :class:`RecordingError` saying how many were read before it."""
+        read = 0
+        try:
+            for item in self._decoded(topics):
+                read += 1
+                yield item
+        except (RecordingError, GeneratorExit):
+            raise
+        except Exception as exc:
+            raise RecordingError(f"recording {self.path}: damaged after {read} messages of "
+                                 f"{', '.join(topics)} ({type(exc).__name__}: {exc})") from exc
+
+    def _decoded(self, topics: Sequence[str]) -> Iterator[tuple[str, int, Any]]:
+        """The reader's own (topic, log time, message) of ``topics``."""
         raise NotImplementedError
 
     def close(self) -> None:
@@ -91,18 +105,10 @@ class McapRecording(Recording):
             self.topics[channel.topic] = Topic(channel.topic, schema.name if schema else "?",
                                                int(counts.get(cid, 0)))
 
-    def messages(self, topics: Sequence[str]) -> Iterator[tuple[str, int, Any]]:
-        read = 0
-        try:
-            for _, channel, message, decoded in self._reader.iter_decoded_messages(
-                    topics=list(topics), log_time_order=True):
-                read += 1
-                yield channel.topic, int(message.log_time), decoded
-        except (RecordingError, GeneratorExit):
-            raise
-        except Exception as exc:
-            raise RecordingError(f"recording {self.path}: damaged after {read} messages of "
-                                 f"{', '.join(topics)} ({type(exc).__name__}: {exc})") from exc
+    def _decoded(self, topics: Sequence[str]) -> Iterator[tuple[str, int, Any]]:
+        for _, channel, message, decoded in self._reader.iter_decoded_messages(
+                topics=list(topics), log_time_order=True):
+            yield channel.topic, int(message.log_time), decoded
 
     def close(self) -> None:
         with suppress(Exception):
@@ -129,18 +135,10 @@ class Rosbag2Recording(Recording):
             count = conn.msgcount + (known.count if known else 0)
             self.topics[conn.topic] = Topic(conn.topic, conn.msgtype, count)
 
-    def messages(self, topics: Sequence[str]) -> Iterator[tuple[str, int, Any]]:
+    def _decoded(self, topics: Sequence[str]) -> Iterator[tuple[str, int, Any]]:
         wanted = [c for c in self._reader.connections if c.topic in set(topics)]
-        read = 0
-        try:
-            for conn, ns, raw in self._reader.messages(connections=wanted):
-                read += 1
-                yield conn.topic, int(ns), self._reader.deserialize(raw, conn.msgtype)
-        except GeneratorExit:
-            raise
-        except Exception as exc:
-            raise RecordingError(f"recording {self.path}: damaged after {read} messages of "
-                                 f"{', '.join(topics)} ({type(exc).__name__}: {exc})") from exc
+        for conn, ns, raw in self._reader.messages(connections=wanted):
+            yield conn.topic, int(ns), self._reader.deserialize(raw, conn.msgtype)
 
     def close(self) -> None:
         with suppress(Exception):
