@@ -68,13 +68,13 @@ from cellsight.experiments.rows import FrameRows, FrameTruth, PartTruth
 from cellsight.experiments.scenario import Scenario, scenario
 from cellsight.experiments.sensors import IdealExtractor
 from cellsight.export.live import LiveStream, parse_address
-from cellsight.export.mcap_run import check_output
+from cellsight.export.mcap_run import check_jpeg, check_output
 from cellsight.model.cell import Cell
 from cellsight.model.loader import load_cell
 from cellsight.occlusion.predictor import OBJECT_BVH, STRUCTURES
 from cellsight.rates import VISION_HZ
 from cellsight.realism import FrameClock, Profile, draw_world
-from cellsight.recording.recorder import Recorder, check_jpeg
+from cellsight.recording.recorder import Recorder
 from cellsight.report.run_report import write_report
 from cellsight.report.video import VideoWriter
 from cellsight.runfolder import (
@@ -145,7 +145,7 @@ class RunConfig:
     live: str | None = None
 
     def __post_init__(self) -> None:
-        check_jpeg(self.record_jpeg)
+        check_jpeg(self.record_jpeg, "--record-jpeg")
         if self.live is not None:
             parse_address(self.live)
         if self.record is not None and self.sensor != "rendered":

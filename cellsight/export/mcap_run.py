@@ -221,11 +221,11 @@ def check_output(path: str | Path, overwrite: bool, run_folder: Path,
     return path
 
 
-def check_jpeg(quality: int | None) -> None:
-    """``--jpeg``: None, or a JPEG quality 1 to 100."""
+def check_jpeg(quality: int | None, option: str = "--jpeg") -> None:
+    """A JPEG quality (command-line ``option``): None, or 1 to 100."""
     if quality is not None and (isinstance(quality, bool) or not isinstance(quality, int)
                                 or not 1 <= quality <= 100):
-        raise CellsightError(f"--jpeg: expected a JPEG quality 1 to 100, got {quality!r}")
+        raise CellsightError(f"{option}: expected a JPEG quality 1 to 100, got {quality!r}")
 
 
 def jpeg_image(ns: int, frame_id: str, image: np.ndarray, quality: int) -> dict:

@@ -26,12 +26,11 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 
-import cv2
 import numpy as np
 
-from cellsight.errors import CellsightError
 from cellsight.export import frames as tf
 from cellsight.export import ros
+from cellsight.export.mcap_run import check_jpeg, jpeg_image
 from cellsight.export.msgdefs import msgdef, schema_name
 from cellsight.model.cell import Cell
 from cellsight.recording import names
@@ -43,11 +42,6 @@ JOINT_STATE, IMAGE, COMPRESSED, CAMERA_INFO, POSE, TF = (
     "sensor_msgs/CameraInfo", "geometry_msgs/PoseStamped", "tf2_msgs/TFMessage")
 
 
-def check_jpeg(quality: int | None) -> None:
-    if quality is not None and not (isinstance(quality, int) and 1 <= quality <= 100):
-        raise CellsightError(f"--record-jpeg: expected a JPEG quality 1 to 100, got {quality!r}")
-
-
 class Recorder:
     """Writes a run's sensor data to ``path`` (module docstring); ``jpeg``: JPEG quality of
     the images (None: lossless mono8)."""
@@ -55,7 +49,7 @@ class Recorder:
     def __init__(self, path: Path, cell: Cell, part: str, jpeg: int | None = None) -> None:
         from mcap_ros2.writer import Writer
 
-        check_jpeg(jpeg)
+        check_jpeg(jpeg, "--record-jpeg")
         self.path, self.cell, self.part, self.jpeg = Path(path), cell, part, jpeg
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self._file = AtomicFile(self.path)
@@ -115,13 +109,9 @@ class Recorder:
         if self.jpeg is None:
             self._write(names.image_topic(cam.name), IMAGE,
                         ros.mono8_image(stamp_ns, frame, image), ns)
-            return
-        ok, data = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, self.jpeg])
-        if not ok:
-            raise CellsightError(f"--record: OpenCV could not encode {cam.name}'s image as JPEG")
-        self._write(names.compressed_topic(cam.name), COMPRESSED,
-                    {"header": ros.header(stamp_ns, frame), "format": "jpeg",
-                     "data": data.tobytes()}, ns)
+        else:
+            self._write(names.compressed_topic(cam.name), COMPRESSED,
+                        jpeg_image(stamp_ns, frame, image, self.jpeg), ns)
 
     def close(self, complete: bool) -> None:
         """Finish the file (its metadata says whether the run ended ``complete``) and give it
