@@ -174,7 +174,7 @@ def test_file_is_a_ros2_mcap_with_well_formed_schemas(exported: Path) -> None:
                      "geometry_msgs/msg/PoseWithCovarianceStamped",
                      "visualization_msgs/msg/MarkerArray", "sensor_msgs/msg/CameraInfo",
                      "sensor_msgs/msg/Image", "diagnostic_msgs/msg/DiagnosticArray",
-                     "sensor_msgs/msg/JointState"}
+                     "sensor_msgs/msg/JointState", "visualization_msgs/msg/ImageMarker"}
     assert {s.encoding for s in summary.schemas.values()} == {"ros2msg"}
     assert {c.message_encoding for c in summary.channels.values()} == {"cdr"}
     for schema in summary.schemas.values():  # every type used is defined once in the text

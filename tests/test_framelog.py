@@ -18,8 +18,12 @@ from cellsight.runfolder.framelog import (
     camera_column,
     columns,
     decode_bits,
+    decode_corners,
+    decode_windows,
     encode_bits,
+    encode_corners,
     encode_labels,
+    encode_windows,
     pose_fields,
     timing_fields,
 )
@@ -27,8 +31,9 @@ from cellsight.tracking.timing import STAGES
 
 # The header of the runs written before the schema had its own module: the format may not
 # change (strings and missing values quoted, numbers not); columns are only added (the health
-# columns nis, notfound, rejfrac after err_px, then the unknown-occluder map, per camera; the
-# cameras' grab time at the end), and files without them still read.
+# columns nis, notfound, rejfrac after err_px, then the unknown-occluder map, the windows and
+# the corners, per camera; the cameras' grab time at the end), and files without them still
+# read.
 OLD_HEADER = (
     '"t","phase","stage","status","true_x","true_y","true_z","true_roll","true_pitch",'
     '"true_yaw","est_x","est_y","est_z","est_roll","est_pitch","est_yaw","pnp_x","pnp_y",'
@@ -40,8 +45,10 @@ OLD_HEADER = (
     '"t_extraction_ms","t_ekf_ms","t_total_ms"'
 )
 HEADER = OLD_HEADER.replace(
-    '"err_px_c1",', '"err_px_c1","nis_c1","notfound_c1","rejfrac_c1","unknown_c1",').replace(
+    '"err_px_c1",', '"err_px_c1","nis_c1","notfound_c1","rejfrac_c1","unknown_c1",'
+    '"windows_c1","corners_c1",').replace(
     '"err_px_c2",', '"err_px_c2","nis_c2","notfound_c2","rejfrac_c2","unknown_c2",'
+    '"windows_c2","corners_c2",'
 ) + ',"t_grab_ms"'
 F = 16
 
@@ -72,10 +79,26 @@ def test_the_format_is_that_of_the_runs_already_written(tmp_path: Path):
     assert header == HEADER and columns(2) == [h.strip('"') for h in HEADER.split(",")]
     flags = '"0' + "1" * (F - 1) + '"'
     labels = '"self' + ";" * (F - 1) + '"'
-    camera = f'{flags},"","","","","",{labels},"",0.07347276475694445,"","","","","",'
+    camera = f'{flags},"","","","","",{labels},"",0.07347276475694445,"","","","","","","",'
     assert line == ('0.078,"waiting","start","tracking",0.55,0.0,0.62,0.0,0.0,0.35,'
                     + '"",' * 12 + "0.5398199451773269,-0.15,0.8,0.09,0,1,"
                     + camera * 2 + ",".join(["1.2346"] * len(STAGES)))
+
+
+def test_windows_and_corners_round_trip():
+    features, boxes = np.array([3, 0]), np.array([[10, 20, 30, 40], [0, 1, 2, 3]])
+    got_features, got_boxes = decode_windows(encode_windows(features, boxes))
+    assert np.array_equal(got_features, features) and np.array_equal(got_boxes, boxes)
+    measured = np.full((F, 2), np.nan)
+    measured[[2, 7]] = [[101.25, 33.5], [0.0004, 575.9996]]
+    back = decode_corners(encode_corners(measured), F)
+    assert np.array_equal(np.isnan(back), np.isnan(measured))
+    assert np.nanmax(np.abs(back - measured)) <= 5e-4
+    assert decode_windows("")[1].shape == (0, 4)
+    with pytest.raises(ValueError, match="windows '3 1 2'"):
+        decode_windows("3 1 2")
+    with pytest.raises(ValueError, match="outside"):
+        decode_corners("16 1 2", F)
 
 
 def test_a_file_without_the_health_columns_reads_them_as_missing(tmp_path: Path):

@@ -12,15 +12,20 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from mcap.reader import make_reader
 from recordings import read_mcap, tf_message, write_rosbag2
+from rosbags.typesys import Stores, get_typestore
 
 from cellsight import load_cell
 from cellsight.errors import CellFileError
 from cellsight.experiments import RunConfig, run_experiment
+from cellsight.export import export_mcap
+from cellsight.geometry.transforms import pose_from_xyz_rpy, transform_points
 from cellsight.recording import TopicMap
 from cellsight.recording.reader import RecordingError
 from cellsight.recording.track import TrackOptions, track_recording
 from cellsight.runfolder import FrameLog
+from cellsight.runfolder.framelog import decode_corners, decode_windows
 
 DURATION = 3.0
 
@@ -255,3 +260,47 @@ def test_the_command_line_tracks_and_refuses_in_one_line(recorded, tmp_path):
                          capture_output=True, text=True, timeout=300)
     assert bad.returncode != 0
     assert bad.stderr.strip().count("\n") == 0 and "no such file" in bad.stderr
+
+
+def test_the_logged_corners_are_the_measured_ones(recorded):
+    run, _ = recorded
+    log = FrameLog.read(run / "frames.csv")
+    cell = load_cell()
+    part = cell.workpieces[0]
+    truth = log.poses("true")
+    checked = 0
+    for k in range(0, log.n, 5):
+        T = pose_from_xyz_rpy(truth[k, :3], truth[k, 3:])
+        for c, cam in enumerate(cell.cameras, start=1):
+            corners = decode_corners(log.text(f"corners_c{c}")[k], len(part.feature_points))
+            measured = np.all(np.isfinite(corners), axis=1)
+            assert np.array_equal(measured, log.bits(f"meas_c{c}", 16)[k])
+            if not measured.any():
+                continue
+            true_px = cam.project(transform_points(T, part.feature_points))
+            err = np.median(np.linalg.norm(corners[measured] - true_px[measured], axis=1))
+            assert abs(err - log.floats(f"err_px_c{c}")[k]) < 1e-3
+            checked += 1
+    assert checked > 10
+
+
+def test_the_export_draws_the_windows_and_corners_on_the_images(recorded, tmp_path):
+    run, _ = recorded
+    path = tmp_path / "run.mcap"
+    export_mcap(run, path, images=False, progress=False)
+    log = FrameLog.read(run / "frames.csv")
+    store = get_typestore(Stores.ROS2_HUMBLE)
+    with path.open("rb") as f:
+        markers = [store.deserialize_cdr(m.data, "visualization_msgs/msg/ImageMarker")
+                   for _, ch, m in make_reader(f).iter_messages(topics=["/cam2/annotations"],
+                                                                 log_time_order=True)]
+    assert len(markers) == 2 * log.n
+    for k in (0, log.n // 2, log.n - 1):
+        windows, corners = markers[2 * k], markers[2 * k + 1]
+        _, boxes = decode_windows(log.text("windows_c2")[k])
+        assert windows.ns == "windows" and len(windows.points) == 8 * len(boxes)
+        if len(boxes):
+            assert (windows.points[0].x, windows.points[0].y) == tuple(boxes[0, :2])
+        measured = decode_corners(log.text("corners_c2")[k], 16)
+        got = np.array([[p.x, p.y] for p in corners.points]).reshape(-1, 2)
+        assert np.allclose(got, measured[np.all(np.isfinite(measured), axis=1)])

@@ -14,8 +14,10 @@ from cellsight.runfolder.framelog import (
     WRONG_PX,
     camera_column,
     encode_bits,
+    encode_corners,
     encode_grid,
     encode_labels,
+    encode_windows,
     joint_fields,
     pose_fields,
     timing_fields,
@@ -117,6 +119,8 @@ class FrameRows:
             "rej": encode_bits(rec.rejected[c]),
             "occ_pred": None if reasons is None else encode_labels(reasons),
             "grab": 0.0 if plan is None else plan.fraction,
+            "windows": "" if plan is None else encode_windows(plan.features, plan.boxes),
+            "corners": encode_corners(rec.measured[c]),
             **_health_fields(rec.health, c),
         }
         if truth is not None:

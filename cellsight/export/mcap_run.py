@@ -29,6 +29,8 @@ Topics (``<cam>``, ``<part>``: the camera's and the workpiece's names as ROS nam
   so it is marked unknown, the ROS convention: ``covariance[0] = -1``, the rest 0;
 - ``/<cam>/visibility`` (``visualization_msgs/msg/MarkerArray``, one per frame):
   :mod:`cellsight.export.markers`;
+- ``/<cam>/annotations`` (``visualization_msgs/msg/ImageMarker``, two per frame): the tracker's
+  windows and measured corners on the camera's image (:mod:`cellsight.export.image_markers`);
 - ``/diagnostics`` (``diagnostic_msgs/msg/DiagnosticArray``, one per frame, Foxglove's
   Diagnostics panel): the tracker's status for ``cellsight/<part>``, level OK (tracking,
   acquired), WARN (degraded, coasting), ERROR (lost) or STALE (waiting), the status text
@@ -68,20 +70,21 @@ import yaml
 
 from cellsight.errors import CellsightError
 from cellsight.export import frames as tf
-from cellsight.export import markers, ros
+from cellsight.export import image_markers, markers, ros
 from cellsight.export.msgdefs import msgdef, schema_name
 from cellsight.geometry.transforms import transform_points
 from cellsight.model.cell import Cell
 from cellsight.runfolder import RUN_FILES, RunData, WriteError, load_run
-from cellsight.runfolder.framelog import camera_column
+from cellsight.runfolder.framelog import camera_column, decode_corners, decode_windows
 from cellsight.runfolder.writes import AtomicFile
 
 TF, POSE, CAMERA_INFO, IMAGE, MARKERS, DIAGNOSTICS, JOINT_STATE = (
     "tf2_msgs/TFMessage", "geometry_msgs/PoseStamped", "sensor_msgs/CameraInfo",
     "sensor_msgs/Image", "visualization_msgs/MarkerArray", "diagnostic_msgs/DiagnosticArray",
     "sensor_msgs/JointState")
-STRING, POSE_COV, COMPRESSED = ("std_msgs/String", "geometry_msgs/PoseWithCovarianceStamped",
-                                "sensor_msgs/CompressedImage")
+STRING, POSE_COV, COMPRESSED, IMAGE_MARKER = (
+    "std_msgs/String", "geometry_msgs/PoseWithCovarianceStamped", "sensor_msgs/CompressedImage",
+    "visualization_msgs/ImageMarker")
 UNKNOWN_COVARIANCE = [-1.0] + [0.0] * 35  # ROS: element 0 at -1, no covariance known
 END_NS = 2**31 * 10**9  # builtin_interfaces/Time's int32 seconds end on 2038-01-19T03:14:08Z
 UNIX_EPOCH = datetime(1970, 1, 1, tzinfo=timezone.utc)
@@ -352,6 +355,7 @@ class _Frames:
                         "header": ros.header(ns, tf.ROOT), "pose": {
                             "pose": ros.pose(run.T_est[k]), "covariance": UNKNOWN_COVARIANCE}})]
         out += self._markers(k, ns, run.T_true[k] if has_true else run.T_est[k])
+        out += self._annotations(k, ns)
         out.append(("/diagnostics", DIAGNOSTICS, self._diagnostics(k, ns)))
         if k % self.every == 0:
             out += self._camera_messages(k, ns)
@@ -396,6 +400,23 @@ class _Frames:
                 "status": [{"level": LEVELS.get(status.split(":")[0], 3),
                             "name": f"cellsight/{self.run.part.name}", "message": status,
                             "hardware_id": "", "values": values}]}
+
+    def _annotations(self, k: int, ns: int) -> list[tuple[str, str, dict]]:
+        """Each camera's windows and measured corners of frame ``k`` on its image
+        (:mod:`cellsight.export.image_markers`)."""
+        frames, n = self.run.frames, len(self.run.part.feature_points)
+        out = []
+        for c, (cam, token) in enumerate(zip(self.run.cell.cameras, self.cams, strict=True),
+                                         start=1):
+            try:
+                _, boxes = decode_windows(frames.text(camera_column("windows", c))[k])
+                corners = decode_corners(frames.text(camera_column("corners", c))[k], n)
+            except ValueError as exc:
+                raise CellsightError(f"frames.csv row {k + 1}: {exc}") from exc
+            rejected = frames.bits(camera_column("rej", c), n)[k]
+            out += [(f"/{token}/annotations", IMAGE_MARKER, m) for m in image_markers.annotations(
+                ns, tf.optical_frame(cam.name), boxes, corners, rejected)]
+        return out
 
     def _camera_messages(self, k: int, ns: int) -> list[tuple[str, str, dict]]:
         images = self.images.render(k) if self.images is not None else None

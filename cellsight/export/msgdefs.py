@@ -60,6 +60,13 @@ MSG: dict[str, str] = {
         "sensor_msgs/CompressedImage texture\nUVCoordinate[] uv_coordinates\nstring text\n"
         "string mesh_resource\nMeshFile mesh_file\nbool mesh_use_embedded_materials\n"),
     "visualization_msgs/MarkerArray": "Marker[] markers\n",
+    "visualization_msgs/ImageMarker": (
+        "int32 CIRCLE=0\nint32 LINE_STRIP=1\nint32 LINE_LIST=2\nint32 POLYGON=3\nint32 POINTS=4\n"
+        "int32 ADD=0\nint32 REMOVE=1\nstd_msgs/Header header\nstring ns\nint32 id\nint32 type\n"
+        "int32 action\ngeometry_msgs/Point position\nfloat32 scale\n"
+        "std_msgs/ColorRGBA outline_color\nuint8 filled\nstd_msgs/ColorRGBA fill_color\n"
+        "builtin_interfaces/Duration lifetime\ngeometry_msgs/Point[] points\n"
+        "std_msgs/ColorRGBA[] outline_colors\n"),
 }
 """``pkg/Type`` -> the type's ``.msg`` text (no comments)."""
 

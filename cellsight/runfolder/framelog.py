@@ -27,7 +27,11 @@ c = 1..C, F features; an empty field is a missing value):
   :attr:`cellsight.visibility.CameraVisibility.reason`; in ``occ_pred``, ``unknown`` for a
   feature the tracker's unknown-occluder map covers, :mod:`cellsight.tracking.unknown`);
   ``unknown_c{c}``: that map's occluded cells after the frame (:func:`encode_grid`; empty when
-  none, and in runs logged before it); ``grab_c{c}``: fraction of the
+  none, and in runs logged before it); ``windows_c{c}``: the windows planned, each
+  ``j u0 v0 u1 v1`` (feature index from 0, half-open pixel box), joined by ``;``
+  (:func:`encode_windows`); ``corners_c{c}``: the corners measured, each ``j u v`` (px, as in
+  the image, to 0.001 px), joined by ``;`` (:func:`encode_corners`; both empty when none, and
+  in runs logged before them); ``grab_c{c}``: fraction of the
   image's pixels grabbed; ``err_px_c{c}``: median distance (px) of this frame's measurements
   from the true projections (rendered sensor); the track's health over its sliding window
   (:mod:`cellsight.tracking.health`; empty while it is not tracked or not judged):
@@ -66,7 +70,7 @@ POSE = ("x", "y", "z", "roll", "pitch", "yaw")
 POSE_PREFIXES = ("true", "est", "pnp")
 GRIPPER = ("gripper_x", "gripper_y", "gripper_z", "jaw_opening", "jaws_closed", "grasped")
 PER_CAMERA = ("vis_pred", "vis_true", "sel", "meas", "rej", "wrong", "occ_pred", "occ_true",
-              "grab", "err_px", "nis", "notfound", "rejfrac", "unknown")
+              "grab", "err_px", "nis", "notfound", "rejfrac", "unknown", "windows", "corners")
 WRONG_PX = 3.0  # a measurement this far (px) from the true projection is another image point
 LABEL_SEPARATOR = ";"
 
@@ -140,6 +144,51 @@ def decode_grid(text: str) -> Grid | None:
         raise ValueError(f"grid {text[:40]!r}: not <rows>x<columns>@<pitch>:<hex of the bits>")
     bits = np.unpackbits(np.frombuffer(bytes.fromhex(match[4]), dtype=np.uint8))
     return Grid(bits[: rows * cols].reshape(rows, cols).astype(bool), int(match[3]))
+
+def encode_windows(features: np.ndarray, boxes: np.ndarray) -> str:
+    """Windows (feature index ``features`` (n,), ``boxes`` (n, 4) int) as one field."""
+    return LABEL_SEPARATOR.join(f"{int(j)} {int(b[0])} {int(b[1])} {int(b[2])} {int(b[3])}"
+                                for j, b in zip(features, boxes, strict=True))
+
+
+def decode_windows(text: str) -> tuple[np.ndarray, np.ndarray]:
+    """Feature indices (n,) and boxes (n, 4) of :func:`encode_windows`' text (empty: none); a
+    text of another form is a ValueError quoting it."""
+    rows = _number_rows(text, 5, "windows")
+    return rows[:, 0].astype(np.int64), rows[:, 1:].astype(np.int64)
+
+
+def encode_corners(measured: np.ndarray) -> str:
+    """The measured corners (F, 2) px, NaN where none, as one field."""
+    return LABEL_SEPARATOR.join(f"{j} {u:.3f} {v:.3f}" for j, (u, v) in enumerate(measured)
+                                if np.isfinite(u) and np.isfinite(v))
+
+
+def decode_corners(text: str, n_features: int) -> np.ndarray:
+    """(F, 2) px of :func:`encode_corners`' text, NaN where none."""
+    rows = _number_rows(text, 3, "corners")
+    out = np.full((n_features, 2), np.nan)
+    index = rows[:, 0].astype(np.int64)
+    if np.any((index < 0) | (index >= n_features)):
+        raise ValueError(f"corners {text[:40]!r}: a feature index outside 0..{n_features - 1}")
+    out[index] = rows[:, 1:]
+    return out
+
+
+def _number_rows(text: str, width: int, what: str) -> np.ndarray:
+    """The ``;``-separated rows of ``width`` numbers of a field, (n, width)."""
+    if not text:
+        return np.zeros((0, width))
+    try:
+        rows = np.array([[float(x) for x in part.split()] for part in
+                         text.split(LABEL_SEPARATOR)])
+    except ValueError:
+        rows = np.zeros((0, 0))
+    if rows.ndim != 2 or rows.shape[1] != width or not np.all(np.isfinite(rows)):
+        raise ValueError(f"{what} {text[:40]!r}: not rows of {width} numbers separated by "
+                         f"{LABEL_SEPARATOR!r}")
+    return rows
+
 
 def encode_labels(labels: Sequence[str]) -> str:
     """Per-feature labels ('' for none) as one field."""
