@@ -44,8 +44,10 @@ def is_run_output(path: Path) -> bool:
 
 
 def _shown(out: Path) -> str:
-    """A folder's name for a message: quoted, cut to 80 characters."""
-    return repr(str(out)) if len(str(out)) <= 80 else repr(str(out)[:77] + "...")
+    """A folder's name for a message: quoted, cut to 80 characters in the middle (its start and
+    its last names, the telling part, stay)."""
+    text = str(out)
+    return repr(text) if len(text) <= 80 else repr(text[:30] + "..." + text[-47:])
 
 
 def check_folder(out: Path, arg: str) -> bool:
