@@ -16,7 +16,9 @@ Written into the output directory (:mod:`cellsight.runfolder`) as the run goes:
 ``frames.csv`` (:mod:`cellsight.runfolder.framelog`, rows from :mod:`.rows`, with the PnP
 baseline of :mod:`.baseline`), ``run.log`` (phase transitions, occlusion events and the grasp:
 :mod:`.monitors`; the summary), ``keyframes.json`` + ``keyframes/*.png`` (:mod:`.keyframes`),
-``views.mp4`` (rendered sensor). After the loop (also when interrupted or failed), two steps
+``views.mp4`` (rendered sensor); with ``record``, an MCAP file of the sensor data as a real cell
+records it (:mod:`cellsight.recording.recorder`); with ``live``, a Foxglove WebSocket stream
+(:mod:`cellsight.export.live`). After the loop (also when interrupted or failed), two steps
 that read the log: ``report.html`` (:mod:`cellsight.report.run_report`), then, last and whole,
 ``metrics.json`` (:mod:`cellsight.experiments.metrics` plus the run's facts: the realism
 profile and every draw, the structure, the collisions, the dropped frames).
