@@ -6,6 +6,8 @@ one line."""
 from __future__ import annotations
 
 import json
+import os
+import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -304,3 +306,25 @@ def test_the_export_draws_the_windows_and_corners_on_the_images(recorded, tmp_pa
         measured = decode_corners(log.text("corners_c2")[k], 16)
         got = np.array([[p.x, p.y] for p in corners.points]).reshape(-1, 2)
         assert np.allclose(got, measured[np.all(np.isfinite(measured), axis=1)])
+
+
+def test_sigterm_ends_the_tracking_at_a_frame_with_everything_written(recorded, tmp_path,
+                                                                      monkeypatch):
+    from cellsight.recording import track as track_module
+
+    frame = track_module._Session._frame
+    calls = []
+
+    def signalled(self, recorded_frame):
+        calls.append(recorded_frame.t)
+        if len(calls) == 5:
+            os.kill(os.getpid(), signal.SIGTERM)
+        return frame(self, recorded_frame)
+
+    monkeypatch.setattr(track_module._Session, "_frame", signalled)
+    result = track_recording(None, recorded[1], tmp_path / "out", TrackOptions(progress=False))
+    assert result.frames == 5 and result.metrics["interrupted"] is True
+    assert result.metrics["signal"] == "SIGTERM"
+    assert FrameLog.read(tmp_path / "out" / "frames.csv").n == 5
+    assert (tmp_path / "out" / "report.html").is_file()
+    assert "interrupted by SIGTERM" in (tmp_path / "out" / "run.log").read_text()

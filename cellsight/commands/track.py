@@ -4,6 +4,8 @@ file or a rosbag2 folder) into a run folder (:mod:`cellsight.recording.track`)."
 from __future__ import annotations
 
 import argparse
+import signal
+import sys
 from pathlib import Path
 
 from cellsight.commands.metric_rows import metric_rows
@@ -65,6 +67,11 @@ def cmd_track(args: argparse.Namespace) -> int:
     if args.mcap is not None:
         check_output(args.mcap, args.overwrite, Path(args.out))
     result = track_recording(args.cell, args.recording, Path(args.out), options)
+    if result.metrics.get("signal"):
+        name = result.metrics["signal"]
+        print(f"cellsight: interrupted by {name} after {result.frames} frames; partial results "
+              f"in {result.out}", file=sys.stderr)
+        return 128 + signal.Signals[name].value
     if args.mcap is not None:
         export_mcap(result.out, args.mcap, images=False, overwrite=args.overwrite,
                     progress=not args.quiet)

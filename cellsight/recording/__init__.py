@@ -11,10 +11,11 @@ part's true pose) as ROS 2 messages in an MCAP file or a rosbag2 folder, written
 - :mod:`.images`: ``sensor_msgs/Image`` and ``CompressedImage`` to grayscale arrays;
 - :mod:`.series`: joint states, jaw openings and true poses as time series, interpolated;
 - :mod:`.frames`: the images grouped by stamp into frames, with the joints at each frame;
-- :mod:`.track`: the tracker over the frames, into a run folder.
+- :mod:`.track`: the tracker over the frames, into a run folder
+  (:func:`cellsight.recording.track.track_recording`; not imported here, since the run loop
+  imports the recorder).
 """
 
 from cellsight.recording.names import TopicMap, load_topic_map
-from cellsight.recording.track import TrackResult, track_recording
 
-__all__ = ["TopicMap", "TrackResult", "load_topic_map", "track_recording"]
+__all__ = ["TopicMap", "load_topic_map"]

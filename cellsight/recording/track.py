@@ -16,7 +16,8 @@ end ``report.html`` and ``metrics.json`` (the figures of ``cellsight run`` where
 allows, and the recording's facts: its file, the time origin, the frames, gaps and holds). A
 bad recording is one :class:`~cellsight.recording.reader.RecordingError`, raised before any
 frame is tracked where the checks allow, and otherwise after the frames before it are written
-(the metrics then say ``error``).
+(the metrics then say ``error``). SIGINT and SIGTERM end the tracking at the next frame, the
+report and the metrics written (``"interrupted": true`` and the ``signal``).
 """
 
 from __future__ import annotations
@@ -32,6 +33,7 @@ from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 from cellsight.experiments.baseline import PnPBaseline
 from cellsight.experiments.metrics import frame_metrics
 from cellsight.experiments.rows import FrameRows, FrameTruth, PartTruth
+from cellsight.experiments.runner import StopSignals
 from cellsight.export.live import LiveStream, parse_address
 from cellsight.model.cell import Cell
 from cellsight.model.loader import load_cell
@@ -122,6 +124,7 @@ class _Session:
         self.frames = 0
         self.held_s = 0.0
         self.live: LiveStream | None = None
+        self.stop = StopSignals()
 
     def run(self, writer: FrameWriter, writes: RunWrites) -> None:
         for line in self.calibration:
@@ -130,6 +133,9 @@ class _Session:
         with _progress(self.options.progress) as bar:
             task = bar.add_task("tracking", total=max(span, 1e-9))
             for frame in self.grouper.frames():
+                if self.stop.name is not None:
+                    log.warning("interrupted by %s at t = %.2f s", self.stop.name, frame.t)
+                    break
                 row = self._frame(frame)
                 with writes.guard(writer.path):
                     writer.write(row)
@@ -218,7 +224,8 @@ def _tracked(session: _Session, writes: RunWrites, cell_files: dict) -> TrackRes
         session.live = LiveStream(session.cell, session.part.name,
                                   *parse_address(session.options.live))
     try:
-        session.run(writer, writes)
+        with session.stop:
+            session.run(writer, writes)
     except BaseException as exc:
         error = exc
         log.error("failed after %d frames: %s: %s", session.frames, type(exc).__name__, exc)
@@ -243,7 +250,8 @@ def _metrics(session: _Session, cell_files: dict, wall_s: float,
                "sensor": "recorded", "occlusion_prediction": session.options.occlusion_prediction,
                "unknown_occluders": session.options.unknown_occluders,
                **session.facts(), **frame_metrics(frames), "wall_s": round(wall_s, 2),
-               "interrupted": isinstance(error, KeyboardInterrupt),
+               "interrupted": isinstance(error, KeyboardInterrupt) or bool(session.stop.name),
+               **({"signal": session.stop.name} if session.stop.name else {}),
                "cameras": [c.name for c in cell.cameras],
                "features": len(session.part.feature_points), "robot": session.robot.name,
                "workpiece": session.part.name,
