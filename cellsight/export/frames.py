@@ -31,7 +31,7 @@ from cellsight.geometry.transforms import invert_pose
 from cellsight.model.cell import Cell
 from cellsight.model.loader import parse_cell_text
 from cellsight.model.robot import Robot
-from cellsight.model.urdf import _flange, _parse, _scale_walk, _walk, package_folder, resolve_uri
+from cellsight.model.urdf import fixed_frames, package_folder, resolve_uri
 from cellsight.model.yaml_input import read_cell_text
 
 ROOT = "world"
@@ -90,24 +90,17 @@ def urdf_fixed_frames(robot: Robot, urdf: UrdfFile) -> tuple[list[Transform], st
     """A URDF robot's fixed links, each on its URDF parent link at the fixed joint's origin
     (m), and its flange: (transforms, the flange's TF name, ``T_flange_tool`` of the robot's
     tool on it). A :class:`CellsightError` when the URDF's chain is no longer the robot's."""
-    model = _parse(urdf.path)
-    walk = _walk(model, urdf.path)
-    _scale_walk(walk, urdf.metres)
-    if tuple(walk.joint_links) != tuple(robot.chain.link_names):
+    fixed = fixed_frames(urdf.path, urdf.metres, urdf.flange)
+    if fixed.links != tuple(robot.chain.link_names):
         raise CellsightError(f"robot {robot.name}: URDF file {urdf.path} has the links "
-                             f"{walk.joint_links}, the loaded robot {robot.chain.link_names}; "
-                             f"the file changed since the cell was loaded")
-    out = []
-    for joint in model.joints:
-        if joint.type == "fixed":
-            T_frame_parent = walk.link_frame[joint.parent][1]
-            T_frame_child = walk.link_frame[joint.child][1]
-            out.append((f"{robot.name}/{joint.parent}", f"{robot.name}/{joint.child}",
-                        invert_pose(T_frame_parent) @ T_frame_child))
-    flange, T_last_flange = _flange(walk, urdf.flange, urdf.path)
+                             f"{list(fixed.links)}, the loaded robot "
+                             f"{list(robot.chain.link_names)}; the file changed since the cell "
+                             f"was loaded")
+    out = [(f"{robot.name}/{parent}", f"{robot.name}/{child}", T)
+           for parent, child, T in fixed.transforms]
     T_flange_tool = (None if robot.tool is None
-                     else invert_pose(T_last_flange) @ robot.tool.T_flange_tool)
-    return out, f"{robot.name}/{flange}", T_flange_tool
+                     else invert_pose(fixed.T_last_flange) @ robot.tool.T_flange_tool)
+    return out, f"{robot.name}/{fixed.flange}", T_flange_tool
 
 
 def robot_static_transforms(robot: Robot, urdf: UrdfFile | None) -> list[Transform]:

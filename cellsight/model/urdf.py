@@ -50,6 +50,7 @@ import numpy as np
 from cellsight.errors import CellsightError, GeometryError, short_repr
 from cellsight.geometry.meshes import load_mesh_solid
 from cellsight.geometry.polyhedron import Polyhedron, box, prism
+from cellsight.geometry.transforms import invert_pose
 from cellsight.kinematics import JointKind, SerialChain
 
 CYLINDER_SIDES = 24
@@ -484,6 +485,32 @@ def urdf_files(path: Path, geometry: str = "collision",
             if mesh is not None:
                 files.append(resolve_uri(mesh.filename, dict(packages or {}), path.parent))
     return files
+
+
+@dataclass(frozen=True)
+class FixedFrames:
+    """A URDF's fixed links, each on its parent link: ``transforms`` (parent link, child link,
+    ``T_parent_child`` in m), the chain's ``links`` (frames 0..n), the ``flange`` link's name
+    and ``T_last_flange`` (the flange in the chain's last frame)."""
+
+    transforms: list[tuple[str, str, np.ndarray]]
+    links: tuple[str, ...]
+    flange: str
+    T_last_flange: np.ndarray
+
+
+def fixed_frames(path: Path, scale: float = 1.0, flange: str | None = None) -> FixedFrames:
+    """The fixed links of the URDF in ``path`` (``scale``: metres per length unit of the file;
+    ``flange``: the tool's link, None for the default of :func:`load_urdf_robot`), placed as
+    :func:`load_urdf_robot` places them; a :class:`UrdfError` naming the file."""
+    robot = _parse(path)
+    walk = _walk(robot, path)
+    _scale_walk(walk, float(scale))
+    transforms = [(j.parent, j.child,
+                   invert_pose(walk.link_frame[j.parent][1]) @ walk.link_frame[j.child][1])
+                  for j in robot.joints if j.type == "fixed"]
+    name, T_last_flange = _flange(walk, flange, path)
+    return FixedFrames(transforms, tuple(walk.joint_links), name, T_last_flange)
 
 
 def load_urdf_robot(path: Path, robot_name: str, geometry: str = "collision",
