@@ -328,3 +328,33 @@ def test_sigterm_ends_the_tracking_at_a_frame_with_everything_written(recorded, 
     assert FrameLog.read(tmp_path / "out" / "frames.csv").n == 5
     assert (tmp_path / "out" / "report.html").is_file()
     assert "interrupted by SIGTERM" in (tmp_path / "out" / "run.log").read_text()
+
+
+def test_the_camera_info_beside_a_mapped_image_topic_is_checked(recorded, tmp_path):
+    bag = _bag(recorded, tmp_path, edit=_wider, topics={"/cam1/image_raw": "/left/image_raw",
+                                                         "/cam1/camera_info": "/left/camera_info"})
+    topic_map = tmp_path / "topics.yaml"
+    topic_map.write_text("cameras: {cam1: /left/image_raw}\n")
+    _refused(bag, tmp_path, "/left/camera_info", "--calibration-from-bag", topics=topic_map)
+
+
+def test_tracking_never_writes_over_its_recording(recorded, tmp_path, capsys):
+    from cellsight.cli import main
+
+    copy = tmp_path / "rec.mcap"
+    copy.write_bytes(recorded[1].read_bytes())
+    before = copy.read_bytes()
+    code = main(["track", str(copy), "--out", str(tmp_path / "out"), "--quiet", "--mcap",
+                 str(copy), "--overwrite"])
+    assert code == 2 and "is the recording being tracked" in capsys.readouterr().err
+    assert copy.read_bytes() == before and not (tmp_path / "out").exists()
+
+
+def test_a_misspelt_map_key_lists_the_keys(tmp_path):
+    from cellsight.recording import load_topic_map
+
+    path = tmp_path / "topics.yaml"
+    path.write_text("camera: {cam1: /x}\n")
+    with pytest.raises(CellFileError, match=r"field 'camera'.*one of the keys cameras, "
+                                            r"camera_info, joint_states"):
+        load_topic_map(path)

@@ -10,6 +10,7 @@ from pathlib import Path
 
 from cellsight.commands.metric_rows import metric_rows
 from cellsight.commands.text import CELL_HELP
+from cellsight.errors import CellsightError
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -35,11 +36,12 @@ def register(sub: argparse._SubParsersAction) -> None:
                             "they disagree (default: a disagreement is an error)")
     track.add_argument("--mcap", metavar="FILE",
                        help="also write the tracked run as an MCAP file for Foxglove and ROS 2 "
-                            "tools (cellsight export --no-images: TF, the estimate, visibility "
-                            "markers, the tracker's status)")
+                            "tools (cellsight export --no-images, stamped at the recording's "
+                            "time: TF, the estimate, windows and corners, visibility markers, "
+                            "the tracker's status)")
     track.add_argument("--live", nargs="?", const="127.0.0.1:8765", metavar="[HOST:]PORT",
-                       help="stream the tracking to Foxglove as it happens: a Foxglove "
-                            "WebSocket server (default 127.0.0.1:8765)")
+                       help="stream the tracking to Foxglove as it happens, at the recording's "
+                            "own pace: a Foxglove WebSocket server (default 127.0.0.1:8765)")
     track.add_argument("--part", help="the workpiece logged in frames.csv (default: the first)")
     track.add_argument("--no-occlusion-prediction", action="store_true",
                        help="every feature in the image counts as visible")
@@ -47,8 +49,16 @@ def register(sub: argparse._SubParsersAction) -> None:
                        help="learn where objects the cell file does not know hide the part")
     track.add_argument("--quiet", action="store_true", help="no progress bar")
     track.add_argument("--overwrite", action="store_true",
-                       help="clear --out first if it holds an earlier run")
+                       help="clear --out first if it holds an earlier run, and replace --mcap")
     track.set_defaults(func=cmd_track)
+
+
+def _check_not_the_recording(mcap: Path, recording: Path) -> None:
+    """``--mcap`` may not be the recording itself, nor a file in a rosbag2 folder."""
+    target, source = mcap.resolve(), recording.resolve()
+    if target == source or source in target.parents:
+        raise CellsightError(f"--mcap: {str(mcap)!r} is the recording being tracked; choose "
+                             f"another file")
 
 
 def cmd_track(args: argparse.Namespace) -> int:
@@ -65,6 +75,7 @@ def cmd_track(args: argparse.Namespace) -> int:
                            unknown_occluders=args.unknown_occluders, overwrite=args.overwrite,
                            progress=not args.quiet, live=args.live)
     if args.mcap is not None:
+        _check_not_the_recording(Path(args.mcap), Path(args.recording))
         check_output(args.mcap, args.overwrite, Path(args.out))
     result = track_recording(args.cell, args.recording, Path(args.out), options)
     if result.metrics.get("signal"):
@@ -74,7 +85,7 @@ def cmd_track(args: argparse.Namespace) -> int:
         return 128 + signal.Signals[name].value
     if args.mcap is not None:
         export_mcap(result.out, args.mcap, images=False, overwrite=args.overwrite,
-                    progress=not args.quiet)
+                    progress=not args.quiet, start_time=result.metrics["time_origin_ns"])
     table = Table(title=f"tracked {result.frames} frames of {args.recording}")
     table.add_column("metric")
     table.add_column("value", justify="right")

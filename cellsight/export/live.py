@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import logging
 import queue
+import sys
 import threading
 import time
 from collections.abc import Mapping, Sequence
@@ -168,6 +169,8 @@ class LiveStream:
         self.frames = 0
         self._t0_ns: int | None = None
         log.info("live: Foxglove WebSocket at ws://%s:%d", host, self.port)
+        print(f"cellsight: live at ws://{host}:{self.port} (Foxglove: Open connection, Foxglove "
+              f"WebSocket)", file=sys.stderr)
 
     @property
     def port(self) -> int:

@@ -1,7 +1,9 @@
 """A recording's camera images as the tracker's frames.
 
 :func:`resolve_topics` finds each camera's image topic (the topic map's, else
-``/<cam>/image_raw`` or ``/<cam>/image_raw/compressed``), its optional ``camera_info`` and the
+``/<cam>/image_raw`` or ``/<cam>/image_raw/compressed``), its optional ``camera_info`` (the
+map's, else the one beside the image topic, as camera drivers publish it, else
+``/<cam>/camera_info``) and the
 workpieces' true-pose topics; a camera without images, or with both kinds, is one
 :class:`~cellsight.recording.reader.RecordingError` that lists what the recording holds.
 
@@ -66,17 +68,26 @@ def _image_topic(recording: Recording, camera: str, topic_map: TopicMap) -> tupl
     return found[0], kind
 
 
+def _info_beside(image_topic: str) -> str:
+    """The camera-info topic a camera driver publishes beside its images: ``/ns/camera_info``
+    for ``/ns/image_raw`` (or ``/ns/image_raw/compressed``, ``/ns/image_rect``, ...)."""
+    base = image_topic.removesuffix("/compressed")
+    return f"{base.rsplit('/', 1)[0]}/camera_info"
+
+
 def resolve_topics(recording: Recording, cameras: list[Camera], parts: list[str],
                    topic_map: TopicMap) -> Topics:
     """Where the recording keeps each camera's images and info and the parts' true poses."""
     images = [_image_topic(recording, c.name, topic_map) for c in cameras]
     info = []
-    for c in cameras:
-        topic = topic_map.camera_info.get(c.name, names.camera_info_topic(c.name))
-        if c.name in topic_map.camera_info and topic not in recording.topics:
+    for c, (image, _) in zip(cameras, images, strict=True):
+        topic = topic_map.camera_info.get(c.name)
+        if topic is not None and topic not in recording.topics:
             raise RecordingError(f"recording {recording.path}: no {topic} (camera_info of "
                                  f"{c.name} in the topic map); it holds: {recording.listing()}")
-        info.append(topic if topic in recording.topics else None)
+        found = [t for t in (topic, _info_beside(image), names.camera_info_topic(c.name))
+                 if t in recording.topics]
+        info.append(found[0] if found else None)
     for topic in topic_map.joint_states:
         if topic not in recording.topics:
             raise RecordingError(f"recording {recording.path}: no joint states on {topic}; it "

@@ -7,7 +7,8 @@ Conventions (``<cam>``, ``<part>``: the cell's camera and workpiece names as ROS
 - ``/<cam>/image_raw`` (``sensor_msgs/msg/Image``) or ``/<cam>/image_raw/compressed``
   (``sensor_msgs/msg/CompressedImage``): each camera's images, stamped with their exposure
   time;
-- ``/<cam>/camera_info`` (``sensor_msgs/msg/CameraInfo``, optional): checked against the cell;
+- ``/<cam>/camera_info`` (``sensor_msgs/msg/CameraInfo``, optional; beside a mapped image
+  topic, ``/ns/camera_info`` for ``/ns/image_raw``): checked against the cell;
 - ``/joint_states`` (``sensor_msgs/msg/JointState``): every robot's joints, named
   ``<robot>/<joint>`` (the URDF's joint names; ``joint1`` .. ``joint<n>`` for DH robots), and
   each gripper's jaw opening (m) as the joint ``<robot>/jaw_opening``;
@@ -135,4 +136,6 @@ def load_topic_map(path: str | Path | None) -> TopicMap:
     except ValidationError as exc:
         err = exc.errors()[0]
         loc = ".".join(str(p) for p in err["loc"])
-        raise CellFileError(file, loc, err.get("input"), err["msg"]) from exc
+        expected = (f"one of the keys {', '.join(k for k in TopicMap.model_fields if k != 'file')}"
+                    if err["type"] == "extra_forbidden" else err["msg"])
+        raise CellFileError(file, loc, err.get("input"), expected) from exc

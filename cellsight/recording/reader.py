@@ -89,8 +89,9 @@ class McapRecording(Recording):
             summary = self._reader.get_summary()
         except Exception as exc:
             self.close()
-            raise RecordingError(f"recording {path}: not a readable MCAP file "
-                                 f"({type(exc).__name__}: {exc})") from exc
+            raise RecordingError(f"recording {path}: not a readable MCAP file, or one truncated "
+                                 f"or damaged ({type(exc).__name__}: {str(exc)[:120]}); `mcap "
+                                 f"recover` rebuilds what a cut-off file holds") from exc
         if summary is None:
             self.close()
             raise RecordingError(f"recording {path}: the MCAP file has no summary: truncated "

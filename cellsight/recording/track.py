@@ -129,13 +129,20 @@ class _Session:
     def run(self, writer: FrameWriter, writes: RunWrites) -> None:
         for line in self.calibration:
             log.info("%s", line)
+        for robot in self.cell.robots:
+            if robot.tool is not None and robot.name not in self.signals.openings:
+                log.warning("%s: no jaw opening in the recording; the predictor takes the "
+                            "gripper's jaws open", robot.name)
         span = (self.recording.span_ns[1] - self.origin_ns) / 1e9
         with _progress(self.options.progress) as bar:
             task = bar.add_task("tracking", total=max(span, 1e-9))
+            pace = _Pace() if self.live is not None else None
             for frame in self.grouper.frames():
                 if self.stop.name is not None:
                     log.warning("interrupted by %s at t = %.2f s", self.stop.name, frame.t)
                     break
+                if pace is not None:  # a viewer watches at the recording's own pace
+                    pace.wait(frame.t)
                 row = self._frame(frame)
                 with writes.guard(writer.path):
                     writer.write(row)
@@ -182,6 +189,20 @@ class _Session:
                          if self.topics.truth else None}
 
 
+class _Pace:
+    """Waits until the wall clock has moved on as far as the recording since its first
+    frame."""
+
+    def __init__(self) -> None:
+        self._start: tuple[float, float] | None = None  # (wall clock, recording time) s
+
+    def wait(self, t: float) -> None:
+        now = time.monotonic()
+        if self._start is None:
+            self._start = (now, t)
+        time.sleep(max(0.0, (t - self._start[1]) - (now - self._start[0])))
+
+
 def _progress(enabled: bool) -> Progress:
     return Progress(TextColumn("[bold]{task.description}"), BarColumn(),
                     TextColumn("t = {task.completed:6.2f} / {task.total:.2f} s"),
@@ -197,6 +218,8 @@ def track_recording(cell: str | Path | Cell | None, recording: str | Path, out: 
     if not (options.tolerance_s > 0 and np.isfinite(options.tolerance_s)):
         raise RecordingError(f"--sync-tolerance: expected a positive number of seconds, got "
                              f"{options.tolerance_s!r}")
+    if options.live is not None:
+        parse_address(options.live)
     out = Path(out)
     stale = check_out_folder(out, options.overwrite, "--out", "--overwrite")
     cell = cell if isinstance(cell, Cell) else load_cell(cell)
