@@ -35,7 +35,7 @@ from cellsight.experiments.metrics import frame_metrics
 from cellsight.experiments.rows import FrameRows, FrameTruth, PartTruth
 from cellsight.experiments.runner import StopSignals
 from cellsight.export.live import LiveStream, parse_address
-from cellsight.model.cell import Cell
+from cellsight.model.cell import Cell, Workpiece
 from cellsight.model.loader import load_cell
 from cellsight.occlusion.predictor import VisibilityPredictor
 from cellsight.recording.calibration import checked_cell
@@ -100,13 +100,9 @@ class _Session:
     def __init__(self, cell: Cell, recording: Recording, out: Path, options: TrackOptions,
                  topic_map: TopicMap) -> None:
         self.recording, self.out, self.options = recording, out, options
-        part_names = [p.name for p in cell.workpieces]
-        self.part = next((p for p in cell.workpieces if p.name == options.part), None) if \
-            options.part else cell.workpieces[0]
-        if self.part is None:
-            raise RecordingError(f"--part {options.part!r}: no workpiece of cell {cell.source} "
-                                 f"({', '.join(part_names)})")
-        self.topics = resolve_topics(recording, list(cell.cameras), part_names, topic_map)
+        self.part = _workpiece(cell, options.part)
+        self.topics = resolve_topics(recording, list(cell.cameras),
+                                     [p.name for p in cell.workpieces], topic_map)
         self.cell, self.calibration = checked_cell(cell, recording, self.topics.camera_info,
                                                    options.calibration_from_bag)
         self.signals: Signals = read_signals(recording, self.cell, topic_map, self.topics.truth)
@@ -187,6 +183,17 @@ class _Session:
                 "calibration": self.calibration,
                 "truth": "the recorded pose; vis_true: the cell's geometry at it"
                          if self.topics.truth else None}
+
+
+def _workpiece(cell: Cell, name: str | None) -> Workpiece:
+    """The workpiece ``name`` of the cell (None: its first), or one error naming them."""
+    if name is None:
+        return cell.workpieces[0]
+    for part in cell.workpieces:
+        if part.name == name:
+            return part
+    raise RecordingError(f"--part {name!r}: no workpiece of cell {cell.source} "
+                         f"({', '.join(p.name for p in cell.workpieces)})")
 
 
 class _Pace:
