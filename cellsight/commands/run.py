@@ -152,7 +152,8 @@ def cmd_run(args: argparse.Namespace) -> int:
         table.add_row(key, format_value(value))
     console = Console()
     console.print(table)
-    console.print(f"wrote [bold]{out}[/bold]: frames.csv, metrics.json, run.log, report.html")
+    console.print(f"wrote [bold]{out}[/bold]: frames.csv, metrics.json, run.log, report.html"
+                  + (f"; the recording [bold]{args.record}[/bold]" if args.record else ""))
     return 0
 
 
