@@ -35,7 +35,7 @@ from cellsight.experiments import RunConfig, run_experiment
 from cellsight.geometry.transforms import pose_from_xyz_rpy, transform_points
 from cellsight.model.loader import load_cell
 from cellsight.occlusion.predictor import VisibilityPredictor
-from cellsight.runfolder.framelog import FrameLog
+from cellsight.runfolder.framelog import FrameLog, decode_corners, decode_windows
 from cellsight.view.app import ViewApp
 from cellsight.view.replay import RunReplay
 
@@ -233,6 +233,23 @@ def _link_nodes(cell, frame_index_of=None):
     """(node name, robot, frame index) of every robot link object."""
     return [(f"/cell/{o.name}", f.owner, f.index)
             for o, f in zip(cell.objects, cell.frames, strict=True) if f.kind == "link"]
+
+
+def test_replay_draws_the_logged_windows_and_corners(run_dir):
+    replay = RunReplay(run_dir)
+    log = FrameLog.read(run_dir / "frames.csv")
+    drawn = 0
+    for k in range(0, log.n, 10):
+        features = replay.state(k).features[replay.part]
+        for c in range(len(replay.cell.cameras)):
+            _, boxes = decode_windows(log.text(f"windows_c{c + 1}")[k])
+            np.testing.assert_array_equal(features.windows[c], boxes)
+            measured = log.bits(f"meas_c{c + 1}", 16)[k]
+            corners = decode_corners(log.text(f"corners_c{c + 1}")[k], 16)
+            np.testing.assert_array_equal(features.measured_pixels[c][measured],
+                                          corners[measured])
+            drawn += len(boxes)
+    assert drawn > 20
 
 
 def test_replay_follows_the_timeline(run_dir, cell):

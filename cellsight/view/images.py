@@ -4,8 +4,9 @@ and the tracker's windows drawn on them (:class:`CameraImages`, the drawing of
 worker thread that keeps only the latest request and renders at most a few per second
 (:class:`ImageWorker`), so that scrubbing the timeline stays responsive.
 
-Windows: the run log keeps which features were selected (``sel_c<c>``), not the filter's
-innovation covariance, so the windows are planned again by
+Windows: a run logs its windows and measured corners (``windows_c<c>``, ``corners_c<c>``), drawn
+as they were. A run logged before those columns keeps only which features were selected
+(``sel_c<c>``), not the filter's innovation covariance, so its windows are planned again by
 :func:`cellsight.tracking.windowing.plan_windows` around the predicted pixels with a settled
 filter's covariance (zero: the smallest window, ``min_size_px``, which is the tracker's own size
 once its covariance has converged), cut where they would hold another visible feature as in the
@@ -62,7 +63,8 @@ def draw_view(image: np.ndarray, camera: Camera, c: int,
         out = draw_camera_overlay(
             out, pixels=feats.pixels[c], visible=feats.visible[c], selected=row(feats.selected),
             measured=measured, rejected=row(feats.rejected),
-            boxes=window_boxes(camera, feats.pixels[c], feats.visible[c], row(feats.selected)),
+            boxes=(feats.windows[c] if feats.windows is not None else
+                   window_boxes(camera, feats.pixels[c], feats.visible[c], row(feats.selected))),
             title=camera.name, truth_visible=None if feats.truth is None else feats.truth[c],
             unknown=unknown)
         unknown = None  # shaded once

@@ -2,7 +2,8 @@
 :func:`cellsight.runfolder.load_run` (``metrics.json``, the cell and ``frames.csv``, checked
 against each other: a missing file, a field of the wrong type, a run logged before the joint
 columns or a log that does not fit the cell is a :class:`~cellsight.errors.CellsightError`
-naming the file and the field), plus the selection and measurement bits the view draws."""
+naming the file and the field), plus the selection and measurement bits the view draws, and
+the windows and measured corners where the run logged them."""
 
 from __future__ import annotations
 
@@ -12,7 +13,7 @@ import numpy as np
 
 from cellsight.geometry.transforms import transform_points
 from cellsight.runfolder import load_run
-from cellsight.runfolder.framelog import camera_column
+from cellsight.runfolder.framelog import camera_column, decode_corners, decode_windows
 from cellsight.view.states import FeatureState, FrameState
 
 BIT_COLUMNS = ("vis_pred", "vis_true", "sel", "meas", "rej")
@@ -35,6 +36,19 @@ class RunReplay:
         self.unknown = [self.run.frames.grids(camera_column("unknown", c + 1))
                         for c in range(len(self.cell.cameras))]
         self.n, self.t = self.run.n, self.run.t
+
+    def _logged(self, k: int, n_features: int) -> tuple[list | None, np.ndarray | None]:
+        """Frame ``k``'s windows (per camera (n, 4)) and measured corners (C, F, 2) as the run
+        logged them; (None, None) for a run logged before those columns."""
+        frames = self.run.frames
+        if camera_column("windows", 1) not in frames.columns:
+            return None, None
+        cameras = range(1, len(self.cell.cameras) + 1)
+        windows = [decode_windows(frames.text(camera_column("windows", c))[k])[1]
+                   for c in cameras]
+        corners = np.array([decode_corners(frames.text(camera_column("corners", c))[k],
+                                           n_features) for c in cameras])
+        return windows, corners
 
     def frame_at(self, t: float) -> int:
         """The frame nearest to time ``t`` (s)."""
@@ -60,12 +74,15 @@ class RunReplay:
         points = cell.workpiece(self.part).feature_points
         shown = transform_points(estimates.get(self.part, true), points)
         truth = transform_points(true, points)
+        windows, corners = self._logged(k, len(points))
         features = FeatureState(
             visible=bits["vis_pred"][k], truth=bits["vis_true"][k],
             pixels=np.array([cam.project(shown) for cam in cell.cameras]),
             selected=bits["sel"][k], measured=bits["meas"][k],
             rejected=bits["rej"][k],
-            measured_pixels=np.array([cam.project(truth) for cam in cell.cameras]))
+            measured_pixels=(corners if corners is not None
+                             else np.array([cam.project(truth) for cam in cell.cameras])),
+            windows=windows)
         return FrameState(joints, {self.part: true}, openings, estimates,
                           {self.part: features}, self.caption(k),
                           [grids[k] for grids in self.unknown])

@@ -25,8 +25,8 @@ class FeatureState:
     simulator's ray casts (a run's ``vis_true``), or None; ``selected``, ``measured``,
     ``rejected`` (C, F) bool: the tracker's windows, measurements and gate rejections (a run's
     ``sel`` / ``meas`` / ``rej``), or None; ``measured_pixels`` (C, F, 2): where to mark the
-    measurements (the run log keeps which features were measured, not where: the true
-    projections), or None.
+    measurements (the logged corners; for runs logged before them, the true projections), or
+    None; ``windows``: per camera the logged windows (n, 4) int, or None (planned again).
     """
 
     visible: np.ndarray
@@ -36,6 +36,7 @@ class FeatureState:
     measured: np.ndarray | None = None
     rejected: np.ndarray | None = None
     measured_pixels: np.ndarray | None = None
+    windows: list[np.ndarray] | None = None
 
     def colour_mask(self, camera: int, truth: bool = False) -> np.ndarray:
         """(F,) bool: the features camera ``camera`` sees, as predicted or (``truth``, when
