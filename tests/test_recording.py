@@ -12,10 +12,11 @@ import subprocess
 import sys
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 from mcap.reader import make_reader
-from recordings import read_mcap, tf_message, write_rosbag2
+from recordings import T, read_mcap, tf_message, write_rosbag2
 from rosbags.typesys import Stores, get_typestore
 
 from cellsight import load_cell
@@ -358,3 +359,52 @@ def test_a_misspelt_map_key_lists_the_keys(tmp_path):
     with pytest.raises(CellFileError, match=r"field 'camera'.*one of the keys cameras, "
                                             r"camera_info, joint_states"):
         load_topic_map(path)
+
+
+def _encoded(encoding: str):
+    """An edit that re-encodes every raw image: as ``encoding`` (mono16: v * 257, the colour
+    encodings: grey in every channel, rows padded by 4 bytes), or ``png``: a PNG
+    CompressedImage."""
+    def edit(topic, m, k):
+        if not topic.endswith("image_raw"):
+            return m
+        gray = np.frombuffer(bytes(m.data), np.uint8).reshape(m.height, m.width)
+        if encoding == "png":
+            ok, data = cv2.imencode(".png", gray)
+            compressed = T["sensor_msgs/msg/CompressedImage"](header=m.header, format="png",
+                                                               data=data.ravel())
+            return "sensor_msgs/msg/CompressedImage", compressed
+        if encoding == "mono16":
+            pixels = (gray.astype("<u2") * 257).view(np.uint8).reshape(m.height, -1)
+        else:
+            channels = {"rgb8": 3, "bgr8": 3, "rgba8": 4, "bgra8": 4}[encoding]
+            pixels = np.repeat(gray[:, :, None], channels, axis=2).reshape(m.height, -1)
+        padded = np.zeros((m.height, pixels.shape[1] + 4), np.uint8)
+        padded[:, :pixels.shape[1]] = pixels
+        m.encoding, m.step, m.data = encoding, padded.shape[1], padded.ravel()
+        return m
+    return edit
+
+
+@pytest.mark.parametrize("encoding", ["mono16", "rgb8", "bgra8", "png"])
+def test_every_image_encoding_tracks_as_mono8(recorded, tmp_path, encoding):
+    topics = ({"/cam1/image_raw": "/cam1/image_raw/compressed",
+               "/cam2/image_raw": "/cam2/image_raw/compressed"} if encoding == "png" else None)
+    bag = write_rosbag2(recorded[1], tmp_path / "bag", frames=12, edit=_encoded(encoding),
+                        topics=topics)
+    tracked = _track(bag, tmp_path / "out")
+    ran = FrameLog.read(recorded[0] / "frames.csv")
+    assert tracked.n == 12
+    assert np.nanmax(np.abs(tracked.poses("est") - ran.poses("est")[:12])) < 1e-9
+
+
+def test_an_image_of_another_size_is_refused(recorded, tmp_path):
+    def crop(topic, m, k):
+        if topic == "/cam1/image_raw":
+            m.width, m.step = m.width - 8, m.step - 8
+            gray = np.frombuffer(bytes(m.data), np.uint8).reshape(m.height, -1)
+            m.data = np.ascontiguousarray(gray[:, :-8]).ravel()
+        return m
+
+    _refused(_bag(recorded, tmp_path, edit=crop), tmp_path, "/cam1/image_raw, message 1",
+             "760x576", "768x576")
