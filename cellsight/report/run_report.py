@@ -453,7 +453,8 @@ def _metrics_html(metrics: dict) -> str:
     out = f"<h2>Metrics</h2><table>{rows}</table>"
     spans = {str(p): (t0, t1) for p, t0, t1 in metrics.get("phase_intervals") or []}
     errors = metrics.get("phases") or {}
-    names = list(spans) + [p for p in errors if p not in spans]
+    names = list(spans) + [p for p in errors if p not in spans  # a phase the run never had
+                           and (errors[p] or {}).get("evaluated_frames")]
     if names:
         head = "".join(f"<th>{html.escape(h)}</th>" for h in ("phase", "start [s]", "end [s]")
                        + tuple(f"{k} [{_unit(k)}]".replace(" []", "") for k in PHASE_COLUMNS))
