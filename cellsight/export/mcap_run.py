@@ -114,20 +114,22 @@ class ExportResult:
     stopped_by: str | None = None
 
 
-class _Bag:
-    """The MCAP file (``ros2`` profile): schemas and channels registered on first use, each
-    channel with rosbag2's QoS metadata (:func:`qos_profiles`), messages encoded to CDR by
-    ``mcap-ros2-support``; and the message counts. The plain ``mcap`` writer is used, as
-    ``mcap_ros2.writer.Writer`` registers its channels without metadata."""
+class RosBag:
+    """An MCAP file of ROS 2 messages (``ros2`` profile) written to ``stream``: schemas and
+    channels registered on first use, each channel with rosbag2's QoS metadata
+    (:func:`qos_profiles`), messages encoded to CDR by ``mcap-ros2-support``; ``topics``:
+    topic -> [message type, count]. The plain ``mcap`` writer is used, as
+    ``mcap_ros2.writer.Writer`` registers its channels without metadata. The export and the
+    recorder (:mod:`cellsight.recording.recorder`) both write through it."""
 
-    def __init__(self, stream, result: ExportResult) -> None:
+    def __init__(self, stream, library: str = "cellsight export") -> None:
         from mcap.writer import Writer
 
         self._writer = Writer(stream)  # zstd chunks of 1 MiB, as mcap_ros2's writer
-        self._writer.start(profile="ros2", library="cellsight export (mcap, mcap-ros2-support)")
+        self._writer.start(profile="ros2", library=f"{library} (mcap, mcap-ros2-support)")
         self._schemas: dict[str, tuple[int, Callable[[dict], bytes]]] = {}
         self._channels: dict[str, int] = {}
-        self.result = result
+        self.topics: dict[str, list] = {}
 
     def _schema(self, kind: str) -> tuple[int, Callable[[dict], bytes]]:
         """The schema id and the CDR encoder of message type ``kind``."""
@@ -149,7 +151,7 @@ class _Bag:
             channel = self._channels[topic] = self._writer.register_channel(topic, "cdr",
                                                                             schema, qos)
         self._writer.add_message(channel, log_time=ns, data=encode(message), publish_time=ns)
-        self.result.topics.setdefault(topic, [schema_name(kind), 0])[1] += 1
+        self.topics.setdefault(topic, [schema_name(kind), 0])[1] += 1
 
     def close(self, metadata: dict[str, str]) -> None:
         self._writer.add_metadata("rosbag2", {"ROS_DISTRO": ROS_DISTRO})
@@ -313,11 +315,8 @@ class _Frames:
         self.static = tf.static_transforms(run.cell, run.part.name)
         self.descriptions = robot_descriptions(run.cell)
         self.size = markers.marker_size(run.part.feature_points)
-        self.joint_states = names.JOINT_STATES
-        self.joint_names = {r.name: [names.joint_name(r.name, j) for j in r.chain.joint_names]
-                            for r in run.cell.robots}
-        holder = gripper(run)
-        self.opening = None if holder is None else names.joint_name(holder, names.OPENING)
+        self.joint_states, self.joint_positions = names.JOINT_STATES, names.joint_positions
+        self.holder = gripper(run)
 
     def ns(self, k: int) -> int:
         """The ROS time (ns) of frame ``k``: the start time plus the run's time ``t``."""
@@ -364,15 +363,11 @@ class _Frames:
     def _joint_state(self, k: int, ns: int) -> dict:
         """Every robot's logged joints at frame ``k`` and the gripper's jaw opening (m), where
         logged (module docstring)."""
-        names, values = [], []
-        for robot, q in self.run.joints.items():
-            names += self.joint_names[robot]
-            values += [float(v) for v in q[k]]
-        if self.opening is not None and np.isfinite(self.run.opening[k]):
-            names.append(self.opening)
-            values.append(float(self.run.opening[k]))
-        return {"header": ros.header(ns, ""), "name": names, "position": values,
-                "velocity": [], "effort": []}
+        run = self.run
+        openings = ({self.holder: float(run.opening[k])}
+                    if self.holder is not None and np.isfinite(run.opening[k]) else {})
+        return ros.joint_state(ns, *self.joint_positions(
+            run.cell, {r: q[k] for r, q in run.joints.items()}, openings))
 
     def _markers(self, k: int, ns: int, T_part: np.ndarray) -> list[tuple[str, str, dict]]:
         """Each camera's visibility markers at the part's pose ``T_part`` (the truth, else
@@ -504,7 +499,8 @@ def export_mcap(run_dir: str | Path, out: str | Path, *, every: int = 1, images:
     error: BaseException | None = None
     try:
         with _open_output(path) as file, _progress_bar(progress) as bar:
-            bag = _Bag(file, result)
+            bag = RosBag(file)
+            result.topics = bag.topics
             task = bar.add_task("exporting", total=run.n)
             try:
                 _write_all(bag, source, result, lambda: bar.advance(task))
@@ -537,7 +533,7 @@ def _open_output(path: Path) -> AtomicFile:
                              f"({getattr(exc, 'reason', None) or exc.strerror or exc})") from exc
 
 
-def _write_all(bag: _Bag, source: _Frames, result: ExportResult,
+def _write_all(bag: RosBag, source: _Frames, result: ExportResult,
                advance: Callable[[], None]) -> None:
     run = source.run
     for k in range(run.n):

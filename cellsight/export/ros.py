@@ -101,6 +101,12 @@ def camera_info(ns: int, frame_id: str, camera: Camera) -> dict:
                                     "do_rectify": False}}
 
 
+def joint_state(ns: int, names: list[str], positions: list[float]) -> dict:
+    """``sensor_msgs/JointState`` of named positions (rad, m), no velocities or efforts."""
+    return {"header": header(ns, ""), "name": list(names),
+            "position": [float(v) for v in positions], "velocity": [], "effort": []}
+
+
 def mono8_image(ns: int, frame_id: str, image: np.ndarray) -> dict:
     """``sensor_msgs/Image`` of an (H, W) uint8 grayscale image."""
     image = np.ascontiguousarray(image, dtype=np.uint8)

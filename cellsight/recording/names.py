@@ -33,8 +33,10 @@ follows the conventions::
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from pathlib import Path
 
+import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from cellsight.errors import CellFileError
@@ -54,6 +56,20 @@ OPENING = "jaw_opening"
 def joint_name(robot: str, joint: str) -> str:
     """The conventional name of a robot's joint in ``/joint_states``."""
     return f"{robot}/{joint}"
+
+
+def joint_positions(cell: Cell, joints: Mapping[str, np.ndarray],
+                    openings: Mapping[str, float]) -> tuple[list[str], list[float]]:
+    """The ``/joint_states`` names and positions of robots' joints (robot -> joint vector,
+    rad / m) and of grippers' jaw openings (robot -> m), named by the convention."""
+    names, positions = [], []
+    for robot, q in joints.items():
+        names += [joint_name(robot, j) for j in cell.robot(robot).chain.joint_names]
+        positions += [float(v) for v in q]
+    for robot, opening in openings.items():
+        names.append(joint_name(robot, OPENING))
+        positions.append(float(opening))
+    return names, positions
 
 
 def image_topic(camera: str) -> str:

@@ -12,7 +12,9 @@ Per vision frame at time ``t`` (log time ``t``; topics: :mod:`.names`):
   calibration), both stamped with the exposure time;
 - ``/<part>/true_pose``: the part's true pose in the base frame (the simulator's truth),
   stamped ``t``;
-- once, ``/tf_static``: the cell's fixed frames (:mod:`cellsight.export.frames`).
+- once, ``/tf_static``: the cell's fixed frames (:mod:`cellsight.export.frames`), latched
+  (rosbag2's QoS metadata, written by :class:`cellsight.export.mcap_run.RosBag` as the export
+  writes it).
 
 ``cellsight track`` over the file gives the run's estimates again (the same images, joints,
 openings and stamps reach the tracker). Time: ROS time ``t`` ns from the Unix epoch, as the
@@ -30,8 +32,7 @@ import numpy as np
 
 from cellsight.export import frames as tf
 from cellsight.export import ros
-from cellsight.export.mcap_run import check_jpeg, jpeg_image
-from cellsight.export.msgdefs import msgdef, schema_name
+from cellsight.export.mcap_run import RosBag, check_jpeg, jpeg_image
 from cellsight.model.cell import Cell
 from cellsight.recording import names
 from cellsight.runfolder.writes import AtomicFile
@@ -47,24 +48,13 @@ class Recorder:
     the images (None: lossless mono8)."""
 
     def __init__(self, path: Path, cell: Cell, part: str, jpeg: int | None = None) -> None:
-        from mcap_ros2.writer import Writer
-
         check_jpeg(jpeg, "--record-jpeg")
         self.path, self.cell, self.part, self.jpeg = Path(path), cell, part, jpeg
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self._file = AtomicFile(self.path)
-        self._writer = Writer(self._file)
-        self._schemas: dict[str, object] = {}
+        self._bag = RosBag(self._file, "cellsight run --record")
+        self._write = self._bag.write
         self.frames = 0
-        self._names = {r.name: [names.joint_name(r.name, j) for j in r.chain.joint_names]
-                       for r in cell.robots}
-
-    def _write(self, topic: str, kind: str, message: dict, ns: int) -> None:
-        schema = self._schemas.get(kind)
-        if schema is None:
-            schema = self._schemas[kind] = self._writer.register_msgdef(schema_name(kind),
-                                                                        msgdef(kind))
-        self._writer.write_message(topic, schema, message, log_time=ns, publish_time=ns)
 
     def frame(self, t: float, observed: Sequence | None, stamps: Sequence[float | None] | None,
               joints: Mapping[str, np.ndarray], openings: Mapping[str, float],
@@ -77,7 +67,8 @@ class Recorder:
             static = tf.static_transforms(self.cell, self.part)
             self._write("/tf_static", TF, {"transforms": [ros.transform(ns, *s)
                                                           for s in static]}, ns)
-        self._write(names.JOINT_STATES, JOINT_STATE, self._joint_state(ns, joints, openings), ns)
+        self._write(names.JOINT_STATES, JOINT_STATE,
+                    ros.joint_state(ns, *names.joint_positions(self.cell, joints, openings)), ns)
         for c, cam in enumerate(self.cell.cameras):
             image = None if observed is None else observed[c]
             if image is None:
@@ -89,18 +80,6 @@ class Recorder:
         self._write(names.truth_topic(self.part), POSE, ros.pose_stamped(ns, tf.ROOT, T_true),
                     ns)
         self.frames += 1
-
-    def _joint_state(self, ns: int, joints: Mapping[str, np.ndarray],
-                     openings: Mapping[str, float]) -> dict:
-        names_, values = [], []
-        for robot, q in joints.items():
-            names_ += self._names[robot]
-            values += [float(v) for v in q]
-        for robot, opening in openings.items():
-            names_.append(names.joint_name(robot, names.OPENING))
-            values.append(float(opening))
-        return {"header": ros.header(ns, ""), "name": names_, "position": values,
-                "velocity": [], "effort": []}
 
     def _image(self, c: int, observed: object, stamp_ns: int, ns: int) -> None:
         cam = self.cell.cameras[c]
@@ -116,10 +95,9 @@ class Recorder:
     def close(self, complete: bool) -> None:
         """Finish the file (its metadata says whether the run ended ``complete``) and give it
         its name."""
-        self._writer.add_metadata("cellsight", {
+        self._bag.close({
             "cell": str(self.cell.source), "part": self.part, "frames": str(self.frames),
             "images": "mono8" if self.jpeg is None else f"jpeg quality {self.jpeg}",
             "time": "stamps and log times: the run's time t (s) from the Unix epoch",
             "complete": "true" if complete else "false"})
-        self._writer.finish()
         self._file.commit()

@@ -189,11 +189,10 @@ def _workpiece(cell: Cell, name: str | None) -> Workpiece:
     """The workpiece ``name`` of the cell (None: its first), or one error naming them."""
     if name is None:
         return cell.workpieces[0]
-    for part in cell.workpieces:
-        if part.name == name:
-            return part
-    raise RecordingError(f"--part {name!r}: no workpiece of cell {cell.source} "
-                         f"({', '.join(p.name for p in cell.workpieces)})")
+    try:
+        return cell.workpiece(name)
+    except KeyError as exc:
+        raise RecordingError(f"--part: {exc.args[0]}") from None
 
 
 class _Pace:
