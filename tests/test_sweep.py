@@ -151,6 +151,28 @@ def test_groups_over_seeds_and_paired_comparison_against_numpy():
     assert paired[7] == f"{(off - on).mean():.2f} ± {mean_ci(off - on)[1]:.2f}"
 
 
+def test_health_rows_count_confident_wrong_frames_and_wrong_corners():
+    import numpy as np
+
+    from cellsight.sweep.aggregate import health_rows
+
+    rng = np.random.default_rng(7)
+    wrong = [0, 3, 0, 12, 1]
+    accepted, measured = rng.integers(0, 50, 5), rng.integers(500, 2000, 5)
+    worst = rng.uniform(1, 30, 5)
+    specs = [RunSpec("dual-arm", 1, "rendered", "pred", s, realism="harsh") for s in range(5)]
+    results = [{"experiment": 1, "confident_wrong_frames": w, "max_error_tracking_mm": e,
+                "wrong_accepted": int(a), "measurements": int(n), "degraded_s": float(s),
+                "cameras_dropped": {"cam2": 3.0} if s == 4 else {}}
+               for s, (w, e, a, n) in enumerate(zip(wrong, worst, accepted, measured,
+                                                                  strict=True))]
+    (row,) = health_rows(specs, results)
+    share = 100 * accepted / measured
+    assert row[6] == "5" and row[7] == "3 (16)" and row[8] == f"{worst.max():.1f}"
+    assert row[9] == f"{100 * accepted.sum() / measured.sum():.2f} ({share.max():.2f})"
+    assert row[10] == "2.0" and row[11] == "1"
+
+
 def test_realism_and_structure_name_their_folders_and_bad_profiles_stop_the_grid(tmp_path):
     spec = RunSpec("dual-arm", 3, "rendered", "pred", 4, realism="lab", structure="frame-bsp")
     assert str(spec.folder) == "dual-arm/e3_rendered_pred_lab_frame-bsp_s4"

@@ -11,7 +11,6 @@ from __future__ import annotations
 from pathlib import Path
 from types import TracebackType
 
-import imageio_ffmpeg
 import numpy as np
 
 
@@ -37,6 +36,8 @@ class VideoWriter:
         """Start ffmpeg for frames of ``size = (W, H)`` px."""
         self.path.parent.mkdir(parents=True, exist_ok=True)
         gop = max(1, int(round(2.0 * self.fps)))
+        import imageio_ffmpeg  # the bundled ffmpeg binary: loaded only when a video is written
+
         self._writer = imageio_ffmpeg.write_frames(
             str(self.path), size, fps=self.fps, codec="libx264", pix_fmt_in="rgb24",
             pix_fmt_out="yuv420p", quality=None, macro_block_size=2,

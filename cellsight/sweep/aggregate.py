@@ -8,7 +8,11 @@ visibility accuracy (mean and worst seed), time lost in view (worst), wrong corn
 (mean, worst), collisions (all seeds) and, for experiment 3, how many seeds the crossing
 blinded as designed (:func:`crossing_as_designed`). Variants are compared on the seeds both ran
 (:func:`paired_rows`): on how many the first variant's RMSE is lower, and the mean difference
-with its 95 % interval.
+with its 95 % interval. The health table (:func:`health_rows`) asks of each group whether the
+tracker knew when it was wrong: runs with a frame more than 10 mm off while the status said
+``tracking`` (and those frames in all), the worst error while ``tracking``, wrong corners
+accepted as a percentage of the measurements (all runs together, and the worst run), time
+degraded and runs that dropped a camera.
 """
 
 from __future__ import annotations
@@ -108,6 +112,33 @@ def group_rows(specs: Sequence[RunSpec], results: Sequence[dict]) -> list[list[s
     return [_group_row(k, g) for k, g in _groups(specs, results).items()]
 
 
+def _health_row(key: GroupKey, g: dict) -> list[str]:
+    runs = g["runs"]
+    wrong = np.array([float(m.get("confident_wrong_frames") or 0) for m in runs])
+    worst = _values(runs, "max_error_tracking_mm")
+    accepted = np.array([float(m.get("wrong_accepted") or 0) for m in runs])
+    measured = np.array([float(m.get("measurements") or 0) for m in runs])
+    share = 100 * accepted / np.maximum(measured, 1)
+    whole = 100 * accepted.sum() / max(measured.sum(), 1)
+    return [key[0], str(key[1]), key[2], key[3], key[4], key[5], str(len(runs)),
+            f"{int(np.sum(wrong > 0))} ({int(wrong.sum())})", _stat(worst, "max", "{:.1f}"),
+            f"{_fmt(whole)} ({_stat(share, 'max')})",
+            _stat(_values(runs, "degraded_s"), "mean", "{:.1f}"),
+            str(sum(bool(m.get("cameras_dropped")) for m in runs))]
+
+
+HEALTH_HEADER = ["cell", "exp.", "realism", "structure", "sensor", "variant", "seeds",
+                 "runs with a frame >10 mm off said `tracking` (frames in all)",
+                 "worst error while `tracking` mm",
+                 "wrong corners accepted, % of measurements (worst run)",
+                 "degraded s, mean", "runs that dropped a camera"]
+
+
+def health_rows(specs: Sequence[RunSpec], results: Sequence[dict]) -> list[list[str]]:
+    """One row of :data:`HEALTH_HEADER` per group of runs (module docstring)."""
+    return [_health_row(k, g) for k, g in _groups(specs, results).items()]
+
+
 def paired_rows(specs: Sequence[RunSpec], results: Sequence[dict]) -> list[list[str]]:
     """Per group and variant after the first: the first variant against it on their common
     seeds (module docstring)."""
@@ -143,9 +174,12 @@ def _table(header: list[str], rows: list[list[str]]) -> list[str]:
 
 
 def aggregate_markdown(specs: Sequence[RunSpec], results: Sequence[dict]) -> str:
-    """The group table and, when the sweep has them, the paired comparisons (Markdown)."""
+    """The group and health tables and, when the sweep has them, the paired comparisons
+    (Markdown)."""
     lines = ["Over the seeds of each group (whole task, every frame in view):", "",
              *_table(GROUP_HEADER, group_rows(specs, results))]
+    lines += ["", "Does the tracker know when it is wrong (the same groups):", "",
+              *_table(HEALTH_HEADER, health_rows(specs, results))]
     paired = paired_rows(specs, results)
     if paired:
         lines += ["", "Paired on the same seeds (occlusion prediction on against off):", "",
