@@ -55,6 +55,8 @@ def test_a_json_file_that_is_not_utf8_is_named(tmp_path: Path, capsys) -> None:
     ("--duration", "inf", "--duration: expected a positive, finite number of seconds, got inf"),
     ("--duration", "nan", "--duration: expected a positive, finite number of seconds, got nan"),
     ("--seed", "-1", "--seed: expected a whole number >= 0, got -1"),
+    ("--camera-offsets", "-2", "--camera-offsets: expected a finite number of px >= 0, got -2.0"),
+    ("--camera-offsets", "nan", "--camera-offsets: expected a finite number of px >= 0, got nan"),
 ])
 def test_bad_run_options_are_refused_before_any_output(option, value, message, tmp_path: Path,
                                                        capsys) -> None:

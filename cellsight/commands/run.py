@@ -37,6 +37,10 @@ def register(sub: argparse._SubParsersAction) -> None:
                      help="learn where objects the cell file does not know hide the part, and "
                           "select no feature there (off by default: on the rendered harsh "
                           "world it also masks corners lost to image noise)")
+    run.add_argument("--camera-offsets", type=float, default=0.0, metavar="PX",
+                     help="estimate each camera's calibration error as an image offset, with "
+                          "this prior (px per axis, e.g. 2 for a good hand-eye calibration; "
+                          "default 0: trust the calibration)")
     run.add_argument("--realism", default="exact", metavar="PROFILE",
                      help="how the simulated world departs from the cell file: exact (default: "
                           "it is the cell file), lab, harsh, one knob group alone (harsh/cameras), "
@@ -78,6 +82,9 @@ def _check_run_args(args: argparse.Namespace) -> Path:
                              f"{args.duration}")
     if args.seed < 0:
         raise CellsightError(f"--seed: expected a whole number >= 0, got {args.seed}")
+    if not (args.camera_offsets >= 0 and math.isfinite(args.camera_offsets)):
+        raise CellsightError(f"--camera-offsets: expected a finite number of px >= 0, got "
+                             f"{args.camera_offsets}")
     out = Path(args.out or f"out/experiment{args.experiment}")
     check_out_folder(out, args.overwrite, "--out", "--overwrite")
     if args.record_jpeg is not None and args.record is None:
@@ -131,7 +138,8 @@ def cmd_run(args: argparse.Namespace) -> int:
         experiment=args.experiment, out=out, cell=args.cell, seed=args.seed,
         sensor=args.sensor, occlusion_prediction=not args.no_occlusion_prediction,
         kinematic_prior=args.kinematic_prior, unknown_occluders=args.unknown_occluders,
-        duration=args.duration, progress=not args.quiet, full_frames=args.full_frames,
+        camera_offsets_px=args.camera_offsets, duration=args.duration, progress=not args.quiet,
+        full_frames=args.full_frames,
         overwrite=args.overwrite, realism=args.realism, structure=args.structure,
         record=None if args.record is None else Path(args.record), record_jpeg=args.record_jpeg,
         live=args.live,

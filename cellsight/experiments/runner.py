@@ -113,7 +113,9 @@ class RunConfig:
     gripper's motion measured from the joints (``holders`` of :meth:`Tracker.step`).
     ``unknown_occluders``: the tracker learns where objects the cell file does not know hide
     the part (:mod:`cellsight.tracking.unknown`), and a coasting track resumes only on three
-    features passing the gate together. ``video_every``: a frame of ``views.mp4`` every so many
+    features passing the gate together. ``camera_offsets_px``: the prior (px) of each camera's
+    calibration error, estimated by the tracker as an image offset (0: trust the calibration;
+    :mod:`cellsight.tracking.bias`). ``video_every``: a frame of ``views.mp4`` every so many
     vision frames. ``full_frames``: the rendered cameras render every frame whole, instead of
     only the region the tracker reads (:mod:`cellsight.world.shots`; the same pixels, see
     :mod:`cellsight.world.render`). ``overwrite``: clear ``out`` first when it holds an earlier run
@@ -132,6 +134,7 @@ class RunConfig:
     occlusion_prediction: bool = True
     kinematic_prior: bool = False
     unknown_occluders: bool = False
+    camera_offsets_px: float = 0.0
     duration: float | None = None
     max_duration: float = 80.0
     tail_s: float = 1.0
@@ -225,7 +228,8 @@ class ExperimentRun:
                       if config.sensor == "ideal" else None)
         self.tracker = build_tracker(cell, occlusion_prediction=config.occlusion_prediction,
                                      unknown_occluders=config.unknown_occluders,
-                                     structure=config.structure, extractor=self.ideal)
+                                     structure=config.structure, extractor=self.ideal,
+                                     camera_offsets_px=config.camera_offsets_px)
         self.task = GraspTask(self.robot, self.part)
         self.baseline = PnPBaseline.of(self.tracker, self.part.feature_points)
         self.grasp = GraspMonitor(self.world, self.robot.name)
@@ -290,7 +294,9 @@ class ExperimentRun:
                  cfg.experiment, self.scenario.description, self.cell.source, cfg.seed,
                  cfg.sensor, "on" if cfg.occlusion_prediction else "off",
                  ("; kinematic prior on" if cfg.kinematic_prior else "")
-                 + ("; unknown occluders learned" if cfg.unknown_occluders else ""))
+                 + ("; unknown occluders learned" if cfg.unknown_occluders else "")
+                 + (f"; camera offsets estimated (prior {cfg.camera_offsets_px:g} px)"
+                    if cfg.camera_offsets_px else ""))
         writer = FrameWriter(self.out / "frames.csv", len(self.cell.cameras),
                              {r.name: r.n_joints for r in self.cell.robots})
         recorder = None
@@ -474,6 +480,7 @@ class ExperimentRun:
             "occlusion_prediction": cfg.occlusion_prediction,
             "kinematic_prior": cfg.kinematic_prior,
             "unknown_occluders": cfg.unknown_occluders,
+            "camera_offsets_px": cfg.camera_offsets_px,
             "structure": cfg.structure,
             "realism": self.draws.profile.name,
             "realism_file": self.draws.profile.file,

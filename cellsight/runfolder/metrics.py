@@ -49,6 +49,7 @@ class RunMetrics(BaseModel):
     occlusion_prediction: bool | None = None
     kinematic_prior: bool | None = None
     unknown_occluders: bool | None = None
+    camera_offsets_px: float | None = None
     structure: str | None = None
     realism: str | None = None
     realism_file: str | None = None

@@ -25,14 +25,17 @@ from cellsight.visibility import OBJECT_BVH, STRUCTURES
 if TYPE_CHECKING:
     from cellsight.experiments import RunConfig
 
-VARIANTS: dict[str, dict[str, bool]] = {
+VARIANTS: dict[str, dict[str, bool | float]] = {
     "pred": {"occlusion_prediction": True, "kinematic_prior": False},
     "nopred": {"occlusion_prediction": False, "kinematic_prior": False},
     "prior": {"occlusion_prediction": True, "kinematic_prior": True},
+    "offsets": {"occlusion_prediction": True, "kinematic_prior": False,
+                "camera_offsets_px": 5.0},
 }
 """Variant name -> the run's options: ``pred`` the paper's tracker (occlusion prediction on),
 ``nopred`` windows on every model point in the image, ``prior`` with the gripper's kinematic
-prior while it holds the part."""
+prior while it holds the part, ``offsets`` estimating each camera's calibration error as an
+image offset with a 5 px prior (``run --camera-offsets 5``)."""
 
 SENSORS = ("rendered", "ideal")
 

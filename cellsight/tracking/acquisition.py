@@ -6,17 +6,23 @@ window of ``window_px``; the corners found there give a fused multi-camera PnP t
 three wrong corners (:func:`~cellsight.tracking.pnp.estimate_pose_robust`). The filter starts
 from it when its RMS reprojection error is at most ``max_rms_px``, with the PnP covariance
 inflated by ``pose_inflation`` and a velocity uncertainty ``velocity_std`` (m/s, rad/s).
+
+With ``camera_offsets`` (the tracker estimates each camera's calibration error as an image
+offset, :mod:`.bias`), a fix whose RMS is too large is tried once more with each camera's
+median residual taken out of its pixels (:func:`~cellsight.tracking.pnp.camera_shifts`): two
+cameras that disagree by a few pixels no longer keep a part from being acquired, and the
+filter starts from those offsets.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from cellsight.tracking.measurement import Observation
 from cellsight.tracking.motion import POSE_DIM, STATE_DIM
-from cellsight.tracking.pnp import PoseFix, estimate_pose_robust
+from cellsight.tracking.pnp import PoseFix, camera_shifts, estimate_pose_robust
 
 
 @dataclass(frozen=True)
@@ -29,6 +35,7 @@ class PnPAcquisition:
     pose_inflation: float = 4.0
     search_m: float = 0.015
     search_step_m: float = 0.005
+    camera_offsets: bool = False
 
     def guess(self, base: np.ndarray, attempt: int) -> np.ndarray:
         """``base`` (``T_base_part``) moved by the ``attempt``-th offset of the search (module
@@ -44,6 +51,12 @@ class PnPAcquisition:
     def fix(self, observations: list[Observation], sigma_px: float) -> PoseFix | None:
         """The pose to start from, or None when the corners found do not give one."""
         fix = estimate_pose_robust(observations, self.max_rms_px, sigma_px=sigma_px)
+        if fix is not None and fix.rms_px > self.max_rms_px and self.camera_offsets:
+            shifts = camera_shifts(observations, fix)
+            moved = [replace(o, pixels=o.pixels - shifts.get(o.camera_index, 0.0))
+                     for o in observations]
+            fix = estimate_pose_robust(moved, self.max_rms_px, sigma_px=sigma_px)
+            fix = None if fix is None else replace(fix, offsets_px=shifts)
         return fix if fix is not None and fix.rms_px <= self.max_rms_px else None
 
     def covariance(self, pose_covariance: np.ndarray) -> np.ndarray:

@@ -21,6 +21,11 @@ and kinematic error; the images update it as usual.
 
 Adaptive noise (optional, beyond the paper): a scalar pixel variance per camera re-estimated by
 robust covariance matching over a sliding window of the last innovations (:class:`AdaptiveNoise`).
+
+Camera offsets (optional, beyond the paper: :mod:`cellsight.tracking.bias`): two more states per
+camera, its calibration error as an image offset added to every pixel it predicts; the filter
+then runs on the augmented state ``[w, b_1, ..., b_C]``, and ``state`` / ``covariance`` are the
+part's block of it.
 """
 
 from __future__ import annotations
@@ -32,10 +37,13 @@ import numba
 import numpy as np
 
 from cellsight.geometry.transforms import make_pose, xyz_rpy_from_pose
+from cellsight.tracking.bias import CameraBias, with_offset
 from cellsight.tracking.gate import mahalanobis2
 from cellsight.tracking.interfaces import Gate, MotionModel
 from cellsight.tracking.measurement import Observation, PinholeMeasurement, rotation_of_state
 from cellsight.tracking.motion import POSE_DIM, STATE_DIM
+
+MIN_FOR_MEDIAN = 4  # features of a camera for its median innovation to stand for its offset
 
 
 @dataclass(frozen=True)
@@ -98,7 +106,9 @@ class PoseEKF:
     measurements.
 
     ``state`` (12,) and ``covariance`` (12x12) at time ``t`` (s). ``adaptive`` enables the
-    per-camera noise estimate. The gate is the caller's (:meth:`update`).
+    per-camera noise estimate. ``bias`` adds each camera's image offset to the state, starting
+    from its prior or from ``offsets`` (mean (2C,), covariance (2C x 2C) px^2: a previous
+    filter's :attr:`offsets`). The gate is the caller's (:meth:`update`).
     """
 
     def __init__(
@@ -108,6 +118,8 @@ class PoseEKF:
         covariance: np.ndarray,
         t: float,
         adaptive: AdaptiveNoise | None = None,
+        bias: CameraBias | None = None,
+        offsets: tuple[np.ndarray, np.ndarray] | None = None,
     ) -> None:
         state = np.asarray(state, dtype=float)
         covariance = np.asarray(covariance, dtype=float)
@@ -117,11 +129,35 @@ class PoseEKF:
                 f"{covariance.shape}"
             )
         self.motion = motion
-        self.state = state.copy()
-        self.covariance = covariance.copy()
+        self.bias = bias
+        b, Pb = (np.zeros(0), np.zeros((0, 0))) if bias is None else (
+            bias.prior() if offsets is None else offsets)
+        n = STATE_DIM + len(b)
+        self._x = np.concatenate([state, b])
+        self._P = np.zeros((n, n))
+        self._P[:STATE_DIM, :STATE_DIM] = covariance
+        self._P[STATE_DIM:, STATE_DIM:] = Pb
         self.t = float(t)
         self.adaptive = adaptive
         self._transition: tuple[float, np.ndarray, np.ndarray] | None = None
+
+    @property
+    def state(self) -> np.ndarray:
+        """The part's state (12,): pose and rates (:mod:`cellsight.tracking.motion`)."""
+        return self._x[:STATE_DIM]
+
+    @property
+    def covariance(self) -> np.ndarray:
+        """The part's state covariance (12x12)."""
+        return self._P[:STATE_DIM, :STATE_DIM]
+
+    @property
+    def offsets(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """The cameras' image offsets (2C,) px and their covariance (2C x 2C), copies; None
+        without ``bias``."""
+        if self.bias is None:
+            return None
+        return self._x[STATE_DIM:].copy(), self._P[STATE_DIM:, STATE_DIM:].copy()
 
     @property
     def pose(self) -> np.ndarray:
@@ -129,15 +165,22 @@ class PoseEKF:
         return make_pose(rotation_of_state(self.state), self.state[:3])
 
     def predict(self, t: float) -> None:
-        """Propagate state and covariance to time ``t`` (s), ``t >= self.t``."""
+        """Propagate state and covariance to time ``t`` (s), ``t >= self.t``; the camera
+        offsets keep their values and gain their random walk."""
         dt = float(t) - self.t
         if dt < 0:
             raise ValueError(f"PoseEKF.predict: time goes backwards ({self.t} -> {t})")
         if self._transition is None or self._transition[0] != dt:
             self._transition = (dt, self.motion.matrix(dt), self.motion.covar(dt))
         _, A, Q = self._transition
-        self.state = A @ self.state
-        self.covariance = A @ self.covariance @ A.T + Q
+        k, P = STATE_DIM, self._P.copy()  # new arrays: records keep the old ones
+        self._x = np.concatenate([A @ self._x[:k], self._x[k:]])
+        P[:k, :k] = A @ P[:k, :k] @ A.T + Q
+        if self.bias is not None:
+            P[:k, k:] = A @ P[:k, k:]
+            P[k:, :k] = P[:k, k:].T
+            P[k:, k:] += np.eye(self.bias.dim) * self.bias.walk(dt)
+        self._P = P
         self.t = float(t)
 
     def predict_carried(self, t: float, motion: np.ndarray, noise: tuple[float, float]) -> None:
@@ -149,16 +192,17 @@ class PoseEKF:
         if dt < 0:
             raise ValueError(f"PoseEKF.predict_carried: time goes backwards ({self.t} -> {t})")
         xyz, rpy = xyz_rpy_from_pose(np.asarray(motion, dtype=float) @ self.pose)
-        old = self.state[:POSE_DIM]
+        x, P = self._x.copy(), self._P.copy()  # new arrays: records keep the old ones
+        old = x[:POSE_DIM].copy()
         turn = (rpy - old[3:] + np.pi) % (2 * np.pi) - np.pi
-        pose = np.concatenate([xyz, old[3:] + turn])
+        x[:POSE_DIM] = np.concatenate([xyz, old[3:] + turn])
         if dt > 0:
-            self.state = np.concatenate([pose, (pose - old) / dt])
-        else:
-            self.state = np.concatenate([pose, self.state[POSE_DIM:]])
+            x[POSE_DIM:STATE_DIM] = (x[:POSE_DIM] - old) / dt
         q = np.array([noise[0]] * 3 + [noise[1]] * 3) * dt
-        self.covariance = self.covariance + np.diag(np.concatenate([q, np.zeros(POSE_DIM)]))
-        self.t = float(t)
+        P[np.arange(POSE_DIM), np.arange(POSE_DIM)] += q
+        if self.bias is not None:
+            P[STATE_DIM:, STATE_DIM:] += np.eye(self.bias.dim) * self.bias.walk(dt)
+        self._x, self._P, self.t = x, P, float(t)
 
     def sigma_px(self, model: PinholeMeasurement, camera_index: int) -> float:
         """Pixel noise sigma (px) used for a camera: adaptive estimate or the model's default."""
@@ -171,9 +215,36 @@ class PoseEKF:
     ) -> tuple[np.ndarray, np.ndarray]:
         """Predicted pixels (n, 2) and innovation covariances ``S_j`` (n, 2, 2) at the current
         state, for the windows of the features ``points_model`` (n, 3) in one camera."""
-        pixels, H = model.evaluate(self.state, points_model)
+        pixels, H = self._offset(camera_index, *model.evaluate(self.state, points_model))
         sigma2 = np.full(len(pixels), self.sigma_px(model, camera_index) ** 2)
-        return pixels, _blocks(H, self.covariance, sigma2)
+        return pixels, _blocks(H, self._P, sigma2)
+
+    def _offset_free_d2(self, cam: np.ndarray, nu: np.ndarray, H: np.ndarray,
+                        sigma2: np.ndarray, S: np.ndarray) -> np.ndarray:
+        """Gating distances with the cameras' offsets (:mod:`.bias`). In a camera of at least
+        ``MIN_FOR_MEDIAN`` features, each innovation less the camera's median innovation,
+        against the covariance of its difference from the camera's mean (Jacobian rows less
+        their mean: no common shift, be it the offset or the part's translation across the
+        view), so that a wrong corner stands out of the shift the whole camera shares, however
+        large that is; elsewhere, the innovation against its whole covariance."""
+        d2 = mahalanobis2(nu, S)
+        for c in np.unique(cam):
+            rows = np.flatnonzero(cam == c)
+            n = len(rows)
+            if n < MIN_FOR_MEDIAN:
+                continue
+            Hc = H.reshape(-1, 2, H.shape[1])[rows]
+            D = (Hc - Hc.mean(axis=0)).reshape(2 * n, -1)
+            S_diff = _blocks(D, self._P, sigma2[rows] * (1 + 1 / n))
+            d2[rows] = mahalanobis2(nu[rows] - np.median(nu[rows], axis=0), S_diff)
+        return d2
+
+    def _offset(self, camera_index: int, pred: np.ndarray,
+                H: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """A camera's predicted pixels and Jacobian with its offset (unchanged without)."""
+        if self.bias is None:
+            return pred, H
+        return with_offset(pred, H, camera_index, self._x[STATE_DIM:], STATE_DIM, len(self._x))
 
     def update(
         self, observations: list[Observation], gate: Gate | None = None
@@ -190,7 +261,7 @@ class PoseEKF:
             n = len(obs.feature_ids)
             if n == 0:
                 continue
-            pred, H = obs.evaluate(self.state, R_part)
+            pred, H = self._offset(obs.camera_index, *obs.evaluate(self.state, R_part))
             sigma = self.sigma_px(obs.model, obs.camera_index)
             sig[obs.camera_index] = sigma
             cams.append(np.full(n, obs.camera_index))
@@ -202,8 +273,11 @@ class PoseEKF:
             empty = np.zeros(0, dtype=int)
             return UpdateReport(empty, empty, np.zeros((0, 2)), np.zeros(0), np.zeros(0, bool), {})
         cam, nu, H, sigma2 = (np.concatenate(x) for x in (cams, nus, Hs, s2))
-        S = _blocks(H, self.covariance, sigma2)
-        d2 = mahalanobis2(nu, S)
+        S = _blocks(H, self._P, sigma2)
+        if self.bias is None:
+            d2 = mahalanobis2(nu, S)
+        else:
+            d2 = self._offset_free_d2(cam, nu, H, sigma2, S)
         accepted = np.ones(len(d2), dtype=bool) if gate is None else gate.accepts(d2)
         report = UpdateReport(cam, np.concatenate(ids), nu, d2, accepted, sig)
         if self.adaptive is not None:
@@ -212,10 +286,10 @@ class PoseEKF:
                 rows = cam == c
                 self.adaptive.add(int(c), nu[rows], trace[rows])
         if accepted.any():
-            state, P_new = _joseph_update(self.state, self.covariance, H, nu, sigma2, accepted)
+            state, P_new = _joseph_update(self._x, self._P, H, nu, sigma2, accepted)
             for i in (3, 5):  # roll and yaw to [-pi, pi)
                 state[i] = (state[i] + np.pi) % (2 * np.pi) - np.pi
-            self.state, self.covariance = state, P_new
+            self._x, self._P = state, P_new
         return report
 
 
@@ -236,7 +310,7 @@ def _blocks(H, P, sigma2):
 
 @numba.njit(cache=True)
 def _joseph_update(x, P, H, nu, sigma2, accepted):
-    """State and covariance updated with the accepted features' rows of ``H`` (2m, 12),
+    """State and covariance updated with the accepted features' rows of ``H`` (2m, n),
     innovations ``nu`` (m, 2) and pixel variances ``sigma2`` (m,): Joseph form."""
     n_acc = int(accepted.sum())
     rows = np.empty(2 * n_acc, dtype=np.int64)

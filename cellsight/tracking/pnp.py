@@ -30,13 +30,16 @@ from cellsight.tracking.motion import POSE_DIM, STATE_DIM
 @dataclass(frozen=True)
 class PoseFix:
     """A single-frame pose estimate: ``T_base_part``, 6x6 covariance of ``[xyz, rpy]``,
-    RMS reprojection error (px), number of points and of cameras used."""
+    RMS reprojection error (px), number of points and of cameras used; ``offsets_px``: camera
+    index -> the image offset (2,) px taken out of its pixels first (an acquisition that
+    estimates the cameras' offsets, :mod:`.acquisition`), else None."""
 
     T_base_part: np.ndarray
     covariance: np.ndarray
     rms_px: float
     n_points: int
     n_cameras: int
+    offsets_px: dict[int, np.ndarray] | None = None
 
 
 def solve_pnp_camera(observation: Observation) -> np.ndarray | None:
@@ -60,6 +63,19 @@ def solve_pnp_camera(observation: Observation) -> np.ndarray | None:
     T_cam_part[:3, :3] = cv2.Rodrigues(rvec)[0]
     T_cam_part[:3, 3] = tvec.ravel()
     return camera.T_base_cam @ T_cam_part
+
+
+def camera_shifts(observations: list[Observation], fix: PoseFix,
+                  min_points: int = 4) -> dict[int, np.ndarray]:
+    """Each camera's median reprojection residual (2,) px at ``fix``, for the cameras with at
+    least ``min_points`` points: the image offset its calibration error would give."""
+    xyz, rpy = xyz_rpy_from_pose(fix.T_base_part)
+    shifts = {}
+    for obs in observations:
+        if len(obs.feature_ids) >= min_points:
+            r, _ = _residuals([obs], np.concatenate([xyz, rpy]))
+            shifts[obs.camera_index] = np.median(r.reshape(-1, 2), axis=0)
+    return shifts
 
 
 def _residuals(observations: list[Observation], params: np.ndarray):

@@ -5,7 +5,8 @@ of a cell, acquiring each around its nominal pose, with the occlusion predictor
 (``occlusion_prediction``; else projection only: every feature in the image counts as visible)
 on the chosen ``structure``, and, with ``unknown_occluders``, the map of unknown occluders
 (:mod:`.unknown`) and a coasting track that resumes only on three features passing the gate
-together.
+together; with ``camera_offsets_px`` > 0, each camera's calibration error estimated as an image
+offset of that prior (px; :mod:`.bias`).
 """
 
 from __future__ import annotations
@@ -15,6 +16,7 @@ from dataclasses import replace
 from cellsight.model.cell import Cell
 from cellsight.occlusion.predictor import OBJECT_BVH, VisibilityPredictor
 from cellsight.occlusion.projection import ProjectionOnly
+from cellsight.tracking.acquisition import PnPAcquisition
 from cellsight.tracking.config import TrackerConfig, TrackerParts
 from cellsight.tracking.interfaces import Extractor
 from cellsight.tracking.tracker import Tracker
@@ -23,12 +25,14 @@ from cellsight.tracking.unknown import UnknownOccluderRule
 
 def build_tracker(cell: Cell, *, occlusion_prediction: bool = True,
                   unknown_occluders: bool = False, structure: str = OBJECT_BVH,
-                  extractor: Extractor | None = None) -> Tracker:
+                  extractor: Extractor | None = None, camera_offsets_px: float = 0.0) -> Tracker:
     """The tracker of the cell's workpieces (module docstring); ``extractor``: the sensor
     (default: corners in images)."""
     predictor = (VisibilityPredictor(cell, structure=structure) if occlusion_prediction
                  else ProjectionOnly(cell))
-    config, parts = TrackerConfig(), TrackerParts()
+    config, parts = TrackerConfig(camera_bias_px=camera_offsets_px), TrackerParts()
+    if camera_offsets_px > 0:
+        parts = replace(parts, acquisition=PnPAcquisition(camera_offsets=True))
     if unknown_occluders:
         config = replace(config, resume_support=3)
         parts = replace(parts, unknown=UnknownOccluderRule())

@@ -39,6 +39,7 @@ import numpy as np
 
 from cellsight.camera import Camera
 from cellsight.geometry.transforms import invert_pose, xyz_rpy_from_pose
+from cellsight.tracking.bias import CameraBias
 from cellsight.tracking.camera_check import CameraCheck, CheckFrame
 from cellsight.tracking.config import TrackerConfig, TrackerParts
 from cellsight.tracking.ekf import AdaptiveNoise, PoseEKF, UpdateReport
@@ -190,12 +191,15 @@ class Tracker:
         )
 
     def initialise(
-        self, name: str, T_base_part: np.ndarray, t: float, covariance: np.ndarray | None = None
+        self, name: str, T_base_part: np.ndarray, t: float, covariance: np.ndarray | None = None,
+        offsets: dict[int, np.ndarray] | None = None,
     ) -> None:
         """Start (or restart) the filter of a part at a known pose, zero velocity.
 
         ``covariance`` (12x12) defaults to 5 mm / 0.05 rad on the pose and the acquisition's
-        velocity uncertainty.
+        velocity uncertainty. With camera offsets (``TrackerConfig.camera_bias_px``), the
+        filter keeps the earlier filter's offsets, or starts from ``offsets`` (camera index ->
+        (2,) px, an acquisition's :attr:`~.pnp.PoseFix.offsets_px`), or from zero.
         """
         if covariance is None:
             covariance = self.components.acquisition.covariance(
@@ -204,7 +208,13 @@ class Tracker:
         xyz, rpy = xyz_rpy_from_pose(np.asarray(T_base_part, dtype=float))
         state = np.concatenate([xyz, rpy, np.zeros(POSE_DIM)])
         adaptive = AdaptiveNoise() if self.config.adaptive_noise else None
-        track.ekf = PoseEKF(self.components.motion, state, covariance, t, adaptive)
+        bias, offsets = None, None
+        if self.config.camera_bias_px > 0:  # the cameras' offsets outlive a track
+            bias = CameraBias(len(self.cameras), self.config.camera_bias_px,
+                              self.config.camera_bias_walk_px)
+            offsets = _offset_prior(bias, None if track.ekf is None else track.ekf.offsets,
+                                    offsets)
+        track.ekf = PoseEKF(self.components.motion, state, covariance, t, adaptive, bias, offsets)
         track.last_update = float(t)
         track.lost = False
         track.coasted = False
@@ -377,7 +387,8 @@ class Tracker:
         if fix is None:
             track.search_on(acquisition)
             return rec
-        self.initialise(rec.name, fix.T_base_part, context.t, acquisition.start(fix))
+        self.initialise(rec.name, fix.T_base_part, context.t, acquisition.start(fix),
+                        fix.offsets_px)
         rec.status = TrackStatus.ACQUIRED
         _record_estimate(rec, track.ekf)
         return rec
@@ -561,3 +572,15 @@ def _visible_pixels(views: Views, n_cameras: int) -> Crowd:
             start += len(idx)
         out.append((np.concatenate(rows) if rows else np.zeros((0, 2)), offsets))
     return out
+
+
+def _offset_prior(bias: CameraBias, kept: tuple[np.ndarray, np.ndarray] | None,
+                  found: dict[int, np.ndarray] | None) -> tuple[np.ndarray, np.ndarray] | None:
+    """A new filter's camera offsets: the earlier filter's (mean and covariance), else the
+    acquisition's (with the prior's covariance), else None (the prior)."""
+    if kept is not None or not found:
+        return kept
+    mean, cov = bias.prior()
+    for c, shift in found.items():
+        mean[2 * c:2 * c + 2] = shift
+    return mean, cov
