@@ -467,6 +467,14 @@ def test_one_knob_group_alone_keeps_its_harsh_strength_and_nothing_else(cell):
     assert all(whole.record[k] == v for k, v in d.record.items())
     with pytest.raises(ProfileError, match="lighting"):
         load_profile("harsh/lighting")
+    pair = load_profile("harsh/timing+images")
+    assert pair.timing == harsh.timing and pair.images == harsh.images
+    assert pair.cameras == Profile().cameras and pair.name == "harsh-timing+images"
+    both = draw_world(pair, cell, 3).record
+    assert all(whole.record[k] == v for k, v in both.items())
+    assert {k.split(".")[0] for k in both} == {"timing", "images"}
+    with pytest.raises(ProfileError, match="lighting"):
+        load_profile("harsh/timing+lighting")
 
 
 def test_a_run_folder_replays_the_world_its_profile_drew(tmp_path):

@@ -244,24 +244,29 @@ class Profile(_Strict):
 
 GROUPS = ("cameras", "robots", "servo", "geometry", "unmodelled", "faults", "images", "timing",
           "scenario")
-"""The knob groups; ``PROFILE/GROUP`` keeps only that group of a profile (a fault alone)."""
+"""The knob groups; ``PROFILE/GROUP`` keeps only that group of a profile (a fault alone),
+``PROFILE/GROUP+GROUP`` those groups."""
 
 
 def load_profile(spec: str | Path | Profile = "exact") -> Profile:
     """A built-in profile by name (:data:`BUILTIN`), a YAML file holding one profile, or
     ``FILE:NAME`` for one of several under ``profiles:``; ``PROFILE/GROUP`` (``harsh/cameras``)
-    keeps only that knob group of a built-in profile, the rest ``exact`` (one fault alone)."""
+    keeps only that knob group of a built-in profile, the rest ``exact`` (one fault alone), and
+    ``PROFILE/GROUP+GROUP`` (``harsh/images+scenario``) those groups together."""
     if isinstance(spec, Profile):
         return spec
     text = str(spec)
     base, _, group = text.partition("/")
     if base in BUILTIN and group:
-        if group not in GROUPS:
-            raise ProfileError(text, "<group>", group, f"one of {', '.join(GROUPS)}")
+        groups = group.split("+")
+        for g in groups:
+            if g not in GROUPS:
+                raise ProfileError(text, "<group>", g, f"one of {', '.join(GROUPS)}, joined "
+                                   "by + for several")
         whole = _from_file(BUILTIN_FILE, base)
         return Profile(name=f"{base}-{group}", file=whole.file,
-                       description=f"only the {group} of {base}", sources=whole.sources,
-                       **{group: getattr(whole, group)})
+                       description=f"only the {' and '.join(groups)} of {base}",
+                       sources=whole.sources, **{g: getattr(whole, g) for g in groups})
     if text in BUILTIN:
         return _from_file(BUILTIN_FILE, text)
     path, _, name = text.rpartition(":") if ":" in text and not Path(text).exists() else (

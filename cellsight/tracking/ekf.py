@@ -44,6 +44,7 @@ from cellsight.tracking.measurement import Observation, PinholeMeasurement, rota
 from cellsight.tracking.motion import POSE_DIM, STATE_DIM
 
 MIN_FOR_MEDIAN = 4  # features of a camera for its median innovation to stand for its offset
+LONE_SIGMA_PX = 2.0  # widest prediction (px, 1 sigma) a camera of fewer features is gated on
 
 
 @dataclass(frozen=True)
@@ -222,12 +223,16 @@ class PoseEKF:
     def _offset_free_d2(self, cam: np.ndarray, nu: np.ndarray, H: np.ndarray,
                         sigma2: np.ndarray, S: np.ndarray) -> np.ndarray:
         """Gating distances with the cameras' offsets (:mod:`.bias`). In a camera of at least
-        ``MIN_FOR_MEDIAN`` features, each innovation less the camera's median innovation,
+        ``MIN_FOR_MEDIAN`` features measured, each innovation less the camera's median innovation,
         against the covariance of its difference from the camera's mean (Jacobian rows less
         their mean: no common shift, be it the offset or the part's translation across the
         view), so that a wrong corner stands out of the shift the whole camera shares, however
-        large that is; elsewhere, the innovation against its whole covariance."""
+        large that is. In a camera with fewer features, each innovation against its whole
+        covariance, and only where that is narrow (at most ``LONE_SIGMA_PX`` along its widest
+        axis, once the camera's offset is known): else its offset would take up whatever one
+        wrong corner says, and keep it (infinite distance: left out)."""
         d2 = mahalanobis2(nu, S)
+        d2[np.linalg.eigvalsh(S)[:, 1] > LONE_SIGMA_PX**2] = np.inf
         for c in np.unique(cam):
             rows = np.flatnonzero(cam == c)
             n = len(rows)
