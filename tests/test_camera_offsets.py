@@ -1,4 +1,4 @@
-"""Each camera's calibration error as an image offset the EKF estimates (tracking/bias.py):
+"""Each camera's calibration error as an image offset the EKF estimates (tracking/offsets.py):
 judged against the true offsets, the true pose and the plain filter on the same pixels."""
 
 from __future__ import annotations
@@ -8,8 +8,8 @@ import pytest
 from test_ekf import GATE, TARGET, _cameras, _observe, _prism, _state
 
 from cellsight.tracking import ConstantVelocity, PoseEKF
-from cellsight.tracking.bias import CameraBias, with_offset
 from cellsight.tracking.measurement import Observation
+from cellsight.tracking.offsets import CameraOffsets, with_offset
 
 OFFSETS = [np.array([-4.3, 4.4]), np.array([6.2, -6.9])]  # px: harsh's seed 1, cam1 and cam2
 P0 = np.diag([0.005**2] * 3 + [0.05**2] * 3 + [0.1**2] * 3 + [0.3**2] * 3)
@@ -20,12 +20,12 @@ def _shifted(obs: list[Observation], offsets=OFFSETS) -> list[Observation]:
                         o.pixels + offsets[o.camera_index]) for o in obs]
 
 
-def _track(bias: CameraBias | None, truth: np.ndarray, frames: int, seed: int = 1,
+def _track(model: CameraOffsets | None, truth: np.ndarray, frames: int, seed: int = 1,
            wrong: tuple[int, int, np.ndarray] | None = None):
     """Filter from the true pose over ``frames`` frames of pixels shifted by OFFSETS;
     ``wrong``: (camera, feature, px) added to that feature on every frame."""
     cams, pts, rng = _cameras(), _prism(), np.random.default_rng(seed)
-    ekf = PoseEKF(ConstantVelocity(), truth, P0, 0.0, bias=bias)
+    ekf = PoseEKF(ConstantVelocity(), truth, P0, 0.0, camera_offsets=model)
     accepted = []
     for k in range(1, frames + 1):
         ekf.predict(k / 26)
@@ -44,16 +44,16 @@ def _track(bias: CameraBias | None, truth: np.ndarray, frames: int, seed: int = 
 def test_offsets_explain_cameras_that_disagree_where_the_plain_filter_rejects_them():
     truth = _state(TARGET, [0.1, 0.05, -0.4])
     plain, plain_acc = _track(None, truth, 80)
-    biased, biased_acc = _track(CameraBias(2, 5.0), truth, 80)
+    with_offsets, offsets_acc = _track(CameraOffsets(2, 5.0), truth, 80)
     assert plain_acc[-20:].mean() < 0.6  # good corners gated out: the cameras disagree
-    assert biased_acc.mean() > 0.99  # the 0.999 gate drops a good corner in a thousand
+    assert offsets_acc.mean() > 0.99  # the 0.999 gate drops a good corner in a thousand
     err_plain = np.linalg.norm(plain.state[:3] - truth[:3])
-    err_biased = np.linalg.norm(biased.state[:3] - truth[:3])
+    err_offsets = np.linalg.norm(with_offsets.state[:3] - truth[:3])
     # the share of the offsets common to both cameras stays in the pose (about 2.4 mm here);
     # the plain filter, left with a third of the corners, is 21 mm off
-    assert err_biased < 3e-3 and err_plain > 5 * err_biased
+    assert err_offsets < 3e-3 and err_plain > 5 * err_offsets
     # what the cameras disagree on is found: the offsets' difference, within its covariance
-    b, Pb = biased.offsets
+    b, Pb = with_offsets.offsets
     diff, true_diff = b[2:] - b[:2], OFFSETS[1] - OFFSETS[0]
     cov = Pb[2:, 2:] + Pb[:2, :2] - Pb[2:, :2] - Pb[:2, 2:]
     d = diff - true_diff
@@ -63,7 +63,7 @@ def test_offsets_explain_cameras_that_disagree_where_the_plain_filter_rejects_th
 
 def test_a_wrong_corner_stands_out_of_the_common_shift():
     truth = _state(TARGET, [0.0, 0.1, 0.3])
-    ekf, accepted = _track(CameraBias(2, 5.0), truth, 30, seed=3,
+    ekf, accepted = _track(CameraOffsets(2, 5.0), truth, 30, seed=3,
                            wrong=(1, 5, np.array([9.0, -7.0])))
     n = len(_prism())
     assert not accepted[:, n + 5].any()  # camera 1's feature 5, every frame
@@ -73,9 +73,10 @@ def test_a_wrong_corner_stands_out_of_the_common_shift():
 
 def test_without_offsets_the_filter_is_unchanged_and_offsets_outlive_a_restart():
     truth = _state(TARGET, [0.05, 0.0, 0.1])
-    ekf, _ = _track(CameraBias(2, 5.0), truth, 10)
+    ekf, _ = _track(CameraOffsets(2, 5.0), truth, 10)
     kept = ekf.offsets
-    again = PoseEKF(ConstantVelocity(), truth, P0, 1.0, bias=CameraBias(2, 5.0), offsets=kept)
+    again = PoseEKF(ConstantVelocity(), truth, P0, 1.0, camera_offsets=CameraOffsets(2, 5.0),
+                    offsets=kept)
     np.testing.assert_array_equal(again.offsets[0], kept[0])
     np.testing.assert_array_equal(again.offsets[1], kept[1])
     assert PoseEKF(ConstantVelocity(), truth, P0, 0.0).offsets is None
@@ -88,11 +89,11 @@ def test_offset_jacobian_and_prior():
     np.testing.assert_array_equal(moved, pred + [0.5, -1.0])
     np.testing.assert_array_equal(wide[:, :6], H)
     np.testing.assert_array_equal(wide[:, 6:], [[0, 0, 1, 0], [0, 0, 0, 1]] * 2)
-    mean, cov = CameraBias(3, 2.0).prior()
+    mean, cov = CameraOffsets(3, 2.0).prior()
     assert mean.shape == (6,) and np.allclose(cov, 4 * np.eye(6))
     for bad in ((0, 1.0, 0.0), (2, 0.0, 0.0), (2, 1.0, -1.0), (2, float("nan"), 0.0)):
-        with pytest.raises(ValueError, match="CameraBias"):
-            CameraBias(*bad)
+        with pytest.raises(ValueError, match="CameraOffsets"):
+            CameraOffsets(*bad)
 
 
 def test_a_run_in_a_cell_of_disagreeing_cameras_acquires_only_with_offsets(tmp_path):

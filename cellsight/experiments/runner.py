@@ -115,7 +115,7 @@ class RunConfig:
     the part (:mod:`cellsight.tracking.unknown`), and a coasting track resumes only on three
     features passing the gate together. ``camera_offsets_px``: the prior (px) of each camera's
     calibration error, estimated by the tracker as an image offset (0: trust the calibration;
-    :mod:`cellsight.tracking.bias`). ``video_every``: a frame of ``views.mp4`` every so many
+    :mod:`cellsight.tracking.offsets`). ``video_every``: a frame of ``views.mp4`` every so many
     vision frames. ``full_frames``: the rendered cameras render every frame whole, instead of
     only the region the tracker reads (:mod:`cellsight.world.shots`; the same pixels, see
     :mod:`cellsight.world.render`). ``overwrite``: clear ``out`` first when it holds an earlier run

@@ -8,7 +8,7 @@ from it when its RMS reprojection error is at most ``max_rms_px``, with the PnP 
 inflated by ``pose_inflation`` and a velocity uncertainty ``velocity_std`` (m/s, rad/s).
 
 With ``camera_offsets`` (the tracker estimates each camera's calibration error as an image
-offset, :mod:`.bias`), a fix whose RMS is too large is tried once more with each camera's
+offset, :mod:`.offsets`), a fix whose RMS is too large is tried once more with each camera's
 median residual taken out of its pixels (:func:`~cellsight.tracking.pnp.camera_shifts`): two
 cameras that disagree by a few pixels no longer keep a part from being acquired, and the
 filter starts from those offsets.

@@ -80,9 +80,9 @@ class TrackerConfig:
     realistic world one such corner threw the velocity off by 0.5 m/s;
     :class:`~cellsight.tracking.gate.SupportedGate`; at least the loss rule's
     :meth:`~cellsight.tracking.loss.LossRule.resume_support` share of the features looked for
-    applies too; 3 goes with the unknown-occluder map); ``camera_bias_px``: the prior (px per
+    applies too; 3 goes with the unknown-occluder map); ``camera_offsets_px``: the prior (px per
     axis) of each camera's image offset, its calibration error as the filter estimates it
-    (0: not estimated; :mod:`.bias`), with a random walk of ``camera_bias_walk_px``
+    (0: not estimated; :mod:`.offsets`), with a random walk of ``camera_offsets_walk_px``
     (px/sqrt(s)).
     """
 
@@ -91,5 +91,5 @@ class TrackerConfig:
     carried_noise: tuple[float, float] = (1e-6, 1e-5)
     near_occluder_hold_s: float = 0.5
     resume_support: int = 1
-    camera_bias_px: float = 0.0
-    camera_bias_walk_px: float = 0.0
+    camera_offsets_px: float = 0.0
+    camera_offsets_walk_px: float = 0.0

@@ -22,7 +22,7 @@ and kinematic error; the images update it as usual.
 Adaptive noise (optional, beyond the paper): a scalar pixel variance per camera re-estimated by
 robust covariance matching over a sliding window of the last innovations (:class:`AdaptiveNoise`).
 
-Camera offsets (optional, beyond the paper: :mod:`cellsight.tracking.bias`): two more states per
+Camera offsets (optional, beyond the paper: :mod:`cellsight.tracking.offsets`): two more states per
 camera, its calibration error as an image offset added to every pixel it predicts; the filter
 then runs on the augmented state ``[w, b_1, ..., b_C]``, and ``state`` / ``covariance`` are the
 part's block of it.
@@ -37,11 +37,11 @@ import numba
 import numpy as np
 
 from cellsight.geometry.transforms import make_pose, xyz_rpy_from_pose
-from cellsight.tracking.bias import CameraBias, with_offset
 from cellsight.tracking.gate import mahalanobis2
 from cellsight.tracking.interfaces import Gate, MotionModel
 from cellsight.tracking.measurement import Observation, PinholeMeasurement, rotation_of_state
 from cellsight.tracking.motion import POSE_DIM, STATE_DIM
+from cellsight.tracking.offsets import CameraOffsets, with_offset
 
 MIN_FOR_MEDIAN = 4  # features of a camera for its median innovation to stand for its offset
 LONE_SIGMA_PX = 2.0  # widest prediction (px, 1 sigma) a camera of fewer features is gated on
@@ -107,8 +107,8 @@ class PoseEKF:
     measurements.
 
     ``state`` (12,) and ``covariance`` (12x12) at time ``t`` (s). ``adaptive`` enables the
-    per-camera noise estimate. ``bias`` adds each camera's image offset to the state, starting
-    from its prior or from ``offsets`` (mean (2C,), covariance (2C x 2C) px^2: a previous
+    per-camera noise estimate. ``camera_offsets`` adds each camera's image offset to the state,
+    starting from its prior or from ``offsets`` (mean (2C,), covariance (2C x 2C) px^2: a previous
     filter's :attr:`offsets`). The gate is the caller's (:meth:`update`).
     """
 
@@ -119,7 +119,7 @@ class PoseEKF:
         covariance: np.ndarray,
         t: float,
         adaptive: AdaptiveNoise | None = None,
-        bias: CameraBias | None = None,
+        camera_offsets: CameraOffsets | None = None,
         offsets: tuple[np.ndarray, np.ndarray] | None = None,
     ) -> None:
         state = np.asarray(state, dtype=float)
@@ -130,9 +130,9 @@ class PoseEKF:
                 f"{covariance.shape}"
             )
         self.motion = motion
-        self.bias = bias
-        b, Pb = (np.zeros(0), np.zeros((0, 0))) if bias is None else (
-            bias.prior() if offsets is None else offsets)
+        self.camera_offsets = camera_offsets
+        b, Pb = (np.zeros(0), np.zeros((0, 0))) if camera_offsets is None else (
+            camera_offsets.prior() if offsets is None else offsets)
         n = STATE_DIM + len(b)
         self._x = np.concatenate([state, b])
         self._P = np.zeros((n, n))
@@ -155,8 +155,8 @@ class PoseEKF:
     @property
     def offsets(self) -> tuple[np.ndarray, np.ndarray] | None:
         """The cameras' image offsets (2C,) px and their covariance (2C x 2C), copies; None
-        without ``bias``."""
-        if self.bias is None:
+        without ``camera_offsets``."""
+        if self.camera_offsets is None:
             return None
         return self._x[STATE_DIM:].copy(), self._P[STATE_DIM:, STATE_DIM:].copy()
 
@@ -177,10 +177,11 @@ class PoseEKF:
         k, P = STATE_DIM, self._P.copy()  # new arrays: records keep the old ones
         self._x = np.concatenate([A @ self._x[:k], self._x[k:]])
         P[:k, :k] = A @ P[:k, :k] @ A.T + Q
-        if self.bias is not None:
+        model = self.camera_offsets
+        if model is not None:
             P[:k, k:] = A @ P[:k, k:]
             P[k:, :k] = P[:k, k:].T
-            P[k:, k:] += np.eye(self.bias.dim) * self.bias.walk(dt)
+            P[k:, k:] += np.eye(model.dim) * model.walk(dt)
         self._P = P
         self.t = float(t)
 
@@ -201,8 +202,9 @@ class PoseEKF:
             x[POSE_DIM:STATE_DIM] = (x[:POSE_DIM] - old) / dt
         q = np.array([noise[0]] * 3 + [noise[1]] * 3) * dt
         P[np.arange(POSE_DIM), np.arange(POSE_DIM)] += q
-        if self.bias is not None:
-            P[STATE_DIM:, STATE_DIM:] += np.eye(self.bias.dim) * self.bias.walk(dt)
+        model = self.camera_offsets
+        if model is not None:
+            P[STATE_DIM:, STATE_DIM:] += np.eye(model.dim) * model.walk(dt)
         self._x, self._P, self.t = x, P, float(t)
 
     def sigma_px(self, model: PinholeMeasurement, camera_index: int) -> float:
@@ -222,7 +224,7 @@ class PoseEKF:
 
     def _offset_free_d2(self, cam: np.ndarray, nu: np.ndarray, H: np.ndarray,
                         sigma2: np.ndarray, S: np.ndarray) -> np.ndarray:
-        """Gating distances with the cameras' offsets (:mod:`.bias`). In a camera of at least
+        """Gating distances with the cameras' offsets (:mod:`.offsets`). In a camera of at least
         ``MIN_FOR_MEDIAN`` features measured, each innovation less the camera's median innovation,
         against the covariance of its difference from the camera's mean (Jacobian rows less
         their mean: no common shift, be it the offset or the part's translation across the
@@ -247,7 +249,7 @@ class PoseEKF:
     def _offset(self, camera_index: int, pred: np.ndarray,
                 H: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """A camera's predicted pixels and Jacobian with its offset (unchanged without)."""
-        if self.bias is None:
+        if self.camera_offsets is None:
             return pred, H
         return with_offset(pred, H, camera_index, self._x[STATE_DIM:], STATE_DIM, len(self._x))
 
@@ -256,7 +258,8 @@ class PoseEKF:
     ) -> UpdateReport:
         """Gate the observations of all cameras, then fuse the accepted features in one
         Joseph-form update. ``gate`` None accepts every feature. A camera exposed before the
-        filter's time (``Observation.lag_s``) measures the pose of its exposure.
+        filter's time (``Observation.lag_s``) measures the pose of its exposure. With camera
+        offsets, the gate sees the distances of :meth:`_offset_free_d2`.
 
         An empty list (or one where every feature is gated out) leaves the prediction unchanged.
         """
@@ -279,7 +282,7 @@ class PoseEKF:
             return UpdateReport(empty, empty, np.zeros((0, 2)), np.zeros(0), np.zeros(0, bool), {})
         cam, nu, H, sigma2 = (np.concatenate(x) for x in (cams, nus, Hs, s2))
         S = _blocks(H, self._P, sigma2)
-        if self.bias is None:
+        if self.camera_offsets is None:
             d2 = mahalanobis2(nu, S)
         else:
             d2 = self._offset_free_d2(cam, nu, H, sigma2, S)

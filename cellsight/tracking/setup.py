@@ -6,7 +6,7 @@ of a cell, acquiring each around its nominal pose, with the occlusion predictor
 on the chosen ``structure``, and, with ``unknown_occluders``, the map of unknown occluders
 (:mod:`.unknown`) and a coasting track that resumes only on three features passing the gate
 together; with ``camera_offsets_px`` > 0, each camera's calibration error estimated as an image
-offset of that prior (px; :mod:`.bias`).
+offset of that prior (px; :mod:`.offsets`).
 """
 
 from __future__ import annotations
@@ -30,7 +30,7 @@ def build_tracker(cell: Cell, *, occlusion_prediction: bool = True,
     (default: corners in images)."""
     predictor = (VisibilityPredictor(cell, structure=structure) if occlusion_prediction
                  else ProjectionOnly(cell))
-    config, parts = TrackerConfig(camera_bias_px=camera_offsets_px), TrackerParts()
+    config, parts = TrackerConfig(camera_offsets_px=camera_offsets_px), TrackerParts()
     if camera_offsets_px > 0:
         parts = replace(parts, acquisition=PnPAcquisition(camera_offsets=True))
     if unknown_occluders:

@@ -39,7 +39,6 @@ import numpy as np
 
 from cellsight.camera import Camera
 from cellsight.geometry.transforms import invert_pose, xyz_rpy_from_pose
-from cellsight.tracking.bias import CameraBias
 from cellsight.tracking.camera_check import CameraCheck, CheckFrame
 from cellsight.tracking.config import TrackerConfig, TrackerParts
 from cellsight.tracking.ekf import AdaptiveNoise, PoseEKF, UpdateReport
@@ -50,6 +49,7 @@ from cellsight.tracking.grabbing import grabbed
 from cellsight.tracking.interfaces import Acquisition, Extractor, TrackMonitor
 from cellsight.tracking.measurement import Observation
 from cellsight.tracking.motion import POSE_DIM
+from cellsight.tracking.offsets import CameraOffsets
 from cellsight.tracking.pnp import PoseFix
 from cellsight.tracking.records import PartFrame, TrackerFrame
 from cellsight.tracking.selection import camera_resolution
@@ -197,7 +197,7 @@ class Tracker:
         """Start (or restart) the filter of a part at a known pose, zero velocity.
 
         ``covariance`` (12x12) defaults to 5 mm / 0.05 rad on the pose and the acquisition's
-        velocity uncertainty. With camera offsets (``TrackerConfig.camera_bias_px``), the
+        velocity uncertainty. With camera offsets (``TrackerConfig.camera_offsets_px``), the
         filter keeps the earlier filter's offsets, or starts from ``offsets`` (camera index ->
         (2,) px, an acquisition's :attr:`~.pnp.PoseFix.offsets_px`), or from zero.
         """
@@ -208,13 +208,13 @@ class Tracker:
         xyz, rpy = xyz_rpy_from_pose(np.asarray(T_base_part, dtype=float))
         state = np.concatenate([xyz, rpy, np.zeros(POSE_DIM)])
         adaptive = AdaptiveNoise() if self.config.adaptive_noise else None
-        bias, offsets = None, None
-        if self.config.camera_bias_px > 0:  # the cameras' offsets outlive a track
-            bias = CameraBias(len(self.cameras), self.config.camera_bias_px,
-                              self.config.camera_bias_walk_px)
-            offsets = _offset_prior(bias, None if track.ekf is None else track.ekf.offsets,
+        model, offsets = None, None
+        if self.config.camera_offsets_px > 0:  # the cameras' offsets outlive a track
+            model = CameraOffsets(len(self.cameras), self.config.camera_offsets_px,
+                              self.config.camera_offsets_walk_px)
+            offsets = _offset_prior(model, None if track.ekf is None else track.ekf.offsets,
                                     offsets)
-        track.ekf = PoseEKF(self.components.motion, state, covariance, t, adaptive, bias, offsets)
+        track.ekf = PoseEKF(self.components.motion, state, covariance, t, adaptive, model, offsets)
         track.last_update = float(t)
         track.lost = False
         track.coasted = False
@@ -574,13 +574,13 @@ def _visible_pixels(views: Views, n_cameras: int) -> Crowd:
     return out
 
 
-def _offset_prior(bias: CameraBias, kept: tuple[np.ndarray, np.ndarray] | None,
+def _offset_prior(model: CameraOffsets, kept: tuple[np.ndarray, np.ndarray] | None,
                   found: dict[int, np.ndarray] | None) -> tuple[np.ndarray, np.ndarray] | None:
     """A new filter's camera offsets: the earlier filter's (mean and covariance), else the
     acquisition's (with the prior's covariance), else None (the prior)."""
     if kept is not None or not found:
         return kept
-    mean, cov = bias.prior()
+    mean, cov = model.prior()
     for c, shift in found.items():
         mean[2 * c:2 * c + 2] = shift
     return mean, cov

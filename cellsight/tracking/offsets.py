@@ -4,15 +4,17 @@ A camera's extrinsic and principal-point errors move the whole image of a part n
 area by nearly the same few pixels: in the realistic world's ``harsh`` cameras by 2-7 px per
 camera, with under 1 px of spread across the part's features. Two cameras whose offsets differ
 cannot both fit one pose; with the pixel noise alone in its model, the filter rejects their
-good corners as outliers and drifts on what is left. :class:`CameraBias` adds two states per
+good corners as outliers and drifts on what is left. :class:`CameraOffsets` adds two states per
 camera, the offset ``b_c`` (px) added to every pixel it predicts in camera ``c``, with a prior
-of ``sigma_px`` per axis and a random walk of ``walk_px`` px per square-root second (a camera
-slowly moving, warming up). The part's pose and the offsets share the pixels: what the
-cameras agree on goes into the pose, what only one camera sees into its offset, and the part
-of the calibration error common to all cameras stays in the pose, within the prior.
+of ``sigma_px`` per axis and a random walk of ``walk_px`` px per square-root second (none by
+default; a camera slowly moving, warming up). The part's pose and the offsets share the pixels:
+what the cameras agree on goes into the pose, what only one camera sees into its offset, and
+the part of the calibration error common to all cameras stays in the pose, within the prior.
+How the filter gates with them: :meth:`cellsight.tracking.ekf.PoseEKF.update`.
 
 The offsets belong to the cameras, not to one track: a filter started again (re-acquisition)
-keeps the offsets and their covariance (:meth:`CameraBias.carried`).
+keeps the earlier filter's offsets and their covariance, and a first filter starts from the
+acquisition's per-camera shifts (:meth:`cellsight.tracking.tracker.Tracker.initialise`).
 """
 
 from __future__ import annotations
@@ -23,7 +25,7 @@ import numpy as np
 
 
 @dataclass(frozen=True)
-class CameraBias:
+class CameraOffsets:
     """Prior (``sigma_px``, px per axis) and random walk (``walk_px``, px/sqrt(s)) of each of
     ``n_cameras`` cameras' image offsets."""
 
@@ -33,7 +35,7 @@ class CameraBias:
 
     def __post_init__(self) -> None:
         if self.n_cameras < 1 or not self.sigma_px > 0 or not self.walk_px >= 0:
-            raise ValueError(f"CameraBias: n_cameras >= 1, sigma_px > 0 and walk_px >= 0, got "
+            raise ValueError(f"CameraOffsets: n_cameras >= 1, sigma_px > 0 and walk_px >= 0, got "
                              f"{self.n_cameras}, {self.sigma_px}, {self.walk_px}")
 
     @property
