@@ -181,3 +181,12 @@ def test_realism_and_structure_name_their_folders_and_bad_profiles_stop_the_grid
     bad.write_text("timing: {latency_ms: -3}\n")
     with pytest.raises(CellsightError, match="timing.latency_ms"):
         sweep_grid(["dual-arm"], [1], ["ideal"], ["pred"], [0], realisms=[str(bad)])
+
+
+def test_each_variant_sets_the_runs_options(tmp_path):
+    config = {v: RunSpec("dual-arm", 3, "rendered", v, 0).config(tmp_path)
+              for v in ("pred", "nopred", "prior", "offsets")}
+    assert config["pred"].occlusion_prediction and config["pred"].camera_offsets_px == 0.0
+    assert not config["nopred"].occlusion_prediction and config["prior"].kinematic_prior
+    assert config["offsets"].camera_offsets_px == 5.0 and config["offsets"].occlusion_prediction
+    assert config["offsets"].out == tmp_path / "dual-arm/e3_rendered_offsets_s0"
