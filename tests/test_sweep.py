@@ -190,3 +190,7 @@ def test_each_variant_sets_the_runs_options(tmp_path):
     assert not config["nopred"].occlusion_prediction and config["prior"].kinematic_prior
     assert config["offsets"].camera_offsets_px == 5.0 and config["offsets"].occlusion_prediction
     assert config["offsets"].out == tmp_path / "dual-arm/e3_rendered_offsets_s0"
+    from cellsight.sweep.grid import VARIANTS
+    from cellsight.sweep.summary import VARIANT_NAMES
+
+    assert set(VARIANT_NAMES) == set(VARIANTS)  # every variant has its summary name

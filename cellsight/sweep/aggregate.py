@@ -182,6 +182,7 @@ def aggregate_markdown(specs: Sequence[RunSpec], results: Sequence[dict]) -> str
               *_table(HEALTH_HEADER, health_rows(specs, results))]
     paired = paired_rows(specs, results)
     if paired:
-        lines += ["", "Paired on the same seeds (occlusion prediction on against off):", "",
+        lines += ["", "Paired on the same seeds (`pred`, the paper's tracker, against each other "
+                  "variant):", "",
                   *_table(PAIRED_HEADER, paired)]
     return "\n".join(lines) + "\n"

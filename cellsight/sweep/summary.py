@@ -36,7 +36,8 @@ COLUMNS = (
     ("grasp_position_error_mm", "grasp err. mm", "{:.2f}"),
 )
 """The whole-task columns of ``summary.md``: metric key, header, format."""
-VARIANT_NAMES = {"pred": "on", "nopred": "**off**", "prior": "on + kinematic prior"}
+VARIANT_NAMES = {"pred": "on", "nopred": "**off**", "prior": "on + kinematic prior",
+                 "offsets": "on + camera offsets"}
 RUN_KEYS = ("cell", "experiment", "sensor", "variant", "seed")
 
 
