@@ -300,6 +300,8 @@ def test_ideal_sensor_returns_a_corner_or_nothing_for_a_hidden_feature():
     ({"images": {"read_noise_dn": {"dist": "cauchy", "sigma": 1.0}}}, "images.read_noise_dn"),
     ({"geometry": {"part_size_mm": {"dist": "gamma"}}}, "geometry.part_size_mm"),
     ({"timing": {"drop_percent": 150}}, "timing.drop_percent"),
+    ({"images": {"exposure_ms": -4.0}}, "images.exposure_ms"),
+    ({"images": {"interlaced": "yes"}}, "images.interlaced"),
 ])
 def test_bad_profile_names_file_and_field(tmp_path, body, field):
     path = _profile(tmp_path, body)

@@ -88,14 +88,14 @@ def test_image_effects_give_a_region_the_whole_images_pixels():
     effects = ImageEffects(read_noise_dn=2.0, shot_dn_per_e=0.05, gain_drift=0.1,
                            defocus_px=1.2, vignetting=0.2, jpeg_quality=60)
     imager = Imager(effects, 5)
-    shot = Shot(_Picture(picture), imager, None, 0, 1.3, imager.exposure())
+    shot = Shot(_Picture(picture), imager, [[None]], 0, 1.3, imager.exposure())
     for box in _boxes(rng, 320, 240, 25):
         u0, v0, u1, v1 = box
         read = shot.grab([box])
         assert np.array_equal(read[v0:v1, u0:u1], Shot(
-            _Picture(picture), imager, None, 0, 1.3, shot.offset).whole()[v0:v1, u0:u1])
+            _Picture(picture), imager, [[None]], 0, 1.3, shot.offset).whole()[v0:v1, u0:u1])
     # a second exposure has noise of its own; the effects did act
-    other = Shot(_Picture(picture), imager, None, 0, 1.3, imager.exposure()).whole()
+    other = Shot(_Picture(picture), imager, [[None]], 0, 1.3, imager.exposure()).whole()
     whole = shot.whole()
     assert np.abs(other.astype(int) - whole).mean() > 1.0
     assert np.abs(whole.astype(int) - picture).mean() > 2.0

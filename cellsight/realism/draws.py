@@ -162,7 +162,8 @@ def _imperfections(k: _Knobs, p: Profile, cell: Cell, world_cell: Cell) -> Imper
                               im.gain_period_s,
                               float(k.draw("images.gain_phase",
                                            Distribution(dist="uniform", high=2 * math.pi))),
-                              im.defocus_px, im.vignetting, im.jpeg_quality)
+                              im.defocus_px, im.vignetting, im.jpeg_quality,
+                              im.exposure_ms / 1e3, im.interlaced)
     servo = ServoParams(s.bandwidth_hz, s.damping, math.radians(s.max_velocity_deg_s),
                         math.radians(s.max_acceleration_deg_s2))
     return Imperfections(

@@ -21,7 +21,7 @@ from cellsight.errors import CellFileError
 from cellsight.model.yaml_input import load_yaml, read_cell_text
 
 BUILTIN_FILE = Path(__file__).resolve().parent.parent / "data" / "realism.yaml"
-BUILTIN = ("exact", "lab", "harsh", "kidnap", "crossed")
+BUILTIN = ("exact", "lab", "harsh", "kidnap", "crossed", "ccir")
 
 
 class ProfileError(CellFileError):
@@ -187,7 +187,8 @@ class ImageKnobs(_Strict):
     """What the camera does to the image (:mod:`cellsight.world.images`): read noise (grey
     levels), conversion gain for shot noise (DN per electron), slow gain drift (% amplitude,
     period s), defocus blur (px), vignetting (fraction lost in the corners), JPEG quality (0:
-    none)."""
+    none), exposure time (ms: motion blur of what moves while the shutter is open; 0: none)
+    and interlaced fields (the even rows exposed 20 ms before the odd ones)."""
 
     read_noise_dn: NonNegative = 0.0
     shot_dn_per_e: NonNegative = 0.0
@@ -196,6 +197,8 @@ class ImageKnobs(_Strict):
     defocus_px: NonNegative = 0.0
     vignetting: Annotated[float, Field(ge=0, lt=1)] = 0.0
     jpeg_quality: Annotated[int, Field(strict=True, ge=0, le=100)] = 0
+    exposure_ms: NonNegative = 0.0
+    interlaced: Annotated[bool, Field(strict=True)] = False
 
 
 class TimingKnobs(_Strict):

@@ -32,7 +32,9 @@ JPEG_BLOCK = 8  # px: JPEG codes 8 x 8 blocks of the image independently
 
 @dataclass(frozen=True)
 class ImageEffects:
-    """The effects' strengths (module docstring); all zero is a clean render."""
+    """The effects' strengths (module docstring); all zero is a clean render. ``exposure_s``
+    (motion blur) and ``interlaced`` act on what is rendered
+    (:mod:`cellsight.world.exposure_time`), before these effects."""
 
     read_noise_dn: float = 0.0
     shot_dn_per_e: float = 0.0
@@ -42,6 +44,8 @@ class ImageEffects:
     defocus_px: float = 0.0
     vignetting: float = 0.0
     jpeg_quality: int = 0
+    exposure_s: float = 0.0
+    interlaced: bool = False
 
     @property
     def noisy(self) -> bool:

@@ -2,8 +2,9 @@
 whole image where one is asked for.
 
 :meth:`World.render(on_demand=True) <cellsight.world.World.render>` takes a :class:`Shot` per
-camera: a copy of the simulation's state at the exposure, the camera, its time and its noise
-offset. Reading it renders then (:meth:`GrayRenderer.render_region
+camera: copies of the simulation's state over the exposure (one, or several for motion blur
+and interlaced fields: :mod:`cellsight.world.exposure_time`), the camera, its time and its
+noise offset. Reading it renders then (:meth:`GrayRenderer.render_region
 <cellsight.world.render.GrayRenderer.render_region>`) and applies the camera's image effects
 to that region (:class:`~cellsight.world.images.Imager`), so the pixels read are those of
 the whole image, which :meth:`Shot.whole` renders, as a whole render of the same state would
@@ -17,18 +18,20 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from cellsight.world.exposure_time import combine
 from cellsight.world.images import Imager
 from cellsight.world.render import GrayRenderer
 
 
 class Shot:
-    """One camera's exposure (module docstring): ``data`` the simulation's state then (not
-    changed afterwards), ``camera`` its index, ``t`` (s) its time, ``offset`` its noise
-    offset (:meth:`Imager.exposure`)."""
+    """One camera's exposure (module docstring): ``fields`` the simulation's states then, per
+    field the instants its exposure samples (not changed afterwards; one field of one state
+    for a camera with neither blur nor interlacing), ``camera`` its index, ``t`` (s) its time,
+    ``offset`` its noise offset (:meth:`Imager.exposure`)."""
 
-    def __init__(self, renderer: GrayRenderer, imager: Imager | None, data, camera: int,
-                 t: float, offset: int) -> None:
-        self._renderer, self._imager, self._data = renderer, imager, data
+    def __init__(self, renderer: GrayRenderer, imager: Imager | None, fields: list[list],
+                 camera: int, t: float, offset: int) -> None:
+        self._renderer, self._imager, self._fields = renderer, imager, fields
         self.camera, self.t, self.offset = camera, t, offset
         width, height = renderer.size(camera)
         self.shape = (height, width)
@@ -37,7 +40,8 @@ class Shot:
     def whole(self) -> np.ndarray:
         """(H, W) uint8: the whole image (rendered once)."""
         if self._whole is None:
-            image = self._renderer.render(self._data, [self.camera])[self.camera]
+            image = combine([[self._renderer.render(d, [self.camera])[self.camera] for d in f]
+                             for f in self._fields], 0)
             self._whole = image if self._imager is None else self._imager.whole(
                 image, self.t, self.offset)
         return self._whole
@@ -49,7 +53,7 @@ class Shot:
         the whole image itself once it has been rendered."""
         if self._whole is not None:
             return self._whole
-        image = self._renderer.render_preview(self._data, self.camera, scale)
+        image = self._renderer.render_preview(self._fields[-1][-1], self.camera, scale)
         return image if self._imager is None else self._imager.whole(image, self.t, self.offset)
 
     def grab(self, boxes: Sequence[Sequence[int]]) -> np.ndarray:
@@ -83,10 +87,15 @@ class Shot:
         the image effects."""
         u0, v0, u1, v1 = region
         if self._imager is None:
-            return self._renderer.render_region(self._data, self.camera, region)
+            return self._render(region)
         h, w = self.shape
         m = self._imager.margin()
         p0, q0, p1, q1 = max(u0 - m, 0), max(v0 - m, 0), min(u1 + m, w), min(v1 + m, h)
-        raw = self._renderer.render_region(self._data, self.camera, (p0, q0, p1, q1))
+        raw = self._render((p0, q0, p1, q1))
         developed = self._imager.develop(raw, (p0, q0), self.shape, self.t, self.offset)
         return self._imager.finish(developed[v0 - q0:v1 - q0, u0 - p0:u1 - p0])
+
+    def _render(self, box: tuple[int, int, int, int]) -> np.ndarray:
+        """The rendered pixels of ``box`` (before the image effects), over the exposure."""
+        return combine([[self._renderer.render_region(d, self.camera, box) for d in f]
+                        for f in self._fields], box[1])

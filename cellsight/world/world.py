@@ -41,6 +41,7 @@ from cellsight.model import Cell
 from cellsight.rates import CONTROL_HZ, VISION_HZ
 from cellsight.visibility import Views
 from cellsight.world.contacts import ContactMonitor
+from cellsight.world.exposure_time import ExposureHistory
 from cellsight.world.faults import Faults
 from cellsight.world.grasp import Grasp, Grippers
 from cellsight.world.images import Imager
@@ -227,6 +228,10 @@ class World:
         self._render_size = render_size
         self._renderer: GrayRenderer | None = None
         self._imager = None if errors.images is None else Imager(errors.images, [seed, 2])
+        im = errors.images
+        self._history = (ExposureHistory(self.scene, im.exposure_s, im.interlaced,
+                                         self.dt_control)
+                         if im is not None and (im.exposure_s > 0 or im.interlaced) else None)
         self._steps = 0
         self.time = 0.0
         """Simulated time (s)."""
@@ -253,6 +258,9 @@ class World:
         self.parts.step(t, self.dt_control)
         self.grippers.step()
         self.contacts.check(t)
+        if self._history is not None:
+            self.scene.sync()
+            self._history.record(t)
 
     def place_part(self, name: str, T_base_part: np.ndarray) -> None:
         """Put a workpiece at a pose, resting there (off the conveyor, out of any gripper)."""
@@ -313,7 +321,8 @@ class World:
         if self._renderer is None:
             self._renderer = GrayRenderer(self.scene.model, self.cell.cameras, self._render_size)
         data = copy.copy(self.scene.data)
-        shots = [Shot(self._renderer, self._imager, data, c, self.time,
+        fields = [[data]] if self._history is None else self._history.fields(self.time, data)
+        shots = [Shot(self._renderer, self._imager, fields, c, self.time,
                       0 if self._imager is None else self._imager.exposure())
                  if cameras is None or c in cameras else None
                  for c in range(len(self.cell.cameras))]
