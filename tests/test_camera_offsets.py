@@ -111,3 +111,18 @@ def test_a_run_in_a_cell_of_disagreeing_cameras_acquires_only_with_offsets(tmp_p
     assert runs[5.0]["first_estimate_s"] == 0.0 and runs[5.0]["camera_offsets_px"] == 5.0
     assert runs[5.0]["max_position_error_mm"] < 15.0
     assert runs[5.0]["rejected_measurements"] == 0
+
+
+def test_offsets_keep_their_values_and_gain_their_random_walk_when_predicted():
+    truth = _state(TARGET, [0.0, 0.0, 0.2], [0.1, 0.0, 0.0, 0.0, 0.0, 0.0])
+    ekf = PoseEKF(ConstantVelocity(), truth, P0, 0.0,
+                  camera_offsets=CameraOffsets(2, 1.0, walk_px=0.5),
+                  offsets=(np.array([1.0, -2.0, 0.5, 0.0]), np.eye(4)))
+    plain = PoseEKF(ConstantVelocity(), truth, P0, 0.0)
+    for f in (ekf, plain):
+        f.predict(0.4)
+    b, Pb = ekf.offsets
+    np.testing.assert_array_equal(b, [1.0, -2.0, 0.5, 0.0])
+    np.testing.assert_allclose(Pb, np.eye(4) * (1.0 + 0.5**2 * 0.4))
+    np.testing.assert_allclose(ekf.state, plain.state)  # the part's block as without offsets
+    np.testing.assert_allclose(ekf.covariance, plain.covariance)

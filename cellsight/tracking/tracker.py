@@ -211,7 +211,7 @@ class Tracker:
         model, offsets = None, None
         if self.config.camera_offsets_px > 0:  # the cameras' offsets outlive a track
             model = CameraOffsets(len(self.cameras), self.config.camera_offsets_px,
-                              self.config.camera_offsets_walk_px)
+                                  self.config.camera_offsets_walk_px)
             offsets = _offset_prior(model, None if track.ekf is None else track.ekf.offsets,
                                     offsets)
         track.ekf = PoseEKF(self.components.motion, state, covariance, t, adaptive, model, offsets)
