@@ -258,8 +258,7 @@ class World:
         self.parts.step(t, self.dt_control)
         self.grippers.step()
         self.contacts.check(t)
-        if self._history is not None:
-            self.scene.sync()
+        if self._history is not None:  # joint positions and mocap poses, no kinematics
             self._history.record(t)
 
     def place_part(self, name: str, T_base_part: np.ndarray) -> None:
