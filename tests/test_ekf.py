@@ -255,3 +255,24 @@ def test_robust_pnp_drops_a_wrong_corner():
     fix = estimate_pose_robust(obs, max_rms_px=2.0)
     assert fix.rms_px < 0.5 and fix.n_points == 15
     assert np.linalg.norm(fix.T_base_part[:3, 3] - T[:3, 3]) < 1e-3
+
+
+def test_robust_pnp_drops_a_wrong_corner_hidden_under_a_small_rms():
+    """Among 32 corners one 7 px off leaves the fused PnP's RMS under 2 px; the bound on each
+    point's residual drops it all the same, and the fix names it."""
+    cell = load_cell()
+    part = cell.workpieces[0]
+    T = part.T_base_part
+    pts = part.feature_points
+    rng = np.random.default_rng(5)
+    obs = []
+    for c, cam in enumerate(cell.cameras):
+        ids = np.arange(16)
+        px = cam.project(pts[ids] @ T[:3, :3].T + T[:3, 3]) + rng.normal(0, 0.2, (16, 2))
+        if c == 1:
+            px[9] += [5.0, -5.0]
+        obs.append(Observation(PinholeMeasurement(cam), c, ids, pts[ids], px))
+    assert estimate_pose_robust(obs, max_rms_px=2.0).dropped == ()
+    fix = estimate_pose_robust(obs, max_rms_px=2.0, max_residual_px=4.0)
+    assert fix.dropped == ((1, 9),) and fix.n_points == 31
+    assert np.linalg.norm(fix.T_base_part[:3, 3] - T[:3, 3]) < 1e-3

@@ -3,9 +3,11 @@
 The occlusion predictor runs at a guess of the pose (the cell's nominal pose of the part, or
 the last prediction of a lost part); every usable predicted-visible feature gets a square
 window of ``window_px``; the corners found there give a fused multi-camera PnP that drops up to
-three wrong corners (:func:`~cellsight.tracking.pnp.estimate_pose_robust`). The filter starts
-from it when its RMS reprojection error is at most ``max_rms_px``, with the PnP covariance
-inflated by ``pose_inflation`` and a velocity uncertainty ``velocity_std`` (m/s, rad/s).
+three wrong corners (:func:`~cellsight.tracking.pnp.estimate_pose_robust`: while the RMS
+reprojection error exceeds ``max_rms_px`` or a corner lies more than ``max_residual_px`` from
+its reprojection). The filter starts from it when its RMS is at most ``max_rms_px``, with the
+PnP covariance inflated by ``pose_inflation`` and a velocity uncertainty ``velocity_std`` (m/s,
+rad/s); the corners it dropped are recorded as rejected.
 
 With ``camera_offsets`` (the tracker estimates each camera's calibration error as an image
 offset, :mod:`.offsets`), a fix whose RMS is too large is tried once more with each camera's
@@ -31,6 +33,7 @@ class PnPAcquisition:
 
     window_px: float = 64.0
     max_rms_px: float = 2.0
+    max_residual_px: float = 6.0
     velocity_std: tuple[float, float] = (0.2, 0.5)
     pose_inflation: float = 4.0
     search_m: float = 0.015
@@ -50,12 +53,14 @@ class PnPAcquisition:
 
     def fix(self, observations: list[Observation], sigma_px: float) -> PoseFix | None:
         """The pose to start from, or None when the corners found do not give one."""
-        fix = estimate_pose_robust(observations, self.max_rms_px, sigma_px=sigma_px)
+        fix = estimate_pose_robust(observations, self.max_rms_px, sigma_px=sigma_px,
+                                   max_residual_px=self.max_residual_px)
         if fix is not None and fix.rms_px > self.max_rms_px and self.camera_offsets:
             shifts = camera_shifts(observations, fix)
             moved = [replace(o, pixels=o.pixels - shifts.get(o.camera_index, 0.0))
                      for o in observations]
-            fix = estimate_pose_robust(moved, self.max_rms_px, sigma_px=sigma_px)
+            fix = estimate_pose_robust(moved, self.max_rms_px, sigma_px=sigma_px,
+                                       max_residual_px=self.max_residual_px)
             fix = None if fix is None else replace(fix, offsets_px=shifts)
         return fix if fix is not None and fix.rms_px <= self.max_rms_px else None
 

@@ -17,7 +17,7 @@ parameters is ``sigma^2 (J^T J)^-1`` at the solution.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
@@ -32,7 +32,9 @@ class PoseFix:
     """A single-frame pose estimate: ``T_base_part``, 6x6 covariance of ``[xyz, rpy]``,
     RMS reprojection error (px), number of points and of cameras used; ``offsets_px``: camera
     index -> the image offset (2,) px taken out of its pixels first (an acquisition that
-    estimates the cameras' offsets, :mod:`.acquisition`), else None."""
+    estimates the cameras' offsets, :mod:`.acquisition`), else None; ``dropped``: the
+    (camera index, feature id) of each point given but left out as wrong
+    (:func:`estimate_pose_robust`)."""
 
     T_base_part: np.ndarray
     covariance: np.ndarray
@@ -40,6 +42,7 @@ class PoseFix:
     n_points: int
     n_cameras: int
     offsets_px: dict[int, np.ndarray] | None = None
+    dropped: tuple[tuple[int, int], ...] = ()
 
 
 def solve_pnp_camera(observation: Observation) -> np.ndarray | None:
@@ -162,26 +165,35 @@ def estimate_pose_robust(
     min_points: int = 4,
     sigma_px: float = 0.5,
     max_outliers: int = 3,
+    max_residual_px: float = np.inf,
 ) -> PoseFix | None:
     """:func:`estimate_pose`, dropping the worst-fitting point and solving again while the RMS
-    reprojection error exceeds ``max_rms_px`` (at most ``max_outliers`` points): one wrong
-    corner (an occluder's, a background edge's) would otherwise spoil a still part's
-    acquisition in every frame. Returns the last fix, whatever its RMS (the caller checks)."""
+    reprojection error exceeds ``max_rms_px`` or the worst point lies more than
+    ``max_residual_px`` from its reprojection (at most ``max_outliers`` points, and while more
+    than ``min_points + 2`` remain): one wrong corner (an occluder's, a background edge's) would
+    otherwise spoil a still part's acquisition in every frame, and among many points a corner
+    10 px off hides under a small RMS. Returns the last fix, whatever its RMS (the caller
+    checks), with the points it dropped (``PoseFix.dropped``)."""
     obs = [o for o in observations if len(o.feature_ids) > 0]
     fix = estimate_pose(obs, min_points, sigma_px)
+    dropped: list[tuple[int, int]] = []
     for _ in range(max_outliers):
-        if fix is None or fix.rms_px <= max_rms_px or fix.n_points <= min_points + 2:
+        if fix is None or fix.n_points <= min_points + 2:
             break
         xyz, rpy = xyz_rpy_from_pose(fix.T_base_part)
         r, _ = _residuals(obs, np.concatenate([xyz, rpy]))
-        worst = int(np.argmax(np.linalg.norm(r.reshape(-1, 2), axis=1)))
+        distances = np.linalg.norm(r.reshape(-1, 2), axis=1)
+        worst = int(np.argmax(distances))
+        if fix.rms_px <= max_rms_px and distances[worst] <= max_residual_px:
+            break
         sizes = np.cumsum([len(o.feature_ids) for o in obs])
         k = int(np.searchsorted(sizes, worst, side="right"))
         row = worst - (sizes[k - 1] if k else 0)
         o = obs[k]
+        dropped.append((o.camera_index, int(o.feature_ids[row])))
         keep = np.arange(len(o.feature_ids)) != row
-        obs[k] = Observation(o.model, o.camera_index, o.feature_ids[keep], o.points_model[keep],
-                             o.pixels[keep])
+        obs[k] = replace(o, feature_ids=o.feature_ids[keep], points_model=o.points_model[keep],
+                         pixels=o.pixels[keep])
         obs = [o for o in obs if len(o.feature_ids) > 0]
         fix = estimate_pose(obs, min_points, sigma_px)
-    return fix
+    return None if fix is None else replace(fix, dropped=tuple(dropped))

@@ -389,6 +389,8 @@ class Tracker:
             return rec
         self.initialise(rec.name, fix.T_base_part, context.t, acquisition.start(fix),
                         fix.offsets_px)
+        for c, f in fix.dropped:
+            rec.rejected[c, f] = True
         rec.status = TrackStatus.ACQUIRED
         _record_estimate(rec, track.ekf)
         return rec
