@@ -144,26 +144,27 @@ def _place_cluster(layout, c, pose, ready, vertices):  # pragma: no cover - jit
 
 
 @njit(cache=True)
-def cull_camera(layout, poses, T_cam_base, points, status, margin, frame,
+def cull_camera(layout, poses, T_cam_base, points, status, margin, behind, frame,
                 bit):  # pragma: no cover - jit
     """Set ``bit`` in ``keep`` (P,) uint8 for the polygons that may hide a feature from one
     camera (exact).
 
     ``layout``: the surfaces and their clusters (:class:`ClusterArrays`). ``points`` (N, 3):
     the features (base frame), ``status`` their projection status (0: in the image; only those
-    count). ``T_cam_base`` maps base to camera coordinates; ``poses[k]`` = ``T_base_obj`` of
-    object k. ``frame`` = ``(vertices, ready, keep)``: the frame's base-frame vertex buffer,
-    ``ready[c]`` (cluster c already moved into it this frame) and the ``keep`` bits.
-    A polygon is kept when it faces the camera (or its solid is open, or the solid's box in
-    camera axes, grown by ``contain_margin`` m, holds the optical centre: the camera may be
+    count), each standing for query points up to ``behind`` m deeper (the far half of its
+    near-occluder ring). ``T_cam_base`` maps base to camera coordinates; ``poses[k]`` =
+    ``T_base_obj`` of object k. ``frame`` = ``(vertices, ready, keep)``: the frame's base-frame
+    vertex buffer, ``ready[c]`` (cluster c already moved into it this frame) and the ``keep``
+    bits. A polygon is kept when it faces the camera (or its solid is open, or the solid's box
+    in camera axes, grown by ``contain_margin`` m, holds the optical centre: the camera may be
     inside the solid or on its boundary) and, for some feature, part of it is nearer than the
-    feature and its normalised bounding box, grown by ``margin``, holds the feature's
-    normalised coordinates — or it reaches the camera's focal plane (z <= 1e-6 m), where its
-    projection is unbounded. A segment from the optical centre to a feature that crosses a
-    polygon crosses it at the feature's normalised coordinates, nearer: nothing that can hide a
-    feature is dropped. Whole clusters and objects are skipped first by the same test on their
-    box (:func:`_box_may_hide`). Polygons are moved to the base frame (into ``vertices``) only
-    when looked at.
+    feature's depth plus ``behind`` and its normalised bounding box, grown by ``margin``, holds
+    the feature's normalised coordinates — or it reaches the camera's focal plane (z <= 1e-6
+    m), where its projection is unbounded. A segment from the optical centre to a feature that
+    crosses a polygon crosses it at the feature's normalised coordinates, nearer: nothing that
+    can hide a feature is dropped. Whole clusters and objects are skipped first by the same
+    test on their box (:func:`_box_may_hide`). Polygons are moved to the base frame (into
+    ``vertices``) only when looked at.
     """
     vertices, ready, keep = frame
     object_box, object_clusters = layout.object_box, layout.object_clusters
@@ -177,7 +178,7 @@ def cull_camera(layout, poses, T_cam_base, points, status, margin, frame,
         if status[i] == 0:
             x, y, z = to_camera(R, t, points[i])
             normalised[n_feats, 0], normalised[n_feats, 1] = x / z, y / z
-            normalised[n_feats, 2] = z
+            normalised[n_feats, 2] = z + behind
             n_feats += 1
     feats = normalised[:n_feats]
     T = np.zeros((4, 4))

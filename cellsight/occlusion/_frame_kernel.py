@@ -16,8 +16,9 @@ class Answer(NamedTuple):
     """One camera's occlusion answers for the features in its image, as :func:`label_answers`
     reads them: ``query`` (M,) the features' indices into the feature list; ``visible`` and
     ``occluder`` (M + M * n_ring,) for the features, then ``n_ring`` ring points per feature
-    (in order); ``occluder`` indexes ``polys`` (-1: visible), whose entries index the
-    predictor's polygon list (``CellSurfaces.poly_owner``)."""
+    (in order; the first half in front of the feature, the second behind it); ``occluder``
+    indexes ``polys`` (-1: visible), whose entries index the predictor's polygon list
+    (``CellSurfaces.poly_owner``)."""
 
     query: np.ndarray
     visible: np.ndarray
@@ -69,20 +70,38 @@ def project_points(points, T_cam_base, K, dist, width, height, px, status, box):
 
 
 @njit(cache=True)
-def label_answers(answer, poly_owner, feature_owner, visible, occluder,
+def label_answers(answer, poly_owner, feature_owner, robot_owned, visible, occluder,
                   near):  # pragma: no cover - jit
     """Write one camera's :class:`Answer` for its features: sets ``visible``, ``occluder`` (the
-    hiding object, an index into the cell's objects, -1 when visible) and ``near`` (visible,
-    and a ring point hidden by an object other than the feature's own, ``feature_owner``),
-    each (F,) over the feature list. ``poly_owner``: the object of each polygon."""
+    hiding object, an index into the cell's objects, -1 when visible) and ``near``, each (F,)
+    over the feature list. ``poly_owner``: the object of each polygon; ``feature_owner``: the
+    object of each feature; ``robot_owned`` (bool, per object): a robot's link or tool. A
+    visible feature is ``near`` when the first half of its ring (in front of it) has a point
+    hidden by an object other than its own, or when the second half (far behind it) meets a
+    robot, or more than one thing besides its own object: two objects, or an object and nothing
+    (-1), are a silhouette's edge in the background beside it."""
     query, vis, occ, polys, n_ring = answer
     m = query.shape[0]
+    front = n_ring // 2
     for j in range(m):
         i = query[j]
         visible[i] = vis[j]
         occluder[i] = -1 if vis[j] else poly_owner[polys[occ[j]]]
-        if vis[j]:
-            for k in range(m + j * n_ring, m + (j + 1) * n_ring):
-                if not vis[k] and poly_owner[polys[occ[k]]] != feature_owner[i]:
-                    near[i] = True
-                    break
+        if not vis[j]:
+            continue
+        behind = -2  # the first thing met behind besides the feature's own object; -2: none yet
+        for r in range(n_ring):
+            k = m + j * n_ring + r
+            owner = -1 if vis[k] else poly_owner[polys[occ[k]]]
+            if owner == feature_owner[i]:
+                continue
+            if r < front:
+                hit = owner >= 0
+            elif owner >= 0 and robot_owned[owner]:
+                hit = True
+            else:
+                hit = behind != -2 and owner != behind
+                behind = owner
+            if hit:
+                near[i] = True
+                break

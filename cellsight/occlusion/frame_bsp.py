@@ -36,7 +36,12 @@ from cellsight.occlusion._cull_kernel import (
 )
 from cellsight.occlusion._frame_kernel import Answer
 from cellsight.occlusion.bsp import BSPTree
-from cellsight.occlusion.predictor import CONTAIN_MARGIN, Projection, VisibilityPredictor
+from cellsight.occlusion.predictor import (
+    CONTAIN_MARGIN,
+    NEAR_BEHIND,
+    Projection,
+    VisibilityPredictor,
+)
 from cellsight.occlusion.soup import PolygonSoup
 from cellsight.visibility import FRAME_BSP, STATUS_INSIDE
 
@@ -108,7 +113,7 @@ class FrameBSP(VisibilityPredictor, structure=FRAME_BSP):
             if (status == STATUS_INSIDE).any():
                 margin = (CULL_MARGIN_PX + self.near_px) / cam.focal_px
                 cull_camera(self._clusters, poses, cam.T_cam_base, points, status, margin,
-                            frame, camera_bit(c))
+                            NEAR_BEHIND if self.near_px > 0 else 0.0, frame, camera_bit(c))
         return frame[0], frame[2]
 
     def _frame_start(self, poses: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -54,6 +54,7 @@ from cellsight.visibility import (  # noqa: F401 - the structures, also named fr
 
 NEAR_SAMPLES = 8  # points on the ring around a feature for the near-occluder test
 NEAR_DEPTH = 0.01  # m: a silhouette counts when at least this much nearer than the feature
+NEAR_BEHIND = 20.0  # m: how far behind a feature its ring looks for the background's edges
 CONTAIN_MARGIN = 1e-3  # m: growth of a solid's box in the camera-inside test (any >= 0 is exact)
 
 #: Per camera: the features' pixels (N, 2) and projection status (N,) (``STATUS_*``).
@@ -73,10 +74,15 @@ class VisibilityPredictor(ABC):
     ``surface_tolerance`` (m): a feature within this distance of a surface's plane is not hidden
     by it, so that features resting on a support (the part's bottom corners on the conveyor)
     stay visible although the tracker's pose is off by a fraction of a millimetre.
-    ``near_px`` (px): a visible feature whose ring of points this far around it (moved
-    ``NEAR_DEPTH`` towards the camera) is partly hidden by another object is flagged
-    ``near_occluder``: its image corner is a junction with that object's silhouette, a few
-    pixels off (0 disables the test). Both must be finite and >= 0 (else
+    ``near_px`` (px): a visible feature whose ring of points this far around it is partly
+    hidden by another object is flagged ``near_occluder``: its image corner is a junction with
+    that object's silhouette, a few pixels off (0 disables the test). The ring is tested twice:
+    moved ``NEAR_DEPTH`` towards the camera, where any other object in front counts (not the
+    surface the feature rests on), and moved ``NEAR_BEHIND`` away from it, where the feature is
+    flagged when the ring meets a robot (the jaws touching a held part, an arm behind it: a
+    robot never supports a part) or more than one background beside its own part (two objects,
+    or an object and nothing: a table's edge): such a silhouette runs past the corner and makes
+    a junction with it at any depth. Both must be finite and >= 0 (else
     :class:`CellsightError`). A back-end does not share one predictor between threads (it may
     reuse buffers from frame to frame).
     """
@@ -121,6 +127,7 @@ class VisibilityPredictor(ABC):
         self.part_objects = [cell.object_index(p.name) for p in cell.workpieces]
         self.part_features = [p.feature_points for p in cell.workpieces]
         self._feature_owner = np.repeat(self.part_objects, [len(f) for f in self.part_features])
+        self._robot_owned = np.array([o.robot is not None for o in cell.objects])
         self.labels = [o.label for o in cell.objects]
         self._ring_offsets: dict[str, np.ndarray] = {}  # camera name -> (K, 3) ring directions
 
@@ -179,10 +186,10 @@ class VisibilityPredictor(ABC):
         return out
 
     def _ring(self, cam: Camera, points: np.ndarray) -> np.ndarray:
-        """Per point (N, 3): ``NEAR_SAMPLES`` points (N, K, 3) around it, ``near_px`` pixels
-        away in the image plane at its depth, each moved ``NEAR_DEPTH`` m towards the camera
-        (so that only a silhouette at least that much in front hides one, not the surface the
-        feature rests on)."""
+        """Per point (N, 3): ``NEAR_SAMPLES`` points around it, ``near_px`` pixels away in the
+        image plane at its depth, each moved ``NEAR_DEPTH`` m towards the camera (so that only
+        a silhouette at least that much in front hides one, not the surface the feature rests
+        on), then the same points moved ``NEAR_BEHIND`` m away from it: (N, 2K, 3)."""
         if self.near_px <= 0:
             return np.zeros((len(points), 0, 3))
         R = cam.T_base_cam[:3, :3]
@@ -195,7 +202,8 @@ class VisibilityPredictor(ABC):
         ring = points[:, None, :] + (self.near_px * depth / cam.focal_px)[:, None, None] * offsets
         towards = cam.center - ring
         towards /= np.linalg.norm(towards, axis=2, keepdims=True)
-        return ring + NEAR_DEPTH * towards
+        return np.concatenate([ring + NEAR_DEPTH * towards, ring - NEAR_BEHIND * towards],
+                              axis=1)
 
     def _labelled(self, points: np.ndarray, views: Projection,
                   answers: list[Answer | None]) -> Views:
@@ -208,8 +216,8 @@ class VisibilityPredictor(ABC):
             near = np.zeros(n, dtype=bool)
             occluder = np.full(n, -1, dtype=np.int32)
             if answer is not None:
-                label_answers(answer, self.surfaces.poly_owner, self._feature_owner, visible,
-                              occluder, near)
+                label_answers(answer, self.surfaces.poly_owner, self._feature_owner,
+                              self._robot_owned, visible, occluder, near)
             start = 0
             for k, f in zip(self.part_objects, self.part_features, strict=True):
                 sl = slice(start, start + len(f))
