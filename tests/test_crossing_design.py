@@ -15,6 +15,7 @@ import pytest
 
 from cellsight import load_cell
 from cellsight.experiments import RunConfig, run_experiment
+from cellsight.experiments.cellcheck import check_cell
 from cellsight.experiments.crossing_design import Block, TaskPath, design_crossing
 from cellsight.geometry.transforms import pose_from_xyz_rpy
 from cellsight.runfolder import FrameLog
@@ -62,10 +63,11 @@ def test_the_cameras_are_blind_when_asked_in_the_simulators_truth(designed):
     assert design.yaml(crossing).startswith(f"  crossing:\n    robot: {crossing}")
 
 
-def test_the_crossing_keeps_ten_centimetres_along_the_run(designed):
+def _least_distance_along(crossed, run: Path, grasping: str, crossing: str) -> float:
+    """The crossing robot's least distance (m) to the grasping robot and the part over a run's
+    logged states (every third frame), straight from MuJoCo."""
     import mujoco  # after cellsight.world, which chooses MuJoCo's OpenGL back-end
 
-    design, crossed, run, (grasping, crossing, _) = designed
     log = FrameLog.read(run / "frames.csv")
     world = ReplayWorld(crossed)
     m, d = world.scene.model, world.scene.data
@@ -81,4 +83,21 @@ def test_the_crossing_keeps_ten_centimetres_along_the_run(designed):
         least = min(least, min(mujoco.mj_geomDistance(m, d, i, j, 1.0, fromto)
                                for i in mine for j in others))
     world.close()
+    return least
+
+
+def test_the_crossing_keeps_ten_centimetres_along_the_run(designed):
+    design, crossed, run, (grasping, crossing, _) = designed
+    least = _least_distance_along(crossed, run, grasping, crossing)
     assert least >= 0.10 and design.clearance_m >= 0.10
+
+
+def test_check_along_the_task_finds_the_runs_clearance(designed):
+    """``cellsight check --path RUN`` puts the part and the grasping robot where the run had
+    them: its clearance is the run's (within the two samplings, 0.2 s against 3 frames)."""
+    _, crossed, run, (grasping, crossing, _) = designed
+    line = next(f.line for f in check_cell(crossed, path=TaskPath(run)) if "keeps" in f.line)
+    assert line.startswith(f"experiment 3 (along the task): {crossing} keeps ")
+    found = float(re.search(r"keeps ([0-9.]+) cm", line)[1]) / 100
+    least = _least_distance_along(crossed, run, grasping, crossing)
+    assert abs(found - least) <= 0.01, (found, least)

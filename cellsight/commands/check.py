@@ -4,6 +4,8 @@ anything runs (:mod:`cellsight.experiments.cellcheck`); exit status 1 when there
 from __future__ import annotations
 
 import argparse
+import tempfile
+from pathlib import Path
 
 from cellsight.commands.text import CELL_HELP
 
@@ -18,6 +20,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     check.add_argument("--cell", help=CELL_HELP)
     check.add_argument("--margin-px", type=float, default=20.0,
                        help="a key pose closer than this to an image's border is a warning (20)")
+    check.add_argument("--along-task", action="store_true",
+                       help="check experiment 3's crossing against the part and the grasping "
+                            "robot along the task: runs experiment 2 (ideal sensor) first, "
+                            "about 15 s")
+    check.add_argument("--path", metavar="RUN_DIR",
+                       help="as --along-task, with this run of experiment 2 instead")
     check.add_argument("--quiet", action="store_true", help="print only the problems")
     check.set_defaults(func=cmd_check)
 
@@ -32,7 +40,9 @@ def cmd_check(args: argparse.Namespace) -> int:
     if not args.margin_px >= 0:
         raise CellsightError(f"--margin-px: expected a number >= 0, got {args.margin_px}")
     cell = load_cell(args.cell)
-    findings = check_cell(cell, margin_px=args.margin_px)
+    with tempfile.TemporaryDirectory() as tmp:
+        path = _task_path(args, Path(tmp)) if args.along_task or args.path else None
+        findings = check_cell(cell, margin_px=args.margin_px, path=path)
     console = Console(width=200, highlight=False)
     for f in findings:
         if f.level != "ok" or not args.quiet:
@@ -41,3 +51,17 @@ def cmd_check(args: argparse.Namespace) -> int:
     warnings = sum(f.level == "warning" for f in findings)
     console.print(f"{cell.source}: {errors} error(s), {warnings} warning(s)")
     return 1 if errors else 0
+
+
+def _task_path(args: argparse.Namespace, tmp: Path):
+    """The part's path and the robots' joints from ``--path``, else from experiment 2 run now
+    with the ideal sensor into ``tmp``."""
+    from cellsight.experiments import RunConfig, run_experiment
+    from cellsight.experiments.crossing_design import TaskPath
+
+    if args.path:
+        return TaskPath(args.path)
+    print("check: running experiment 2 (ideal sensor) for the part's path")
+    run_experiment(RunConfig(2, tmp / "experiment2", cell=args.cell, sensor="ideal",
+                             progress=False, video_every=0))
+    return TaskPath(tmp / "experiment2")

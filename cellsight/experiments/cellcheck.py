@@ -16,7 +16,8 @@
   robot's HOME and FINAL (by its grasp): every feature point inside each camera's image by
   ``margin_px``; an error when outside, a warning when within the margin.
 - **Experiment 3's crossing:** along the crossing (every ``step_s``), the part on the conveyor
-  and the grasping robot at HOME, the features each camera sees (the occlusion predictor) with
+  and the grasping robot at HOME (or, given a run of the task, ``path``, the part and the other
+  robots where that run had them), the features each camera sees (the occlusion predictor) with
   the crossing robot where its waypoints put it, against the same with it left at HOME. A
   camera is blinded while it sees at most half of them; the crossing must blind one. And the
   crossing robot's clearance to the other robots and the part there (MuJoCo's distances
@@ -28,8 +29,9 @@ meant), ``warning`` (worth a look) or ``ok`` (a check passed, with its figure).
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -40,6 +42,9 @@ from cellsight.occlusion.predictor import VisibilityPredictor
 from cellsight.world import ReplayWorld
 from cellsight.world.grasp import grasp_pose
 from cellsight.world.paths import ConveyorPath, JointTask, Waypoint
+
+if TYPE_CHECKING:
+    from cellsight.experiments.crossing_design import TaskPath
 
 REACH_M = (0.2, 4.0)  # m: the reach of industrial and collaborative arms, with room
 PART_M = (0.005, 2.0)  # m: a workpiece's bounding-box diagonal
@@ -58,11 +63,13 @@ class Finding:
 
 
 def check_cell(cell: Cell, *, margin_px: float = 20.0, step_s: float = 0.1,
-               crossing: bool = True) -> list[Finding]:
+               crossing: bool = True, path: TaskPath | None = None) -> list[Finding]:
     """Every check of the module docstring on ``cell``, in that order; ``crossing``: with
-    experiment 3's crossing (the slow ones: the predictor and MuJoCo along the crossing)."""
+    experiment 3's crossing (the slow ones: the predictor and MuJoCo along the crossing);
+    ``path``: a run of the task (experiment 2) giving the part's pose and the other robots'
+    joints along the crossing (default: the part on the conveyor, the robots at HOME)."""
     findings = _units(cell) + _mounts(cell) + _limits(cell) + _key_poses(cell, margin_px)
-    return findings + (_crossing(cell, step_s) if crossing else [])
+    return findings + (_crossing(cell, step_s, path) if crossing else [])
 
 
 def _units(cell: Cell) -> list[Finding]:
@@ -188,7 +195,7 @@ def _grasping(cell: Cell) -> Robot | None:
     return next((r for r in cell.robots if r.tool is not None), None)
 
 
-def _crossing(cell: Cell, step_s: float) -> list[Finding]:
+def _crossing(cell: Cell, step_s: float, path: TaskPath | None) -> list[Finding]:
     setup = cell.experiments
     if not cell.workpieces:
         return []
@@ -201,17 +208,34 @@ def _crossing(cell: Cell, step_s: float) -> list[Finding]:
     part = cell.workpiece(setup.workpiece) if setup.workpiece else cell.workpieces[0]
     predictor = VisibilityPredictor(cell)
     times = np.arange(0.0, setup.crossing_waypoints[-1][0] + step_s, step_s)
+    states = list(_states(cell, part.name, crosser.name, times, path))
+    seen = np.zeros((2, len(times), len(cell.cameras)), dtype=int)
+    for k, (_, joints, T) in enumerate(states):
+        seen[:, k] = seen_with_and_without(predictor, joints, crosser, task.at(times[k]),
+                                           part.name, T)
+    where = "along the task" if path is not None else "the other robots at HOME"
+    return _blinding(cell, crosser.name, times, seen) + _clearance(
+        cell, crosser.name, part.name,
+        [(t, {**joints, crosser.name: task.at(t)}, T) for t, joints, T in states[::2]], where)
+
+
+def _states(cell: Cell, part: str, crosser: str, times: np.ndarray,
+            path: TaskPath | None) -> Iterator[tuple[float, dict, np.ndarray]]:
+    """(t, the other robots' joints, the part's pose) at ``times``: from ``path``, else the
+    part on the conveyor (its start pose when it has none) and the robots left out (HOME)."""
+    setup = cell.experiments
     conveyor = (None if setup.conveyor_points is None or not len(setup.conveyor_points) else
                 ConveyorPath(np.asarray(setup.conveyor_points, dtype=float), setup.conveyor_speed,
                              setup.conveyor_t_start))
-    seen = np.zeros((2, len(times), len(cell.cameras)), dtype=int)
-    for k, t in enumerate(times):
-        T = part.T_base_part.copy()
+    for t in times:
+        if path is not None:
+            T, joints = path.at(float(t))
+            yield float(t), {r: q for r, q in joints.items() if r != crosser}, T
+            continue
+        T = cell.workpiece(part).T_base_part.copy()
         if conveyor is not None:
             T[:2, 3] = conveyor.position(t)
-        seen[:, k] = seen_with_and_without(predictor, {}, crosser, task.at(t), part.name, T)
-    out = _blinding(cell, crosser.name, times, seen)
-    return out + _clearance(cell, crosser.name, task, times, conveyor, part.name)
+        yield float(t), {}, T
 
 
 def seen_with_and_without(predictor: VisibilityPredictor, joints: dict, robot: Robot,
@@ -243,19 +267,13 @@ def _blinding(cell: Cell, crosser: str, times: np.ndarray, seen: np.ndarray) -> 
     return out
 
 
-def _clearance(cell: Cell, crosser: str, task: JointTask, times: np.ndarray,
-               conveyor: ConveyorPath | None, part: str) -> list[Finding]:
-    """The crossing robot's least distance to the other robots' solids and the part along the
-    crossing (:func:`least_distance`), the other robots at HOME, the part on the conveyor."""
-    def states():
-        T = cell.workpiece(part).T_base_part.copy()
-        for t in times[::2]:
-            if conveyor is not None:
-                T[:2, 3] = conveyor.position(t)
-            yield float(t), {crosser: task.at(t)}, T
-    least, what, when = least_distance(cell, crosser, part, states())
-    line = (f"experiment 3: {crosser} keeps {least * 100:.1f} cm from the other robots and "
-            f"the part (closest: {what}, at {when:.1f} s)")
+def _clearance(cell: Cell, crosser: str, part: str,
+               states: list[tuple[float, dict, np.ndarray]], where: str) -> list[Finding]:
+    """The crossing robot's least distance to the other robots' solids and the part over
+    ``states`` (:func:`least_distance`); ``where`` says where the others were."""
+    least, what, when = least_distance(cell, crosser, part, states)
+    line = (f"experiment 3 ({where}): {crosser} keeps {least * 100:.1f} cm from the other "
+            f"robots and the part (closest: {what}, at {when:.1f} s)")
     return [Finding("error" if least < CLEARANCE_M else "ok",
                     line + (f", under {CLEARANCE_M * 100:g} cm" if least < CLEARANCE_M else ""))]
 
