@@ -8,9 +8,9 @@ snapshot (object poses) and pays for moving the surfaces to the base frame.
 - cellsight: ``VisibilityPredictor.predict_snapshot`` (transform, cull, BSP build, visit per
   camera, labels), with and without culling; per camera and for all cameras; the feature
   points only (``near_px=0``), as for the peers, and, in a row of its own, with the tracker's
-  near-occluder ring (8 more points around each feature in view); a 0.1 mm surface tolerance
-  like the peers' (the tracker's default 2 mm keeps points resting on a surface visible, where
-  the ray casters call them hidden).
+  near-occluder ring (16 more points around each feature in view: 8 in front, 8 behind); a
+  0.1 mm surface tolerance like the peers' (the tracker's default 2 mm keeps points resting on
+  a surface visible, where the ray casters call them hidden).
 - Open3D ``RaycastingScene``: rebuilt each frame from the triangulated surfaces, then
   ``test_occlusions`` on the rays centre -> feature with tfar just short of the feature.
 - trimesh + embreex: ``RayMeshIntersector`` rebuilt each frame, then ``intersects_any`` on

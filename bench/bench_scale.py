@@ -12,7 +12,7 @@ seen (the methods of ``bench_ur_cell.py``):
 - cellsight ``object-bvh`` (default: static per-object hierarchies, queries moved) and
   ``frame-bsp`` (the paper's: exact cull, one BSP per frame), features only (``near_px=0``),
   0.1 mm surface tolerance like the peers'; ``object-bvh`` again with the tracker's
-  near-occluder ring (8 more points per feature);
+  near-occluder ring (16 more points per feature: 8 in front, 8 behind);
 - Open3D ``RaycastingScene`` rebuilt per frame from the moved triangles;
 - MuJoCo ``mj_multiRay`` on the world's model (mocap/joint bodies carrying the same meshes,
   pre-built per-mesh BVHs), ``mj_kinematics`` then one call per camera.

@@ -12,7 +12,7 @@ moving the surfaces:
 - cellsight: ``VisibilityPredictor.predict_snapshot``, ``object-bvh`` (the default) and
   ``frame-bsp`` (exact cull, one BSP tree, a visit per camera), labels included, the features
   only (``near_px=0``) and a 0.1 mm surface tolerance like the peers'; in a row of its own,
-  with the tracker's near-occluder ring (8 more points each);
+  with the tracker's near-occluder ring (16 more points each: 8 in front, 8 behind);
 - Open3D ``RaycastingScene`` rebuilt each frame from the same triangles (moved to the base
   frame), ``test_occlusions`` on the rays centre -> feature ending 1e-4 short of the feature;
 - MuJoCo ``mj_multiRay`` on the world's model (the same meshes, ``cellsight.world.World``):
