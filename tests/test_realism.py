@@ -255,6 +255,77 @@ def test_world_arm_lags_its_setpoints(cell):
     np.testing.assert_allclose(world.true_joints()["R7AX"], target, atol=1e-4)
 
 
+def _actuated(**servo) -> Imperfections:
+    return Imperfections(servo=ServoParams(mujoco=True, **servo), noise_rad=0.0, noise_m=0.0)
+
+
+def test_mujoco_actuators_follow_the_servos_second_order_response(cell):
+    """MuJoCo's position actuator on the wrist joint's rotor inertia, integrated by mj_step:
+    the step response and the ramp's lag of the analytic loop, the other joints held. The
+    links add about 3 % of inertia, and the implicit integration of the actuator's damping
+    (wn dt = 0.1) shortens the ramp's lag by 5 %."""
+    f = 8.0
+    wn = 2 * math.pi * f
+    world = World(cell, errors=_actuated(bandwidth_hz=f))
+    home = cell.robot("R7AX").home
+    step = home.copy()
+    step[6] += 0.1
+    q = []
+    for _ in range(200):
+        world.step({"R7AX": step})
+        q.append(world.true_joints()["R7AX"][6] - home[6])
+    t = np.arange(1, 201) * world.dt_control
+    analytic = 0.1 * (1 - (1 + wn * t) * np.exp(-wn * t))
+    assert np.max(np.abs(np.array(q) - analytic)) < 0.002
+    np.testing.assert_allclose(world.true_joints()["R7AX"][:6], home[:6], atol=1e-5)
+    ramp = World(cell, errors=_actuated(bandwidth_hz=f))
+    v = 0.5
+    for k in range(1, 1001):
+        target = home.copy()
+        target[6] += v * k * ramp.dt_control
+        ramp.step({"R7AX": target})
+    lag = target[6] - ramp.true_joints()["R7AX"][6]
+    assert lag == pytest.approx(2 * v / wn, rel=0.07)
+
+
+def test_mujoco_actuators_limit_torque_and_velocity(cell):
+    """A large step: the joint's acceleration stays within the torque limit's (armature times
+    the acceleration limit) and its speed within the velocity limit (clipped after each step:
+    within one step's acceleration of it)."""
+    a_max, v_max = math.radians(900.0), math.radians(150.0)
+    world = World(cell, errors=_actuated(bandwidth_hz=8.0, max_velocity=v_max,
+                                         max_acceleration=a_max))
+    target = cell.robot("R7AX").home.copy()
+    target[6] += 1.0
+    q = []
+    for _ in range(400):
+        world.step({"R7AX": target})
+        q.append(world.true_joints()["R7AX"][6])
+    v = np.diff(q) / world.dt_control
+    assert 0.9 * v_max < np.abs(v).max() <= v_max + a_max * world.dt_control * 1.01
+    assert np.abs(np.diff(v[:20]) / world.dt_control).max() <= 1.1 * a_max
+
+
+def test_mujoco_contacts_push_the_arm_back(cell):
+    """R6AX driven into the table: in the kinematic world it sinks 10 cm into it; with MuJoCo's
+    actuators (`lab`'s torque and speed limits) the table stops it within a few centimetres,
+    short of its set-point, and the contact is still reported."""
+    down = cell.robot("R6AX").home.copy()
+    down[1] += 1.2  # shoulder forward and down: the arm into the table
+    depth = {}
+    for mujoco in (False, True):
+        world = World(cell, errors=_actuated(bandwidth_hz=8.0, max_velocity=math.radians(150),
+                                             max_acceleration=math.radians(900))
+                      if mujoco else IDEAL)
+        for _ in range(600):
+            world.step({"R6AX": down})
+        hits = [h for h in world.collisions() if "table" in h["bodies"]]
+        depth[mujoco] = max(h["depth_mm"] for h in hits)
+        if mujoco:
+            assert down[1] - world.true_joints()["R6AX"][1] > 0.05
+    assert depth[False] > 50.0 and 1.0 < depth[True] < 25.0
+
+
 # ---- collisions ----------------------------------------------------------------------------
 
 
@@ -302,6 +373,8 @@ def test_ideal_sensor_returns_a_corner_or_nothing_for_a_hidden_feature():
     ({"timing": {"drop_percent": 150}}, "timing.drop_percent"),
     ({"images": {"exposure_ms": -4.0}}, "images.exposure_ms"),
     ({"images": {"interlaced": "yes"}}, "images.interlaced"),
+    ({"servo": {"actuators": "mujoco"}}, "servo"),
+    ({"servo": {"actuators": "hydraulic", "bandwidth_hz": 8}}, "servo.actuators"),
 ])
 def test_bad_profile_names_file_and_field(tmp_path, body, field):
     path = _profile(tmp_path, body)

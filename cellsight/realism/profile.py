@@ -125,12 +125,22 @@ class RobotKnobs(_Strict):
 
 class ServoKnobs(_Strict):
     """Every joint's position servo: bandwidth (Hz; 0: ideal, no lag), damping ratio, velocity
-    (deg/s, also mm/s for a prismatic joint) and acceleration (deg/s^2, mm/s^2) limits."""
+    (deg/s, also mm/s for a prismatic joint) and acceleration (deg/s^2, mm/s^2) limits; and
+    what moves the joints: ``analytic`` (the servo's own second-order loop in a kinematic
+    world) or ``mujoco`` (MuJoCo's position actuators on the joints' rotor inertia, with the
+    acceleration limit as a torque limit, contacts pushing back; needs a bandwidth)."""
 
     bandwidth_hz: NonNegative = 0.0
     damping: Annotated[float, BeforeValidator(_no_bool), Field(gt=0, allow_inf_nan=False)] = 1.0
     max_velocity_deg_s: Annotated[float, Field(gt=0)] = math.inf
     max_acceleration_deg_s2: Annotated[float, Field(gt=0)] = math.inf
+    actuators: Literal["analytic", "mujoco"] = "analytic"
+
+    @model_validator(mode="after")
+    def _actuated(self) -> ServoKnobs:
+        if self.actuators == "mujoco" and self.bandwidth_hz == 0:
+            raise ValueError("actuators mujoco needs bandwidth_hz > 0")
+        return self
 
 
 class GeometryKnobs(_Strict):

@@ -117,3 +117,14 @@ class ContactMonitor:
     def report(self) -> list[dict]:
         """Every collision so far, as plain data for ``metrics.json``."""
         return [c.as_dict() for c in self.collisions]
+
+
+def touching_bodies(scene: Scene) -> list[tuple[str, str]]:
+    """The pairs of distinct bodies (names, sorted) whose geoms are in contact in the scene's
+    state (MuJoCo's ``mj_collision``): at the start, a cell's mounts."""
+    scene.sync()
+    model, data = scene.model, scene.data
+    mujoco.mj_collision(model, data)
+    bodies = model.geom_bodyid[data.contact.geom]
+    return sorted({tuple(sorted((model.body(a).name, model.body(b).name)))
+                   for a, b in bodies if a != b})

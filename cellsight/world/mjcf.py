@@ -17,15 +17,24 @@ Every cell object becomes a mesh geom named like the object (``R7AX.link3``, ``p
 - a floor plane ``floor`` at z = 0, lights, and one fixed camera per cell camera.
 
 Geom groups: 0 static objects, intruders and floor, 1 robots, 2 workpieces. The jointed bodies
-get a nominal inertia (1 kg): the world is kinematic, the model is never integrated. Every geom
-may collide (``contype`` and ``conaffinity`` 1), but only so that MuJoCo's collision detection
-reports contacts (:mod:`cellsight.world.contacts`): no contact force ever acts. Vertices and
+get a nominal inertia (1 kg). Every geom may collide (``contype`` and ``conaffinity`` 1).
+
+By default the world is kinematic: the model is never integrated, and contacts only serve
+MuJoCo's collision detection to report them (:mod:`cellsight.world.contacts`); no contact force
+acts. With a servo of MuJoCo's actuators (``ServoParams.mujoco``,
+:mod:`cellsight.world.servo`), the robots' joints get their rotor inertia (``armature``) and a
+position actuator ``R/a<i>`` each, the robots' bodies are gravity compensated
+(``gravcomp``), the integrator is ``implicitfast``, and contacts push back, except between the
+body pairs of ``exclude`` (a robot's own bodies, its mounts, the jaws and the parts they
+straddle: :func:`excluded_pairs`). Vertices and
 poses are written with full float64 precision (MuJoCo stores mesh vertices as float32, about
 1e-8 m here).
 """
 
 from __future__ import annotations
 
+from collections.abc import Iterable, Sequence
+from itertools import combinations
 from xml.sax.saxutils import quoteattr
 
 import mujoco
@@ -38,6 +47,7 @@ from cellsight.model.cell import ObjectFrame
 from cellsight.model.robot import Robot
 from cellsight.rates import CONTROL_HZ
 from cellsight.world.intruders import Intruder
+from cellsight.world.servo import ARMATURE_KG, ARMATURE_KG_M2, ServoParams, actuator_gains
 
 GROUP_STATIC, GROUP_ROBOT, GROUP_PART = 0, 1, 2
 _FLIP_YZ = np.diag([1.0, -1.0, -1.0])  # OpenCV camera axes <-> MuJoCo camera axes
@@ -155,39 +165,48 @@ def _geoms_and_assets(cell: Cell) -> tuple[dict[str, list[str]], list[str]]:
     return geoms, assets
 
 
-def _link_bodies(robot: Robot, geoms: dict[str, list[str]]) -> list[str]:
+def _armature(prismatic: bool) -> float:
+    return ARMATURE_KG if prismatic else ARMATURE_KG_M2
+
+
+def _link_bodies(robot: Robot, geoms: dict[str, list[str]], dynamic: bool) -> list[str]:
     """Opening tags, joints and geoms of the frame bodies ``R/1`` .. ``R/n`` (DH or URDF chain,
-    from its :meth:`joint_placements`), nested (the caller closes them)."""
+    from its :meth:`joint_placements`), nested (the caller closes them); ``dynamic``: with
+    gravity compensation and the joints' armature (module docstring)."""
     xml = []
     chain = robot.chain
     A0, joint_pos, joint_axis = chain.joint_placements()
+    gravcomp = ' gravcomp="1"' if dynamic else ""
     for i, (A, prismatic) in enumerate(zip(A0, chain.prismatic, strict=True), start=1):
         # The joint's origin and axis in frame i (the child body): for DH, z of frame i-1.
         kind = "slide" if prismatic else "hinge"
-        xml.append(f"<body name={quoteattr(body_name(robot.name, i))} {_pose_attrs(A)}>")
+        armature = f' armature="{_armature(prismatic):g}"' if dynamic else ""
+        xml.append(f"<body name={quoteattr(body_name(robot.name, i))} {_pose_attrs(A)}"
+                   f"{gravcomp}>")
         xml.append(_INERTIAL)
         xml.append(
             f"<joint name={quoteattr(joint_name(robot.name, i))} type=\"{kind}\" "
             f'pos="{_num(joint_pos[i - 1])}" axis="{_num(joint_axis[i - 1])}" '
-            f'range="{_num(chain.qlim[i - 1])}"/>'
+            f'range="{_num(chain.qlim[i - 1])}"{armature}/>'
         )
         xml += geoms.get(body_name(robot.name, i), [])
     return xml
 
 
-def _tool_body(robot: Robot, geoms: dict[str, list[str]]) -> list[str]:
+def _tool_body(robot: Robot, geoms: dict[str, list[str]], dynamic: bool) -> list[str]:
     """The tool body ``R/tool`` (palm geoms, TCP site) with its two sliding jaw bodies."""
     tool = robot.tool
+    gravcomp = ' gravcomp="1"' if dynamic else ""
     xml = [
         f"<body name={quoteattr(body_name(robot.name, 'tool'))} "
-        f"{_pose_attrs(tool.T_flange_tool)}>"
+        f"{_pose_attrs(tool.T_flange_tool)}{gravcomp}>"
     ]
     xml += geoms[body_name(robot.name, "tool")]
     site = quoteattr(tcp_site_name(robot.name))
     xml.append(f'<site name={site} pos="{_num(tool.tcp)}"/>')
     for jaw, quat in (("jaw1", "1 0 0 0"), ("jaw2", "0 0 0 1")):
         name = body_name(robot.name, jaw)
-        xml.append(f"<body name={quoteattr(name)} quat=\"{quat}\">{_INERTIAL}")
+        xml.append(f"<body name={quoteattr(name)} quat=\"{quat}\"{gravcomp}>{_INERTIAL}")
         xml.append(
             f'<joint name={quoteattr(name)} type="slide" axis="0 1 0" '
             f'range="0 {tool.max_opening / 2:.17g}"/>'
@@ -198,14 +217,14 @@ def _tool_body(robot: Robot, geoms: dict[str, list[str]]) -> list[str]:
     return xml
 
 
-def _robot_body(robot: Robot, geoms: dict[str, list[str]]) -> str:
+def _robot_body(robot: Robot, geoms: dict[str, list[str]], dynamic: bool) -> str:
     """The robot's body tree: base ``R/0``, DH frame bodies, tool and jaws."""
     base = body_name(robot.name, 0)
     xml = [f"<body name={quoteattr(base)} {_pose_attrs(robot.T_base_robot)}>"]
     xml += geoms.get(base, [])
-    xml += _link_bodies(robot, geoms)
+    xml += _link_bodies(robot, geoms, dynamic)
     if robot.tool is not None:
-        xml += _tool_body(robot, geoms)
+        xml += _tool_body(robot, geoms, dynamic)
     xml.append("</body>" * (robot.n_joints + 1))
     return "\n".join(xml)
 
@@ -218,9 +237,9 @@ def _intruder_body(intruder: Intruder) -> str:
             f'rgba="{g} {g} {g} 1"/></body>')
 
 
-def _world_bodies(cell: Cell, geoms: dict[str, list[str]]) -> list[str]:
+def _world_bodies(cell: Cell, geoms: dict[str, list[str]], dynamic: bool) -> list[str]:
     """Robots' body trees, workpieces' mocap bodies and static objects' fixed bodies."""
-    world = [_robot_body(robot, geoms) for robot in cell.robots]
+    world = [_robot_body(robot, geoms, dynamic) for robot in cell.robots]
     for part in cell.workpieces:
         world.append(
             f'<body name={quoteattr(part.name)} mocap="true" {_pose_attrs(part.T_base_part)}>'
@@ -236,22 +255,64 @@ def _world_bodies(cell: Cell, geoms: dict[str, list[str]]) -> list[str]:
     return world
 
 
+def _dynamics(cell: Cell, servo: ServoParams | None,
+              exclude: Sequence[tuple[str, str]]) -> tuple[str, str]:
+    """The ``<actuator>`` and ``<contact>`` sections of a world of MuJoCo's actuators (module
+    docstring), else empty."""
+    if servo is None or not servo.mujoco:
+        return "", ""
+    actuators = []
+    for robot in cell.robots:
+        for i, prismatic in enumerate(robot.chain.prismatic, start=1):
+            kp, kv, limit = actuator_gains(servo, _armature(prismatic))
+            force = (f' forcelimited="true" forcerange="{-limit:.17g} {limit:.17g}"'
+                     if np.isfinite(limit) else "")
+            actuators.append(f"<position name={quoteattr(f'{robot.name}/a{i}')} "
+                             f"joint={quoteattr(joint_name(robot.name, i))} kp=\"{kp:.17g}\" "
+                             f'kv="{kv:.17g}"{force}/>')
+    pairs = [f"<exclude body1={quoteattr(a)} body2={quoteattr(b)}/>" for a, b in exclude]
+    return (f"<actuator>{chr(10).join(actuators)}</actuator>",
+            f"<contact>{chr(10).join(pairs)}</contact>" if pairs else "")
+
+
+def excluded_pairs(cell: Cell, touching: Iterable[tuple[str, str]] = ()) -> list[tuple[str, str]]:
+    """The body pairs whose contacts exert no force in a world of MuJoCo's actuators: every
+    pair of one robot's bodies (its solids overlap at the joints by construction), each jaw
+    with each workpiece (the jaws straddle a part, and MuJoCo's convex hull of a non-convex
+    part swallows them), and the pairs ``touching`` (bodies in contact at the start: a base on
+    the floor, a carriage in its track)."""
+    pairs: list[tuple[str, str]] = []
+    for robot in cell.robots:
+        bodies = [body_name(robot.name, i) for i in range(robot.n_joints + 1)]
+        if robot.tool is not None:
+            jaws = [body_name(robot.name, "jaw1"), body_name(robot.name, "jaw2")]
+            bodies += [body_name(robot.name, "tool")] + jaws
+            pairs += [(jaw, part.name) for jaw in jaws for part in cell.workpieces]
+        pairs += list(combinations(bodies, 2))
+    return pairs + [pair for pair in touching if pair not in pairs]
+
+
 def cell_mjcf(cell: Cell, render_size: tuple[int, int] | None = None,
-              intruders: tuple[Intruder, ...] = ()) -> str:
+              intruders: tuple[Intruder, ...] = (), servo: ServoParams | None = None,
+              exclude: Sequence[tuple[str, str]] = ()) -> str:
     """MJCF text of the cell and the ``intruders`` it does not know (see the module docstring
     for names and frames).
 
     ``render_size`` = (width, height) of the rendered images (default: each camera's own).
+    ``servo``: the joints' servo; with ``servo.mujoco`` the model is MuJoCo's dynamics, its
+    contacts pushing back except between the body pairs of ``exclude`` (module docstring).
     """
+    dynamic = servo is not None and servo.mujoco
     geoms, assets = _geoms_and_assets(cell)
     assets += [_mesh_asset(i.name, i.solid) for i in intruders]
-    world = _world_bodies(cell, geoms) + [_intruder_body(i) for i in intruders]
+    world = _world_bodies(cell, geoms, dynamic) + [_intruder_body(i) for i in intruders]
+    actuators, contacts = _dynamics(cell, servo, exclude)
     sizes = [render_size or (c.width, c.height) for c in cell.cameras] or [(640, 480)]
     offw, offh = max(s[0] for s in sizes), max(s[1] for s in sizes)
     cameras = [mjcf_camera(c, render_size) for c in cell.cameras]
     return f"""<mujoco model={quoteattr(cell.name)}>
 <compiler angle="radian" inertiafromgeom="false" autolimits="true"/>
-<option timestep="{1.0 / CONTROL_HZ:g}"/>
+<option timestep="{1.0 / CONTROL_HZ:g}"{' integrator="implicitfast"' if dynamic else ""}/>
 <visual>
   <global offwidth="{offw}" offheight="{offh}"/>
   <quality offsamples="4" shadowsize="0"/>
@@ -272,5 +333,7 @@ def cell_mjcf(cell: Cell, render_size: tuple[int, int] | None = None,
 {chr(10).join(cameras)}
 {chr(10).join(world)}
 </worldbody>
+{actuators}
+{contacts}
 </mujoco>
 """

@@ -35,6 +35,12 @@ class Scene:
             mujoco.mj_kinematics(self.model, self.data)
             self._stale = False
 
+    def step(self) -> None:
+        """Integrate MuJoCo's dynamics over one timestep (``mj_step``: actuators, contacts);
+        the poses it leaves are those before the step, so they are stale."""
+        mujoco.mj_step(self.model, self.data)
+        self._stale = True
+
     def set_qpos(self, addresses: np.ndarray | list[int], values: np.ndarray | float) -> None:
         """Write joint positions (rad or m) at ``qpos`` addresses."""
         self.data.qpos[addresses] = values

@@ -8,6 +8,15 @@ response is ``1 - (1 + wn t) e^(-wn t)`` at the control instants when critically
 (``zeta = 1``), and it follows a ramp of slope ``v`` with a steady lag of ``2 zeta v / wn``.
 A bandwidth of 0 is the ideal servo of a kinematic world: the joint is at its target at the
 end of each period. Units: rad (m for a prismatic joint), s, Hz.
+
+With ``mujoco`` the joints are MuJoCo's instead (:mod:`cellsight.world.mjcf`,
+:class:`~cellsight.world.world.World`): each is driven by a position actuator on a rotor
+inertia (``armature``: :data:`ARMATURE_KG_M2`, :data:`ARMATURE_KG` for a prismatic joint, the
+motor's inertia through its gearbox, which dominates a geared arm's links) with the same
+second-order loop (:func:`actuator_gains`: ``kp = A wn^2``, ``kv = 2 zeta A wn``), a torque
+(force) limit ``A max_acceleration``, gravity compensated (as a robot controller's feed-forward
+does), the velocity clipped to ``max_velocity`` after each step, and integrated by ``mj_step``
+with contacts on: what the arm hits pushes back.
 """
 
 from __future__ import annotations
@@ -18,20 +27,38 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.linalg import expm
 
+ARMATURE_KG_M2 = 2.0  # a revolute joint's rotor inertia through its gearbox (our estimate)
+ARMATURE_KG = 200.0  # a prismatic joint's (a carriage on its track; our estimate)
+
 
 @dataclass(frozen=True)
 class ServoParams:
     """``bandwidth_hz`` (0: ideal), ``damping`` (zeta), ``max_velocity`` (rad/s or m/s) and
-    ``max_acceleration`` (rad/s^2 or m/s^2) of every joint."""
+    ``max_acceleration`` (rad/s^2 or m/s^2) of every joint; ``mujoco``: MuJoCo's actuators and
+    contacts move the joints (module docstring; needs a bandwidth)."""
 
     bandwidth_hz: float = 0.0
     damping: float = 1.0
     max_velocity: float = math.inf
     max_acceleration: float = math.inf
+    mujoco: bool = False
+
+    def __post_init__(self) -> None:
+        if self.mujoco and self.bandwidth_hz <= 0.0:
+            raise ValueError("ServoParams: MuJoCo's actuators need a bandwidth > 0 Hz")
 
     @property
     def ideal(self) -> bool:
         return self.bandwidth_hz <= 0.0
+
+
+def actuator_gains(params: ServoParams, armature: float) -> tuple[float, float, float]:
+    """(kp, kv, force limit) of a MuJoCo position actuator that gives a joint of inertia
+    ``armature`` (kg m^2 or kg) the servo's second-order loop (module docstring); the force
+    limit is infinite when the acceleration is unlimited."""
+    wn = 2.0 * math.pi * params.bandwidth_hz
+    return (armature * wn * wn, 2.0 * params.damping * armature * wn,
+            armature * params.max_acceleration)
 
 
 class JointServo:

@@ -5,13 +5,16 @@
 Stepping (``CONTROL_HZ`` = 500 Hz, ``dt_control`` = 2 ms): each step moves the joints through
 their servos, writes the joint values and the workpiece and intruder poses, and MuJoCo computes
 the body, geom and camera poses (``mj_kinematics``) and the contacts (``mj_collision``); no
-contact force acts. :class:`World` puts together its parts, each in its own module:
+contact force acts. With a servo of MuJoCo's actuators (``ServoParams.mujoco``) the joints'
+set-points go to MuJoCo's position actuators instead and ``mj_step`` integrates the arms, whose
+contacts push back (:mod:`cellsight.world.mjcf`); the jaws keep the openings the grippers give
+them. :class:`World` puts together its parts, each in its own module:
 
 - robots (:class:`RobotJoints`, here): position control through each joint's servo
   (:mod:`cellsight.world.servo`; the ideal one reaches each set-point within the control
-  period), clipped to the joint limits, in the encoders' terms (offsets, resolution, noise); a
-  robot with a task follows its timed waypoints (:class:`~cellsight.world.paths.JointTask`);
-  any other robot holds still;
+  period; or MuJoCo's actuators), clipped to the joint limits, in the encoders' terms
+  (offsets, resolution, noise); a robot with a task follows its timed waypoints
+  (:class:`~cellsight.world.paths.JointTask`); any other robot holds still;
 - grippers (:class:`~cellsight.world.grasp.Grippers`): pneumatic parallel jaws that centre,
   clamp and grasp a part, and release it when they open;
 - workpieces (:class:`~cellsight.world.paths.PartMotion`): carried by the conveyor
@@ -40,18 +43,18 @@ import numpy as np
 from cellsight.model import Cell
 from cellsight.rates import CONTROL_HZ, VISION_HZ
 from cellsight.visibility import Views
-from cellsight.world.contacts import ContactMonitor
+from cellsight.world.contacts import ContactMonitor, touching_bodies
 from cellsight.world.exposure_time import ExposureHistory
 from cellsight.world.faults import Faults
 from cellsight.world.grasp import Grasp, Grippers
 from cellsight.world.images import Imager
 from cellsight.world.imperfections import IDEAL, Imperfections
 from cellsight.world.intruders import Intruders
-from cellsight.world.mjcf import cell_mjcf, joint_name
+from cellsight.world.mjcf import body_name, cell_mjcf, excluded_pairs, joint_name
 from cellsight.world.paths import ConveyorPath, JointTask, PartMotion, Waypoint
 from cellsight.world.render import GrayRenderer
 from cellsight.world.scene import Scene
-from cellsight.world.servo import JointServo
+from cellsight.world.servo import JointServo, ServoParams
 from cellsight.world.shots import Shot
 from cellsight.world.truth import RayTruth
 
@@ -94,6 +97,15 @@ class RobotJoints:
             self._write(name)
         self._tasks = {name: JointTask(q0[cell.robot(name).name], waypoints)
                        for name, waypoints in tasks.items()}
+        self._max_velocity = errors.servo.max_velocity
+        self._actuators = ({r.name: np.array([m.actuator(f"{r.name}/a{i}").id
+                                              for i in range(1, r.n_joints + 1)])
+                            for r in cell.robots} if errors.servo.mujoco else None)
+        self._dofs = {r.name: np.array([m.jnt_dofadr[m.joint(joint_name(r.name, i)).id]
+                                        for i in range(1, r.n_joints + 1)]) for r in cell.robots}
+        if self._actuators is not None:
+            for name in self._servo:
+                scene.data.ctrl[self._actuators[name]] = self._servo[name].q
 
     def drive(self, setpoints: Mapping[str, np.ndarray]) -> None:
         """Joint set-points (robot name -> vector, as the encoders read), clipped to the joint
@@ -116,10 +128,22 @@ class RobotJoints:
             self._servo[name].target = self._true_target(name, task.at(t))
 
     def advance(self) -> None:
-        """One control period of every robot's servo."""
+        """One control period of every robot's servo; with MuJoCo's actuators, their
+        set-points (the world integrates them, then calls :meth:`limit_velocity`)."""
         for name in self._servo:
+            if self._actuators is not None:
+                lim = self._lims[name]
+                self.scene.data.ctrl[self._actuators[name]] = np.clip(self._servo[name].target,
+                                                                      lim[:, 0], lim[:, 1])
+                continue
             self._servo[name].step()
             self._write(name)
+
+    def limit_velocity(self) -> None:
+        """Clip every joint's velocity to the servo's limit (after MuJoCo's step)."""
+        qvel = self.scene.data.qvel
+        for dofs in self._dofs.values():
+            qvel[dofs] = np.clip(qvel[dofs], -self._max_velocity, self._max_velocity)
 
     def place(self, joints: Mapping[str, np.ndarray]) -> None:
         """Put robots at joint vectors (as the encoders read) at once, at rest (a replayed
@@ -128,6 +152,9 @@ class RobotJoints:
         for name in joints:
             self._servo[name].place(self._servo[name].target)
             self._write(name)
+            self.scene.data.qvel[self._dofs[name]] = 0.0
+            if self._actuators is not None:
+                self.scene.data.ctrl[self._actuators[name]] = self._servo[name].q
 
     def true(self) -> dict[str, np.ndarray]:
         """Joint values of every robot, read from MuJoCo."""
@@ -153,6 +180,29 @@ class RobotJoints:
         lim = self._lims[name]
         self.scene.set_qpos(self._qadr[name], np.clip(self._servo[name].q, lim[:, 0], lim[:, 1]))
 
+
+
+def _model(cell: Cell, render_size: tuple[int, int] | None, errors: Imperfections,
+           initial_joints: Mapping[str, np.ndarray]) -> mujoco.MjModel:
+    """The world's MuJoCo model (:func:`~cellsight.world.mjcf.cell_mjcf`): kinematic, or with
+    MuJoCo's actuators when the servo asks for them, its contacts pushing back except between
+    :func:`~cellsight.world.mjcf.excluded_pairs` (the bodies touching at the start found in
+    the kinematic model, the robots at their initial joints)."""
+    kinematic = mujoco.MjModel.from_xml_string(cell_mjcf(cell, render_size, errors.intruders))
+    if not errors.servo.mujoco:
+        return kinematic
+    scene = Scene(kinematic, mujoco.MjData(kinematic))
+    RobotJoints(scene, cell, initial_joints, {}, replace(errors, servo=ServoParams()), 0.0)
+    exclude = excluded_pairs(cell, touching_bodies(scene))
+    return mujoco.MjModel.from_xml_string(
+        cell_mjcf(cell, render_size, errors.intruders, errors.servo, exclude))
+
+
+def _jaw_addresses(model: mujoco.MjModel, cell: Cell) -> tuple[np.ndarray, np.ndarray]:
+    """``qpos`` and ``qvel`` addresses of every gripper's jaw joints."""
+    ids = [model.joint(body_name(r.name, jaw)).id for r in cell.robots if r.tool is not None
+           for jaw in ("jaw1", "jaw2")]
+    return model.jnt_qposadr[ids], model.jnt_dofadr[ids]
 
 
 def _in_hand(grippers: Grippers, robot: str) -> str | None:
@@ -210,8 +260,9 @@ class World:
     ) -> None:
         self.cell, self.errors = cell, errors
         self._rng = np.random.default_rng(seed)
-        model = mujoco.MjModel.from_xml_string(cell_mjcf(cell, render_size, errors.intruders))
+        model = _model(cell, render_size, errors, initial_joints or {})
         self.scene = Scene(model, mujoco.MjData(model))
+        self._jaws = _jaw_addresses(model, cell) if errors.servo.mujoco else None
         self.robots = RobotJoints(self.scene, cell, initial_joints or {}, tasks or {}, errors,
                                   self.dt_control)
         self.parts = PartMotion(self.scene, cell, conveyor or ConveyorPath.still(),
@@ -252,6 +303,12 @@ class World:
         self.robots.drive(setpoints or {})
         self.robots.follow_tasks(t)
         self.robots.advance()
+        if self._jaws is not None:  # MuJoCo's dynamics; the jaws keep their openings
+            qpos, qvel = self.scene.data.qpos, self.scene.data.qvel
+            openings = qpos[self._jaws[0]].copy()
+            self.scene.step()
+            qpos[self._jaws[0]], qvel[self._jaws[1]] = openings, 0.0
+            self.robots.limit_velocity()
         self.intruders.step(t)
         self.grippers.command(gripper or {})
         self.faults.step(t, self.parts)
