@@ -7,6 +7,7 @@ from __future__ import annotations
 import math
 import subprocess
 import sys
+from dataclasses import replace
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -304,6 +305,16 @@ def test_mujoco_actuators_limit_torque_and_velocity(cell):
     v = np.diff(q) / world.dt_control
     assert 0.9 * v_max < np.abs(v).max() <= v_max + a_max * world.dt_control * 1.01
     assert np.abs(np.diff(v[:20]) / world.dt_control).max() <= 1.1 * a_max
+
+
+def test_actuated_draws_labs_world_with_mujocos_actuators(cell):
+    """`actuated` is `lab` with `servo.actuators: mujoco`: the same seed draws the same
+    cameras, robots, parts and scenario; only the servo's actuators differ."""
+    lab, actuated = draw_world("lab", cell, 3), draw_world("actuated", cell, 3)
+    assert lab.record == actuated.record
+    assert actuated.errors.servo == replace(lab.errors.servo, mujoco=True)
+    assert not lab.errors.servo.mujoco
+    np.testing.assert_array_equal(actuated.trigger_skew_s, lab.trigger_skew_s)
 
 
 def test_mujoco_contacts_push_the_arm_back(cell):

@@ -21,7 +21,7 @@ from cellsight.errors import CellFileError
 from cellsight.model.yaml_input import load_yaml, read_cell_text
 
 BUILTIN_FILE = Path(__file__).resolve().parent.parent / "data" / "realism.yaml"
-BUILTIN = ("exact", "lab", "harsh", "kidnap", "crossed", "ccir")
+BUILTIN = ("exact", "lab", "harsh", "kidnap", "crossed", "ccir", "actuated")
 
 
 class ProfileError(CellFileError):
