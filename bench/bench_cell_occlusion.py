@@ -88,7 +88,7 @@ def run(frames: int = FRAMES) -> list[dict]:
 
     def open3d_fn(cams):
         def fn(s):
-            verts = ours_all.world_vertices(s).astype(np.float32)
+            verts = ours_all.surfaces.world_vertices(s).astype(np.float32)
             scene = o3d.t.geometry.RaycastingScene()
             scene.add_triangles(o3d.core.Tensor(verts), o3d.core.Tensor(tris.astype(np.uint32)))
             pts = _features(ours_all, s)
@@ -101,7 +101,7 @@ def run(frames: int = FRAMES) -> list[dict]:
 
     def embree_fn(cams):
         def fn(s):
-            verts = ours_all.world_vertices(s)
+            verts = ours_all.surfaces.world_vertices(s)
             mesh = trimesh.Trimesh(verts, tris, process=False)
             caster = RayMeshIntersector(mesh)
             pts = _features(ours_all, s)
