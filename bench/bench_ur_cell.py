@@ -202,8 +202,9 @@ def run(frames: int = FRAMES, path: Path | None = None) -> tuple[list[dict], dic
             for name, figures in compared(results, "cellsight object-bvh (default)",
                                           masks).items()]
     paper = VisibilityPredictor(cell, near_px=0.0, structure=FRAME_BSP, **same)
-    facts = {"cell": path.name, "surfaces": len(base.surfaces.poly_owner), "cameras": len(cell.cameras),
-             "features": len(_features(base, snapshots[0])), "stages": stages(paper, snapshots)}
+    facts = {"cell": path.name, "surfaces": len(base.surfaces.poly_owner),
+             "cameras": len(cell.cameras), "features": len(_features(base, snapshots[0])),
+             "stages": stages(paper, snapshots)}
     return rows, facts
 
 
