@@ -35,13 +35,15 @@ def cmd_check(args: argparse.Namespace) -> int:
 
     from cellsight.errors import CellsightError
     from cellsight.experiments.cellcheck import check_cell
+    from cellsight.experiments.crossing_design import TaskPath
     from cellsight.model.loader import load_cell
 
     if not args.margin_px >= 0:
         raise CellsightError(f"--margin-px: expected a number >= 0, got {args.margin_px}")
     cell = load_cell(args.cell)
     with tempfile.TemporaryDirectory() as tmp:
-        path = _task_path(args, Path(tmp)) if args.along_task or args.path else None
+        path = (TaskPath.of_task(args.cell, args.path, Path(tmp), "check")
+                if args.along_task or args.path else None)
         findings = check_cell(cell, margin_px=args.margin_px, path=path)
     console = Console(width=200, highlight=False)
     for f in findings:
@@ -52,16 +54,3 @@ def cmd_check(args: argparse.Namespace) -> int:
     console.print(f"{cell.source}: {errors} error(s), {warnings} warning(s)")
     return 1 if errors else 0
 
-
-def _task_path(args: argparse.Namespace, tmp: Path):
-    """The part's path and the robots' joints from ``--path``, else from experiment 2 run now
-    with the ideal sensor into ``tmp``."""
-    from cellsight.experiments import RunConfig, run_experiment
-    from cellsight.experiments.crossing_design import TaskPath
-
-    if args.path:
-        return TaskPath(args.path)
-    print("check: running experiment 2 (ideal sensor) for the part's path")
-    run_experiment(RunConfig(2, tmp / "experiment2", cell=args.cell, sensor="ideal",
-                             progress=False, video_every=0))
-    return TaskPath(tmp / "experiment2")

@@ -31,7 +31,6 @@ def cmd_design_crossing(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from cellsight.errors import CellsightError
-    from cellsight.experiments import RunConfig, run_experiment
     from cellsight.experiments.crossing_design import TaskPath, design_crossing
     from cellsight.model.loader import load_cell
 
@@ -40,12 +39,7 @@ def cmd_design_crossing(args: argparse.Namespace) -> int:
     if not args.clearance_cm >= 0:
         raise CellsightError(f"--clearance-cm: expected a number >= 0, got {args.clearance_cm}")
     with tempfile.TemporaryDirectory() as tmp:
-        folder = Path(args.path) if args.path else Path(tmp) / "experiment2"
-        if args.path is None:
-            print("design-crossing: running experiment 2 (ideal sensor) for the part's path")
-            run_experiment(RunConfig(2, folder, cell=args.cell, sensor="ideal",
-                                     progress=False, video_every=0))
-        path = TaskPath(folder)
+        path = TaskPath.of_task(args.cell, args.path, Path(tmp), "design-crossing")
     design = design_crossing(cell, blocks, path, clearance_m=args.clearance_cm / 100)
     robot = cell.experiments.crossing_robot or next(r.name for r in cell.robots
                                                     if r.name != cell.experiments.robot)

@@ -95,6 +95,20 @@ class TaskPath:
             raise CellsightError(f"{run_dir}: its frames.csv has no frames with the robots' "
                                  f"joints (a run of this version of cellsight is needed)")
 
+    @classmethod
+    def of_task(cls, cell: str | Path | None, run_dir: str | Path | None, scratch: Path,
+                who: str) -> TaskPath:
+        """The path of the run ``run_dir``, else of experiment 2 run now on ``cell`` with the
+        ideal sensor into ``scratch`` (``who`` says so on the console first)."""
+        if run_dir is not None:
+            return cls(run_dir)
+        from cellsight.experiments.runner import RunConfig, run_experiment
+
+        print(f"{who}: running experiment 2 (ideal sensor) for the part's path")
+        run_experiment(RunConfig(2, scratch / "experiment2", cell=cell, sensor="ideal",
+                                 progress=False, video_every=0))
+        return cls(scratch / "experiment2")
+
     def at(self, t: float) -> tuple[np.ndarray, dict[str, np.ndarray]]:
         """The part's pose and the robots' joints at the frame nearest ``t`` (s)."""
         k = int(np.argmin(np.abs(self.t - t)))
