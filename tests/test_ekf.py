@@ -236,21 +236,29 @@ def test_pnp_on_degenerate_points_gives_no_pose(points):
     assert estimate_pose([obs]) is None
 
 
-def test_robust_pnp_drops_a_wrong_corner():
-    """One corner 8 px off spoils the plain fused PnP (RMS above 2 px); the robust one drops it
-    and recovers the pose."""
+def _observations(seed: int, ids_of, wrong: tuple[int, int, list[float]]):
+    """The built-in part at its nominal pose seen by every camera of the built-in cell: camera
+    ``c`` measures features ``ids_of(c)`` with 0.2 px of noise; ``wrong`` = (camera, row,
+    shift px) moves one corner. Returns (observations, ``T_base_part``)."""
     cell = load_cell()
     part = cell.workpieces[0]
     T = part.T_base_part
     pts = part.feature_points
-    rng = np.random.default_rng(3)
+    rng = np.random.default_rng(seed)
     obs = []
     for c, cam in enumerate(cell.cameras):
-        ids = np.arange(0, 16, 2) + c
+        ids = ids_of(c)
         px = cam.project(pts[ids] @ T[:3, :3].T + T[:3, 3]) + rng.normal(0, 0.2, (len(ids), 2))
-        if c == 0:
-            px[3] += [8.0, -5.0]
+        if c == wrong[0]:
+            px[wrong[1]] += wrong[2]
         obs.append(Observation(PinholeMeasurement(cam), c, ids, pts[ids], px))
+    return obs, T
+
+
+def test_robust_pnp_drops_a_wrong_corner():
+    """One corner 8 px off spoils the plain fused PnP (RMS above 2 px); the robust one drops it
+    and recovers the pose."""
+    obs, T = _observations(3, lambda c: np.arange(0, 16, 2) + c, (0, 3, [8.0, -5.0]))
     assert estimate_pose(obs).rms_px > 2.0
     fix = estimate_pose_robust(obs, max_rms_px=2.0)
     assert fix.rms_px < 0.5 and fix.n_points == 15
@@ -260,18 +268,7 @@ def test_robust_pnp_drops_a_wrong_corner():
 def test_robust_pnp_drops_a_wrong_corner_hidden_under_a_small_rms():
     """Among 32 corners one 7 px off leaves the fused PnP's RMS under 2 px; the bound on each
     point's residual drops it all the same, and the fix names it."""
-    cell = load_cell()
-    part = cell.workpieces[0]
-    T = part.T_base_part
-    pts = part.feature_points
-    rng = np.random.default_rng(5)
-    obs = []
-    for c, cam in enumerate(cell.cameras):
-        ids = np.arange(16)
-        px = cam.project(pts[ids] @ T[:3, :3].T + T[:3, 3]) + rng.normal(0, 0.2, (16, 2))
-        if c == 1:
-            px[9] += [5.0, -5.0]
-        obs.append(Observation(PinholeMeasurement(cam), c, ids, pts[ids], px))
+    obs, T = _observations(5, lambda c: np.arange(16), (1, 9, [5.0, -5.0]))
     assert estimate_pose_robust(obs, max_rms_px=2.0).dropped == ()
     fix = estimate_pose_robust(obs, max_rms_px=2.0, max_residual_px=4.0)
     assert fix.dropped == ((1, 9),) and fix.n_points == 31
