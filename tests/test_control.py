@@ -39,6 +39,7 @@ from cellsight.control import (
     min_jerk,
 )
 from cellsight.control.clik import rotation_error
+from cellsight.control.task import grasp_miss
 from cellsight.geometry.transforms import make_pose
 
 CELL = load_cell()
@@ -596,18 +597,24 @@ def test_smoothness_check_fails_without_the_interpolating_filter() -> None:
 
 # ---- the task against the MuJoCo world (when it is available) ---------------------------------
 
-def _world_run(speed: float, world_grasp: bool, t_end: float = 40.0):
+def _world_run(speed: float, world_grasp: bool, t_end: float = 40.0, miss_x: float = 0.0,
+               check_opening: bool = False):
     """The task (compressed timing) against the MuJoCo world, the part on a conveyor moving
     along +x at ``speed`` (m/s); the grasp is the world's own (``world_grasp``) or the
-    controller's default."""
+    controller's default, aimed ``miss_x`` (m) off along the part's x; ``check_opening``: the
+    task checks the jaws' opening against the grasp's."""
     world_mod = pytest.importorskip("cellsight.world")
     start = PART.T_base_part[:2, 3]
     conveyor = (world_mod.ConveyorPath(np.array([start, start + [0.8, 0.0]]), speed)
                 if speed > 0 else world_mod.ConveyorPath.still())
     world = world_mod.World(CELL, seed=1, conveyor=conveyor)
     T_part_tcp = world.grippers.grasp_pose(PART.name) if world_grasp else grasp_pose_in_part(PART)
-    planner = TrajectoryPlanner(T_part_tcp, max_speed=0.5, max_angular_speed=1.2)
-    task = GraspTask(ROBOT, PART, timing=FAST, planner=planner)
+    aim = T_part_tcp.copy()
+    aim[0, 3] += miss_x
+    planner = TrajectoryPlanner(aim, max_speed=0.5, max_angular_speed=1.2)
+    opening = (pytest.importorskip("cellsight.world.grasp").grasp_opening(
+        PART.solid, ROBOT.tool, T_part_tcp) if check_opening else None)
+    task = GraspTask(ROBOT, PART, timing=FAST, planner=planner, grasp_opening=opening)
     rng = np.random.default_rng(2)
     name = ROBOT.name
     next_vision, grasped_at = 0.0, None
@@ -618,7 +625,8 @@ def _world_run(speed: float, world_grasp: bool, t_end: float = 40.0):
         if t >= next_vision - 1e-9:
             T = world.true_part_poses()[PART.name].copy()
             T[:3, 3] += rng.normal(0.0, 5e-4, 3)  # ideal measurement + small noise
-            task.update_vision(t, T, q_meas, world.jaws_closed_on_part(name))
+            task.update_vision(t, T, q_meas, world.jaws_closed_on_part(name),
+                               jaw_opening=world.jaw_openings()[name])
             next_vision += VISION_DT
         q, opening = task.step_control(t, q_meas)
         q_record.append(q)
@@ -648,3 +656,29 @@ def test_task_grasps_and_delivers_in_the_mujoco_world(speed: float, world_grasp:
     assert world.grasp(ROBOT.name) is None
     v, a = _derivatives(q)
     assert np.all(np.abs(v) <= V_MAX * (1 + 1e-9)) and np.all(np.abs(a) <= A_MAX)
+
+
+def test_grasp_miss_names_a_wrong_opening() -> None:
+    assert grasp_miss(False, None, None, 0.005) == "jaws not closed on the part"
+    assert grasp_miss(True, 0.0601, None, 0.005) is None  # nothing to compare with
+    assert grasp_miss(True, None, 0.04, 0.005) is None  # no reading
+    assert grasp_miss(True, 0.044, 0.04, 0.005) is None
+    assert "60.1 mm, not the grasp's 40.0 mm" in grasp_miss(True, 0.0601, 0.04, 0.005)
+
+
+def test_jaws_caught_off_the_grasp_are_opened_again_in_the_mujoco_world() -> None:
+    """Aimed 4 mm along the part's x, the jaws (35 mm wide) miss the U's 40 mm slot and close
+    on its 60 mm ends; the world does not weld that grasp (the part pushed 1 cm off it).
+    Without the opening check the task lifts empty jaws; with it, it opens them and tries
+    again."""
+    grasp_opening = pytest.importorskip("cellsight.world.grasp").grasp_opening
+    assert grasp_opening(PART.solid, ROBOT.tool, grasp_pose_in_part(PART)) == \
+        pytest.approx(0.04)
+    blind, world, *_ = _world_run(0.0, True, t_end=12.0, miss_x=0.004)
+    assert Phase.MANIPULATE in _phases(blind) and world.grasp(ROBOT.name) is None
+    lifted = world.true_part_poses()[PART.name][2, 3] - PART.T_base_part[2, 3]
+    assert abs(lifted) < 1e-3  # left behind
+    task, world, *_ = _world_run(0.0, True, t_end=12.0, miss_x=0.004, check_opening=True)
+    assert _phases(task)[:4] == [Phase.WAITING, Phase.APPROACH, Phase.GRASP, Phase.APPROACH]
+    assert "they caught the part off its grasp (attempt 1)" in task.transitions[2][3]
+    assert Phase.MANIPULATE not in _phases(task)

@@ -7,7 +7,6 @@ from __future__ import annotations
 import math
 import subprocess
 import sys
-from dataclasses import replace
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -243,6 +242,23 @@ def test_servo_step_and_ramp_follow_the_second_order_response():
     assert np.max(np.diff(qs)) <= 0.1 * dt + 1e-12
 
 
+def test_servo_with_velocity_feedforward_follows_a_ramp_without_lag():
+    """With the set-point's velocity fed forward, the ramp's steady lag 2 v / wn (1 cm here)
+    is gone; the start of the ramp is a change of velocity, which the loop still takes
+    ``1 - (1 + wn t) e^(-wn t)`` to follow (from rest, the error is ``v t e^(-wn t)``)."""
+    dt, f, v = 1 / 500, 8.0, 0.5
+    wn = 2 * math.pi * f
+    ramp = JointServo(ServoParams(bandwidth_hz=f, velocity_feedforward=True), np.zeros(1), dt)
+    errors = []
+    for k in range(1, 1001):
+        ramp.target = np.array([v * k * dt])
+        ramp.step()
+        errors.append(ramp.target[0] - ramp.q[0])
+    t = np.arange(1, 1001) * dt
+    np.testing.assert_allclose(errors, v * t * np.exp(-wn * t), atol=1e-9)
+    assert abs(errors[-1]) < 1e-9 and 2 * v / wn > 0.009
+
+
 def test_world_arm_lags_its_setpoints(cell):
     world = World(cell, errors=Imperfections(servo=ServoParams(bandwidth_hz=5.0), noise_rad=0.0,
                                              noise_m=0.0))
@@ -289,6 +305,22 @@ def test_mujoco_actuators_follow_the_servos_second_order_response(cell):
     assert lag == pytest.approx(2 * v / wn, rel=0.07)
 
 
+def test_mujoco_actuators_with_velocity_feedforward_follow_a_ramp(cell):
+    """The same ramp as above with the set-point's velocity fed forward (the actuator's
+    set-point led by kv / kp times it): the lag falls from 2 v / wn (1 cm) to what the links'
+    inertia and the integration leave, under a twentieth of it."""
+    f, v = 8.0, 0.5
+    wn = 2 * math.pi * f
+    world = World(cell, errors=_actuated(bandwidth_hz=f, velocity_feedforward=True))
+    home = cell.robot("R7AX").home
+    for k in range(1, 1001):
+        target = home.copy()
+        target[6] += v * k * world.dt_control
+        world.step({"R7AX": target})
+    lag = target[6] - world.true_joints()["R7AX"][6]
+    assert abs(lag) < 0.05 * 2 * v / wn
+
+
 def test_mujoco_actuators_limit_torque_and_velocity(cell):
     """A large step: the joint's acceleration stays within the torque limit's (armature times
     the acceleration limit) and its speed within the velocity limit (clipped after each step:
@@ -307,14 +339,13 @@ def test_mujoco_actuators_limit_torque_and_velocity(cell):
     assert np.abs(np.diff(v[:20]) / world.dt_control).max() <= 1.1 * a_max
 
 
-def test_actuated_draws_labs_world_with_mujocos_actuators(cell):
-    """`actuated` is `lab` with `servo.actuators: mujoco`: the same seed draws the same
-    cameras, robots, parts and scenario; only the servo's actuators differ."""
-    lab, actuated = draw_world("lab", cell, 3), draw_world("actuated", cell, 3)
-    assert lab.record == actuated.record
-    assert actuated.errors.servo == replace(lab.errors.servo, mujoco=True)
-    assert not lab.errors.servo.mujoco
-    np.testing.assert_array_equal(actuated.trigger_skew_s, lab.trigger_skew_s)
+def test_lab_and_harsh_drive_the_joints_by_mujocos_actuators_with_feedforward(cell):
+    """`lab` and `harsh` (and the profiles built on `lab`) move the joints by MuJoCo's
+    actuators with the set-point's velocity fed forward; `exact` keeps the ideal servo."""
+    for name in ("lab", "harsh", "kidnap", "crossed", "ccir"):
+        servo = draw_world(name, cell, 3).errors.servo
+        assert servo.mujoco and servo.velocity_feedforward and servo.bandwidth_hz > 0, name
+    assert draw_world("exact", cell, 3).errors.servo.ideal
 
 
 def test_mujoco_contacts_push_the_arm_back(cell):

@@ -12,8 +12,10 @@ Phases, in order: ``waiting`` -> ``approach`` -> ``grasp`` -> ``manipulate`` -> 
   the part is found again, then ``over``.
 - grasp: ``closing`` (close the jaws, keep moving with the part's last estimated horizontal
   velocity, without vision feedback, for ``timing.close``), then check the jaws; closed on the
-  part: ``holding`` for ``timing.hold``; not closed: open the jaws and go back to
-  ``approach``.
+  part, at the opening the part's section between the jaws gives at its grasp (within
+  ``tolerances.opening``, when the task knows that opening and the jaws' reading): ``holding``
+  for ``timing.hold``; not closed, or closed at another opening (the jaws caught a wider part
+  of it, off the grasp): open the jaws and go back to ``approach``.
 - manipulate: ``lift`` by ``lift_height``, then ``home`` (back to the HOME pose carrying the part).
   No vision from here on: the planner uses the joint measurements only.
 - release: ``final`` (go to the FINAL pose), ``opening`` (open the jaws, ``timing.open``), ``home``.
@@ -92,11 +94,26 @@ class TaskTiming:
 @dataclass(frozen=True)
 class TaskTolerances:
     """When a pose counts as reached: ``horizontal`` (m) error in the base xy plane to start
-    the descent, ``position`` (m) and ``angle`` (rad) for the end of a move."""
+    the descent, ``position`` (m) and ``angle`` (rad) for the end of a move; ``opening`` (m):
+    how far the closed jaws' opening may be from the grasp's for the grasp to count."""
 
     horizontal: float = 0.005
     position: float = 0.005
     angle: float = 0.035
+    opening: float = 0.005
+
+
+def grasp_miss(jaws_closed: bool, opening: float | None, expected: float | None,
+               tolerance: float) -> str | None:
+    """Why jaws closed at ``opening`` (m; None: no reading) do not hold a part whose grasp
+    closes them to ``expected`` (m; None: not known) within ``tolerance`` (m), or None when
+    they do."""
+    if not jaws_closed:
+        return "jaws not closed on the part"
+    if opening is None or expected is None or abs(opening - expected) <= tolerance:
+        return None
+    return (f"jaws closed at {1e3 * opening:.1f} mm, not the grasp's {1e3 * expected:.1f} mm: "
+            f"they caught the part off its grasp")
 
 
 class ServoLoop:
@@ -145,6 +162,8 @@ class GraspTask:
     and ``interpolator`` default to a :class:`TrajectoryPlanner`, :class:`Clik` and
     :class:`InterpolatingFilter` with their default parameters; the control period is the
     interpolator's ``dt``. Gripper commands: ``robot.tool.max_opening`` open, 0 closed.
+    ``grasp_opening`` (m): the jaws' opening when closed on the part at its grasp (None: any
+    opening counts).
     """
 
     def __init__(
@@ -160,6 +179,7 @@ class GraspTask:
         planner: TrajectoryPlanner | None = None,
         clik: Clik | None = None,
         interpolator: InterpolatingFilter | None = None,
+        grasp_opening: float | None = None,
     ) -> None:
         if robot.tool is None or robot.final is None:
             raise ValueError(f"GraspTask: robot {robot.name} needs a tool and a FINAL pose")
@@ -176,6 +196,7 @@ class GraspTask:
         self.T_final = robot.tcp_pose(robot.final)
         self.open_command = robot.tool.max_opening
         self.closed_command = 0.0
+        self.grasp_opening = None if grasp_opening is None else float(grasp_opening)
         self.phase = Phase.WAITING
         self.stage = "start"
         self.attempts = 0
@@ -185,6 +206,7 @@ class GraspTask:
         self._stage_t = 0.0
         self._stable_since: float | None = None
         self._part_lost = False
+        self._jaw_opening: float | None = None
         self._handlers = {
             Phase.WAITING: self._waiting, Phase.APPROACH: self._approach, Phase.GRASP: self._grasp,
             Phase.MANIPULATE: self._manipulate, Phase.RELEASE: self._release,
@@ -195,14 +217,17 @@ class GraspTask:
 
     def update_vision(self, t: float, part_pose: np.ndarray | None, joints_measured: np.ndarray,
                       jaws_closed: bool, part_velocity: np.ndarray | None = None,
-                      stamp: float | None = None, part_lost: bool = False) -> None:
+                      stamp: float | None = None, part_lost: bool = False,
+                      jaw_opening: float | None = None) -> None:
         """Vision-rate update at time ``t``: ``part_pose`` is the estimated ``T_base_part``
         (None when not localised) at time ``stamp`` (its image's exposure; default ``t``: no
         latency), ``part_velocity`` its optional linear velocity (m/s), ``joints_measured`` the
         robot's joints at ``t``, ``jaws_closed`` the gripper's jaw sensor at ``t``;
-        ``part_lost``: the tracker has lost the part (the approach stands clear)."""
+        ``part_lost``: the tracker has lost the part (the approach stands clear);
+        ``jaw_opening``: the gripper's opening reading (m), if it has one."""
         self.servo.start(t, joints_measured)
         self._part_lost = bool(part_lost)
+        self._jaw_opening = jaw_opening
         if self.phase in (Phase.WAITING, Phase.APPROACH, Phase.GRASP):
             self.planner.part.update(t if stamp is None else stamp, part_pose, part_velocity)
         T_meas = self.robot.tcp_pose(joints_measured)
@@ -263,13 +288,15 @@ class GraspTask:
 
     def _grasp(self, t: float, T_meas: np.ndarray, jaws_closed: bool) -> None:
         if self.stage == "closing" and t - self._stage_t >= self.timing.close:
-            if jaws_closed:
+            miss = grasp_miss(jaws_closed, self._jaw_opening, self.grasp_opening,
+                              self.tolerances.opening)
+            if miss is None:
                 self._set_stage(t, "holding", "jaws closed on the part")
                 self.planner.move_to(t, PoseGoal(self.planner.target(t)[0], t), 0.0)
                 return
             self.attempts += 1
             self._gripper = self.open_command
-            reason = f"jaws not closed on the part (attempt {self.attempts})"
+            reason = f"{miss} (attempt {self.attempts})"
             if self.attempts >= self.max_attempts:
                 self._go(t, Phase.FAILED, f"{reason}; giving up")
                 self._set_stage(t, "home", "returning HOME")

@@ -52,7 +52,7 @@ from typing import Literal
 import numpy as np
 from rich.progress import BarColumn, Progress, TextColumn
 
-from cellsight.control import GraspTask, Phase
+from cellsight.control import GraspTask, Phase, grasp_pose_in_part
 from cellsight.errors import CellsightError
 from cellsight.experiments.baseline import PnPBaseline
 from cellsight.experiments.exposure import Exposures
@@ -96,6 +96,7 @@ from cellsight.tracking.grabbing import grabbed
 from cellsight.tracking.records import PartFrame
 from cellsight.tracking.setup import build_tracker
 from cellsight.world import World
+from cellsight.world.grasp import grasp_opening
 from cellsight.world.shots import Shot
 
 log = logging.getLogger(__name__)
@@ -230,7 +231,8 @@ class ExperimentRun:
                                      unknown_occluders=config.unknown_occluders,
                                      structure=config.structure, extractor=self.ideal,
                                      camera_offsets_px=config.camera_offsets_px)
-        self.task = GraspTask(self.robot, self.part)
+        self.task = GraspTask(self.robot, self.part, grasp_opening=grasp_opening(
+            self.part.solid, self.robot.tool, grasp_pose_in_part(self.part)))
         self.baseline = PnPBaseline.of(self.tracker, self.part.feature_points)
         self.grasp = GraspMonitor(self.world, self.robot.name)
         self.events = OcclusionEvents([c.name for c in cell.cameras])
@@ -448,7 +450,8 @@ class ExperimentRun:
         before = self.task.phase
         self.task.update_vision(t, estimate.pose, joints,
                                 self.world.jaws_closed_on_part(self.robot.name),
-                                estimate.velocity, stamp=estimate.t, part_lost=estimate.lost)
+                                estimate.velocity, stamp=estimate.t, part_lost=estimate.lost,
+                                jaw_opening=self.world.jaw_openings()[self.robot.name])
         self.grasp.after_vision(before, self.task.phase)
 
     def _knock(self) -> dict | None:

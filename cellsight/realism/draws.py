@@ -165,7 +165,8 @@ def _imperfections(k: _Knobs, p: Profile, cell: Cell, world_cell: Cell) -> Imper
                               im.defocus_px, im.vignetting, im.jpeg_quality,
                               im.exposure_ms / 1e3, im.interlaced)
     servo = ServoParams(s.bandwidth_hz, s.damping, math.radians(s.max_velocity_deg_s),
-                        math.radians(s.max_acceleration_deg_s2), s.actuators == "mujoco")
+                        math.radians(s.max_acceleration_deg_s2), s.actuators == "mujoco",
+                        s.velocity_feedforward)
     return Imperfections(
         encoder_offsets=_encoder_offsets(k, p, cell),
         quantum_rad=math.radians(r.encoder_resolution_deg), quantum_m=r.encoder_resolution_mm / 1e3,

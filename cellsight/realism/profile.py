@@ -21,7 +21,7 @@ from cellsight.errors import CellFileError
 from cellsight.model.yaml_input import load_yaml, read_cell_text
 
 BUILTIN_FILE = Path(__file__).resolve().parent.parent / "data" / "realism.yaml"
-BUILTIN = ("exact", "lab", "harsh", "kidnap", "crossed", "ccir", "actuated")
+BUILTIN = ("exact", "lab", "harsh", "kidnap", "crossed", "ccir")
 
 
 class ProfileError(CellFileError):
@@ -128,13 +128,16 @@ class ServoKnobs(_Strict):
     (deg/s, also mm/s for a prismatic joint) and acceleration (deg/s^2, mm/s^2) limits; and
     what moves the joints: ``analytic`` (the servo's own second-order loop in a kinematic
     world) or ``mujoco`` (MuJoCo's position actuators on the joints' rotor inertia, with the
-    acceleration limit as a torque limit, contacts pushing back; needs a bandwidth)."""
+    acceleration limit as a torque limit, contacts pushing back; needs a bandwidth); whether
+    the drives feed the set-point's velocity forward (``velocity_feedforward``: a ramp is then
+    followed without the steady lag ``2 damping / (2 pi bandwidth)`` times its speed)."""
 
     bandwidth_hz: NonNegative = 0.0
     damping: Annotated[float, BeforeValidator(_no_bool), Field(gt=0, allow_inf_nan=False)] = 1.0
     max_velocity_deg_s: Annotated[float, Field(gt=0)] = math.inf
     max_acceleration_deg_s2: Annotated[float, Field(gt=0)] = math.inf
     actuators: Literal["analytic", "mujoco"] = "analytic"
+    velocity_feedforward: Annotated[bool, Field(strict=True)] = False
 
     @model_validator(mode="after")
     def _actuated(self) -> ServoKnobs:

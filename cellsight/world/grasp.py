@@ -108,6 +108,16 @@ class PartSection:
         return (float(y.min()), float(y.max())) if y.size else None
 
 
+def grasp_opening(solid: Polyhedron, tool: ParallelGripper, T_part_tcp: np.ndarray) -> float | None:
+    """The opening (m) at which the jaws of ``tool`` close on ``solid`` held at the grasp
+    ``T_part_tcp``: the width of the part's material between the two pads, or None when a pad
+    meets none."""
+    T_tool_part = tool.T_tool_tcp @ invert_pose(T_part_tcp)
+    pads, section = JawPads.of(tool), PartSection(solid)
+    r1, r2 = section.y_range(T_tool_part, pads.jaw1), section.y_range(T_tool_part, pads.jaw2)
+    return None if r1 is None or r2 is None else r1[1] - r2[0]
+
+
 def grasp_pose(part: Workpiece, tool: ParallelGripper | None) -> np.ndarray:
     """``T_part_tcp`` of ``tool`` holding ``part``: the cell file's ``grasp``, else
     :func:`default_grasp_pose` (which needs the tool)."""

@@ -132,9 +132,7 @@ class RobotJoints:
         set-points (the world integrates them, then calls :meth:`limit_velocity`)."""
         for name in self._servo:
             if self._actuators is not None:
-                lim = self._lims[name]
-                self.scene.data.ctrl[self._actuators[name]] = np.clip(self._servo[name].target,
-                                                                      lim[:, 0], lim[:, 1])
+                self.scene.data.ctrl[self._actuators[name]] = self._servo[name].actuator_setpoint()
                 continue
             self._servo[name].step()
             self._write(name)
