@@ -9,7 +9,7 @@ import pytest
 from oracle import random_convex_solid, random_prism, random_soup, segment_oracle
 
 from cellsight.errors import GeometryError
-from cellsight.occlusion import visible_mask
+from cellsight.occlusion import PolygonSoup, visible_mask
 
 METHODS = ("direct", "bsp", "auto")
 
@@ -45,6 +45,36 @@ def test_fast_paths_agree_with_the_full_bsp(kind):
             np.testing.assert_array_equal(fast[keep], full[keep], err_msg=method)
         compared += int(keep.sum())
     assert compared > 2500
+
+
+def test_a_soup_joined_once_answers_as_the_list():
+    """The list joined once into a :class:`PolygonSoup` and reused: the same answers as the
+    list itself, call after call, by every method."""
+    rng = np.random.default_rng(11)
+    for kind in (0, 1, 2):
+        for _ in range(40):
+            polygons, points, viewpoint = _scene(rng, kind)
+            soup = PolygonSoup.from_polygons(polygons)
+            for method in (*METHODS, "full"):
+                np.testing.assert_array_equal(
+                    visible_mask(soup, points, viewpoint, _method=method),
+                    visible_mask(polygons, points, viewpoint, _method=method), err_msg=method)
+
+
+def test_an_unchecked_soup_is_validated_once_with_the_lists_error():
+    bent = [np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0.5], [0, 1, 0]], float)]
+    soup = PolygonSoup.from_arrays(np.concatenate(bent), np.array([0, 4]))
+    assert not soup.validated
+    with pytest.raises(GeometryError) as from_soup:
+        visible_mask(soup, np.zeros((1, 3)), np.ones(3))
+    with pytest.raises(GeometryError) as from_list:
+        visible_mask(bent, np.zeros((1, 3)), np.ones(3))
+    assert str(from_soup.value) == str(from_list.value) and not soup.validated
+    flat = bent[0] * [1.0, 1.0, 0.0]
+    soup = PolygonSoup.from_arrays(flat, np.array([0, 4]))
+    assert visible_mask(soup, np.array([[0.5, 0.5, -1.0]]), np.array([0.5, 0.5, 1.0])).tolist() \
+        == [False]
+    assert soup.validated
 
 
 def test_far_and_outside_polygons_are_culled_without_changing_answers():

@@ -156,12 +156,15 @@ DIRECT_POINTS = 512
 
 
 def visible_mask(
-    polygons: Sequence[np.ndarray] | np.ndarray, points: np.ndarray, viewpoint: np.ndarray,
-    _method: str = "auto",
+    polygons: Sequence[np.ndarray] | np.ndarray | PolygonSoup, points: np.ndarray,
+    viewpoint: np.ndarray, _method: str = "auto",
 ) -> np.ndarray:
     """Visible flags (N,) of ``points`` (N, 3) seen from ``viewpoint`` (3,) among ``polygons``:
-    a sequence of (k_i, 3) vertex arrays, or one (P, k, 3) array of polygons with k vertices
-    each (a triangle mesh as ``vertices[triangles]``: the fastest input, no per-polygon copy).
+    a sequence of (k_i, 3) vertex arrays, one (P, k, 3) array of polygons with k vertices
+    each (a triangle mesh as ``vertices[triangles]``: no per-polygon copy), or a
+    :class:`PolygonSoup` (a list joined once, ``PolygonSoup.from_polygons(polygons)``, for
+    queries against the same polygons: the fastest input, as its joining, planes and checks
+    are done once, not per call).
 
     Same answers as ``BSPTree.build(PolygonSoup.from_polygons(polygons)).visibility(points,
     viewpoint)[0]`` (module doc for the semantics and the per-polygon thickness ``eps``), and
@@ -192,7 +195,11 @@ def _checked_soup(polygons: Sequence[np.ndarray] | np.ndarray) -> PolygonSoup:
     """``PolygonSoup.from_polygons(polygons)`` (validated), with fast paths for a (P, k >= 3,
     3) real array (polygons of k vertices each, e.g. a mesh's triangles: no copy) and a list
     of (k >= 3, 3) real arrays (one concatenation instead of a conversion per polygon). Any
-    failure falls back to ``from_polygons``, which raises the usual :class:`GeometryError`."""
+    failure falls back to ``from_polygons``, which raises the usual :class:`GeometryError`.
+    A :class:`PolygonSoup` is used as it is, validated first if it has not been."""
+    if isinstance(polygons, PolygonSoup):
+        polygons._validate()
+        return polygons
     try:
         if isinstance(polygons, np.ndarray) and polygons.ndim == 3:
             vertices = polygons.reshape(-1, polygons.shape[-1])

@@ -52,7 +52,8 @@ class PolygonSoup:
     ``spheres`` (P, 4) bounding spheres (vertex mean, radius), ``areas`` (P,), ``deviations``
     (P,) largest vertex distance from the plane, and ``eps`` (P,), each polygon's plane thickness
     (module doc).
-    Build with :meth:`from_polygons` (checked) or :meth:`from_arrays` (hot path).
+    Build with :meth:`from_polygons` (checked) or :meth:`from_arrays` (hot path);
+    ``validated`` says whether the geometric checks have passed (they run once).
     """
 
     def __init__(self, vertices: np.ndarray, offsets: np.ndarray) -> None:
@@ -71,6 +72,7 @@ class PolygonSoup:
         self.areas = areas
         self.deviations = deviations
         self.eps = eps
+        self.validated = False
 
     def __len__(self) -> int:
         return self.offsets.shape[0] - 1
@@ -120,8 +122,10 @@ class PolygonSoup:
         return soup
 
     def _validate(self) -> None:
-        """Degenerate, non-planar and non-simple polygons raise :class:`GeometryError`."""
-        if len(self) == 0:
+        """Degenerate, non-planar and non-simple polygons raise :class:`GeometryError`; once
+        passed, :attr:`validated` is set and the checks do not run again."""
+        if self.validated or len(self) == 0:
+            self.validated = True
             return
         size = np.linalg.norm(self.boxes[:, 3:] - self.boxes[:, :3], axis=1)
         bad = np.flatnonzero(self.areas <= DEGENERATE_REL * size**2)
@@ -146,6 +150,7 @@ class PolygonSoup:
                 f"polygon {i} is not simple: edges {edge_a} and {edge_b} touch or cross "
                 f"(distance {dist:.3g})"
             )
+        self.validated = True
 
 
 def _polygon_array(i: int, polygon: np.ndarray) -> np.ndarray:
