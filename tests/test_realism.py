@@ -341,11 +341,15 @@ def test_mujoco_actuators_limit_torque_and_velocity(cell):
 
 def test_lab_and_harsh_drive_the_joints_by_mujocos_actuators_with_feedforward(cell):
     """`lab` and `harsh` (and the profiles built on `lab`) move the joints by MuJoCo's
-    actuators with the set-point's velocity fed forward; `exact` keeps the ideal servo."""
+    actuators with the set-point's velocity fed forward, and report every overlap as a
+    collision; `exact` keeps the ideal servo and its 1 mm threshold."""
     for name in ("lab", "harsh", "kidnap", "crossed", "ccir"):
-        servo = draw_world(name, cell, 3).errors.servo
+        errors = draw_world(name, cell, 3).errors
+        servo = errors.servo
         assert servo.mujoco and servo.velocity_feedforward and servo.bandwidth_hz > 0, name
-    assert draw_world("exact", cell, 3).errors.servo.ideal
+        assert errors.collision_threshold_m == 0.0  # contacts push back: any overlap counts
+    exact = draw_world("exact", cell, 3).errors
+    assert exact.servo.ideal and exact.collision_threshold_m == 1e-3
 
 
 def test_mujoco_contacts_push_the_arm_back(cell):

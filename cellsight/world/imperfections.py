@@ -19,7 +19,8 @@ joint measurement noise of 1e-4 rad (m for a prismatic joint).
   (:mod:`cellsight.world.faults`; None: never);
 - ``images``: what the camera and grabber do to each image
   (:class:`~cellsight.world.images.ImageEffects`; None: clean renders);
-- ``collision_depth_m``: the penetration (m) from which a contact is a collision event.
+- ``collision_depth_m``: the penetration (m) from which a contact is a collision event
+  (None: :attr:`Imperfections.collision_threshold_m`).
 """
 
 from __future__ import annotations
@@ -51,7 +52,17 @@ class Imperfections:
     kidnap: Kidnap | None = None
     knock: Knock | None = None
     images: ImageEffects | None = None
-    collision_depth_m: float = 1e-3
+    collision_depth_m: float | None = None
+
+    @property
+    def collision_threshold_m(self) -> float:
+        """The penetration (m) from which a contact is an event: ``collision_depth_m`` if
+        given; else 0 (any overlap) where MuJoCo's actuators move the joints, as contacts push
+        back there, so a touch never grows deep and every overlap is a force; else 1 mm in a
+        kinematic world, where solids pass through each other and the meshes' hulls graze."""
+        if self.collision_depth_m is not None:
+            return self.collision_depth_m
+        return 0.0 if self.servo.mujoco else 1e-3
 
 
 IDEAL = Imperfections()

@@ -272,7 +272,7 @@ class World:
         self.faults = Faults(errors.kidnap, errors.knock,
                              partial(_knock_camera, self.scene, self.truth))
         self.contacts = ContactMonitor(
-            self.scene, cell, errors.collision_depth_m,
+            self.scene, cell, errors.collision_threshold_m,
             partial(_in_hand, self.grippers))
         self._render_size = render_size
         self._renderer: GrayRenderer | None = None
