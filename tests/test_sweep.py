@@ -23,6 +23,14 @@ def _square(x: int) -> int:
     return x * x
 
 
+def _crash(x: int) -> int:
+    """A segmentation fault in native code (reading address 0) on job 1."""
+    if x == 1:
+        import ctypes
+        ctypes.string_at(0)
+    return x
+
+
 def test_grid_is_the_product_with_comparisons_on_the_first_seeds():
     specs = sweep_grid(["dual-arm", "ur-cell"], [1, 3], ["ideal"], ["pred", "nopred"],
                        [0, 1, 2], variant_seeds=1)
@@ -48,6 +56,23 @@ def test_engine_gives_every_result_once_in_process_and_on_a_pool():
     for workers in (1, 2):
         got = dict(map_jobs(_square, list(range(7)), workers=workers, progress=False))
         assert got == {i: i * i for i in range(7)}
+
+
+def test_a_worker_that_crashes_in_native_code_prints_its_python_stack(capfd):
+    from concurrent.futures.process import BrokenProcessPool
+
+    with pytest.raises(BrokenProcessPool):
+        dict(map_jobs(_crash, [0, 1], workers=2, progress=False))
+    err = capfd.readouterr().err
+    assert "Segmentation fault" in err and "in _crash" in err
+
+
+def test_a_crashing_job_is_recorded_and_the_others_still_run():
+    """Job 1 kills its worker wherever it runs: it alone gets ``on_crash``'s result, every
+    other job its own, on a pool of 2 (the job running beside it is run again)."""
+    got = dict(map_jobs(_crash, list(range(7)), workers=2, progress=False,
+                        on_crash=lambda job: f"crashed {job}"))
+    assert got == {0: 0, 1: "crashed 1", 2: 2, 3: 3, 4: 4, 5: 5, 6: 6}
 
 
 @pytest.fixture(scope="module")

@@ -106,13 +106,20 @@ def run_sweep(specs: list[RunSpec], out: Path, jobs: int = 2, scheduler=None,
                              f"there ({exc.strerror})") from exc
     results: list[dict | None] = [None] * len(specs)
     jobs_done = map_jobs(run_spec, [(s, out) for s in specs], workers=jobs, scheduler=scheduler,
-                         progress=progress, label="sweep", connect_s=connect_s)
+                         progress=progress, label="sweep", connect_s=connect_s,
+                         on_crash=_crashed)
     with closing(jobs_done):  # an interrupt ends the pool now, not when collected
         for i, metrics in jobs_done:
             raise_if_stopped(metrics)  # a run that took the signal itself stops the sweep
             results[i] = metrics
     write_summary(out, specs, results)
     return results
+
+
+def _crashed(job: tuple[RunSpec, Path]) -> dict:
+    """The result of a run whose worker process died under it twice (the sweep goes on)."""
+    return {"error": f"the worker process died twice running {job[0].folder} (a crash in "
+                     f"native code; its Python stack is on the sweep's stderr)"}
 
 
 def cmd_sweep(args: argparse.Namespace) -> int:

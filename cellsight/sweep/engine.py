@@ -22,6 +22,7 @@ import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures.process import BrokenProcessPool
 from contextlib import contextmanager
 from multiprocessing import get_context
 from typing import Any
@@ -82,10 +83,12 @@ def sigterm_interrupts() -> Iterator[None]:
 
 def map_jobs(fn: Callable[[Any], Any], jobs: Sequence[Any], *, workers: int = 1,
              scheduler: Any = None, progress: bool = True, label: str = "jobs",
-             connect_s: float = 20.0) -> Iterator[tuple[int, Any]]:
+             connect_s: float = 20.0,
+             on_crash: Callable[[Any], Any] | None = None) -> Iterator[tuple[int, Any]]:
     """``(i, fn(jobs[i]))`` for every job, as each finishes (module docstring); ``connect_s``:
     how long to try reaching the scheduler, to wait for a first worker, and to wait once every
-    worker is gone before giving up (s)."""
+    worker is gone before giving up (s); ``on_crash``: on a local pool, the result of a job
+    whose worker died under it twice (:func:`_on_pool`; None: a dead worker ends the map)."""
     if workers < 1:
         raise CellsightError(f"--jobs: expected a whole number >= 1, got {workers}")
     with Progress(TextColumn(f"[bold]{label}"), BarColumn(), MofNCompleteColumn(),
@@ -96,29 +99,55 @@ def map_jobs(fn: Callable[[Any], Any], jobs: Sequence[Any], *, workers: int = 1,
         elif workers == 1 or len(jobs) <= 1:
             results = ((i, fn(job)) for i, job in enumerate(jobs))
         else:
-            results = _on_pool(fn, jobs, workers)
+            results = _on_pool(fn, jobs, workers, on_crash)
         for i, result in results:
             bar.advance(task)
             yield i, result
 
 
-def _on_pool(fn: Callable, jobs: Sequence, workers: int) -> Iterator[tuple[int, Any]]:
-    workers = min(workers, len(jobs))
+def _on_pool(fn: Callable, jobs: Sequence, workers: int,
+             on_crash: Callable[[Any], Any] | None) -> Iterator[tuple[int, Any]]:
+    """The jobs on a pool of ``workers`` spawned processes. A worker that dies (a crash in
+    native code) breaks the pool: without ``on_crash`` the break propagates. With it, the jobs
+    that may have been running then (the first ``workers + 1`` unfinished, in the order they
+    were queued) run again, each alone in a pool of its own; one that kills its worker there
+    too gets ``on_crash(job)`` as its result. The others go on in a new pool."""
+    order = list(range(len(jobs)))
+    while order:
+        broken = yield from _pool_pass(fn, jobs, order, workers, on_crash is not None)
+        suspects, order = broken[:workers + 1], broken[workers + 1:]
+        for i in suspects:
+            if (yield from _pool_pass(fn, jobs, [i], 1, True)):
+                yield i, on_crash(jobs[i])
+
+
+def _pool_pass(fn: Callable, jobs: Sequence, order: list[int], workers: int,
+               survive: bool) -> Iterator[tuple[int, Any]]:
+    """``jobs[i]`` for ``i`` in ``order`` on one pool, yielding ``(i, result)``; returns the
+    jobs a dead worker left unfinished, in ``order`` (``survive``; else the break raises)."""
+    workers = min(workers, len(order))
     per_job = threads.share(workers)  # each worker its share of the cores (threading policy)
     pool = ProcessPoolExecutor(workers, mp_context=get_context("spawn"),
                                initializer=threads.apply, initargs=(per_job,))
+    broken: list[int] = []
     done = False
     try:
-        with _environment(threads.environment(per_job)):  # the workers start at the submits
-            futures = {pool.submit(fn, job): i for i, job in enumerate(jobs)}
+        # the workers start at the submits; a worker that crashes in native code (a
+        # segmentation fault) prints every thread's Python stack on its stderr first
+        with _environment(threads.environment(per_job) | {"PYTHONFAULTHANDLER": "1"}):
+            futures = {pool.submit(fn, jobs[i]): i for i in order}
         for future in as_completed(futures):
+            if survive and isinstance(future.exception(), BrokenProcessPool):
+                broken.append(futures[future])
+                continue
             yield futures[future], future.result()
         done = True
     finally:
-        if done:
+        if done and not broken:
             pool.shutdown()
-        else:  # interrupted, a job failed, or the caller stopped early
+        else:  # interrupted, a job failed, a worker died, or the caller stopped early
             _stop_pool(pool)
+    return sorted(broken, key=order.index)
 
 
 @contextmanager
