@@ -231,8 +231,9 @@ class ExperimentRun:
                                      unknown_occluders=config.unknown_occluders,
                                      structure=config.structure, extractor=self.ideal,
                                      camera_offsets_px=config.camera_offsets_px)
-        self.task = GraspTask(self.robot, self.part, grasp_opening=grasp_opening(
-            self.part.solid, self.robot.tool, grasp_pose_in_part(self.part)))
+        tool = self.robot.tool  # GraspTask names a robot without one
+        self.task = GraspTask(self.robot, self.part, grasp_opening=None if tool is None else
+                              grasp_opening(self.part.solid, tool, grasp_pose_in_part(self.part)))
         self.baseline = PnPBaseline.of(self.tracker, self.part.feature_points)
         self.grasp = GraspMonitor(self.world, self.robot.name)
         self.events = OcclusionEvents([c.name for c in cell.cameras])
