@@ -137,7 +137,7 @@ def test_several_workpieces_against_the_oracle(three_parts, structure) -> None:
     checked = by_parts = 0
     mismatches = []
     parts = {p.name for p in cell.workpieces}
-    for snapshot in random_snapshots(cell, 30, seed=4) + [_stacked(cell)]:
+    for snapshot in random_snapshots(cell, 34, seed=4) + [_stacked(cell)]:
         result = predictor.predict_snapshot(snapshot)
         for part in cell.workpieces:
             polygons, labels, features = cell_scene(cell, snapshot, part.name)

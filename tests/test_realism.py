@@ -627,3 +627,65 @@ def test_a_joint_at_its_limit_read_through_an_offset_encoder_is_accepted(cell):
     q[5] = robot.chain.qlim[5, 1] + 2 * JOINT_LIMIT_TOL
     with pytest.raises(KinematicsError, match="joint 6"):
         cell.snapshot({"R7AX": q})
+
+
+def test_mujoco_rays_agree_with_the_predictor_on_random_held_and_placed_parts():
+    """Issue 21, item 5, the scale bench's disagreements: MuJoCo's rays hit the world's floor
+    plane (not in the cell file) under parts that random joints carried below it. Random held
+    parts now stay above the floor, and MuJoCo and the predictor (both with a 0.1 mm surface
+    tolerance, MuJoCo's along the ray, the predictor's across it) agree on every ray in view
+    except where the ray meets a surface within 2 mm of the feature (a feature on or a hair
+    inside another solid, e.g. a random held part pressed 0.05 mm into a jaw): those are
+    ambiguous, counted, and rare."""
+    import mujoco
+
+    from cellsight.occlusion.scale_cells import scale_cell
+    from cellsight.occlusion.scenarios import random_snapshots
+    from cellsight.world.mjcf import body_name, joint_name
+
+    tol = 1e-4
+    cell = scale_cell(3, 3, 2)
+    snapshots = random_snapshots(cell, 40, seed=7)
+    predictor = VisibilityPredictor(cell, near_px=0.0, surface_tolerance=tol)
+    world = World(cell)
+    model, data = world.scene.model, world.scene.data
+    adr = {r.name: [model.jnt_qposadr[model.joint(joint_name(r.name, i)).id]
+                    for i in range(1, r.n_joints + 1)] for r in cell.robots}
+    jaws = {r.name: [model.jnt_qposadr[model.joint(body_name(r.name, j)).id]
+                     for j in ("jaw1", "jaw2")] for r in cell.robots if r.tool is not None}
+    floor = model.geom("floor").id
+    checked, held, ambiguous = 0, 0, 0
+    for s in snapshots:
+        for name, a in adr.items():
+            data.qpos[a] = s.joints[name]
+        for name, a in jaws.items():
+            data.qpos[a] = 0.5 * s.openings[name]
+        for part in cell.workpieces:
+            m = model.body_mocapid[model.body(part.name).id]
+            T = s.part_poses[part.name]
+            data.mocap_pos[m] = T[:3, 3]
+            mujoco.mju_mat2Quat(data.mocap_quat[m], np.ascontiguousarray(T[:3, :3]).ravel())
+        mujoco.mj_kinematics(model, data)
+        views = predictor.predict_snapshot(s)
+        for part in cell.workpieces:
+            T = s.part_poses[part.name]
+            points = part.feature_points @ T[:3, :3].T + T[:3, 3]
+            in_hand = any(np.linalg.norm(T[:3, 3] - r.tcp_pose(s.joints[r.name])[:3, 3]) < 0.1
+                          for r in cell.robots if r.tool is not None)
+            for c, cam in enumerate(cell.cameras):
+                vec = points - cam.center
+                length = np.linalg.norm(vec, axis=1)
+                geom, dist = np.empty(len(points), np.int32), np.empty(len(points))
+                mujoco.mj_multiRay(model, data, cam.center, (vec / length[:, None]).ravel(),
+                                   None, 1, -1, geom, dist, None, len(points), 100.0)
+                hit = (dist >= 0) & (dist < length - tol)
+                seen = cam.sees(points)
+                assert not np.any(seen & hit & (geom == floor))
+                near = hit & (length - dist < 2e-3)
+                differ = seen & (hit == views[part.name][c].visible)
+                assert not np.any(differ & ~near)
+                ambiguous += int((differ & near).sum())
+                checked += int(seen.sum())
+                held += int(seen.sum()) if in_hand else 0
+    assert checked > 2000 and held > 300
+    assert ambiguous <= 0.005 * checked

@@ -2,8 +2,8 @@
 
 A configuration draws every robot's joints uniformly inside their limits and puts each
 workpiece either near its nominal place (random position and yaw, sometimes lifted and
-tipped) or between the jaws of a robot's gripper whose tool centre point a camera sees (so
-that grippers and links hide it). Seeded: the same seed gives the same sequence.
+tipped) or between the jaws of a robot's gripper whose tool centre point a camera sees, above
+the floor (so that grippers and links hide it). Seeded: the same seed gives the same sequence.
 """
 
 from __future__ import annotations
@@ -12,6 +12,9 @@ import numpy as np
 
 from cellsight.geometry.transforms import pose_from_xyz_rpy
 from cellsight.model.cell import Cell, Snapshot
+
+HELD_ABOVE_FLOOR_M = 0.2
+"""How high (m, base z; the floor is z = 0) a random held part's tool centre point is at least."""
 
 
 def random_snapshots(cell: Cell, n: int, seed: int = 0, in_gripper: float = 0.4) -> list[Snapshot]:
@@ -44,11 +47,14 @@ def random_snapshots(cell: Cell, n: int, seed: int = 0, in_gripper: float = 0.4)
 
 
 def _joints_with_tcp_in_view(cell: Cell, robot, rng: np.random.Generator, tries: int = 2000):
-    """Random joints of ``robot`` whose tool centre point some camera sees (rejection
-    sampling); the last draw if none is found in ``tries``."""
+    """Random joints of ``robot`` whose tool centre point some camera sees, at least
+    :data:`HELD_ABOVE_FLOOR_M` above the floor (rejection sampling; the part it holds would
+    otherwise be under the floor, where no arm can take it and the simulated world's floor
+    plane, which the cell file does not have, hides it); the last draw if none is found in
+    ``tries``."""
     for _ in range(tries):
         q = robot.chain.random_q(rng)
         tcp = robot.tcp_pose(q)[:3, 3][None]
-        if any(cam.sees(tcp)[0] for cam in cell.cameras):
+        if tcp[0, 2] >= HELD_ABOVE_FLOOR_M and any(cam.sees(tcp)[0] for cam in cell.cameras):
             return q
     return q
