@@ -390,6 +390,36 @@ def test_staged_crash_is_reported_and_a_quiet_cell_reports_none(cell):
     assert all(h["depth_mm"] > 1.0 for h in hits)
 
 
+def test_a_flickering_contact_is_one_episode_and_old_reports_merge_alike(cell):
+    """MuJoCo's contact list stood in by a script of when R6AX's wrist touches the table:
+    touching 0-50 ms, apart 50-80 ms, touching again to 200 ms, apart, then again from 500 ms
+    to 520 ms. Apart for less than APART_S is the same episode; the old one-episode-per-touch
+    report merges into the same episodes."""
+    from cellsight.world.contacts import APART_S, merge_episodes
+
+    world = World(cell)
+    monitor = world.contacts
+    model = world.scene.model
+    pair = tuple(sorted((model.geom("R6AX.link5").id, model.geom("table.1").id)))
+    touching = [(0.0, 0.05), (0.08, 0.2), (0.5, 0.52)]
+    t_now = [0.0]
+    monitor._geom_pairs = lambda depth: ([(pair, 1e-4)] if any(a <= t_now[0] < b
+                                                                for a, b in touching) else [])
+    raw = []  # what one episode per touch would have said
+    for k in range(400):
+        t = t_now[0] = k * 0.002
+        monitor.check(t)
+        for a, b in touching:
+            if abs(t - a) < 1e-9:
+                raw.append({"bodies": ["R6AX.link5", "table"], "t_start_s": a, "t_end_s": b,
+                            "depth_mm": 0.1})
+    report = monitor.report()
+    assert [(c["t_start_s"], c["t_end_s"]) for c in report] == [(0.0, 0.2), (0.5, 0.52)]
+    assert 0.08 - 0.05 < APART_S < 0.5 - 0.2
+    assert [(c["t_start_s"], c["t_end_s"]) for c in merge_episodes(raw)] == \
+        [(c["t_start_s"], c["t_end_s"]) for c in report]
+
+
 # ---- the honest ideal sensor ---------------------------------------------------------------
 
 

@@ -219,3 +219,19 @@ def test_each_variant_sets_the_runs_options(tmp_path):
     from cellsight.sweep.summary import VARIANT_NAMES
 
     assert set(VARIANT_NAMES) == set(VARIANTS)  # every variant has its summary name
+
+
+def test_the_summary_counts_a_flickering_contact_once():
+    """Runs written before the contact monitor merged a flickering contact into one episode
+    are summarised as the monitor counts now; merged or absent collisions are unchanged."""
+    from cellsight.sweep.summary import _merged_collisions
+
+    touch = [{"bodies": ["R7AX.gripper", "conveyor"], "t_start_s": t, "t_end_s": t + 0.02,
+              "depth_mm": d} for t, d in ((10.0, 0.1), (10.03, 0.2), (10.06, 0.05), (11.0, 0.1))]
+    merged = _merged_collisions({"collisions": touch, "collision_count": 4})
+    assert merged["collision_count"] == 2
+    assert merged["collisions"][0] == {"bodies": ["R7AX.gripper", "conveyor"], "t_start_s": 10.0,
+                                       "t_end_s": 10.08, "depth_mm": 0.2}
+    again = _merged_collisions(merged)
+    assert again["collisions"] == merged["collisions"]
+    assert _merged_collisions({"collision_count": 0}) == {"collision_count": 0}

@@ -15,7 +15,10 @@ hulls) lists the geoms in contact. A contact counts when the geoms overlap by mo
 
 Each counted pair of objects (named by their labels: ``R6AX.link4``, ``table``, ``part``,
 ``unknown.forearm``) gives one :class:`Collision` per episode of contact: when it began and
-ended (s) and its deepest overlap (m).
+ended (s) and its deepest overlap (m). An episode ends once the pair has been apart for
+:data:`APART_S`: a resting contact that flickers on and off from one control step to the next
+(a gripper pressing on the conveyor, its contact pushed back and made again) is one episode,
+not hundreds; its ``end`` is the first check at which they were apart.
 """
 
 from __future__ import annotations
@@ -28,6 +31,9 @@ import numpy as np
 
 from cellsight.model import Cell
 from cellsight.world.scene import Scene
+
+APART_S = 0.1
+"""How long (s) two objects must be apart for their episode of contact to end."""
 
 
 @dataclass
@@ -68,6 +74,7 @@ class ContactMonitor:
         robots = {r.name: i for i, r in enumerate(cell.robots)}
         self._robot_of = np.array([robots.get(r, -1) for r in self._robot])  # -1: no robot
         self._open: dict[tuple[str, str], Collision] = {}
+        self._apart_since: dict[tuple[str, str], float] = {}  # open episodes not in contact
         self.collisions: list[Collision] = []
         self._mounts = {pair for pair, _ in self._geom_pairs(0.0)}
 
@@ -81,13 +88,16 @@ class ContactMonitor:
             names = self._names(key)
             now[names] = max(depth, now.get(names, 0.0))
         for pair, depth in now.items():
+            self._apart_since.pop(pair, None)
             if pair in self._open:
                 self._open[pair].depth_m = max(self._open[pair].depth_m, depth)
             else:
                 self._open[pair] = Collision(pair, t, depth)
                 self.collisions.append(self._open[pair])
         for pair in [p for p in self._open if p not in now]:
-            self._open.pop(pair).end = t
+            since = self._apart_since.setdefault(pair, t)
+            if t - since >= APART_S:
+                self._open.pop(pair).end = self._apart_since.pop(pair)
 
     def _geom_pairs(self, depth: float) -> list[tuple[tuple[int, int], float]]:
         """((geom, geom) in increasing order, overlap m) of every contact deeper than ``depth``
@@ -115,8 +125,32 @@ class ContactMonitor:
         return tuple(sorted((self._label[pair[0]], self._label[pair[1]])))
 
     def report(self) -> list[dict]:
-        """Every collision so far, as plain data for ``metrics.json``."""
-        return [c.as_dict() for c in self.collisions]
+        """Every collision so far, as plain data for ``metrics.json`` (an episode whose
+        objects are apart now, for less than :data:`APART_S`, ends when they parted)."""
+        out = [c.as_dict() for c in self.collisions]
+        for c, d in zip(self.collisions, out, strict=True):
+            if c.bodies in self._apart_since and self._open.get(c.bodies) is c:
+                d["t_end_s"] = round(self._apart_since[c.bodies], 3)
+        return out
+
+
+def merge_episodes(collisions: list[dict], apart_s: float = APART_S) -> list[dict]:
+    """``metrics.json`` collisions (:meth:`ContactMonitor.report`) with the episodes of a pair
+    less than ``apart_s`` apart merged, as the monitor reports them now (for run folders
+    written before episodes were merged); order of their starts."""
+    merged: list[dict] = []
+    last: dict[tuple[str, ...], dict] = {}
+    for c in sorted(collisions, key=lambda c: c["t_start_s"]):
+        pair = tuple(c["bodies"])
+        prev = last.get(pair)
+        if prev is not None and prev["t_end_s"] is not None and \
+                c["t_start_s"] - prev["t_end_s"] < apart_s:
+            prev["t_end_s"] = c["t_end_s"]
+            prev["depth_mm"] = max(prev["depth_mm"], c["depth_mm"])
+            continue
+        last[pair] = dict(c, bodies=list(c["bodies"]))
+        merged.append(last[pair])
+    return merged
 
 
 def touching_bodies(scene: Scene) -> list[tuple[str, str]]:
