@@ -719,3 +719,15 @@ def test_mujoco_rays_agree_with_the_predictor_on_random_held_and_placed_parts():
                 held += int(seen.sum()) if in_hand else 0
     assert checked > 2000 and held > 300
     assert ambiguous <= 0.005 * checked
+
+
+def test_the_realism_command_prints_each_knob_as_the_file_writes_it(capsys):
+    from cellsight.cli import main
+
+    assert main(["realism", "lab"]) == 0
+    out = capsys.readouterr().out
+    rows = {line.split("│")[1].strip(): [c.strip() for c in line.split("│")[2:4]]
+            for line in out.splitlines() if line.count("│") == 4}
+    assert rows["actuators"] == ["mujoco", "analytic"]
+    assert rows["velocity_feedforward"] == ["true", "false"]
+    assert rows["bandwidth_hz"] == ["8", "0"]

@@ -26,6 +26,8 @@ def _setting(value: object) -> str:
         if value.dist == "uniform":
             return f"uniform [{value.low:g}, {value.high:g}]"
         return f"{value.value:g}"
+    if isinstance(value, bool):  # as the YAML file writes it
+        return "true" if value else "false"
     return f"{value:g}" if isinstance(value, float | int) else str(value)
 
 
@@ -45,7 +47,7 @@ def cmd_realism(args: argparse.Namespace) -> int:
     console.print(f"[bold]{profile.name}[/bold] ({profile.file}): {profile.description}")
     for group in Profile.model_fields:
         knobs = getattr(profile, group)
-        if not hasattr(knobs, "model_fields"):
+        if not hasattr(type(knobs), "model_fields"):
             continue
         table = Table(title=f"{group}: {' '.join(type(knobs).__doc__.split())}",
                       title_justify="left")
