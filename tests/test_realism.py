@@ -321,6 +321,29 @@ def test_mujoco_actuators_with_velocity_feedforward_follow_a_ramp(cell):
     assert abs(lag) < 0.05 * 2 * v / wn
 
 
+def test_a_joint_run_into_its_limit_overshoots_and_its_reading_is_accepted(cell):
+    """A set-point that runs into a joint's limit at 2 rad/s and stops there at once, followed
+    with the velocity fed forward: the joint overshoots by about v / (e w_n) (1.5e-2 rad at
+    8 Hz), more than an encoder's offset, and the model still takes the reading (this broke
+    `harsh` runs: "joint 6 = 2.2134 outside its limits")."""
+    from cellsight.model.cell import JOINT_LIMIT_TOL
+
+    f, v = 8.0, 2.0
+    world = World(cell, errors=_actuated(bandwidth_hz=f, velocity_feedforward=True))
+    robot = cell.robot("R7AX")
+    limit = robot.chain.qlim[5, 1]
+    q, over = robot.home.copy(), 0.0
+    for k in range(1000):
+        q[5] = min(robot.home[5] + v * world.dt_control * k, limit)
+        world.step({"R7AX": q})
+        over = max(over, world.true_joints()["R7AX"][5] - limit)
+    assert over == pytest.approx(v / (math.e * 2 * math.pi * f), rel=0.1)
+    assert 0.01 < over < JOINT_LIMIT_TOL
+    reading = world.true_joints()["R7AX"].copy()
+    reading[5] = limit + over
+    np.testing.assert_array_equal(cell.snapshot({"R7AX": reading}).joints["R7AX"], reading)
+
+
 def test_mujoco_actuators_limit_torque_and_velocity(cell):
     """A large step: the joint's acceleration stays within the torque limit's (armature times
     the acceleration limit) and its speed within the velocity limit (clipped after each step:

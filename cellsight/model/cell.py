@@ -136,8 +136,10 @@ class Snapshot:
 
 
 OPENING_TOL = 1e-4  # m; a jaw opening this far outside [0, max] is numerical noise, clipped
-JOINT_LIMIT_TOL = 0.01  # rad or m; a joint reading this far beyond its limit is a real encoder's
-# offset and noise on a joint at its limit (used as read), not an error
+JOINT_LIMIT_TOL = 0.06  # rad or m; a joint reading this far beyond its limit is used as read,
+# not an error: a real encoder's offset and noise on a joint at its limit, or the servo's
+# overshoot there (a set-point that stops at the limit at once, followed with the velocity fed
+# forward, overshoots by up to v / (e w_n): 0.05 rad at 150 deg/s and `harsh`'s 3 Hz)
 
 
 def _opening(robot: Robot, value: object) -> float:
