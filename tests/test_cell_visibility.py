@@ -47,12 +47,24 @@ def test_builtin_cell_matches_oracle_at_random_configurations(cell, structure, c
                 checked += 1
                 want = "" if oracle.visible[j] else labels[oracle.occluder[j]]
                 hidden_by_others += want not in ("", "self")
-                if pred.visible[i] != oracle.visible[j] or pred.reason[i] != want:
+                if pred.visible[i] != oracle.visible[j] or pred.reason[i] not in \
+                        _first_crossed(oracle, j, labels, want):
                     mismatches.append((s, cam.name, i, pred.reason[i], want))
     assert not mismatches, mismatches[:10]
     assert left_out <= 0.02 * (checked + left_out)
     assert hidden_by_others > 0.05 * checked  # the scenes really exercise mutual occlusion
     assert checked > (3000 if cull else 600)
+
+
+def _first_crossed(oracle, j: int, labels, want: str) -> set[str]:
+    """The labels of every polygon point ``j``'s segment crosses first (``want`` if visible):
+    two links' faces can share a plane where they overlap at a joint, and the segment then
+    crosses both at the same distance (a tie either answer is right for)."""
+    if oracle.visible[j]:
+        return {want}
+    t = np.where(oracle.hits[j], oracle.t[j], np.inf)
+    first = t.min()
+    return {labels[q] for q in np.flatnonzero(t <= first + 1e-12)}
 
 
 def test_the_pruned_oracle_answers_as_the_whole_one(cell) -> None:

@@ -694,31 +694,18 @@ def test_mujoco_rays_agree_with_the_predictor_on_random_held_and_placed_parts():
 
     from cellsight.occlusion.scale_cells import scale_cell
     from cellsight.occlusion.scenarios import random_snapshots
-    from cellsight.world.mjcf import body_name, joint_name
+    from cellsight.world.replay import ReplayWorld
 
     tol = 1e-4
     cell = scale_cell(3, 3, 2)
     snapshots = random_snapshots(cell, 40, seed=7)
     predictor = VisibilityPredictor(cell, near_px=0.0, surface_tolerance=tol)
-    world = World(cell)
+    world = ReplayWorld(cell)
     model, data = world.scene.model, world.scene.data
-    adr = {r.name: [model.jnt_qposadr[model.joint(joint_name(r.name, i)).id]
-                    for i in range(1, r.n_joints + 1)] for r in cell.robots}
-    jaws = {r.name: [model.jnt_qposadr[model.joint(body_name(r.name, j)).id]
-                     for j in ("jaw1", "jaw2")] for r in cell.robots if r.tool is not None}
     floor = model.geom("floor").id
     checked, held, ambiguous = 0, 0, 0
     for s in snapshots:
-        for name, a in adr.items():
-            data.qpos[a] = s.joints[name]
-        for name, a in jaws.items():
-            data.qpos[a] = 0.5 * s.openings[name]
-        for part in cell.workpieces:
-            m = model.body_mocapid[model.body(part.name).id]
-            T = s.part_poses[part.name]
-            data.mocap_pos[m] = T[:3, 3]
-            mujoco.mju_mat2Quat(data.mocap_quat[m], np.ascontiguousarray(T[:3, :3]).ravel())
-        mujoco.mj_kinematics(model, data)
+        world.show_state(s.joints, s.part_poses, s.openings)
         views = predictor.predict_snapshot(s)
         for part in cell.workpieces:
             T = s.part_poses[part.name]
