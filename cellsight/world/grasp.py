@@ -37,12 +37,21 @@ def default_grasp_pose(solid: Polyhedron, tool: ParallelGripper) -> np.ndarray:
     else:  # jaws along part x: tool = (y, x, -z)
         R = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
     T_part_tcp = make_pose(R, 0.5 * (lo + hi))
+    contacts = jaw_contacts(solid, tool, T_part_tcp)
+    if contacts is not None:
+        T_part_tcp[:3, 3] += R[:, 1] * 0.5 * (contacts[0] + contacts[1])
+    return T_part_tcp
+
+
+def jaw_contacts(solid: Polyhedron, tool: ParallelGripper,
+                 T_part_tcp: np.ndarray) -> tuple[float, float] | None:
+    """Where the closing jaws of ``tool`` first touch ``solid`` held at ``T_part_tcp``: tool y
+    (m) of jaw 1's contact (the largest y of the material under its pad) and of jaw 2's (the
+    smallest under its own), or None when a pad meets no material."""
     T_tool_part = tool.T_tool_tcp @ invert_pose(T_part_tcp)
     pads, section = JawPads.of(tool), PartSection(solid)
     r1, r2 = section.y_range(T_tool_part, pads.jaw1), section.y_range(T_tool_part, pads.jaw2)
-    if r1 is not None and r2 is not None:
-        T_part_tcp[:3, 3] += R[:, 1] * 0.5 * (r1[1] + r2[0])
-    return T_part_tcp
+    return None if r1 is None or r2 is None else (r1[1], r2[0])
 
 
 def grasp_error(T_base_tcp: np.ndarray, T_base_grasp: np.ndarray) -> tuple[float, float]:
@@ -110,12 +119,10 @@ class PartSection:
 
 def grasp_opening(solid: Polyhedron, tool: ParallelGripper, T_part_tcp: np.ndarray) -> float | None:
     """The opening (m) at which the jaws of ``tool`` close on ``solid`` held at the grasp
-    ``T_part_tcp``: the width of the part's material between the two pads, or None when a pad
-    meets none."""
-    T_tool_part = tool.T_tool_tcp @ invert_pose(T_part_tcp)
-    pads, section = JawPads.of(tool), PartSection(solid)
-    r1, r2 = section.y_range(T_tool_part, pads.jaw1), section.y_range(T_tool_part, pads.jaw2)
-    return None if r1 is None or r2 is None else r1[1] - r2[0]
+    ``T_part_tcp``: the width of the part's material between the two pads
+    (:func:`jaw_contacts`), or None when a pad meets none."""
+    contacts = jaw_contacts(solid, tool, T_part_tcp)
+    return None if contacts is None else contacts[0] - contacts[1]
 
 
 def grasp_pose(part: Workpiece, tool: ParallelGripper | None) -> np.ndarray:
