@@ -52,13 +52,13 @@ def test_offsets_explain_cameras_that_disagree_where_the_plain_filter_rejects_th
     # the share of the offsets common to both cameras stays in the pose (about 2.4 mm here);
     # the plain filter, left with a third of the corners, is 21 mm off
     assert err_offsets < 3e-3 and err_plain > 5 * err_offsets
-    # what the cameras disagree on is found: the offsets' difference, within its covariance
-    b, Pb = with_offsets.offsets
-    diff, true_diff = b[2:] - b[:2], OFFSETS[1] - OFFSETS[0]
-    cov = Pb[2:, 2:] + Pb[:2, :2] - Pb[2:, :2] - Pb[:2, 2:]
-    d = diff - true_diff
-    assert d @ np.linalg.solve(cov, d) < 13.8  # chi-square(2) 0.999
-    assert np.abs(d).max() < 1.0
+    # what the cameras disagree on is found: the offsets are the true ones less their mean
+    # (the gauge; the common shift is the pose's), within 0.4 px (the common shift is not
+    # quite a translation, so a little of the disagreement stays in the pose)
+    b, _ = with_offsets.offsets
+    truth_in_gauge = np.concatenate(OFFSETS) - np.tile(np.mean(OFFSETS, axis=0), 2)
+    np.testing.assert_allclose(b, truth_in_gauge, atol=0.4)
+    np.testing.assert_allclose(b[:2] + b[2:], 0.0, atol=1e-9)
 
 
 def test_a_wrong_corner_stands_out_of_the_common_shift():
@@ -89,8 +89,12 @@ def test_offset_jacobian_and_prior():
     np.testing.assert_array_equal(moved, pred + [0.5, -1.0])
     np.testing.assert_array_equal(wide[:, :6], H)
     np.testing.assert_array_equal(wide[:, 6:], [[0, 0, 1, 0], [0, 0, 0, 1]] * 2)
-    mean, cov = CameraOffsets(3, 2.0).prior()
-    assert mean.shape == (6,) and np.allclose(cov, 4 * np.eye(6))
+    model = CameraOffsets(3, 2.0)
+    mean, cov = model.prior()
+    gauge = np.kron(np.eye(3) - 1 / 3, np.eye(2))  # offsets summing to zero over the cameras
+    assert mean.shape == (6,) and np.allclose(cov, 4 * gauge)
+    np.testing.assert_allclose(model.in_gauge([1.0, 2.0, 3.0, 4.0, 5.0, 9.0]),
+                               [-2.0, -3.0, 0.0, -1.0, 2.0, 4.0], atol=1e-12)
     for bad in ((0, 1.0, 0.0), (2, 0.0, 0.0), (2, 1.0, -1.0), (2, float("nan"), 0.0)):
         with pytest.raises(ValueError, match="CameraOffsets"):
             CameraOffsets(*bad)
@@ -123,6 +127,55 @@ def test_offsets_keep_their_values_and_gain_their_random_walk_when_predicted():
         f.predict(0.4)
     b, Pb = ekf.offsets
     np.testing.assert_array_equal(b, [1.0, -2.0, 0.5, 0.0])
-    np.testing.assert_allclose(Pb, np.eye(4) * (1.0 + 0.5**2 * 0.4))
+    np.testing.assert_allclose(Pb, np.eye(4) + np.kron([[1, -1], [-1, 1]], np.eye(2)) / 2
+                               * 0.5**2 * 0.4)  # the walk within the gauge
     np.testing.assert_allclose(ekf.state, plain.state)  # the part's block as without offsets
     np.testing.assert_allclose(ekf.covariance, plain.covariance)
+
+
+def _error_mm(run_dir, t0: float, t1: float) -> np.ndarray:
+    """The estimate's position errors (mm) in ``frames.csv`` between t0 and t1 (s)."""
+    import csv
+
+    with open(run_dir / "frames.csv") as f:
+        rows = [r for r in csv.DictReader(f) if r["est_x"] and t0 <= float(r["t"]) <= t1]
+    est = np.array([[float(r[f"est_{k}"]) for k in "xyz"] for r in rows])
+    true = np.array([[float(r[f"true_{k}"]) for k in "xyz"] for r in rows])
+    return 1e3 * np.linalg.norm(est - true, axis=1)
+
+
+def test_the_common_shift_stays_in_the_pose_and_does_not_drift(tmp_path):
+    """harsh's cameras alone, seed 0, the part still, ideal sensor (the true projection in the
+    world's cameras): the pose carries the cameras' common calibration error, about 6 mm, and
+    keeps it. Offsets free to shift together drifted with the pose, the error growing from 3.8
+    to 6.3 mm in 12 s (9.7 mm at 25 s)."""
+    from cellsight.experiments import RunConfig, run_experiment
+
+    out = tmp_path / "run"
+    run_experiment(RunConfig(1, out, seed=0, sensor="ideal", realism="harsh/cameras",
+                             duration=12.0, camera_offsets_px=8.0, progress=False,
+                             video_every=0))
+    early, late = _error_mm(out, 1.0, 3.0), _error_mm(out, 9.0, 12.0)
+    assert len(early) > 40 and len(late) > 60
+    assert late.max() < early.max() + 0.5
+
+
+def test_windows_are_centred_where_the_offsets_put_the_features(tmp_path):
+    """Rendered images, harsh's cameras alone, seed 1 (cam1's image 6 px off, cam2's 9 px the
+    other way): the windows must be placed by the filter's offsets. Centred where the
+    calibration puts the features, half of camera 2's selected corners fell outside their
+    windows (51-53 % found, against 80-83 % by the offsets; the rest are hidden or too faint,
+    the same in every seed)."""
+    import csv
+
+    from cellsight.experiments import RunConfig, run_experiment
+
+    out = tmp_path / "run"
+    run_experiment(RunConfig(1, out, seed=1, realism="harsh/cameras", duration=6.0,
+                             camera_offsets_px=8.0, progress=False, video_every=0))
+    with open(out / "frames.csv") as f:
+        rows = [r for r in csv.DictReader(f) if float(r["t"]) >= 3.0]
+    for cam in ("c1", "c2"):
+        selected = sum(r[f"sel_{cam}"].count("1") for r in rows)
+        found = sum(r[f"meas_{cam}"].count("1") for r in rows)
+        assert selected > 300 and found >= 0.75 * selected, (cam, found, selected)

@@ -9,6 +9,7 @@ import os
 import signal
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -87,6 +88,28 @@ def test_an_interrupted_pool_ends_its_workers_at_once():
     jobs.close()  # what an interrupt does to the sweep's loop
     assert time.monotonic() - start < 5.0
     assert workers and not any(_alive(p) for p in workers)
+
+
+@pytest.mark.parametrize("sig, raised", [(signal.SIGINT, KeyboardInterrupt),
+                                         (signal.SIGTERM, Terminated)])
+def test_a_signal_while_the_pool_is_waited_on_is_raised_as_itself(sig, raised):
+    """A signal landing inside ``concurrent.futures``' locks once came out as "RuntimeError:
+    release unlocked lock": it is now raised between waits, as the interrupt it is, with the
+    workers ended and the handlers as they were."""
+    handlers = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
+    before = {p.pid for p in psutil.Process().children(recursive=True)}
+    jobs = map_jobs(_sleep, [0.0, 60.0, 60.0], workers=2, progress=False)
+    assert next(jobs) == (0, 0.0)
+    workers = [p for p in psutil.Process().children(recursive=True)
+               if p.pid not in before and "spawn_main" in " ".join(p.cmdline())]
+    timer = threading.Timer(0.5, os.kill, (os.getpid(), sig))
+    timer.start()
+    with pytest.raises(raised) as caught:
+        next(jobs)
+    timer.join()
+    assert type(caught.value) is raised
+    assert workers and not any(_alive(p) for p in workers)
+    assert {s: signal.getsignal(s) for s in handlers} == handlers
 
 
 def test_sigterm_raises_terminated_in_the_main_thread_and_the_handler_comes_back():

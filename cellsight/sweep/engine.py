@@ -11,7 +11,9 @@ cellsight. Jobs and results must pickle; the function must be importable by name
 level). On Ctrl-C (or SIGTERM under :func:`sigterm_interrupts`, as :class:`Terminated`) the
 jobs not started are cancelled, the pool's workers are sent SIGTERM (a run in one ends at its
 next frame and writes what it has), killed after :data:`GRACE_S`, and the exception
-propagates.
+propagates. While the local pool is waited on, those signals are only noted and raised between
+waits (:func:`_signals_between_waits`): raised inside ``concurrent.futures``' locks they left
+them half released ("RuntimeError: release unlocked lock" instead of the interrupt).
 """
 
 from __future__ import annotations
@@ -21,7 +23,7 @@ import signal
 import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
-from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 from contextlib import contextmanager
 from multiprocessing import get_context
@@ -34,6 +36,9 @@ from cellsight.errors import CellsightError
 
 GRACE_S = 10.0
 """Seconds the pool's workers have, after SIGTERM, to end their runs before they are killed."""
+
+WAIT_S = 0.2
+"""Seconds between looks at the signals noted while the local pool is waited on."""
 
 
 class Terminated(KeyboardInterrupt):
@@ -131,23 +136,53 @@ def _pool_pass(fn: Callable, jobs: Sequence, order: list[int], workers: int,
                                initializer=threads.apply, initargs=(per_job,))
     broken: list[int] = []
     done = False
-    try:
-        # the workers start at the submits; a worker that crashes in native code (a
-        # segmentation fault) prints every thread's Python stack on its stderr first
-        with _environment(threads.environment(per_job) | {"PYTHONFAULTHANDLER": "1"}):
-            futures = {pool.submit(fn, jobs[i]): i for i in order}
-        for future in as_completed(futures):
-            if survive and isinstance(future.exception(), BrokenProcessPool):
-                broken.append(futures[future])
-                continue
-            yield futures[future], future.result()
-        done = True
-    finally:
-        if done and not broken:
-            pool.shutdown()
-        else:  # interrupted, a job failed, a worker died, or the caller stopped early
-            _stop_pool(pool)
+    with _signals_between_waits() as raise_noted:
+        try:
+            # the workers start at the submits; a worker that crashes in native code (a
+            # segmentation fault) prints every thread's Python stack on its stderr first
+            with _environment(threads.environment(per_job) | {"PYTHONFAULTHANDLER": "1"}):
+                futures = {pool.submit(fn, jobs[i]): i for i in order}
+            pending = set(futures)
+            while pending:
+                finished, pending = wait(pending, timeout=WAIT_S, return_when=FIRST_COMPLETED)
+                raise_noted()
+                for future in finished:
+                    if survive and isinstance(future.exception(), BrokenProcessPool):
+                        broken.append(futures[future])
+                        continue
+                    yield futures[future], future.result()
+                    raise_noted()
+            done = True
+        finally:
+            if done and not broken:
+                pool.shutdown()
+            else:  # interrupted, a job failed, a worker died, or the caller stopped early
+                _stop_pool(pool)
     return sorted(broken, key=order.index)
+
+
+@contextmanager
+def _signals_between_waits() -> Iterator[Callable[[], None]]:
+    """While held (in the main thread), SIGINT and SIGTERM are noted, not raised where they
+    land; the function it gives raises the first one noted (``KeyboardInterrupt``,
+    :class:`Terminated`) where it is called. Signals during the clean-up are ignored; the
+    previous handlers come back on exit."""
+    noted: list[int] = []
+
+    def raise_noted() -> None:
+        if noted:
+            raise Terminated("SIGTERM") if noted[0] == signal.SIGTERM else KeyboardInterrupt
+
+    if threading.current_thread() is not threading.main_thread():
+        yield raise_noted
+        return
+    previous = {s: signal.signal(s, lambda signum, frame: noted.append(signum))
+                for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield raise_noted
+    finally:
+        for s, handler in previous.items():
+            signal.signal(s, signal.SIG_DFL if handler is None else handler)
 
 
 @contextmanager

@@ -181,7 +181,7 @@ class PoseEKF:
         if model is not None:
             P[:k, k:] = A @ P[:k, k:]
             P[k:, :k] = P[:k, k:].T
-            P[k:, k:] += np.eye(model.dim) * model.walk(dt)
+            P[k:, k:] += model.walk(dt)
         self._P = P
         self.t = float(t)
 
@@ -204,7 +204,7 @@ class PoseEKF:
         P[np.arange(POSE_DIM), np.arange(POSE_DIM)] += q
         model = self.camera_offsets
         if model is not None:
-            P[STATE_DIM:, STATE_DIM:] += np.eye(model.dim) * model.walk(dt)
+            P[STATE_DIM:, STATE_DIM:] += model.walk(dt)
         self._x, self._P, self.t = x, P, float(t)
 
     def sigma_px(self, model: PinholeMeasurement, camera_index: int) -> float:

@@ -310,6 +310,7 @@ class Tracker:
         monitor: tracking, or degraded when it finds reasons. Returns the part's record."""
         rec, track, timer = context.rec, context.track, context.timer
         ekf = track.ekf
+        _shift_by_offsets(rec, ekf)
         with timer("selection"):
             usable = self._usable(context, ekf.t)
             sel = self.components.selector.select(rec.pixels, usable, self._resolution(track))
@@ -471,6 +472,15 @@ class Tracker:
         return observations
 
 
+def _shift_by_offsets(rec: PartFrame, ekf: PoseEKF) -> None:
+    """With camera offsets (:mod:`.offsets`), move each camera's predicted pixels by the
+    filter's estimate of its offset, so that the windows are centred where the camera shows the
+    features, not where its calibration says they are."""
+    offsets = ekf.offsets
+    if offsets is not None:
+        rec.pixels += offsets[0].reshape(-1, 1, 2)
+
+
 def _record_update(rec: PartFrame, report: UpdateReport) -> None:
     """Record an update's per-feature innovations, distances and rejections."""
     if len(report.accepted):
@@ -585,4 +595,4 @@ def _offset_prior(model: CameraOffsets, kept: tuple[np.ndarray, np.ndarray] | No
     mean, cov = model.prior()
     for c, shift in found.items():
         mean[2 * c:2 * c + 2] = shift
-    return mean, cov
+    return model.in_gauge(mean), cov
