@@ -43,7 +43,7 @@ from cellsight.tracking.measurement import Observation, PinholeMeasurement, rota
 from cellsight.tracking.motion import POSE_DIM, STATE_DIM
 from cellsight.tracking.offsets import CameraOffsets, with_offset
 
-MIN_FOR_MEDIAN = 4  # features of a camera for its median innovation to stand for its offset
+MIN_FOR_MEDIAN = 3  # features for a camera's median innovation to stand for its offset
 LONE_SIGMA_PX = 2.0  # widest prediction (px, 1 sigma) a camera of fewer features is gated on
 
 
