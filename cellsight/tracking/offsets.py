@@ -49,7 +49,7 @@ class CameraOffsets:
         a shift common to every camera moves the part's image as its translation does, so the
         pose carries it and the offsets keep only how the cameras disagree. Without it the
         filter, confident in a direction the pixels do not fix, let the common shift and the
-        pose drift together (25 px and 20 mm in a 48 s ``harsh`` run)."""
+        pose drift together (25 px and 20 mm in a 48 s run with ``harsh``'s cameras)."""
         C = self.n_cameras
         return np.kron(np.eye(C) - np.full((C, C), 1.0 / C), np.eye(2))
 
