@@ -49,6 +49,7 @@ experiments: venv
 	$(SWEEP) --out out/offsets --realism harsh/cameras harsh --variants offsets pred \
 		--seeds 0 1 2 3 4
 	$(SWEEP) --out out/offsets-lab --realism exact lab --variants offsets pred --seeds 0 1
+	$(SWEEP) --out out/lab-offsets --realism lab --variants offsets pred --seeds $(SEEDS20)
 	$(SWEEP) --out out/structures --realism lab --structure object-bvh frame-bsp \
 		--seeds 0 1 2 3 4
 	$(SWEEP) --out out/faults --seeds 0 1 2 3 4 --variants pred nopred \
