@@ -35,7 +35,7 @@ demo: venv
 
 # The README's tables, resumable (`cellsight sweep`; out/<table>/summary.*): experiments 1-3,
 # rendered, 20 seeds, occlusion prediction on and off paired on the same seeds, in the `lab`
-# world and in the `harsh` world; `lab` without its cameras' errors, 5 seeds; camera offsets
+# world and in the `harsh` world; `lab` without its cameras' errors, 20 seeds; camera offsets
 # estimated in `harsh` and with `harsh`'s cameras alone, and in `exact` and `lab`, paired with
 # the plain tracker; the paper's per-frame BSP on 5 seeds; the fault table: each knob group of
 # `harsh` alone, 5 seeds, prediction on and off.
@@ -45,7 +45,7 @@ experiments: venv
 	$(SWEEP) --out out/lab --realism lab --variants pred nopred --seeds $(SEEDS20)
 	$(SWEEP) --out out/harsh --realism harsh --variants pred nopred --seeds $(SEEDS20)
 	$(SWEEP) --out out/lab-nocam --realism lab/robots+servo+geometry+images+timing+scenario \
-		--variants pred --seeds 0 1 2 3 4
+		--variants pred --seeds $(SEEDS20)
 	$(SWEEP) --out out/offsets --realism harsh/cameras harsh --variants offsets pred \
 		--seeds 0 1 2 3 4
 	$(SWEEP) --out out/offsets-lab --realism exact lab --variants offsets pred --seeds 0 1
