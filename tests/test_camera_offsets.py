@@ -7,11 +7,15 @@ import numpy as np
 import pytest
 from test_ekf import GATE, TARGET, _cameras, _observe, _prism, _state
 
+from cellsight.runfolder.framelog import FrameLog
 from cellsight.tracking import ConstantVelocity, PoseEKF
 from cellsight.tracking.measurement import Observation
 from cellsight.tracking.offsets import CameraOffsets, with_offset
 
 OFFSETS = [np.array([-4.3, 4.4]), np.array([6.2, -6.9])]  # px: harsh's seed 1, cam1 and cam2
+# the offsets less their mean over the cameras: what the filter can find (the gauge; the common
+# shift is the pose's)
+OFFSETS_IN_GAUGE = np.concatenate(OFFSETS) - np.tile(np.mean(OFFSETS, axis=0), 2)
 P0 = np.diag([0.005**2] * 3 + [0.05**2] * 3 + [0.1**2] * 3 + [0.3**2] * 3)
 
 
@@ -56,8 +60,7 @@ def test_offsets_explain_cameras_that_disagree_where_the_plain_filter_rejects_th
     # (the gauge; the common shift is the pose's), within 0.4 px (the common shift is not
     # quite a translation, so a little of the disagreement stays in the pose)
     b, _ = with_offsets.offsets
-    truth_in_gauge = np.concatenate(OFFSETS) - np.tile(np.mean(OFFSETS, axis=0), 2)
-    np.testing.assert_allclose(b, truth_in_gauge, atol=0.4)
+    np.testing.assert_allclose(b, OFFSETS_IN_GAUGE, atol=0.4)
     np.testing.assert_allclose(b[:2] + b[2:], 0.0, atol=1e-9)
 
 
@@ -135,13 +138,10 @@ def test_offsets_keep_their_values_and_gain_their_random_walk_when_predicted():
 
 def _error_mm(run_dir, t0: float, t1: float) -> np.ndarray:
     """The estimate's position errors (mm) in ``frames.csv`` between t0 and t1 (s)."""
-    import csv
-
-    with open(run_dir / "frames.csv") as f:
-        rows = [r for r in csv.DictReader(f) if r["est_x"] and t0 <= float(r["t"]) <= t1]
-    est = np.array([[float(r[f"est_{k}"]) for k in "xyz"] for r in rows])
-    true = np.array([[float(r[f"true_{k}"]) for k in "xyz"] for r in rows])
-    return 1e3 * np.linalg.norm(est - true, axis=1)
+    log = FrameLog.read(run_dir / "frames.csv")
+    t = log.floats("t")
+    keep = log.present("est_x") & (t >= t0) & (t <= t1)
+    return 1e3 * np.linalg.norm(log.poses("est")[keep, :3] - log.poses("true")[keep, :3], axis=1)
 
 
 def test_the_common_shift_stays_in_the_pose_and_does_not_drift(tmp_path):
@@ -166,18 +166,16 @@ def test_windows_are_centred_where_the_offsets_put_the_features(tmp_path):
     calibration puts the features, half of camera 2's selected corners fell outside their
     windows (51-53 % found, against 80-83 % by the offsets; the rest are hidden or too faint,
     the same in every seed)."""
-    import csv
-
     from cellsight.experiments import RunConfig, run_experiment
 
     out = tmp_path / "run"
     run_experiment(RunConfig(1, out, seed=1, realism="harsh/cameras", duration=6.0,
                              camera_offsets_px=8.0, progress=False, video_every=0))
-    with open(out / "frames.csv") as f:
-        rows = [r for r in csv.DictReader(f) if float(r["t"]) >= 3.0]
+    log = FrameLog.read(out / "frames.csv")
+    late = log.floats("t") >= 3.0
     for cam in ("c1", "c2"):
-        selected = sum(r[f"sel_{cam}"].count("1") for r in rows)
-        found = sum(r[f"meas_{cam}"].count("1") for r in rows)
+        selected = int(log.bits(f"sel_{cam}")[late].sum())
+        found = int(log.bits(f"meas_{cam}")[late].sum())
         assert selected > 300 and found >= 0.75 * selected, (cam, found, selected)
 
 
@@ -199,6 +197,5 @@ def test_a_camera_that_finds_three_corners_is_gated_on_their_median():
         report = ekf.update(obs, GATE)
         assert report.accepted[report.camera_index == 1].all(), k
     b, Pb = ekf.offsets
-    truth_in_gauge = np.concatenate(OFFSETS) - np.tile(np.mean(OFFSETS, axis=0), 2)
-    np.testing.assert_allclose(b, truth_in_gauge, atol=1.0)
+    np.testing.assert_allclose(b, OFFSETS_IN_GAUGE, atol=1.0)
     assert np.sqrt(Pb[2, 2]) < 1.0

@@ -78,12 +78,17 @@ def _sleep(seconds: float) -> float:
     return seconds
 
 
+def _pool_workers(before: set[int]) -> list[psutil.Process]:
+    """This process's pool workers (spawned children) that were not among the pids ``before``."""
+    return [p for p in psutil.Process().children(recursive=True)
+            if p.pid not in before and "spawn_main" in " ".join(p.cmdline())]
+
+
 def test_an_interrupted_pool_ends_its_workers_at_once():
     before = {p.pid for p in psutil.Process().children(recursive=True)}
     jobs = map_jobs(_sleep, [0.0, 60.0, 60.0, 60.0], workers=2, progress=False)
     assert next(jobs) == (0, 0.0)
-    workers = [p for p in psutil.Process().children(recursive=True)
-               if p.pid not in before and "spawn_main" in " ".join(p.cmdline())]
+    workers = _pool_workers(before)
     start = time.monotonic()
     jobs.close()  # what an interrupt does to the sweep's loop
     assert time.monotonic() - start < 5.0
@@ -100,8 +105,7 @@ def test_a_signal_while_the_pool_is_waited_on_is_raised_as_itself(sig, raised):
     before = {p.pid for p in psutil.Process().children(recursive=True)}
     jobs = map_jobs(_sleep, [0.0, 60.0, 60.0], workers=2, progress=False)
     assert next(jobs) == (0, 0.0)
-    workers = [p for p in psutil.Process().children(recursive=True)
-               if p.pid not in before and "spawn_main" in " ".join(p.cmdline())]
+    workers = _pool_workers(before)
     timer = threading.Timer(0.5, os.kill, (os.getpid(), sig))
     timer.start()
     with pytest.raises(raised) as caught:

@@ -20,11 +20,12 @@ class PartFrame:
 
     ``status``: see :class:`TrackStatus`. ``views``: the visibility source's answer for this
     part, one per camera (empty when nothing was predicted); ``visible``/``pixels``: its
-    prediction at the predicted (or guessed) pose; ``near_occluder``: visible but next to
-    another object's silhouette (not selectable); ``unknown``: predicted visible, but under an
-    unknown occluder learnt online (:mod:`.unknown`; not selectable); ``selected``: features
-    whose windows were planned; ``windows``: one plan per camera; ``measured``: extracted
-    pixels (NaN where none);
+    prediction at the predicted (or guessed) pose (a tracked part's pixels moved by each
+    camera's estimated offset, with camera offsets: :mod:`.offsets`); ``near_occluder``:
+    visible but next to another object's silhouette (not selectable); ``unknown``: predicted
+    visible, but under an unknown occluder learnt online (:mod:`.unknown`; not selectable);
+    ``selected``: features whose windows were planned; ``windows``: one plan per camera;
+    ``measured``: extracted pixels (NaN where none);
     ``innovation`` (px), ``mahalanobis2`` and ``rejected`` (gated out); ``state``/``covariance``/
     ``T_base_part`` after the update (None while waiting); ``predicted_state`` before it;
     ``health``: the health monitor's report (:mod:`.health`; None where the part was not
