@@ -6,6 +6,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from render_helpers import PartRenderer, conveyor_pose
 
 from cellsight import load_cell
@@ -158,3 +160,98 @@ def test_compiled_gradients_and_structure_are_numpys(rendered):
                                        atol=1e-9 * max(lam[1], 1.0))
             checked += 1
     assert checked == 120
+
+
+def _reference_corner(image, box, predicted):
+    """The extraction written with NumPy around the same OpenCV calls and edge-line fit (the
+    form it had before its steps were compiled): the oracle of the compiled steps."""
+    cfg = extraction.ExtractionConfig()
+    u0, v0, u1, v1 = (int(x) for x in box)
+    u0, v0 = max(u0, 0), max(v0, 0)
+    u1, v1 = min(u1, image.shape[1]), min(v1, image.shape[0])
+    crop = np.ascontiguousarray(image[v0:v1, u0:u1], dtype=np.float32)
+    if crop.shape[0] < 5 or crop.shape[1] < 5:
+        return None
+    found = cv2.goodFeaturesToTrack(crop, maxCorners=cfg.max_candidates,
+                                    qualityLevel=cfg.quality_level,
+                                    minDistance=cfg.min_distance_px, blockSize=cfg.block_size)
+    if found is None:
+        return None
+    cand = found.reshape(-1, 2)
+    start = cand[np.argmin(np.sum((cand - (np.asarray(predicted) - (u0, v0))) ** 2, axis=1))]
+    h, w = crop.shape
+    half = int(min(cfg.refine_half_px, *(start - 1), *((w - 2, h - 2) - start),
+                   (w - 5) // 2, (h - 5) // 2))
+    if half < 2:
+        return None
+    starts = start + np.array([[0.0, 0.0], [1.0, 1.0], [-1.0, 1.0], [0.0, -1.0]])
+    runs = cv2.cornerSubPix(crop, starts.reshape(-1, 1, 2).astype(np.float32), (half, half),
+                            (-1, -1), extraction._SUBPIX).reshape(-1, 2).astype(np.float64)
+    refined = runs.mean(axis=0)
+    if np.max(np.linalg.norm(runs - refined, axis=1)) > cfg.max_spread_px:
+        return None
+    b = cfg.border_px
+    if not (b <= refined[0] <= w - 1 - b and b <= refined[1] <= h - 1 - b):
+        return None
+    if np.hypot(*(refined - start)) > cfg.max_shift_px:
+        return None
+    iu, iv = int(round(refined[0])), int(round(refined[1]))
+    patch = crop[max(iv - half, 0):iv + half + 1, max(iu - half, 0):iu + half + 1]
+    gy, gx = np.gradient(patch.astype(np.float64))
+    lam_min, lam_max = np.linalg.eigvalsh(np.array([[np.sum(gx * gx), np.sum(gx * gy)],
+                                                    [np.sum(gx * gy), np.sum(gy * gy)]]))
+    if lam_max <= 0 or (np.sqrt(max(lam_min, 0.0) / patch.size) < cfg.min_gradient
+                        or lam_min / lam_max < cfg.min_eigen_ratio):
+        return None
+    q = refined
+    gy, gx = np.gradient(crop.astype(np.float64))
+    for _ in range(2):
+        ok, x, y = extraction._edge_intersection(
+            np.hypot(gx, gy), float(q[0]), float(q[1]), cfg.line_inner_px, cfg.line_outer_px,
+            cfg.line_threshold, cfg.line_max_offset_px)
+        if not ok or np.hypot(x - refined[0], y - refined[1]) > cfg.line_max_offset_px:
+            break
+        q = np.array([x, y])
+    return q + (u0, v0)
+
+
+def test_the_compiled_steps_give_the_numpy_reference_s_corners(rendered):
+    """On windows of rendered images around the part's corners, boxes cut at random and
+    predictions off by up to a few pixels: the same corner, or the same nothing, as the
+    NumPy reference, to 1e-9 px (the structure test's eigenvalues come another way there)."""
+    cell, part, renderer = rendered
+    rng = np.random.default_rng(5)
+    found = missing = 0
+    for t in (0.0, 1.7, 3.4, 5.1):
+        T = conveyor_pose(t, part.T_base_part)
+        for c, cam in enumerate(cell.cameras):
+            image = renderer.render(c, T)
+            pts = part.feature_points @ T[:3, :3].T + T[:3, 3]
+            for px in cam.project(pts):
+                pred = px + rng.normal(0, 2.0, 2)
+                lo, hi = rng.integers(5, 13, 2), rng.integers(5, 13, 2)
+                box = np.array([pred[0] - lo[0], pred[1] - lo[1], pred[0] + hi[0],
+                                pred[1] + hi[1]]).astype(int)
+                mine, ref = extract_corner(image, box, pred), _reference_corner(image, box, pred)
+                assert (mine is None) == (ref is None)
+                if ref is not None:
+                    np.testing.assert_allclose(mine, ref, rtol=0, atol=1e-9)
+                found += ref is not None
+                missing += ref is None
+    assert found >= 60 and missing >= 5  # both outcomes compared
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.floats(-5, 30), st.floats(-5, 30), st.floats(0, 2 * np.pi), st.floats(-3, 3),
+       st.floats(0.5, 4), st.floats(4.5, 15), st.integers(3, 30), st.integers(3, 30))
+def test_the_band_box_holds_every_pixel_of_the_band(qx, qy, angle, shift, inner, outer, h, w):
+    """The edge fit visits only the band's box (:func:`extraction._band_box`): every pixel of
+    the band, found by testing each pixel of the image, lies inside it."""
+    dx, dy = np.cos(angle), np.sin(angle)
+    nx, ny = -dy, dx
+    offset = nx * qx + ny * qy + shift
+    u0, u1, v0, v1 = extraction._band_box(qx, qy, dx, dy, nx, ny, offset, inner, outer, h, w)
+    v, u = np.mgrid[0:h, 0:w]
+    t = (u - qx) * dx + (v - qy) * dy
+    band = (np.abs(u * nx + v * ny - offset) <= 1.5) & (inner <= t) & (t <= outer)
+    assert np.all((u[band] >= u0) & (u[band] < u1) & (v[band] >= v0) & (v[band] < v1))

@@ -13,7 +13,12 @@ Inside a window (half-open integer box ``(u0, v0, u1, v1)`` of a grayscale image
    within ``max_shift_px`` of the candidate; the gradient structure tensor ``G`` summed over the
    refinement patch (``N`` pixels, gradients in gray levels per pixel) must show two edge
    directions: ``sqrt(lambda_min(G) / N) >= min_gradient`` and
-   ``lambda_min / lambda_max >= min_eigen_ratio`` (a straight edge or a flat patch fails).
+   ``lambda_min / lambda_max >= min_eigen_ratio`` (a straight edge or a flat patch fails);
+4. the edge lines: where the least-squares intersection of the edges leaving the point lies
+   within ``line_max_offset_px`` of it, it is the corner (:func:`_edge_intersection`).
+
+OpenCV runs steps 1 and 2; the rest is compiled with numba (one call per window), with the
+answers the same NumPy steps give (``tests/test_extraction.py``).
 
 When any step fails the feature gets no measurement: a measurement is never forced.
 Returned pixels are in full-image coordinates (u = column, v = row; OpenCV pixel centres).
@@ -60,18 +65,6 @@ def _to_gray(image: np.ndarray) -> np.ndarray:
     return image
 
 
-def _structure_ok(patch: np.ndarray, cfg: ExtractionConfig) -> bool:
-    sxx, sxy, syy = _structure_tensor(np.ascontiguousarray(patch, dtype=np.float64))
-    mean, diff = 0.5 * (sxx + syy), math.hypot(0.5 * (sxx - syy), sxy)
-    lam_min, lam_max = mean - diff, mean + diff
-    if lam_max <= 0:
-        return False
-    return bool(
-        math.sqrt(max(lam_min, 0.0) / patch.size) >= cfg.min_gradient
-        and lam_min / lam_max >= cfg.min_eigen_ratio
-    )
-
-
 @numba.njit(cache=True)
 def _gradients(image):
     """``np.gradient`` of a float image (h, w), both at least 2: (gy, gx), central differences
@@ -99,30 +92,25 @@ def _structure_tensor(patch):
 
 
 @numba.njit(cache=True)
+def _two_directions(patch, min_gradient, min_eigen_ratio):
+    """Whether the gradients of ``patch`` (float) show two edge directions: the eigenvalues
+    of its structure tensor (:func:`_structure_tensor`) with ``sqrt(lambda_min / N) >=
+    min_gradient`` (``N`` pixels; gray levels per pixel) and ``lambda_min / lambda_max >=
+    min_eigen_ratio``. A straight edge or a flat patch fails."""
+    sxx, sxy, syy = _structure_tensor(patch)
+    mean, diff = 0.5 * (sxx + syy), math.hypot(0.5 * (sxx - syy), sxy)
+    lam_min, lam_max = mean - diff, mean + diff
+    if lam_max <= 0:
+        return False
+    return (math.sqrt(max(lam_min, 0.0) / patch.size) >= min_gradient
+            and lam_min / lam_max >= min_eigen_ratio)
+
+
+@numba.njit(cache=True)
 def _gradient_magnitude(image):
     """``hypot`` of :func:`_gradients` (h, w)."""
     gy, gx = _gradients(image)
     return np.hypot(gx, gy)
-
-
-def _intersect_edges(
-    mag: np.ndarray, q: np.ndarray, cfg: ExtractionConfig
-) -> np.ndarray | None:
-    """Corner as the least-squares intersection of the edges leaving ``q`` (crop coordinates),
-    on the crop's gradient magnitude ``mag`` (:func:`_gradient_magnitude`).
-
-    Edge directions: peaks of a 10-degree histogram of the directions from ``q`` of the strong
-    gradient pixels (magnitude above ``line_threshold`` of the largest) in the ring
-    ``line_inner_px..line_outer_px``. Each edge starts as the line through ``q`` along its peak
-    and is refitted three times by weighted total least squares to every pixel of the band
-    within 1.5 px of the line and ``line_inner_px..line_outer_px`` along it (weights: gradient
-    magnitude, whose centroid across an edge is the edge; a band symmetric about the line keeps
-    the fit unbiased). Lines passing within ``line_max_offset_px`` of ``q`` are intersected,
-    weighted by their total gradient. None when fewer than two non-parallel edges are found.
-    """
-    ok, x, y = _edge_intersection(mag, float(q[0]), float(q[1]), cfg.line_inner_px,
-                                  cfg.line_outer_px, cfg.line_threshold, cfg.line_max_offset_px)
-    return np.array([x, y]) if ok else None
 
 
 _BINS = 36  # direction histogram of the edges around a corner: 10-degree bins
@@ -137,21 +125,49 @@ def _principal_axes(a: float, b: float, c: float) -> tuple[float, float, float, 
 
 
 @numba.njit(cache=True)
+def _band_box(qx, qy, dx, dy, nx, ny, offset, inner, outer, h, w):
+    """The pixels of an (h, w) image that can lie in the band ``inner <= (p - q).d <= outer``,
+    ``|p.n - offset| <= 1.5`` (``d``, ``n`` orthonormal): ``(u0, u1, v0, v1)``, half-open, the
+    band's bounding box widened by a pixel."""
+    along = qx * dx + qy * dy
+    lo_u = lo_v = np.inf
+    hi_u = hi_v = -np.inf
+    for t in (inner, outer):
+        for s in (offset - 1.5, offset + 1.5):
+            u, v = (along + t) * dx + s * nx, (along + t) * dy + s * ny
+            lo_u, hi_u = min(lo_u, u), max(hi_u, u)
+            lo_v, hi_v = min(lo_v, v), max(hi_v, v)
+    return (max(int(math.floor(lo_u)) - 1, 0), min(int(math.ceil(hi_u)) + 2, w),
+            max(int(math.floor(lo_v)) - 1, 0), min(int(math.ceil(hi_v)) + 2, h))
+
+
+@numba.njit(cache=True)
 def _edge_intersection(mag, qx, qy, inner, outer, threshold, max_offset):
-    """Compiled body of :func:`_intersect_edges` on the gradient magnitude ``mag`` (h, w):
-    ``(found, x, y)``."""
+    """Corner as the least-squares intersection of the edges leaving ``(qx, qy)`` (crop px),
+    on the crop's gradient magnitude ``mag`` (h, w; :func:`_gradient_magnitude`): ``(found,
+    x, y)``.
+
+    Edge directions: peaks of a 10-degree histogram of the directions from ``q`` of the strong
+    gradient pixels (magnitude above ``threshold`` of the largest) in the ring ``inner..outer``
+    px. Each edge starts as the line through ``q`` along its peak and is refitted three times
+    by weighted total least squares to every pixel of the band within 1.5 px of the line and
+    ``inner..outer`` along it (weights: gradient magnitude, whose centroid across an edge is
+    the edge; a band symmetric about the line keeps the fit unbiased). Lines passing within
+    ``max_offset`` px of ``q`` are intersected, weighted by their total gradient. Not found
+    when fewer than two non-parallel edges are."""
     h, w = mag.shape
     ring_max = 0.0
+    radius = np.empty((h, w))
     for v in range(h):
         for u in range(w):
-            r = math.hypot(u - qx, v - qy)
+            r = radius[v, u] = math.hypot(u - qx, v - qy)
             if inner <= r <= outer and mag[v, u] > ring_max:
                 ring_max = mag[v, u]
     hist = np.zeros(_BINS)
     n_strong = 0
     for v in range(h):
         for u in range(w):
-            r = math.hypot(u - qx, v - qy)
+            r = radius[v, u]
             if inner <= r <= outer and mag[v, u] >= threshold * ring_max:
                 phi = math.atan2(v - qy, u - qx)
                 hist[int((phi + math.pi) / (2 * math.pi) * _BINS) % _BINS] += mag[v, u]
@@ -176,8 +192,9 @@ def _edge_intersection(mag, qx, qy, inner, outer, threshold, max_offset):
         for _ in range(3):  # refit the line to the band around it
             sw = su = sv = 0.0
             count = 0
-            for v in range(h):
-                for u in range(w):
+            u0, u1, v0, v1 = _band_box(qx, qy, dx, dy, nx, ny, offset, inner, outer, h, w)
+            for v in range(v0, v1):
+                for u in range(u0, u1):
                     t = (u - qx) * dx + (v - qy) * dy
                     if abs(u * nx + v * ny - offset) <= 1.5 and inner <= t <= outer:
                         sw += mag[v, u]
@@ -189,8 +206,8 @@ def _edge_intersection(mag, qx, qy, inner, outer, threshold, max_offset):
                 break
             mu, mv = su / sw, sv / sw
             cuu = cuv = cvv = 0.0
-            for v in range(h):
-                for u in range(w):
+            for v in range(v0, v1):
+                for u in range(u0, u1):
                     t = (u - qx) * dx + (v - qy) * dy
                     if abs(u * nx + v * ny - offset) <= 1.5 and inner <= t <= outer:
                         cuu += mag[v, u] * (u - mu) ** 2
@@ -220,7 +237,11 @@ def extract_corner(
     predicted: np.ndarray,
     config: ExtractionConfig | None = None,
 ) -> np.ndarray | None:
-    """Sub-pixel corner (2,) in the window ``box`` nearest to ``predicted`` (px), or None."""
+    """Sub-pixel corner (2,) in the window ``box`` nearest to ``predicted`` (px), or None.
+
+    OpenCV finds the candidates and refines them; the steps between and after them (the
+    candidate nearest to the prediction, the checks, the edge-line intersection) are compiled
+    (:func:`_nearest_start`, :func:`_accept`)."""
     cfg = config or ExtractionConfig()
     gray = _to_gray(image)
     u0, v0, u1, v1 = (int(x) for x in box)
@@ -238,41 +259,93 @@ def extract_corner(
     )
     if found is None:
         return None
-    cand = found.reshape(-1, 2)
-    local = np.asarray(predicted, dtype=float) - (u0, v0)
-    start = cand[np.argmin(np.sum((cand - local) ** 2, axis=1))]
-    h, w = crop.shape
-    # cornerSubPix needs the crop at least 2 half + 5 px wide and high
-    half = int(min(cfg.refine_half_px, *(start - 1), *((w - 2, h - 2) - start),
-                   (w - 5) // 2, (h - 5) // 2))
+    starts, half = _nearest_start(found.reshape(-1, 2), float(predicted[0]) - u0,
+                                  float(predicted[1]) - v0, crop.shape[0], crop.shape[1],
+                                  cfg.refine_half_px)
     if half < 2:
         return None
-    criteria = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_COUNT, 40, 1e-3)
-    starts = start + np.array([[0.0, 0.0], [1.0, 1.0], [-1.0, 1.0], [0.0, -1.0]])
-    runs = cv2.cornerSubPix(
-        crop, starts.reshape(-1, 1, 2).astype(np.float32), (half, half), (-1, -1), criteria
-    ).reshape(-1, 2).astype(np.float64)
-    spread = np.max(np.linalg.norm(runs - runs.mean(axis=0), axis=1))
-    if spread > cfg.max_spread_px:
-        return None
-    refined = runs.mean(axis=0)
-    b = cfg.border_px
-    if not (b <= refined[0] <= w - 1 - b and b <= refined[1] <= h - 1 - b):
-        return None
-    if np.hypot(*(refined - start)) > cfg.max_shift_px:
-        return None
-    iu, iv = int(round(refined[0])), int(round(refined[1]))
-    patch = crop[max(iv - half, 0) : iv + half + 1, max(iu - half, 0) : iu + half + 1]
-    if not _structure_ok(patch, cfg):
-        return None
-    q = refined
+    runs = cv2.cornerSubPix(crop, starts.reshape(-1, 1, 2).copy(), (half, half), (-1, -1),
+                            _SUBPIX)  # it refines its input in place: the starts are kept
+    ok, x, y = _accept(crop, runs.reshape(-1, 2), starts[0], half, cfg.max_spread_px,
+                       cfg.border_px, cfg.max_shift_px, cfg.min_gradient, cfg.min_eigen_ratio,
+                       cfg.line_inner_px, cfg.line_outer_px, cfg.line_threshold,
+                       cfg.line_max_offset_px)
+    return np.array([x + u0, y + v0]) if ok else None
+
+
+_SUBPIX = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_COUNT, 40, 1e-3)  # cornerSubPix's stop
+_AROUND = np.array([[0.0, 0.0], [1.0, 1.0], [-1.0, 1.0], [0.0, -1.0]])  # its four starts
+
+
+@numba.njit(cache=True)
+def _nearest_start(cand, pu, pv, h, w, refine_half):
+    """The candidate of ``cand`` (k, 2) float32 (whole pixels, as Shi-Tomasi gives them)
+    nearest to the prediction ``(pu, pv)`` in an (h, w) crop: ``(starts, half)``, the
+    refinement's four starts (4, 2) float32 (the candidate first, then three points 1 px around
+    it) and its half window (px): at most ``refine_half``, the start at least ``half + 1`` px
+    inside, the crop at least ``2 half + 5`` px wide and high (cornerSubPix's needs)."""
+    best, best_d = 0, np.inf
+    for i in range(cand.shape[0]):
+        d = (cand[i, 0] - pu) ** 2 + (cand[i, 1] - pv) ** 2
+        if d < best_d:
+            best, best_d = i, d
+    su, sv = float(cand[best, 0]), float(cand[best, 1])
+    half = int(min(float(refine_half), su - 1, sv - 1, (w - 2) - su, (h - 2) - sv,
+                   float((w - 5) // 2), float((h - 5) // 2)))
+    starts = np.empty((4, 2), np.float32)
+    for k in range(4):
+        starts[k, 0] = su + _AROUND[k, 0]
+        starts[k, 1] = sv + _AROUND[k, 1]
+    return starts, half
+
+
+@numba.njit(cache=True)
+def _round_half_even(x):
+    """Python's ``round(x)`` of a float: the nearest integer, ties to the even one."""
+    r = math.floor(x + 0.5)
+    if r - x == 0.5 and r % 2 != 0:
+        r -= 1
+    return int(r)
+
+
+@numba.njit(cache=True)
+def _accept(crop, runs, start, half, max_spread, border, max_shift, min_gradient,
+            min_eigen_ratio, inner, outer, threshold, max_offset):
+    """The refined corner of an (h, w) float32 ``crop`` from cornerSubPix's four ``runs``
+    (4, 2) started at and around ``start`` (crop px), or nothing: ``(found, x, y)``. The runs
+    agree within ``max_spread`` px and their mean is kept; it lies ``border`` px inside the
+    crop and within ``max_shift`` px of ``start``; its ``2 half + 1`` px patch shows two edge
+    directions (``min_gradient``, ``min_eigen_ratio``: :func:`_two_directions`); then the
+    edge-line intersection (:func:`_edge_intersection`, recentred once on its own result)
+    replaces it where it lies within ``max_offset`` px of it (module docstring)."""
+    h, w = crop.shape
+    r = runs.astype(np.float64)
+    mu, mv = 0.0, 0.0
+    for k in range(4):
+        mu, mv = mu + r[k, 0], mv + r[k, 1]
+    mu, mv = mu / 4.0, mv / 4.0
+    spread = 0.0
+    for k in range(4):
+        du, dv = r[k, 0] - mu, r[k, 1] - mv
+        spread = max(spread, math.sqrt(du * du + dv * dv))
+    if spread > max_spread:
+        return False, 0.0, 0.0
+    if not (border <= mu <= w - 1 - border and border <= mv <= h - 1 - border):
+        return False, 0.0, 0.0
+    if math.hypot(mu - start[0], mv - start[1]) > max_shift:
+        return False, 0.0, 0.0
+    iu, iv = _round_half_even(mu), _round_half_even(mv)
+    patch = crop[max(iv - half, 0):iv + half + 1, max(iu - half, 0):iu + half + 1]
+    if not _two_directions(patch.astype(np.float64), min_gradient, min_eigen_ratio):
+        return False, 0.0, 0.0
     mag = _gradient_magnitude(crop.astype(np.float64))
-    for _ in range(2):  # edge-line intersection, recentred once on its own result
-        lines = _intersect_edges(mag, q, cfg)
-        if lines is None or np.hypot(*(lines - refined)) > cfg.line_max_offset_px:
+    qu, qv = mu, mv
+    for _ in range(2):
+        ok, lu, lv = _edge_intersection(mag, qu, qv, inner, outer, threshold, max_offset)
+        if not ok or math.hypot(lu - mu, lv - mv) > max_offset:
             break
-        q = lines
-    return q + (u0, v0)
+        qu, qv = lu, lv
+    return True, qu, qv
 
 
 @dataclass(frozen=True)
