@@ -388,7 +388,8 @@ class Tracker:
         if fix is None:
             track.search_on(acquisition)
             return rec
-        self.initialise(rec.name, fix.T_base_part, context.t, acquisition.start(fix),
+        self.initialise(rec.name, fix.T_base_part, context.t,
+                        acquisition.start(fix, self.config.sigma_px),
                         fix.offsets_px)
         for c, f in fix.dropped:
             rec.rejected[c, f] = True
