@@ -46,10 +46,6 @@ from cellsight.tracking.offsets import CameraOffsets, with_offset
 MIN_FOR_MEDIAN = 3  # features for a camera's median innovation to stand for its offset
 LONE_SIGMA_PX = 2.0  # widest prediction (px, 1 sigma) a camera of fewer features is gated on
 SHIFT_SIGMA_PX = 10.0  # a camera's common shift (px, 1 sigma) the features' cross-check allows
-# the cross-check rejects a feature the others put more than 10 sigma away (5 px at 0.5 px): the
-# gate's 0.999 quantile (13.8, 3.7 sigma) rejected 5-7 % of the harsh world's measurements,
-# whose corners are noisier than 0.5 px, and the track was lost more often
-CROSS_CHECK_D2 = 100.0
 
 
 @dataclass(frozen=True)
@@ -314,7 +310,7 @@ class PoseEKF:
                 rows = cam == c
                 self.adaptive.add(int(c), nu[rows], trace[rows])
         if gate is not None and accepted.sum() > 1:
-            accepted = _consistent(H, self._P, nu, sigma2, cam, accepted)
+            accepted = _consistent(H, self._P, nu, sigma2, cam, accepted, gate)
             report = UpdateReport(cam, report.feature_ids, nu, d2, accepted, sig)
         if accepted.any():
             state, P_new = _joseph_update(self._x, self._P, H, nu, sigma2, accepted)
@@ -325,17 +321,17 @@ class PoseEKF:
 
 
 def _consistent(H: np.ndarray, P: np.ndarray, nu: np.ndarray, sigma2: np.ndarray,
-                cam: np.ndarray, accepted: np.ndarray) -> np.ndarray:
+                cam: np.ndarray, accepted: np.ndarray, gate: Gate) -> np.ndarray:
     """``accepted`` (m,) less the features that disagree with the others: while the largest
     leave-one-out distance (:func:`_left_out_d2`, each camera's common shift free) of the
-    accepted features is over ``CROSS_CHECK_D2``, that feature is rejected, down to one."""
+    accepted features fails ``gate``, that feature is rejected, down to one feature."""
     accepted = accepted.copy()
     cameras = np.unique(cam, return_inverse=True)[1]
     while accepted.sum() > 1:
         rows = np.flatnonzero(accepted)
         d2 = _left_out_d2(H, P, nu, sigma2, rows, cameras, SHIFT_SIGMA_PX**2)
         worst = int(np.argmax(d2))
-        if d2[worst] <= CROSS_CHECK_D2:
+        if gate.accepts(d2[worst:worst + 1])[0]:
             break
         accepted[rows[worst]] = False
     return accepted
