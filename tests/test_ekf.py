@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 import pytest
 from scipy.linalg import expm
@@ -25,7 +23,6 @@ from cellsight.tracking import (
 from cellsight.tracking import ekf as ekf_module
 from cellsight.tracking import gate as gate_module
 from cellsight.tracking.gate import ChiSquareGate
-from cellsight.tracking.loss import LossRule
 from cellsight.tracking.measurement import rotation_of_state
 
 K = np.array([[1200.0, 0.0, 380.0], [0.0, 1180.0, 290.0], [0.0, 0.0, 1.0]])
@@ -387,39 +384,3 @@ def test_robust_pnp_drops_a_wrong_corner_hidden_under_a_small_rms():
     fix = estimate_pose_robust(obs, max_rms_px=2.0, max_residual_px=4.0)
     assert fix.dropped == ((1, 9),) and fix.n_points == 31
     assert np.linalg.norm(fix.T_base_part[:3, 3] - T[:3, 3]) < 1e-3
-
-
-def test_forgetting_the_velocity_is_a_mean_reverting_velocity_sampled():
-    """The state and covariance after :meth:`PoseEKF.forget_velocity` against samples of the
-    state pushed through the mean-reverting velocity ``v' = a v + sqrt(1 - a^2) s e`` (the
-    pose untouched): the same mean and covariance, cross terms included."""
-    rng = np.random.default_rng(12)
-    x0 = _state(TARGET, [0.1, -0.2, 0.3], [0.3, -0.1, 0.05, 0.4, 0.0, -0.2])
-    L = rng.normal(0, 0.05, (12, 12))
-    P0 = L @ L.T + 1e-4 * np.eye(12)
-    ekf = PoseEKF(ConstantVelocity(), x0, P0, 0.0)
-    kept, spread = 0.7, np.array([0.2**2] * 3 + [0.5**2] * 3)
-    ekf.forget_velocity(kept, spread)
-    samples = rng.multivariate_normal(x0, P0, 400_000)
-    samples[:, 6:] = kept * samples[:, 6:] + np.sqrt((1 - kept**2) * spread) * rng.normal(
-        size=(len(samples), 6))
-    np.testing.assert_allclose(ekf.state, samples.mean(axis=0), atol=3e-3)
-    np.testing.assert_allclose(ekf.covariance, np.cov(samples.T), atol=3e-3)
-
-
-def test_a_coasting_track_keeps_its_velocity_briefly_then_lets_it_go():
-    """A track whose last measurement left it a wrong 0.5 m/s: a dropped frame (under
-    ``damp_after_s``) keeps the velocity whole; two seconds of coasting move the estimate at
-    most ``v (damp_after_s + velocity_tau_s)`` (10 cm), not the 1 m the constant velocity
-    carries it."""
-    rule = LossRule()
-    x0 = _state(TARGET, [0.0, 0.0, 0.0], [0.5, 0.0, 0.0, 0.0, 0.0, 0.0])
-    ekf = PoseEKF(ConstantVelocity(), x0, np.eye(12) * 1e-4, 0.0)
-    assert rule.velocity_kept(0.0, 1 / 26, 0.0) == 1.0
-    for k in range(1, 53):
-        t = k / 26
-        ekf.forget_velocity(rule.velocity_kept(ekf.t, t, 0.0), np.full(6, 0.04))
-        ekf.predict(t)
-    moved = ekf.state[0] - TARGET[0]
-    assert 0.5 * rule.damp_after_s < moved <= 0.5 * (rule.damp_after_s + rule.velocity_tau_s)
-    assert abs(ekf.state[6]) < 0.5 * math.exp(-1.5 / rule.velocity_tau_s)

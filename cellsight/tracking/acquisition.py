@@ -69,14 +69,9 @@ class PnPAcquisition:
         velocity uncertainty; the caller inflates a PnP covariance first (:meth:`start`)."""
         P = np.zeros((STATE_DIM, STATE_DIM))
         P[:POSE_DIM, :POSE_DIM] = pose_covariance
-        P[POSE_DIM:, POSE_DIM:] = np.diag(self.velocity_variance())
-        return P
-
-    def velocity_variance(self) -> np.ndarray:
-        """(6,) the rates' variances when nothing is known of them ((m/s)^2, (rad/s)^2):
-        ``velocity_std`` squared, linear then angular."""
         lin, ang = self.velocity_std
-        return np.array([lin**2] * 3 + [ang**2] * 3)
+        P[POSE_DIM:, POSE_DIM:] = np.diag([lin**2] * 3 + [ang**2] * 3)
+        return P
 
     def start(self, fix: PoseFix, sigma_px: float) -> np.ndarray:
         """Initial state covariance from a PnP fix: its covariance (for ``sigma_px`` of pixel

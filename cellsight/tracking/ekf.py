@@ -186,21 +186,6 @@ class PoseEKF:
         self._P = P
         self.t = float(t)
 
-    def forget_velocity(self, kept: float, variance: np.ndarray) -> None:
-        """Keep the share ``kept`` (0-1] of the velocity, as a mean-reverting velocity does
-        when nothing measures it: the rates times ``kept``, their covariance rows and columns
-        too, and ``(1 - kept^2) variance`` (6,) ((m/s)^2, (rad/s)^2: the rates' spread when
-        nothing is known of them) added to their variances."""
-        if kept >= 1.0:
-            return
-        v = np.arange(POSE_DIM, STATE_DIM)
-        x, P = self._x.copy(), self._P.copy()  # new arrays: records keep the old ones
-        x[v] *= kept
-        P[v, :] *= kept
-        P[:, v] *= kept
-        P[v, v] += (1.0 - kept**2) * np.asarray(variance, dtype=float)
-        self._x, self._P = x, P
-
     def predict_carried(self, t: float, motion: np.ndarray, noise: tuple[float, float]) -> None:
         """Propagate to time ``t`` (s) by a rigid motion of the part: ``motion`` (4x4) maps the
         base frame to itself (the holder's ``T_base_holder(t) T_base_holder(t_prev)^-1``); the

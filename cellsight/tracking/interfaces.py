@@ -150,13 +150,8 @@ class Acquisition(Protocol):
         """Initial state covariance (12x12) from a pose covariance (6x6, xyz + rpy)."""
         ...
 
-    def start(self, fix: PoseFix, sigma_px: float) -> np.ndarray:
-        """Initial state covariance (12x12) from a fix of pixels with noise ``sigma_px``
-        (px)."""
-        ...
-
-    def velocity_variance(self) -> np.ndarray:
-        """(6,) the rates' variances when nothing is known of them ((m/s)^2, (rad/s)^2)."""
+    def start(self, fix: PoseFix) -> np.ndarray:
+        """Initial state covariance (12x12) from a fix."""
         ...
 
 
@@ -166,11 +161,6 @@ class TrackHealth(Protocol):
     def coasts(self, t: float, last_update: float) -> bool:
         """The motion model still propagates the estimate at time ``t`` (s), the last accepted
         measurement being at ``last_update`` (s)."""
-        ...
-
-    def velocity_kept(self, t_from: float, t: float, last_update: float) -> float:
-        """The share (0-1] of the estimated velocity a coasting track keeps from ``t_from`` to
-        ``t`` (s), the last accepted measurement being at ``last_update`` (s)."""
         ...
 
     def lost(self, t: float, last_update: float, unseen_since: float) -> bool:

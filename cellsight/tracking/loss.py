@@ -14,11 +14,7 @@ re-acquires it, from the whole image when it can (:mod:`.search`); until then fr
 measurements only predict. The prediction
 coasts at most ``coast_s`` seconds after the last accepted measurement, then stops: the last
 velocity would carry the pose away for ever, and a part that left the views is looked for
-where it was last predicted. While it coasts, after ``damp_after_s`` (a dropped frame or two
-changes nothing), the velocity it carries decays with the time constant ``velocity_tau_s``:
-the velocity of a track that lost its measurements is the least certain part of its state
-(often made by the last few corners, or by a fall that has since come to rest), and carried
-for seconds it moved estimates metres away in the realistic world.
+where it was last predicted.
 """
 
 from __future__ import annotations
@@ -37,19 +33,10 @@ class LossRule:
     min_looked: int = 4
     min_found: float = 0.34
     resume_found: float = 0.5
-    damp_after_s: float = 0.1
-    velocity_tau_s: float = 0.25
 
     def coasts(self, t: float, last_update: float) -> bool:
         """The motion model still propagates the estimate at time ``t`` (s)."""
         return t - last_update <= self.coast_s
-
-    def velocity_kept(self, t_from: float, t: float, last_update: float) -> float:
-        """The share of the velocity a coasting track keeps from ``t_from`` to ``t`` (s):
-        ``exp(-d / velocity_tau_s)``, ``d`` the part of the interval more than
-        ``damp_after_s`` after the last accepted measurement at ``last_update`` (s)."""
-        decaying = t - max(t_from, last_update + self.damp_after_s)
-        return math.exp(-decaying / self.velocity_tau_s) if decaying > 0 else 1.0
 
     def in_vain(self, looked: int, accepted: int, in_view: bool = True) -> bool | None:
         """A frame looked in vain, saw the part, or says nothing (module docstring);

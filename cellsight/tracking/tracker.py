@@ -282,9 +282,6 @@ class Tracker:
                     track.ekf.predict_carried(t, holder @ invert_pose(track.holder),
                                               self.config.carried_noise)
                 elif loss.coasts(t, track.last_update):
-                    track.ekf.forget_velocity(
-                        loss.velocity_kept(track.ekf.t, t, track.last_update),
-                        self.components.acquisition.velocity_variance())
                     track.ekf.predict(t)
                 track.lost = loss.lost(t, track.last_update, track.unseen_since)
                 poses[name] = track.ekf.pose
