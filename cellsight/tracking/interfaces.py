@@ -150,9 +150,8 @@ class Acquisition(Protocol):
         """Initial state covariance (12x12) from a pose covariance (6x6, xyz + rpy)."""
         ...
 
-    def start(self, fix: PoseFix, sigma_px: float) -> np.ndarray:
-        """Initial state covariance (12x12) from a fix of pixels with noise ``sigma_px``
-        (px)."""
+    def start(self, fix: PoseFix) -> np.ndarray:
+        """Initial state covariance (12x12) from a fix."""
         ...
 
 
