@@ -45,7 +45,6 @@ from cellsight.tracking.offsets import CameraOffsets, with_offset
 
 MIN_FOR_MEDIAN = 3  # features for a camera's median innovation to stand for its offset
 LONE_SIGMA_PX = 2.0  # widest prediction (px, 1 sigma) a camera of fewer features is gated on
-SHIFT_SIGMA_PX = 10.0  # a camera's common shift (px, 1 sigma) the features' cross-check allows
 
 
 @dataclass(frozen=True)
@@ -295,7 +294,7 @@ class PoseEKF:
                 rows = cam == c
                 self.adaptive.add(int(c), nu[rows], trace[rows])
         if gate is not None and accepted.sum() > 1:
-            accepted = _consistent(H, self._P, nu, sigma2, cam, accepted, gate)
+            accepted = _consistent(H, self._P, nu, sigma2, accepted, gate)
             report = UpdateReport(cam, report.feature_ids, nu, d2, accepted, sig)
         if accepted.any():
             state, P_new = _joseph_update(self._x, self._P, H, nu, sigma2, accepted)
@@ -306,15 +305,14 @@ class PoseEKF:
 
 
 def _consistent(H: np.ndarray, P: np.ndarray, nu: np.ndarray, sigma2: np.ndarray,
-                cam: np.ndarray, accepted: np.ndarray, gate: Gate) -> np.ndarray:
+                accepted: np.ndarray, gate: Gate) -> np.ndarray:
     """``accepted`` (m,) less the features that disagree with the others: while the largest
-    leave-one-out distance (:func:`_left_out_d2`, each camera's common shift free) of the
-    accepted features fails ``gate``, that feature is rejected, down to one feature."""
+    leave-one-out distance (:func:`_left_out_d2`) of the accepted features fails ``gate``, that
+    feature is rejected, down to one feature."""
     accepted = accepted.copy()
-    cameras = np.unique(cam, return_inverse=True)[1]
     while accepted.sum() > 1:
         rows = np.flatnonzero(accepted)
-        d2 = _left_out_d2(H, P, nu, sigma2, rows, cameras, SHIFT_SIGMA_PX**2)
+        d2 = _left_out_d2(H, P, nu, sigma2, rows)
         worst = int(np.argmax(d2))
         if gate.accepts(d2[worst:worst + 1])[0]:
             break
@@ -323,28 +321,20 @@ def _consistent(H: np.ndarray, P: np.ndarray, nu: np.ndarray, sigma2: np.ndarray
 
 
 @numba.njit(cache=True)
-def _left_out_d2(H, P, nu, sigma2, rows, cameras, shift_var):
+def _left_out_d2(H, P, nu, sigma2, rows):
     """For each feature of ``rows``: the squared Mahalanobis distance of its innovation from
     the update by the prior and every other feature of ``rows`` (its standardised residual
-    after the update with all of them), in a model where each camera's pixels may share a
-    common shift of variance ``shift_var`` px^2 per axis (``cameras`` (m,): 0-based camera of
-    each feature): ``w_j^T (S^-1)_jj^-1 w_j`` with ``w = S^-1 nu`` and ``S`` the stacked
-    innovation covariance (H (2m, n), P (n, n), nu (m, 2), sigma2 (m,))."""
+    after the update with all of them): ``w_j^T (S^-1)_jj^-1 w_j`` with ``w = S^-1 nu`` and
+    ``S`` the stacked innovation covariance (H (2m, n), P (n, n), nu (m, 2), sigma2 (m,))."""
     k = len(rows)
-    n = P.shape[0]
-    n_cams = cameras.max() + 1
-    Ha = np.zeros((2 * k, n + 2 * n_cams))
+    idx = np.empty(2 * k, dtype=np.int64)
     z = np.empty(2 * k)
     for i in range(k):
         for a in range(2):
-            Ha[2 * i + a, :n] = H[2 * rows[i] + a]
-            Ha[2 * i + a, n + 2 * cameras[rows[i]] + a] = 1.0
+            idx[2 * i + a] = 2 * rows[i] + a
             z[2 * i + a] = nu[rows[i], a]
-    Pa = np.zeros((n + 2 * n_cams, n + 2 * n_cams))
-    Pa[:n, :n] = P
-    for i in range(n, n + 2 * n_cams):
-        Pa[i, i] = shift_var
-    S = Ha @ Pa @ Ha.T
+    Ha = H[idx]
+    S = Ha @ P @ Ha.T
     for i in range(k):
         S[2 * i, 2 * i] += sigma2[rows[i]]
         S[2 * i + 1, 2 * i + 1] += sigma2[rows[i]]
