@@ -73,9 +73,6 @@ class PnPAcquisition:
         P[POSE_DIM:, POSE_DIM:] = np.diag([lin**2] * 3 + [ang**2] * 3)
         return P
 
-    def start(self, fix: PoseFix, sigma_px: float) -> np.ndarray:
-        """Initial state covariance from a PnP fix: its covariance (for ``sigma_px`` of pixel
-        noise) scaled to the noise its own residuals show, ``(rms_px / sigma_px)^2`` when
-        that is more than 1, and inflated by ``pose_inflation``."""
-        noise = max(1.0, (fix.rms_px / sigma_px) ** 2)
-        return self.covariance(self.pose_inflation * noise * fix.covariance)
+    def start(self, fix: PoseFix) -> np.ndarray:
+        """Initial state covariance from a PnP fix (its covariance inflated)."""
+        return self.covariance(self.pose_inflation * fix.covariance)

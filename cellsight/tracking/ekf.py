@@ -293,59 +293,12 @@ class PoseEKF:
             for c in np.unique(cam):
                 rows = cam == c
                 self.adaptive.add(int(c), nu[rows], trace[rows])
-        if gate is not None and accepted.sum() > 1:
-            accepted = _consistent(H, self._P, nu, sigma2, accepted, gate)
-            report = UpdateReport(cam, report.feature_ids, nu, d2, accepted, sig)
         if accepted.any():
             state, P_new = _joseph_update(self._x, self._P, H, nu, sigma2, accepted)
             for i in (3, 5):  # roll and yaw to [-pi, pi)
                 state[i] = (state[i] + np.pi) % (2 * np.pi) - np.pi
             self._x, self._P = state, P_new
         return report
-
-
-def _consistent(H: np.ndarray, P: np.ndarray, nu: np.ndarray, sigma2: np.ndarray,
-                accepted: np.ndarray, gate: Gate) -> np.ndarray:
-    """``accepted`` (m,) less the features that disagree with the others: while the largest
-    leave-one-out distance (:func:`_left_out_d2`) of the accepted features fails ``gate``, that
-    feature is rejected, down to one feature."""
-    accepted = accepted.copy()
-    while accepted.sum() > 1:
-        rows = np.flatnonzero(accepted)
-        d2 = _left_out_d2(H, P, nu, sigma2, rows)
-        worst = int(np.argmax(d2))
-        if gate.accepts(d2[worst:worst + 1])[0]:
-            break
-        accepted[rows[worst]] = False
-    return accepted
-
-
-@numba.njit(cache=True)
-def _left_out_d2(H, P, nu, sigma2, rows):
-    """For each feature of ``rows``: the squared Mahalanobis distance of its innovation from
-    the update by the prior and every other feature of ``rows`` (its standardised residual
-    after the update with all of them): ``w_j^T (S^-1)_jj^-1 w_j`` with ``w = S^-1 nu`` and
-    ``S`` the stacked innovation covariance (H (2m, n), P (n, n), nu (m, 2), sigma2 (m,))."""
-    k = len(rows)
-    idx = np.empty(2 * k, dtype=np.int64)
-    z = np.empty(2 * k)
-    for i in range(k):
-        for a in range(2):
-            idx[2 * i + a] = 2 * rows[i] + a
-            z[2 * i + a] = nu[rows[i], a]
-    Ha = H[idx]
-    S = Ha @ P @ Ha.T
-    for i in range(k):
-        S[2 * i, 2 * i] += sigma2[rows[i]]
-        S[2 * i + 1, 2 * i + 1] += sigma2[rows[i]]
-    Sinv = np.linalg.inv(S)
-    w = Sinv @ z
-    d2 = np.empty(k)
-    for i in range(k):
-        a, b, c = Sinv[2 * i, 2 * i], Sinv[2 * i, 2 * i + 1], Sinv[2 * i + 1, 2 * i + 1]
-        w0, w1 = w[2 * i], w[2 * i + 1]
-        d2[i] = (c * w0 * w0 - 2 * b * w0 * w1 + a * w1 * w1) / (a * c - b * b)
-    return d2
 
 
 @numba.njit(cache=True)

@@ -388,8 +388,7 @@ class Tracker:
         if fix is None:
             track.search_on(acquisition)
             return rec
-        self.initialise(rec.name, fix.T_base_part, context.t,
-                        acquisition.start(fix, self.config.sigma_px),
+        self.initialise(rec.name, fix.T_base_part, context.t, acquisition.start(fix),
                         fix.offsets_px)
         for c, f in fix.dropped:
             rec.rejected[c, f] = True
