@@ -273,3 +273,57 @@ def test_robust_pnp_drops_a_wrong_corner_hidden_under_a_small_rms():
     fix = estimate_pose_robust(obs, max_rms_px=2.0, max_residual_px=4.0)
     assert fix.dropped == ((1, 9),) and fix.n_points == 31
     assert np.linalg.norm(fix.T_base_part[:3, 3] - T[:3, 3]) < 1e-3
+
+
+def _oracle_fit(cam: Camera, pts: np.ndarray, state: np.ndarray, pixels: np.ndarray) -> float:
+    """Sum of squared reprojection residuals (px^2) of ``pts`` at ``state``, by the camera's
+    own projection; infinite when a point lies behind the camera."""
+    T = pose_from_xyz_rpy(state[:3], state[3:6])
+    base = pts @ T[:3, :3].T + T[:3, 3]
+    if np.any(cam.depth(base) <= 0):
+        return np.inf
+    return float(np.sum((cam.project(base) - pixels) ** 2))
+
+
+def test_an_update_that_fits_worse_than_its_prediction_is_refused():
+    """The case of a wrong acquisition: a prior far along the camera's ray (-0.8 to 1.5 m)
+    with the nearly singular covariance of a four-point PnP there, then two to four corners
+    in that camera. The linearised update (the textbook form, computed here) sometimes lands
+    farther from the pixels than the prediction, or behind the camera. The filter applies it
+    exactly when it fits no worse (residuals by the camera's own projection), and otherwise
+    keeps its prediction and reports the update refused; both cases occur."""
+    cams, prism = _cameras(), _prism()
+    rng = np.random.default_rng(3)
+    applied = refused = 0
+    for _ in range(300):
+        pts = prism[rng.choice(16, rng.integers(2, 5), replace=False)]
+        truth = _state(TARGET + rng.normal(0, 0.05, 3), rng.normal(0, 0.3, 3))
+        obs = _observe(cams[:1], pts, truth, 0.5, rng)
+        ray = truth[:3] - cams[0].T_base_cam[:3, 3]
+        x0 = truth.copy()
+        x0[:3] += ray / np.linalg.norm(ray) * rng.uniform(-0.8, 1.5)
+        x0[3:6] += rng.normal(0, 0.3, 3)
+        if np.any(cams[0].depth(pts @ rotation_of_state(x0).T + x0[:3]) <= 0):
+            continue
+        J = obs[0].model.evaluate(x0, prism[:4])[1][:, :6]
+        P0 = np.zeros((12, 12))
+        P0[:6, :6] = 4 * 0.25 * np.linalg.inv(J.T @ J + 1e-9 * np.eye(6))
+        P0[6:, 6:] = np.diag([0.04] * 3 + [0.25] * 3)
+        H = obs[0].model.evaluate(x0, pts)[1]
+        S = H @ P0 @ H.T + 0.25 * np.eye(len(H))
+        nu = (obs[0].pixels - obs[0].model.function(x0, pts)).ravel()
+        x_new = x0 + P0 @ H.T @ np.linalg.solve(S, nu)
+        x_new[[3, 5]] = (x_new[[3, 5]] + np.pi) % (2 * np.pi) - np.pi
+        worse = (_oracle_fit(cams[0], pts, x_new, obs[0].pixels)
+                 > _oracle_fit(cams[0], pts, x0, obs[0].pixels))
+        ekf = PoseEKF(ConstantVelocity(), x0, P0, 0.0)
+        report = ekf.update(obs)
+        assert report.refused == worse
+        if worse:
+            refused += 1
+            np.testing.assert_array_equal(ekf.state, x0)
+            assert report.n_accepted == 0
+        else:
+            applied += 1
+            np.testing.assert_allclose(ekf.state, x_new, rtol=1e-6, atol=1e-6)
+    assert applied >= 100 and refused >= 5, (applied, refused)

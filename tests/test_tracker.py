@@ -164,11 +164,13 @@ def test_a_feature_flagged_near_an_occluder_stays_out_for_the_hold_time():
     assert selected[k0 + hold + 1:].all()
 
 
-@pytest.mark.parametrize(("blackout_s", "sway"), [(1.2, 1.0), (2.6, 0.0)])
+@pytest.mark.parametrize(("blackout_s", "sway"), [(0.6, 1.0), (2.6, 0.0)])
 def test_both_cameras_occluded_predicts_then_reacquires(blackout_s, sway):
-    """1.2 s on the swaying trajectory: the filter only predicts and takes the features back in
-    its windows; 2.6 s on a steady conveyor: past ``lost_after_s`` the part is lost, then
-    re-acquired by PnP in windows around the prediction."""
+    """0.6 s on the swaying trajectory: the filter only predicts (8-18 mm off at the end on
+    seeds 0-7) and takes the features back in its windows; 2.6 s on a steady conveyor: past
+    ``lost_after_s`` the part is lost, then re-acquired by PnP in windows around the
+    prediction. (1.2 s on the sway leaves the prediction 30-60 mm off, out of its windows'
+    reach on 6 or 7 of those 8 seeds: whether it is taken back then is luck.)"""
     run = Run(seed=3, sway=sway)
     start = int(2.0 / VISION_PERIOD)
     stop = start + int(blackout_s / VISION_PERIOD)
@@ -311,3 +313,69 @@ def test_noise_beyond_the_model_and_features_not_found_make_the_track_degraded()
     last = hidden.frames[-1]
     assert last.status_text == "degraded: 100% not found in cam2"
     assert np.isnan(last.health.nis_ratio[1]) and last.health.missing_fraction[0] == 0.0
+
+
+class _DecoyExtractor(SyntheticExtractor):
+    """Acquisition's wide first look (windows wider than 40 px) in camera 1 finds decoy
+    corners, ``decoys``: feature -> pixel, where those features would be at a wrong pose, and
+    nothing else; narrower windows find what :class:`SyntheticExtractor` finds. ``decoys``
+    empty: the wide windows see the truth too."""
+
+    def __init__(self, decoys: dict[int, np.ndarray]) -> None:
+        super().__init__(0.5, 0)
+        self.decoys = decoys
+
+    def extract(self, camera_index: int, view: SyntheticView | None, plan) -> dict:
+        out = super().extract(camera_index, view, plan)
+        if camera_index != 0 or not self.decoys:
+            return out
+        for f, box in zip(plan.features, plan.boxes, strict=True):
+            if box[2] - box[0] > 40:
+                out.pop(int(f), None)
+                u, v = self.decoys.get(int(f), (np.nan, np.nan))
+                if box[0] <= u < box[2] and box[1] <= v < box[3]:
+                    out[int(f)] = np.array([u, v])
+        return out
+
+
+@pytest.mark.parametrize("verified", [True, False])
+def test_an_acquisition_that_the_part_s_other_features_deny_is_not_taken(verified):
+    """Camera 1 alone; the part still. For 1 s, acquisition's wide windows at a guess 30 mm and
+    0.2 rad off find six corners that fit that wrong pose exactly (and nothing else); where
+    that pose predicts the part's other features, narrow windows find nothing, so the
+    verification denies it and nothing is acquired. Then the wide windows see the truth and
+    the part is acquired within 10 mm (one camera's depth, from 0.5 px noise). Without the
+    verification (its windows as wide as the first look's, and no support asked), the tracker
+    starts at the wrong pose."""
+    from cellsight.tracking import PnPAcquisition
+
+    cell = load_cell()
+    part, cam = cell.workpieces[0], cell.cameras[0]
+    T = part.T_base_part
+    decoy_pose = T @ pose_from_xyz_rpy([0.03, 0.0, 0.0], [0.0, 0.0, 0.2])
+    predictor = BackfacePredictor(cell.cameras, part.name, part.solid)
+    predictor.blind = {1}
+    visible = predictor.visibility(0, decoy_pose).visible
+    points = part.feature_points @ decoy_pose[:3, :3].T + decoy_pose[:3, 3]
+    decoys = {int(f): cam.project(points[f:f + 1])[0] for f in np.flatnonzero(visible)[:6]}
+    extractor = _DecoyExtractor(decoys)
+    acquisition = PnPAcquisition() if verified else PnPAcquisition(verify_window_px=64.0,
+                                                                    verify_support=0.0)
+    tracker = Tracker(cell.cameras, {part.name: part.feature_points}, predictor, extractor,
+                      None, {part.name: decoy_pose}, TrackerParts(acquisition=acquisition))
+    truth = predictor.visibility(0, T).visible
+    true_pixels = cam.project(part.feature_points @ T[:3, :3].T + T[:3, 3])
+    view = [SyntheticView(true_pixels, truth), None]
+    errors = []
+    for k in range(int(2.0 / VISION_PERIOD)):
+        if k == int(1.0 / VISION_PERIOD):
+            extractor.decoys = {}
+        rec = tracker.step(view, None, k * VISION_PERIOD).parts[part.name]
+        if rec.status == "acquired":
+            errors.append((k, float(np.linalg.norm(rec.T_base_part[:3, 3] - T[:3, 3]))))
+    assert errors, "never acquired"
+    if verified:
+        k, error = errors[0]
+        assert k >= int(1.0 / VISION_PERIOD) and error < 0.01, errors
+    else:
+        assert errors[0][0] == 0 and errors[0][1] > 0.02, errors

@@ -12,7 +12,10 @@ Recursion, per vision frame:
   a feature the gate rejects (a wrong corner, an unpredicted occlusion) is reported, not used;
 * update with the accepted features stacked: ``S = C P- C^T + R``, ``K = P- C^T S^-1``,
   ``w = w- + K nu`` and the Joseph form ``P = (I - K C) P- (I - K C)^T + K R K^T``;
-  roll and yaw are wrapped to ``[-pi, pi)``.
+  roll and yaw are wrapped to ``[-pi, pi)``;
+* check (beyond the paper): the updated pose must put the accepted features in front of their
+  cameras and reproject them no worse than the prediction did, else the update is refused
+  (:meth:`PoseEKF._fits`): the linearisation, not the features, would have moved it.
 
 Carried part (optional, beyond the paper: the kinematic prior): while a robot holds the part,
 :meth:`PoseEKF.predict_carried` moves the estimate by the holder's measured motion since the
@@ -31,7 +34,7 @@ part's block of it.
 from __future__ import annotations
 
 from collections import deque
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numba
 import numpy as np
@@ -52,7 +55,9 @@ class UpdateReport:
     """Per-feature outcome of an update, rows in the order of the observations' features.
 
     ``innovation`` (m, 2) px, ``mahalanobis2`` (m,), ``accepted`` (m,) bool; ``sigma_px`` is the
-    pixel noise used for each camera index.
+    pixel noise used for each camera index; ``refused``: the gate accepted features, but the
+    update they gave fitted them worse than the prediction, and was not applied
+    (:meth:`PoseEKF._fits`; none is then ``accepted``).
     """
 
     camera_index: np.ndarray
@@ -61,6 +66,7 @@ class UpdateReport:
     mahalanobis2: np.ndarray
     accepted: np.ndarray
     sigma_px: dict[int, float]
+    refused: bool = False
 
     @property
     def n_accepted(self) -> int:
@@ -246,12 +252,14 @@ class PoseEKF:
             d2[rows] = mahalanobis2(nu[rows] - np.median(nu[rows], axis=0), S_diff)
         return d2
 
-    def _offset(self, camera_index: int, pred: np.ndarray,
-                H: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """A camera's predicted pixels and Jacobian with its offset (unchanged without)."""
+    def _offset(self, camera_index: int, pred: np.ndarray, H: np.ndarray,
+                x: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """A camera's predicted pixels and Jacobian with its offset (unchanged without), that of
+        the augmented state ``x`` (default: the filter's)."""
         if self.camera_offsets is None:
             return pred, H
-        return with_offset(pred, H, camera_index, self._x[STATE_DIM:], STATE_DIM, len(self._x))
+        x = self._x if x is None else x
+        return with_offset(pred, H, camera_index, x[STATE_DIM:], STATE_DIM, len(x))
 
     def update(
         self, observations: list[Observation], gate: Gate | None = None
@@ -297,8 +305,34 @@ class PoseEKF:
             state, P_new = _joseph_update(self._x, self._P, H, nu, sigma2, accepted)
             for i in (3, 5):  # roll and yaw to [-pi, pi)
                 state[i] = (state[i] + np.pi) % (2 * np.pi) - np.pi
-            self._x, self._P = state, P_new
+            if self._fits(observations, state, nu, accepted):
+                self._x, self._P = state, P_new
+            else:
+                report = replace(report, accepted=np.zeros_like(accepted), refused=True)
         return report
+
+    def _fits(self, observations: list[Observation], state: np.ndarray, nu: np.ndarray,
+              accepted: np.ndarray) -> bool:
+        """Whether an updated ``state`` (the augmented one) explains the accepted features at
+        least as well as the prediction did: every one in front of its camera, and the sum of
+        their squared residuals no larger than that of their innovations. A linear update
+        always passes (the residual is ``R S^-1 nu``, shorter than ``nu``); one that the
+        linearisation throws far (a wide covariance along a direction the features barely
+        see) does not, and is refused."""
+        part = state[:STATE_DIM]
+        R_part, rows, residual = rotation_of_state(part), 0, 0.0
+        for obs in observations:
+            n = len(obs.feature_ids)
+            if n == 0:
+                continue
+            pred, _ = self._offset(obs.camera_index, *obs.evaluate(part, R_part), state)
+            used = accepted[rows:rows + n]
+            points = obs.points_model[used] @ R_part.T + obs.exposed_state(part)[:3]
+            if np.any(obs.model.camera.depth(points) <= 0):
+                return False
+            residual += float(np.sum((np.asarray(obs.pixels)[used] - pred[used]) ** 2))
+            rows += n
+        return residual <= float(np.sum(nu[accepted] ** 2)) * (1 + 1e-9)
 
 
 @numba.njit(cache=True)

@@ -137,6 +137,11 @@ class Acquisition(Protocol):
         """Full width and height (px) of the window around every usable feature."""
         ...
 
+    @property
+    def verify_window_px(self) -> float:
+        """Full width and height (px) of the windows that verify a fix."""
+        ...
+
     def guess(self, base: np.ndarray, attempt: int) -> np.ndarray:
         """Where to look (``T_base_part``) at the ``attempt``-th try around ``base``, while a
         part never acquired is not found."""
@@ -144,6 +149,12 @@ class Acquisition(Protocol):
 
     def fix(self, observations: list[Observation], sigma_px: float) -> PoseFix | None:
         """The pose to start from (ideal pixels with noise ``sigma_px`` px), or None."""
+        ...
+
+    def confirms(self, fix: PoseFix, looked: np.ndarray, used: np.ndarray) -> bool:
+        """Whether ``fix``, from windows at a first fix's predictions, verifies that fix
+        (``looked``, ``used`` (C,): per camera, the features looked for there and those
+        ``fix`` kept)."""
         ...
 
     def covariance(self, pose_covariance: np.ndarray) -> np.ndarray:

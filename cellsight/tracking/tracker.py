@@ -11,8 +11,9 @@ protocol of :mod:`.interfaces` with its default in its own module):
    passed, so parts can hide each other;
 3. per part: a part not tracked yet, or lost, is acquired (:mod:`.acquisition`: windows at
    the guess or the last prediction; failing that, at most every ``search.every_s``, the
-   whole-image search over its support plane, :mod:`.search`, each candidate verified by the
-   same windows and PnP); otherwise
+   whole-image search over its support plane, :mod:`.search`, each candidate tried with the
+   same windows and PnP; a fix stands only when narrow windows where it predicts the part's
+   features confirm it); otherwise
    the selector chooses among the usable features (:mod:`.eligibility`, :mod:`.selection`),
    the window planner places their windows (:mod:`.windowing`), the extractor finds them in
    what the sensors took (:mod:`.extraction`), the gate (:mod:`.gate`) screens the innovations
@@ -381,13 +382,15 @@ class Tracker:
         docstring); the filter starts from it. Returns the record of the windows that gave the
         fix (or of the guess's, when there is none)."""
         track, acquisition = context.track, self.components.acquisition
-        fix = self._fix(context)
+        fix = self._fix(context, acquisition.window_px)
         if fix is None and (found := self._search(context)) is not None:
             context, fix = found
-        rec = context.rec
-        if fix is None:
+        verified = None if fix is None else self._verify(context, fix)
+        if verified is None:
             track.search_on(acquisition)
-            return rec
+            return context.rec
+        context, fix = verified
+        rec = context.rec
         self.initialise(rec.name, fix.T_base_part, context.t, acquisition.start(fix),
                         fix.offsets_px)
         for c, f in fix.dropped:
@@ -396,18 +399,43 @@ class Tracker:
         _record_estimate(rec, track.ekf)
         return rec
 
-    def _fix(self, context: StepContext) -> PoseFix | None:
-        """Windows of a fixed size on every usable feature of the record's prediction, then a
-        fix (:mod:`.acquisition`), or None."""
+    def _fix(self, context: StepContext, size_px: float) -> PoseFix | None:
+        """Windows of ``size_px`` (px) on every usable feature of the record's prediction, then
+        a fix (:mod:`.acquisition`), or None."""
         context.rec.selected = self._usable(context, context.t)
 
         def covariance(c: int, idx: np.ndarray) -> np.ndarray:
             return np.zeros((len(idx), 2, 2))
 
-        acquisition = self.components.acquisition
-        obs = self._measure(context, covariance, acquisition.window_px)
+        obs = self._measure(context, covariance, size_px)
         with context.timer("ekf"):
-            return acquisition.fix(obs, self.config.sigma_px)
+            return self.components.acquisition.fix(obs, self.config.sigma_px)
+
+    def _at(self, context: StepContext, T_base_part: np.ndarray) -> StepContext:
+        """``context`` with a fresh record of the part predicted at ``T_base_part``."""
+        name, C = context.rec.name, len(self.cameras)
+        views = context.look(name, T_base_part)
+        rec = context.track.empty_record(name, context.rec.status, C)
+        rec.set_views(views[name])
+        return replace(context, rec=rec, crowd=_visible_pixels(views, C))
+
+    def _verify(self, context: StepContext,
+                fix: PoseFix) -> tuple[StepContext, PoseFix] | None:
+        """The fix checked against every feature it predicts (:mod:`.acquisition`): narrow
+        windows where it predicts them, and a second fix from what they find; that fix with the
+        context of its record, or None when it does not confirm the first."""
+        trial = self._at(context, fix.T_base_part)
+        again = self._fix(trial, self.components.acquisition.verify_window_px)
+        if again is None:
+            return None
+        rec = trial.rec
+        used = np.isfinite(rec.measured[..., 0])
+        for c, f in again.dropped:
+            used[c, f] = False
+        looked = rec.selected & _cameras_grabbed(context.observed, self.cameras)[:, None]
+        confirmed = self.components.acquisition.confirms(again, looked.sum(axis=1),
+                                                         used.sum(axis=1))
+        return (trial, again) if confirmed else None
 
     def _search(self, context: StepContext) -> tuple[StepContext, PoseFix] | None:
         """The whole-image search, when it is due (:mod:`.search`): the first of its best
@@ -429,13 +457,9 @@ class Tracker:
                                                 [track.ekf.pose[:2, 3]])
             candidates = search.candidates(self.cameras, track.points, track.support,
                                            np.array(centres), corners)
-        name, C = context.rec.name, len(self.cameras)
         for candidate in candidates[:search.verify]:
-            views = context.look(name, candidate.T_base_part)
-            rec = track.empty_record(name, context.rec.status, C)
-            rec.set_views(views[name])
-            trial = replace(context, rec=rec, crowd=_visible_pixels(views, C))
-            fix = self._fix(trial)
+            trial = self._at(context, candidate.T_base_part)
+            fix = self._fix(trial, self.components.acquisition.window_px)
             if fix is not None and fix.n_points >= search.min_points:
                 return trial, fix
         return None
