@@ -199,12 +199,10 @@ class DHChain:
 
     def fkine(self, q) -> np.ndarray:
         """Poses of frames 0..n in the chain base frame, shape (n+1, 4, 4); frame 0 = identity."""
-        A = self.link_transforms(q)
-        T = np.empty((self.n + 1, 4, 4))
-        T[0] = np.eye(4)
-        for i in range(self.n):
-            T[i + 1] = T[i] @ A[i]
-        return T
+        q = self.check_q(q)
+        out = np.empty((self.n + 1, 4, 4))
+        dh_fkine_kernel(self._a, self._alpha, self._d, self._theta, self._prismatic, q, out)
+        return out
 
     def jacobian(self, q, T_last_tool: np.ndarray | None = None) -> np.ndarray:
         """Geometric Jacobian (6, n) of the last frame (or of a tool frame fixed to it), in the
@@ -236,6 +234,31 @@ class DHChain:
         pos = np.array([-A[:3, :3].T @ A[:3, 3] for A in A0])
         axis = np.array([A[:3, :3].T[:, 2] for A in A0])
         return A0, pos, axis
+
+
+@njit(cache=True)
+def dh_fkine_kernel(a: np.ndarray, alpha: np.ndarray, d: np.ndarray, theta: np.ndarray,
+                    prismatic: np.ndarray, q: np.ndarray, out: np.ndarray) -> None:
+    """Frames 0..n of a :class:`DHChain` into ``out`` (n+1, 4, 4): ``out[0] = I``,
+    ``out[i+1] = out[i] @ A_i(q[i])`` (the matrices of :meth:`DHChain.link_transforms`)."""
+    A = np.zeros((4, 4))
+    A[3, 3] = 1.0
+    out[0] = 0.0
+    for k in range(4):
+        out[0, k, k] = 1.0
+    for i in range(q.shape[0]):
+        th = theta[i] + (0.0 if prismatic[i] else q[i])
+        di = d[i] + (q[i] if prismatic[i] else 0.0)
+        ct, st, ca, sa = np.cos(th), np.sin(th), np.cos(alpha[i]), np.sin(alpha[i])
+        A[0, 0], A[0, 1], A[0, 2], A[0, 3] = ct, -st * ca, st * sa, a[i] * ct
+        A[1, 0], A[1, 1], A[1, 2], A[1, 3] = st, ct * ca, -ct * sa, a[i] * st
+        A[2, 1], A[2, 2], A[2, 3] = sa, ca, di
+        for r in range(4):
+            for col in range(4):
+                acc = 0.0
+                for k in range(4):
+                    acc += out[i, r, k] * A[k, col]
+                out[i + 1, r, col] = acc
 
 
 @njit(cache=True)

@@ -682,3 +682,20 @@ def test_jaws_caught_off_the_grasp_are_opened_again_in_the_mujoco_world() -> Non
     assert _phases(task)[:4] == [Phase.WAITING, Phase.APPROACH, Phase.GRASP, Phase.APPROACH]
     assert "they caught the part off its grasp (attempt 1)" in task.transitions[2][3]
     assert Phase.MANIPULATE not in _phases(task)
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.tuples(*[st.floats(-1.0, 1.0)] * 3).filter(lambda v: np.linalg.norm(v) > 1e-3),
+       st.sampled_from([1e-12, 1e-7, 1e-4, 0.3, 2.0, np.pi - 1e-9, np.pi]))
+def test_compiled_rotations_agree_with_scipy(direction, angle):
+    """The control loop's compiled rotation vector <-> matrix conversions against SciPy's, at
+    every angle from 1e-12 rad to pi (where the vector's sign is free)."""
+    from cellsight.control._rotations import matrix_of_rotvec, rotvec_of_matrix
+
+    w = np.array(direction) / np.linalg.norm(direction) * angle
+    R = Rotation.from_rotvec(w).as_matrix()
+    np.testing.assert_allclose(matrix_of_rotvec(w), R, atol=1e-14)
+    ours, theirs = rotvec_of_matrix(R), Rotation.from_matrix(R).as_rotvec()
+    if angle > np.pi - 1e-6:
+        theirs = theirs if ours @ theirs > 0 else -theirs
+    np.testing.assert_allclose(ours, theirs, atol=1e-12)

@@ -31,8 +31,9 @@ from __future__ import annotations
 from typing import Literal
 
 import numpy as np
-from scipy.spatial.transform import Rotation
+from numba import njit
 
+from cellsight.control._rotations import rotvec_of_matrix
 from cellsight.model.robot import Robot
 from cellsight.rates import CONTROL_HZ
 
@@ -66,7 +67,7 @@ def tcp_pose_and_jacobian(robot: Robot, q: np.ndarray,
 def rotation_error(R_desired: np.ndarray, R: np.ndarray) -> np.ndarray:
     """Rotation vector (rad, base frame) of ``R_desired @ R.T``: the turn that takes ``R`` to
     ``R_desired``."""
-    return Rotation.from_matrix(R_desired @ R.T, assume_valid=True).as_rotvec()
+    return rotvec_of_matrix(np.ascontiguousarray(R_desired @ R.T, dtype=float))
 
 
 class Clik:
@@ -135,15 +136,24 @@ class Clik:
         ``v_target`` = (linear m/s, angular rad/s) in the base frame; ``dt`` in seconds."""
         q = np.asarray(q, dtype=float)
         T, J = self.tcp_pose_and_jacobian(q)
-        R_e = T_target[:3, :3] @ T[:3, :3].T
-        error = np.array([*(T_target[:3, 3] - T[:3, 3]), 0.5 * (R_e[2, 1] - R_e[1, 2]),
-                          0.5 * (R_e[0, 2] - R_e[2, 0]), 0.5 * (R_e[1, 0] - R_e[0, 1])])
-        u = self.gain * error
-        if v_target is not None:
-            u += v_target
-        dq0 = self.secondary_velocity(q)
-        dq = J.T @ np.linalg.solve(J @ J.T + self._damp2, u - J @ dq0) + dq0
-        excess = np.max(np.abs(dq) / self.joint_velocity_limits)
-        if excess > 1.0:
-            dq /= excess
-        return np.clip(q + dt * dq, self.qlim[:, 0], self.qlim[:, 1])
+        v = np.zeros(6) if v_target is None else np.asarray(v_target, dtype=float)
+        return _dls_step(T, J, np.asarray(T_target, dtype=float), v, self.gain, self._damp2,
+                         self.secondary_velocity(q), self.joint_velocity_limits, self.qlim, q,
+                         float(dt))
+
+
+@njit(cache=True)
+def _dls_step(T, J, T_target, v_target, gain, damp2, dq0, vmax, qlim, q, dt):
+    """The module docstring's step from the TCP pose ``T`` and Jacobian ``J`` at ``q``."""
+    R_e = np.ascontiguousarray(T_target[:3, :3]) @ np.ascontiguousarray(T[:3, :3].T)
+    error = np.empty(6)
+    error[:3] = T_target[:3, 3] - T[:3, 3]
+    error[3] = 0.5 * (R_e[2, 1] - R_e[1, 2])
+    error[4] = 0.5 * (R_e[0, 2] - R_e[2, 0])
+    error[5] = 0.5 * (R_e[1, 0] - R_e[0, 1])
+    u = gain * error + v_target
+    dq = J.T @ np.linalg.solve(J @ J.T + damp2, u - J @ dq0) + dq0
+    excess = np.max(np.abs(dq) / vmax)
+    if excess > 1.0:
+        dq /= excess
+    return np.minimum(np.maximum(q + dt * dq, qlim[:, 0]), qlim[:, 1])

@@ -20,9 +20,9 @@ twists (linear m/s, angular rad/s) and accelerations (m/s^2, rad/s^2) are in the
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial.transform import Rotation
+from numba import njit
 
-from cellsight.control.clik import rotation_error
+from cellsight.control._rotations import matrix_of_rotvec, rotvec_of_matrix
 from cellsight.rates import CONTROL_HZ
 
 
@@ -69,16 +69,23 @@ class InterpolatingFilter:
     def step(self) -> tuple[np.ndarray, np.ndarray]:
         """Advance by ``dt``: the output for ``dt`` after the state's time (the time of the last
         :meth:`set_target` or :meth:`reset`, plus ``dt`` per step since); copies."""
-        dt, wn, zeta = self.dt, self.natural_frequency, self.damping
-        error = np.concatenate([self._T_ref[:3, 3] - self._T[:3, 3],
-                                rotation_error(self._T_ref[:3, :3], self._T[:3, :3])])
-        accel = (self._accel_ref + wn * wn * error
-                 + 2.0 * zeta * wn * (self._twist_ref - self._twist))
-        self._twist += accel * dt
-        self._twist_ref += self._accel_ref * dt
-        self._T[:3, 3] += self._twist[:3] * dt
-        self._T_ref[:3, 3] += self._twist_ref[:3] * dt
-        turns = Rotation.from_rotvec([self._twist[3:] * dt, self._twist_ref[3:] * dt]).as_matrix()
-        self._T[:3, :3] = turns[0] @ self._T[:3, :3]
-        self._T_ref[:3, :3] = turns[1] @ self._T_ref[:3, :3]
+        _filter_step(self._T, self._twist, self._T_ref, self._twist_ref, self._accel_ref,
+                     self.dt, self.natural_frequency, self.damping)
         return self._T.copy(), self._twist.copy()
+
+
+@njit(cache=True)
+def _filter_step(T, twist, T_ref, twist_ref, accel_ref, dt, wn, zeta):
+    """One step of the module docstring's filter, in place on the output ``T``, ``twist`` and
+    the held reference ``T_ref``, ``twist_ref`` (``accel_ref`` constant)."""
+    error = np.empty(6)
+    error[:3] = T_ref[:3, 3] - T[:3, 3]
+    error[3:] = rotvec_of_matrix(np.ascontiguousarray(T_ref[:3, :3])
+                                 @ np.ascontiguousarray(T[:3, :3].T))
+    accel = accel_ref + wn * wn * error + 2.0 * zeta * wn * (twist_ref - twist)
+    twist += accel * dt
+    twist_ref += accel_ref * dt
+    T[:3, 3] += twist[:3] * dt
+    T_ref[:3, 3] += twist_ref[:3] * dt
+    T[:3, :3] = matrix_of_rotvec(twist[3:] * dt) @ np.ascontiguousarray(T[:3, :3])
+    T_ref[:3, :3] = matrix_of_rotvec(twist_ref[3:] * dt) @ np.ascontiguousarray(T_ref[:3, :3])

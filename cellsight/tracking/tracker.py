@@ -314,7 +314,8 @@ class Tracker:
         _shift_by_offsets(rec, ekf)
         with timer("selection"):
             usable = self._usable(context, ekf.t)
-            sel = self.components.selector.select(rec.pixels, usable, self._resolution(track))
+            resolution = _resolution(self.cameras, track)
+            sel = self.components.selector.select(rec.pixels, usable, resolution)
             rec.selection, rec.selected = sel, sel.selected
 
         def covariance(c: int, idx: np.ndarray) -> np.ndarray:
@@ -370,13 +371,6 @@ class Tracker:
         for c in np.flatnonzero(failed.any(axis=1)):
             self.unknown.learn(int(c), t, rec.pixels[c, failed[c]])
 
-    def _resolution(self, track: _Track) -> np.ndarray:
-        """Per camera: pixels per metre at the estimated part's centroid (focal / depth), the
-        selection's weight of each camera."""
-        T = track.ekf.pose
-        return camera_resolution(self.cameras, track.points.mean(axis=0) @ T[:3, :3].T
-                                 + T[:3, 3])
-
     def _acquire(self, context: StepContext) -> PartFrame:
         """A fix at the guess or the last prediction, else from the whole-image search (module
         docstring); the filter starts from it. Returns the record of the windows that gave the
@@ -411,20 +405,12 @@ class Tracker:
         with context.timer("ekf"):
             return self.components.acquisition.fix(obs, self.config.sigma_px)
 
-    def _at(self, context: StepContext, T_base_part: np.ndarray) -> StepContext:
-        """``context`` with a fresh record of the part predicted at ``T_base_part``."""
-        name, C = context.rec.name, len(self.cameras)
-        views = context.look(name, T_base_part)
-        rec = context.track.empty_record(name, context.rec.status, C)
-        rec.set_views(views[name])
-        return replace(context, rec=rec, crowd=_visible_pixels(views, C))
-
     def _verify(self, context: StepContext,
                 fix: PoseFix) -> tuple[StepContext, PoseFix] | None:
         """The fix checked against every feature it predicts (:mod:`.acquisition`): narrow
         windows where it predicts them, and a second fix from what they find; that fix with the
         context of its record, or None when it does not confirm the first."""
-        trial = self._at(context, fix.T_base_part)
+        trial = _looked_at(context, fix.T_base_part, len(self.cameras))
         again = self._fix(trial, self.components.acquisition.verify_window_px)
         if again is None:
             return None
@@ -458,7 +444,7 @@ class Tracker:
             candidates = search.candidates(self.cameras, track.points, track.support,
                                            np.array(centres), corners)
         for candidate in candidates[:search.verify]:
-            trial = self._at(context, candidate.T_base_part)
+            trial = _looked_at(context, candidate.T_base_part, len(self.cameras))
             fix = self._fix(trial, self.components.acquisition.window_px)
             if fix is not None and fix.n_points >= search.min_points:
                 return trial, fix
@@ -494,6 +480,22 @@ class Tracker:
             observations.append(Observation(self._models[c], c, ids, track.points[ids],
                                             cam.undistort(px), float(context.lags[c])))
         return observations
+
+
+def _resolution(cameras: Sequence[Camera], track: _Track) -> np.ndarray:
+    """Per camera: pixels per metre at the estimated part's centroid (focal / depth), the
+    selection's weight of each camera."""
+    T = track.ekf.pose
+    return camera_resolution(cameras, track.points.mean(axis=0) @ T[:3, :3].T + T[:3, 3])
+
+
+def _looked_at(context: StepContext, T_base_part: np.ndarray, n_cameras: int) -> StepContext:
+    """``context`` with a fresh record of the part predicted at ``T_base_part``."""
+    name = context.rec.name
+    views = context.look(name, T_base_part)
+    rec = context.track.empty_record(name, context.rec.status, n_cameras)
+    rec.set_views(views[name])
+    return replace(context, rec=rec, crowd=_visible_pixels(views, n_cameras))
 
 
 def _shift_by_offsets(rec: PartFrame, ekf: PoseEKF) -> None:
