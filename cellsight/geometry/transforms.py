@@ -10,6 +10,8 @@ SciPy's ``"xyz"`` extrinsic sequence); conversions go through :mod:`scipy.spatia
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from scipy.spatial.transform import Rotation
 
@@ -38,8 +40,10 @@ def xyz_rpy_from_pose(T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def rotation_z(angle: float) -> np.ndarray:
-    """Rotation matrix (3x3) by ``angle`` (rad) about the z axis."""
-    return Rotation.from_rotvec([0.0, 0.0, float(angle)]).as_matrix()
+    """Rotation matrix (3x3) by ``angle`` (rad) about the z axis (written out: the world moves
+    the conveyor's part by it at every 500 Hz step, where SciPy's call costs ~20 us)."""
+    c, s = math.cos(angle), math.sin(angle)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
 
 def rotation_angle(R: np.ndarray) -> float:
