@@ -13,9 +13,11 @@ Recursion, per vision frame:
 * update with the accepted features stacked: ``S = C P- C^T + R``, ``K = P- C^T S^-1``,
   ``w = w- + K nu`` and the Joseph form ``P = (I - K C) P- (I - K C)^T + K R K^T``;
   roll and yaw are wrapped to ``[-pi, pi)``;
-* check (beyond the paper): the updated pose must put the accepted features in front of their
-  cameras and reproject them no worse than the prediction did, else the update is refused
-  (:meth:`PoseEKF._fits`): the linearisation, not the features, would have moved it.
+* check (beyond the paper): an update that moves the pose by 1 cm or 0.05 rad or more must put
+  the accepted features in front of their cameras and reproject them no worse than the
+  prediction did, else it is refused (:meth:`PoseEKF._fits`): the linearisation, not the
+  features, would have moved it. Smaller steps are not checked: at a metre or more from the
+  cameras the projection is then linear to a few hundredths of a pixel.
 
 Carried part (optional, beyond the paper: the kinematic prior): while a robot holds the part,
 :meth:`PoseEKF.predict_carried` moves the estimate by the holder's measured motion since the
@@ -48,6 +50,7 @@ from cellsight.tracking.offsets import CameraOffsets, with_offset
 
 MIN_FOR_MEDIAN = 3  # features for a camera's median innovation to stand for its offset
 LONE_SIGMA_PX = 2.0  # widest prediction (px, 1 sigma) a camera of fewer features is gated on
+SMALL_STEP = (0.01, 0.05)  # m, rad: an update's pose change below which it is not checked
 
 
 @dataclass(frozen=True)
@@ -305,11 +308,18 @@ class PoseEKF:
             state, P_new = _joseph_update(self._x, self._P, H, nu, sigma2, accepted)
             for i in (3, 5):  # roll and yaw to [-pi, pi)
                 state[i] = (state[i] + np.pi) % (2 * np.pi) - np.pi
-            if self._fits(observations, state, nu, accepted):
+            if self._small(state) or self._fits(observations, state, nu, accepted):
                 self._x, self._P = state, P_new
             else:
                 report = replace(report, accepted=np.zeros_like(accepted), refused=True)
         return report
+
+    def _small(self, state: np.ndarray) -> bool:
+        """Whether the update moves the pose less than ``SMALL_STEP`` (m, rad): where the
+        projection is that close to linear, :meth:`_fits` need not look (it costs as much as
+        the update)."""
+        step = np.abs(state[:POSE_DIM] - self._x[:POSE_DIM])
+        return bool(np.all(step[:3] < SMALL_STEP[0]) and np.all(step[3:] < SMALL_STEP[1]))
 
     def _fits(self, observations: list[Observation], state: np.ndarray, nu: np.ndarray,
               accepted: np.ndarray) -> bool:
