@@ -20,8 +20,9 @@ right one) fit a pose far from the part's within the RMS limit. In the ``harsh``
 it, nine acquisitions in ten from fewer than ten points were more than 20 mm off (the most
 from four points: 0.3 m median), and one threw the filter out of the cell at its first update.
 Where such a pose predicts the part's other features, narrow windows find nothing, or corners
-that pose does not fit: a right fix is confirmed by most of what one camera looks for (64 % or
-more in a ``harsh`` run), a wrong one by at most 57 %.
+that pose does not fit. With the verification, 6 of 74 acquisitions in 15 ``harsh`` runs were
+more than 20 mm off, against 24 of 99 before; what it cannot tell is a pose every feature of
+which lies on a neighbour's corner.
 
 With ``camera_offsets`` (the tracker estimates each camera's calibration error as an image
 offset, :mod:`.offsets`), a fix whose RMS is too large is tried once more with each camera's

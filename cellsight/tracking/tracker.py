@@ -408,9 +408,12 @@ class Tracker:
     def _verify(self, context: StepContext,
                 fix: PoseFix) -> tuple[StepContext, PoseFix] | None:
         """The fix checked against every feature it predicts (:mod:`.acquisition`): narrow
-        windows where it predicts them, and a second fix from what they find; that fix with the
-        context of its record, or None when it does not confirm the first."""
+        windows where it predicts them (moved by the cameras' offsets it estimated, if any), and
+        a second fix from what they find; that fix with the context of its record, or None when
+        it does not confirm the first."""
         trial = _looked_at(context, fix.T_base_part, len(self.cameras))
+        for c, shift in (fix.offsets_px or {}).items():  # where each camera shows the part
+            trial.rec.pixels[c] += shift
         again = self._fix(trial, self.components.acquisition.verify_window_px)
         if again is None:
             return None
