@@ -16,21 +16,24 @@ from cellsight.runfolder.wrong_corners import wrong_corner_spans
 
 
 @pytest.fixture(scope="module")
-def lab_run(tmp_path_factory) -> Path:
+def wrong_run(tmp_path_factory) -> Path:
+    """One second of experiment 3 in the `harsh` world, which measures a wrong corner (JPEG,
+    noise); a second of `lab` measured three, in the acquisition's wide first look, until the
+    log came to show the narrow windows that verify a fix instead."""
     out = tmp_path_factory.mktemp("diagnose") / "run"
-    assert main(["run", "3", "--realism", "lab", "--duration", "1", "--out", str(out),
+    assert main(["run", "3", "--realism", "harsh", "--duration", "1", "--out", str(out),
                  "--quiet"]) == 0
     return out
 
 
-def test_spans_count_every_wrong_corner_and_what_the_gate_did(lab_run):
-    metrics = json.loads((lab_run / "metrics.json").read_text())
-    spans = wrong_corner_spans(lab_run)
+def test_spans_count_every_wrong_corner_and_what_the_gate_did(wrong_run):
+    metrics = json.loads((wrong_run / "metrics.json").read_text())
+    spans = wrong_corner_spans(wrong_run)
     assert metrics["wrong_measurements"] > 0
     assert sum(s.frames for s in spans) == metrics["wrong_measurements"]
     assert sum(s.accepted for s in spans) == metrics["wrong_accepted"]
     # the same wrong corners, counted straight from the log
-    with (lab_run / "frames.csv").open() as f:
+    with (wrong_run / "frames.csv").open() as f:
         rows = list(csv.DictReader(f))
     for c in (1, 2):
         wrong = sum(r[f"wrong_c{c}"].count("1") for r in rows)
@@ -43,22 +46,22 @@ def test_spans_count_every_wrong_corner_and_what_the_gate_did(lab_run):
     assert all(s.truth and s.predicted and s.phase for s in spans)
 
 
-def test_the_command_names_cameras_and_features(lab_run, capsys):
-    assert main(["diagnose", str(lab_run), "--json"]) == 0
+def test_the_command_names_cameras_and_features(wrong_run, capsys):
+    assert main(["diagnose", str(wrong_run), "--json"]) == 0
     listed = json.loads(capsys.readouterr().out)
     assert listed and {s["camera"] for s in listed} <= {"cam1", "cam2"}
     assert all(s["feature"].startswith("f") and s["feature"] != "f0" for s in listed)
-    assert main(["diagnose", str(lab_run)]) == 0
+    assert main(["diagnose", str(wrong_run)]) == 0
     assert "accepted by the gate" in capsys.readouterr().out
-    assert main(["diagnose", str(lab_run / "nothing")]) == 2
+    assert main(["diagnose", str(wrong_run / "nothing")]) == 2
 
 
-def test_the_report_shows_the_worst_accepted_wrong_corners(lab_run):
-    accepted = [s for s in wrong_corner_spans(lab_run) if s.accepted]
-    report = (lab_run / "report.html").read_text()
+def test_the_report_shows_the_worst_accepted_wrong_corners(wrong_run):
+    accepted = [s for s in wrong_corner_spans(wrong_run) if s.accepted]
+    report = (wrong_run / "report.html").read_text()
     assert "<h2>Wrong corners</h2>" in report
     for i in range(1, min(len(accepted), 4) + 1):
-        picture = cv2.imread(str(lab_run / f"fig_wrong_corner_{i}.png"))
+        picture = cv2.imread(str(wrong_run / f"fig_wrong_corner_{i}.png"))
         assert picture is not None and picture.shape == (192, 192, 3)
         assert f'src="fig_wrong_corner_{i}.png"' in report
         # the green cross at the crop's true projection
