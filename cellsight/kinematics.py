@@ -186,15 +186,9 @@ class DHChain:
     def link_transforms(self, q) -> np.ndarray:
         """The n DH matrices ``A_i(q_i)``, shape (n, 4, 4)."""
         q = self.check_q(q)
-        theta = self._theta + np.where(self._prismatic, 0.0, q)
-        d = self._d + np.where(self._prismatic, q, 0.0)
-        ct, st = np.cos(theta), np.sin(theta)
-        ca, sa = np.cos(self._alpha), np.sin(self._alpha)
         A = np.zeros((self.n, 4, 4))
-        A[:, 0, 0], A[:, 0, 1], A[:, 0, 2], A[:, 0, 3] = ct, -st * ca, st * sa, self._a * ct
-        A[:, 1, 0], A[:, 1, 1], A[:, 1, 2], A[:, 1, 3] = st, ct * ca, -ct * sa, self._a * st
-        A[:, 2, 1], A[:, 2, 2], A[:, 2, 3] = sa, ca, d
-        A[:, 3, 3] = 1.0
+        for i in range(self.n):
+            _dh_matrix(self._a, self._alpha, self._d, self._theta, self._prismatic, q, i, A[i])
         return A
 
     def fkine(self, q) -> np.ndarray:
@@ -237,28 +231,43 @@ class DHChain:
 
 
 @njit(cache=True)
+def _dh_matrix(a: np.ndarray, alpha: np.ndarray, d: np.ndarray, theta: np.ndarray,
+               prismatic: np.ndarray, q: np.ndarray, i: int, A: np.ndarray) -> None:
+    """Link ``i``'s DH matrix ``A_i(q[i])`` (standard DH: ``Rz(theta) Tz(d) Tx(a) Rx(alpha)``,
+    the joint adding to ``theta`` or, prismatic, to ``d``) into ``A`` (4, 4, zero below the
+    rotation but for ``A[3, 3] = 1``)."""
+    th = theta[i] + (0.0 if prismatic[i] else q[i])
+    di = d[i] + (q[i] if prismatic[i] else 0.0)
+    ct, st, ca, sa = np.cos(th), np.sin(th), np.cos(alpha[i]), np.sin(alpha[i])
+    A[0, 0], A[0, 1], A[0, 2], A[0, 3] = ct, -st * ca, st * sa, a[i] * ct
+    A[1, 0], A[1, 1], A[1, 2], A[1, 3] = st, ct * ca, -ct * sa, a[i] * st
+    A[2, 0], A[2, 1], A[2, 2], A[2, 3] = 0.0, sa, ca, di
+    A[3, 0], A[3, 1], A[3, 2], A[3, 3] = 0.0, 0.0, 0.0, 1.0
+
+
+@njit(cache=True)
+def _mul4(X: np.ndarray, Y: np.ndarray, out: np.ndarray) -> None:
+    """``out = X @ Y`` for 4x4 matrices, written out (``out`` distinct from both)."""
+    for r in range(4):
+        for col in range(4):
+            acc = 0.0
+            for k in range(4):
+                acc += X[r, k] * Y[k, col]
+            out[r, col] = acc
+
+
+@njit(cache=True)
 def dh_fkine_kernel(a: np.ndarray, alpha: np.ndarray, d: np.ndarray, theta: np.ndarray,
                     prismatic: np.ndarray, q: np.ndarray, out: np.ndarray) -> None:
     """Frames 0..n of a :class:`DHChain` into ``out`` (n+1, 4, 4): ``out[0] = I``,
-    ``out[i+1] = out[i] @ A_i(q[i])`` (the matrices of :meth:`DHChain.link_transforms`)."""
-    A = np.zeros((4, 4))
-    A[3, 3] = 1.0
+    ``out[i+1] = out[i] @ A_i(q[i])`` (:func:`_dh_matrix`)."""
+    A = np.empty((4, 4))
     out[0] = 0.0
     for k in range(4):
         out[0, k, k] = 1.0
     for i in range(q.shape[0]):
-        th = theta[i] + (0.0 if prismatic[i] else q[i])
-        di = d[i] + (q[i] if prismatic[i] else 0.0)
-        ct, st, ca, sa = np.cos(th), np.sin(th), np.cos(alpha[i]), np.sin(alpha[i])
-        A[0, 0], A[0, 1], A[0, 2], A[0, 3] = ct, -st * ca, st * sa, a[i] * ct
-        A[1, 0], A[1, 1], A[1, 2], A[1, 3] = st, ct * ca, -ct * sa, a[i] * st
-        A[2, 1], A[2, 2], A[2, 3] = sa, ca, di
-        for r in range(4):
-            for col in range(4):
-                acc = 0.0
-                for k in range(4):
-                    acc += out[i, r, k] * A[k, col]
-                out[i + 1, r, col] = acc
+        _dh_matrix(a, alpha, d, theta, prismatic, q, i, A)
+        _mul4(out[i], A, out[i + 1])
 
 
 @njit(cache=True)
@@ -286,18 +295,8 @@ def serial_fkine_kernel(origins: np.ndarray, axes: np.ndarray, prismatic: np.nda
             M[0, 0], M[0, 1], M[0, 2] = c + x * x * v, x * y * v - z * s, x * z * v + y * s
             M[1, 0], M[1, 1], M[1, 2] = y * x * v + z * s, c + y * y * v, y * z * v - x * s
             M[2, 0], M[2, 1], M[2, 2] = z * x * v - y * s, z * y * v + x * s, c + z * z * v
-        for r in range(4):  # A = origins[i] @ M
-            for col in range(4):
-                acc = 0.0
-                for k in range(4):
-                    acc += origins[i, r, k] * M[k, col]
-                A[r, col] = acc
-        for r in range(4):  # out[i+1] = out[i] @ A
-            for col in range(4):
-                acc = 0.0
-                for k in range(4):
-                    acc += out[i, r, k] * A[k, col]
-                out[i + 1, r, col] = acc
+        _mul4(origins[i], M, A)
+        _mul4(out[i], A, out[i + 1])
 
 
 class SerialChain:
