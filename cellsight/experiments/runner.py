@@ -69,6 +69,7 @@ from cellsight.experiments.plant import SimulatedCell
 from cellsight.experiments.rows import FrameRows, FrameTruth, PartTruth
 from cellsight.experiments.scenario import Scenario, scenario
 from cellsight.experiments.sensors import IdealExtractor
+from cellsight.experiments.views_video import ViewsVideo
 from cellsight.export.live import LiveStream, parse_address
 from cellsight.export.mcap_run import check_jpeg, check_output
 from cellsight.model.cell import Cell
@@ -78,7 +79,6 @@ from cellsight.rates import VISION_HZ
 from cellsight.realism import FrameClock, Profile, draw_world
 from cellsight.recording.recorder import Recorder
 from cellsight.report.run_report import write_report
-from cellsight.report.video import VideoWriter
 from cellsight.runfolder import (
     FrameLog,
     FrameWriter,
@@ -97,7 +97,6 @@ from cellsight.tracking.records import PartFrame
 from cellsight.tracking.setup import build_tracker
 from cellsight.world import World
 from cellsight.world.grasp import grasp_opening
-from cellsight.world.shots import Shot
 
 log = logging.getLogger(__name__)
 
@@ -312,7 +311,8 @@ class ExperimentRun:
             live = self.live = LiveStream(self.cell, self.part.name, *parse_address(cfg.live))
         video = None
         if cfg.sensor == "rendered" and cfg.video_every > 0:
-            video = VideoWriter(self.out / "views.mp4", fps=VISION_HZ / cfg.video_every)
+            video = ViewsVideo(self.out / "views.mp4", VISION_HZ / cfg.video_every,
+                               self.cell.cameras, self.part.name)
         with self.writes.guard(self.out / "keyframes"):
             keys = KeyFrames(self.out, [c.name for c in self.cell.cameras], self.robot.name,
                              self.crossing)
@@ -351,7 +351,7 @@ class ExperimentRun:
         log.error("failed at t = %.2f s: %s", t, error)
         return {"interrupted": False, "error": error[:1000]}
 
-    def _loop(self, writer: FrameWriter, video: VideoWriter | None, keys: KeyFrames) -> None:
+    def _loop(self, writer: FrameWriter, video: ViewsVideo | None, keys: KeyFrames) -> None:
         """Vision frames at ``VISION_HZ`` (on the control grid), control steps between them,
         until ``duration`` (or ``max_duration``), or ``tail_s`` after the task ends."""
         cfg, task = self.config, self.task
@@ -383,7 +383,7 @@ class ExperimentRun:
             world.step({name: q}, {name: opening})
             self.grasp.after_control_step(world.time)
 
-    def _vision_frame(self, k: int, t: float, writer: FrameWriter, video: VideoWriter | None,
+    def _vision_frame(self, k: int, t: float, writer: FrameWriter, video: ViewsVideo | None,
                       keys: KeyFrames) -> None:
         """Frame ``k`` at time ``t`` (s): track, plan, log, picture."""
         world, name = self.world, self.robot.name
@@ -420,20 +420,20 @@ class ExperimentRun:
         with self.writes.guard(writer.path):
             writer.write(self.rows.row(t, phase, self.task.stage, frame, rec, truth, pnp))
 
-        def draw(caption: str, scale: float = 1.0) -> np.ndarray:
+        def shown() -> list:
             complete = self.ideal is None and all(i is not None for i in observed)
-            shown = observed if complete else world.render(on_demand=True)
-            shown = [o.preview(scale) if isinstance(o, Shot) and scale < 1 else grabbed(o)
-                     for o in shown]
-            return draw_frame(shown, frame, self.part.name, truth.part.visible,
-                              self.cell.cameras, caption, scale)
+            return observed if complete else world.render(on_demand=True)
+
+        def draw(caption: str) -> np.ndarray:
+            return draw_frame([grabbed(o) for o in shown()], frame, self.part.name,
+                              truth.part.visible, self.cell.cameras, caption, 1.0)
 
         with suppress(WriteError), self.writes.guard(self.out / "keyframes.json"):
             keys.offer_frame(t, phase, rec, draw)  # recorded; the run goes on without it
         if video is not None and k % self.config.video_every == 0:
-            picture = draw(f"t = {t:5.2f} s   {phase}   tracker: {rec.status_text}", 0.5)
             with self.writes.guard(video.path):
-                video.add(picture)
+                video.add(shown(), frame, truth.part.visible,
+                          f"t = {t:5.2f} s   {phase}   tracker: {rec.status_text}")
 
     def _grab(self, dropped: bool, truth: PartTruth) -> list:
         """What the sensors take this frame, one entry per camera, each as it was exposed

@@ -20,6 +20,7 @@ image its distortion maps read.
 from __future__ import annotations
 
 import os
+import threading
 from collections.abc import Sequence
 
 import cv2
@@ -29,19 +30,23 @@ import numpy as np
 from cellsight.camera import Camera
 
 TILES = (128, 256, 384)  # px: sides of the square framebuffers that regions are rendered into
+_MAKING = threading.Lock()  # held while a context is made from the model's settings, changed
 
 
 class GrayRenderer:
     """Renders every cell camera of a MuJoCo model as (H, W) uint8 grayscale images, whole
-    or by region."""
+    or by region. ``samples``: multisampling of its framebuffers (default: the model's
+    ``offsamples``, 4 for a cell: anti-aliased edges)."""
 
-    def __init__(self, model, cameras: list[Camera], size: tuple[int, int] | None = None) -> None:
-        self._model = model
+    def __init__(self, model, cameras: list[Camera], size: tuple[int, int] | None = None,
+                 samples: int | None = None) -> None:
+        self._model, self._cameras, self._size = model, list(cameras), size
+        self._samples = model.vis.quality.offsamples if samples is None else int(samples)
         self._names = [c.name for c in cameras]
         self._sizes = [size or (c.width, c.height) for c in cameras]
         self._maps = [c.distortion_maps(s) for c, s in zip(cameras, self._sizes, strict=True)]
         try:
-            self._renderers = {s: mujoco.Renderer(model, s[1], s[0]) for s in set(self._sizes)}
+            self._renderers = {s: self._context(*s) for s in set(self._sizes)}
         except Exception as exc:
             raise RuntimeError(
                 f"offscreen rendering failed with MUJOCO_GL={os.environ.get('MUJOCO_GL')!r}: "
@@ -50,6 +55,13 @@ class GrayRenderer:
             ) from exc
         self._rgb = {s: np.empty((s[1], s[0], 3), np.uint8) for s in self._renderers}
         self._tiles: dict[int, mujoco.Renderer] = {}
+
+    def twin(self, samples: int | None = None) -> GrayRenderer:
+        """A renderer of the same model, cameras and sizes (and multisampling, unless
+        ``samples`` is given), with OpenGL contexts of its own, current in the thread that
+        makes it: for another thread, which must also close it."""
+        return GrayRenderer(self._model, self._cameras, self._size,
+                            self._samples if samples is None else samples)
 
     def size(self, camera: int) -> tuple[int, int]:
         """(width, height) px of camera ``camera``'s rendered images."""
@@ -145,17 +157,28 @@ class GrayRenderer:
         return out
 
     def _tile_renderer(self, side: int) -> mujoco.Renderer:
-        """The renderer whose framebuffer is a ``side`` px square (made on first use: a
-        framebuffer's size is the model's ``offwidth`` x ``offheight`` when it is made)."""
+        """The renderer whose framebuffer is a ``side`` px square (made on first use)."""
         if side not in self._tiles:
-            glob = self._model.vis.global_
-            shape = glob.offwidth, glob.offheight
-            glob.offwidth = glob.offheight = side
-            try:
-                self._tiles[side] = mujoco.Renderer(self._model, side, side)
-            finally:
-                glob.offwidth, glob.offheight = shape
+            self._tiles[side] = self._context(side, side, framebuffer=(side, side))
         return self._tiles[side]
+
+    def _context(self, width: int, height: int,
+                 framebuffer: tuple[int, int] | None = None) -> mujoco.Renderer:
+        """A renderer of ``width`` x ``height`` px images with this renderer's multisampling,
+        its framebuffer ``framebuffer`` (width, height) px (default: the model's): a
+        framebuffer's size and samples are the model's ``offwidth``, ``offheight`` and
+        ``offsamples`` when it is made, set for the moment (under a lock: another thread may be
+        making one of its own)."""
+        glob, quality = self._model.vis.global_, self._model.vis.quality
+        with _MAKING:
+            kept = glob.offwidth, glob.offheight, quality.offsamples
+            if framebuffer is not None:
+                glob.offwidth, glob.offheight = framebuffer
+            quality.offsamples = self._samples
+            try:
+                return mujoco.Renderer(self._model, height, width)
+            finally:
+                glob.offwidth, glob.offheight, quality.offsamples = kept
 
     def close(self) -> None:
         for renderer in [*self._renderers.values(), *self._tiles.values()]:

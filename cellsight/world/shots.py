@@ -37,6 +37,12 @@ class Shot:
         self.shape = (height, width)
         self._whole: np.ndarray | None = None
 
+    @property
+    def renderer(self) -> GrayRenderer:
+        """The renderer the shot renders with (its OpenGL contexts belong to the thread that
+        made it)."""
+        return self._renderer
+
     def whole(self) -> np.ndarray:
         """(H, W) uint8: the whole image (rendered once)."""
         if self._whole is None:
@@ -46,14 +52,17 @@ class Shot:
                 image, self.t, self.offset)
         return self._whole
 
-    def preview(self, scale: float) -> np.ndarray:
+    def preview(self, scale: float, renderer: GrayRenderer | None = None) -> np.ndarray:
         """(H, W) uint8: the whole image for a picture (a video frame), rendered at ``scale``
         of the resolution (:meth:`GrayRenderer.render_preview
         <cellsight.world.render.GrayRenderer.render_preview>`) with the exposure's effects;
-        the whole image itself once it has been rendered."""
+        the whole image itself once it has been rendered. ``renderer``: another thread's twin
+        of the shot's renderer (:meth:`GrayRenderer.twin
+        <cellsight.world.render.GrayRenderer.twin>`), to render with there."""
         if self._whole is not None:
             return self._whole
-        image = self._renderer.render_preview(self._fields[-1][-1], self.camera, scale)
+        image = (renderer or self._renderer).render_preview(self._fields[-1][-1], self.camera,
+                                                            scale)
         return image if self._imager is None else self._imager.whole(image, self.t, self.offset)
 
     def grab(self, boxes: Sequence[Sequence[int]]) -> np.ndarray:
