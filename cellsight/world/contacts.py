@@ -72,18 +72,23 @@ class ContactMonitor:
             self._part.append(obj is not None and obj.kind == "workpiece")
         self._tool_robots = [r.name for r in cell.robots if r.tool is not None]
         robots = {r.name: i for i, r in enumerate(cell.robots)}
-        self._robot_of = np.array([robots.get(r, -1) for r in self._robot])  # -1: no robot
+        robot_of = np.array([robots.get(r, -1) for r in self._robot])  # -1: no robot
+        lower, upper = robot_of[:, None], robot_of[None, :]
+        # [g1, g2] with g1 < g2: the pair may count (not two solids of one robot, not a mount)
+        self._counts = (lower != upper) | (lower < 0)
         self._open: dict[tuple[str, str], Collision] = {}
         self._apart_since: dict[tuple[str, str], float] = {}  # open episodes not in contact
         self.collisions: list[Collision] = []
-        self._mounts = {pair for pair, _ in self._geom_pairs(0.0)}
+        for (g1, g2), _ in self._geom_pairs(0.0):
+            self._counts[g1, g2] = False
 
     def check(self, t: float) -> None:
         """Record the contacts at time ``t`` (s) into :attr:`collisions`."""
-        held = {robot: self._grasps(robot) for robot in self._tool_robots}
+        pairs = self._geom_pairs(self.depth_m)
+        held = {robot: self._grasps(robot) for robot in self._tool_robots} if pairs else {}
         now: dict[tuple[str, str], float] = {}
-        for key, depth in self._geom_pairs(self.depth_m):
-            if key in self._mounts or self._is_grasp(*key, held):
+        for key, depth in pairs:
+            if self._is_grasp(*key, held):
                 continue
             names = self._names(key)
             now[names] = max(depth, now.get(names, 0.0))
@@ -101,17 +106,21 @@ class ContactMonitor:
 
     def _geom_pairs(self, depth: float) -> list[tuple[tuple[int, int], float]]:
         """((geom, geom) in increasing order, overlap m) of every contact deeper than ``depth``
-        (m) between geoms of different robots (or of no robot)."""
+        (m) between geoms of different robots (or of no robot), mounts left out once known."""
         self.scene.sync()
         model, data = self.scene.model, self.scene.data
         mujoco.mj_collision(model, data)
         contacts = data.contact
-        deep = np.flatnonzero(-contacts.dist > depth)
+        dist = contacts.dist
+        deep = np.flatnonzero(-dist > depth)
+        if not deep.size:
+            return []
         geoms = np.sort(contacts.geom[deep], axis=1)
-        robot = self._robot_of[geoms]
-        keep = (robot[:, 0] != robot[:, 1]) | (robot[:, 0] < 0)
+        keep = self._counts[geoms[:, 0], geoms[:, 1]]
+        if not keep.any():
+            return []
         return [((int(a), int(b)), -float(d)) for (a, b), d in
-                zip(geoms[keep], contacts.dist[deep][keep], strict=True)]
+                zip(geoms[keep], dist[deep][keep], strict=True)]
 
     def _is_grasp(self, g1: int, g2: int, held: dict[str, str | None]) -> bool:
         if (self._jaw[g1] and self._part[g2]) or (self._jaw[g2] and self._part[g1]):

@@ -162,11 +162,12 @@ class RobotJoints:
     def measured(self, rng: np.random.Generator) -> dict[str, np.ndarray]:
         """What the encoders read: the true values plus their offsets, rounded to their
         resolution, plus their Gaussian noise (drawn from ``rng``)."""
-        out = {}
-        for name, q in self.true().items():
-            q = q + self._offset[name]
+        qpos, out = self.scene.data.qpos, {}
+        for name, adr in self._qadr.items():
+            q = qpos[adr] + self._offset[name]
             step = self._quantum[name]
-            q = np.where(step > 0, np.round(q / np.where(step > 0, step, 1.0)) * step, q)
+            if step.any():
+                q = np.where(step > 0, np.round(q / np.where(step > 0, step, 1.0)) * step, q)
             out[name] = q + rng.normal(0.0, self._noise[name], q.shape)
         return out
 
