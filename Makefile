@@ -37,7 +37,8 @@ demo: venv
 # rendered, 20 seeds, occlusion prediction on and off paired on the same seeds, in the `lab`
 # world and in the `harsh` world; `lab` without its cameras' errors, 20 seeds; camera offsets
 # estimated in `harsh` and with `harsh`'s cameras alone, and in `exact` and `lab`, paired with
-# the plain tracker; the paper's per-frame BSP on 5 seeds; the fault table: each knob group of
+# the plain tracker; the paper's per-frame BSP against the per-object hierarchies, experiment 3,
+# 20 seeds (the later --experiments wins); the fault table: each knob group of
 # `harsh` alone, 5 seeds, prediction on and off.
 SEEDS20 := 0 1 2 3 4 5 6 7 8 9 10 11 12 13 14 15 16 17 18 19
 SWEEP   := .venv/bin/cellsight sweep --experiments 1 2 3 --sensors rendered --jobs 2
@@ -51,7 +52,7 @@ experiments: venv
 	$(SWEEP) --out out/offsets-lab --realism exact lab --variants offsets pred --seeds 0 1
 	$(SWEEP) --out out/lab-offsets --realism lab --variants offsets pred --seeds $(SEEDS20)
 	$(SWEEP) --out out/structures --realism lab --structure object-bvh frame-bsp \
-		--seeds 0 1 2 3 4
+		--experiments 3 --seeds $(SEEDS20)
 	$(SWEEP) --out out/faults --seeds 0 1 2 3 4 --variants pred nopred \
 		--realism harsh/cameras harsh/robots harsh/servo harsh/geometry harsh/unmodelled \
 		harsh/images harsh/timing harsh/scenario

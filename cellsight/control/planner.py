@@ -165,6 +165,12 @@ class TrajectoryPlanner:
         self._T_part_tcp_chosen = self.T_part_tcp
         self._segment: _Segment | None = None
 
+    @property
+    def chosen_grasp(self) -> np.ndarray:
+        """``T_part_tcp`` of the grasp the last segment towards the part chose (of the two
+        symmetric ones; ``T_part_tcp`` before any): how a gripper that closed holds the part."""
+        return self._T_part_tcp_chosen.copy()
+
     def grasp_pose(self, T_base_part: np.ndarray, T_near: np.ndarray) -> np.ndarray:
         """Grasp pose of the TCP (base frame) for a part pose: of the two symmetric grasps, the
         one whose orientation is nearer to ``T_near``."""

@@ -72,6 +72,7 @@ from cellsight.experiments.sensors import IdealExtractor
 from cellsight.experiments.views_video import ViewsVideo
 from cellsight.export.live import LiveStream, parse_address
 from cellsight.export.mcap_run import check_jpeg, check_output
+from cellsight.geometry.transforms import invert_pose
 from cellsight.model.cell import Cell
 from cellsight.model.loader import load_cell
 from cellsight.occlusion.predictor import OBJECT_BVH, STRUCTURES
@@ -110,7 +111,8 @@ class RunConfig:
     sensor, per coordinate (0.2 px: the rendered sensor's corners lie a median 0.245 px from
     the true projection on the built-in cell, i.e. 0.21 px per coordinate).
     ``kinematic_prior``: while the jaws are closed on the part, the tracker predicts it by the
-    gripper's motion measured from the joints (``holders`` of :meth:`Tracker.step`).
+    gripper's motion measured from the joints, and starts it where the gripper holds it (the
+    grasp the task chose) when it is not tracked (``holders`` of :meth:`Tracker.step`).
     ``unknown_occluders``: the tracker learns where objects the cell file does not know hide
     the part (:mod:`cellsight.tracking.unknown`), and a coasting track resumes only on three
     features passing the gate together. ``camera_offsets_px``: the prior (px) of each camera's
@@ -395,7 +397,8 @@ class ExperimentRun:
         observed = self._grab(dropped, truth.part)
         holders = None
         if self.config.kinematic_prior and world.jaws_closed_on_part(name):
-            holders = {self.part.name: self.robot.tcp_pose(joints[name])}
+            holders = {self.part.name: self.robot.tcp_pose(joints[name])
+                       @ invert_pose(self.task.planner.chosen_grasp)}
         frame = self.tracker.step(observed, joints, t, openings, holders,
                                   None if dropped else self.exposures.stamps)
         rec = frame.parts[self.part.name]

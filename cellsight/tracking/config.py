@@ -83,7 +83,8 @@ class TrackerConfig:
     applies too; 3 goes with the unknown-occluder map); ``camera_offsets_px``: the prior (px per
     axis) of each camera's image offset, its calibration error as the filter estimates it
     (0: not estimated; :mod:`.offsets`), with a random walk of ``camera_offsets_walk_px``
-    (px/sqrt(s)).
+    (px/sqrt(s)); ``held_std``: one sigma (m, rad) of where a holder puts a part (the grasp's
+    seat, the joints' errors), with which a held part that is not tracked starts there.
     """
 
     sigma_px: float = 0.5
@@ -93,3 +94,4 @@ class TrackerConfig:
     resume_support: int = 1
     camera_offsets_px: float = 0.0
     camera_offsets_walk_px: float = 0.0
+    held_std: tuple[float, float] = (0.01, 0.05)

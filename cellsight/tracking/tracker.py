@@ -10,7 +10,9 @@ protocol of :mod:`.interfaces` with its default in its own module):
    predicts, at the predicted poses, which features each camera sees; every tracked part is
    passed, so parts can hide each other;
 3. per part: a part not tracked yet, or lost, is acquired (:mod:`.acquisition`: windows at
-   the guess or the last prediction; failing that, at most every ``search.every_s``, the
+   the guess or the last prediction, or where it was let go by a gripper; a part that a
+   gripper holds starts where the gripper holds it, ``holders`` of :meth:`Tracker.step`;
+   failing that, at most every ``search.every_s``, the
    whole-image search over its support plane, :mod:`.search`, each candidate tried with the
    same windows and PnP; a fix stands only when narrow windows where it predicts the part's
    features confirm it); otherwise
@@ -68,10 +70,12 @@ class _Track:
     """One workpiece's track: feature points (F, 3) in the part frame, the acquisition guess
     (also the ``support`` pose of the whole-image search), the near-occluder hold, the health
     monitor, the filter, the last accepted measurement's time (s), the holder's pose last
-    frame, whether the last tracked frame accepted no measurement (``coasted``), the last time
-    (s) enough were accepted to confirm the estimate for the unknown-occluder map
-    (``confirmed``), since when its features were looked for in vain (``unseen_since``, s;
-    :mod:`.loss`) and when it was last searched for in the whole images (``searched``, s)."""
+    frame, where a gripper holds the part or last held it since the filter last accepted a
+    measurement (``held_at``, ``T_base_part``), whether the last tracked frame accepted no
+    measurement (``coasted``), the last time (s) enough were accepted to confirm the estimate
+    for the unknown-occluder map (``confirmed``), since when its features were looked for in
+    vain (``unseen_since``, s; :mod:`.loss`) and when it was last searched for in the whole
+    images (``searched``, s)."""
 
     points: np.ndarray
     guess: np.ndarray | None
@@ -83,6 +87,8 @@ class _Track:
     last_update: float = -np.inf
     lost: bool = False
     holder: np.ndarray | None = None
+    held_at: np.ndarray | None = None
+    held: bool = False
     coasted: bool = False
     confirmed: float = -np.inf
     unseen_since: float = np.inf
@@ -220,6 +226,7 @@ class Tracker:
         track.lost = False
         track.coasted = False
         track.unseen_since = np.inf
+        track.held_at = None
         track.monitor.reset()
 
     def step(
@@ -238,10 +245,12 @@ class Tracker:
         each passed to the extractor: an image for the corner extractor, or whatever the
         extractor measures; ``joints``: robot name -> joint vector (m, rad) and ``openings``:
         robot name -> jaw opening (m), for the visibility source; ``holders`` (the kinematic
-        prior, optional): part name -> measured pose ``T_base_holder`` of what holds the part
-        rigidly this frame (a gripper's TCP from the joint measurements); a part held at this
-        frame and the last one is predicted by the holder's motion
-        (:meth:`PoseEKF.predict_carried`) instead of its motion model; ``stamps`` (optional):
+        prior, optional): part name -> ``T_base_part`` where what holds the part rigidly this
+        frame puts it (a gripper closed on it: its TCP from the joint measurements times the
+        grasp's ``T_tcp_part``); a part held at this frame and the last one is predicted by
+        the holder's motion (:meth:`PoseEKF.predict_carried`) instead of its motion model; a
+        held part not tracked, or lost, starts there (``TrackerConfig.held_std``), and one let
+        go while not tracked is looked for where it was let go; ``stamps`` (optional):
         each camera's exposure time (s, at most ``t``; a sequence in camera order or a mapping
         by camera name, None for ``t``), for cameras not triggered together: the filter is
         predicted to ``t`` and each camera measures the pose of its own exposure
@@ -273,7 +282,8 @@ class Tracker:
 
     def _predict(self, t: float, holders: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
         """Predict every tracked part to time ``t``; the pose each is looked for at (the
-        prediction, or the acquisition guess of a part never acquired)."""
+        prediction, or the acquisition guess of a part never acquired; for a part to be
+        acquired that a holder holds or let go, where it holds it or let it go)."""
         poses = {}
         loss = self.components.loss
         for name, track in self.tracks.items():
@@ -288,6 +298,11 @@ class Tracker:
                 poses[name] = track.ekf.pose
             elif track.guess is not None:
                 poses[name] = track.guess
+            track.held = holder is not None
+            if track.held:
+                track.held_at = np.asarray(holder, dtype=float)
+            if track.acquiring and track.held_at is not None:
+                poses[name] = track.held_at
             track.holder = None if holder is None else np.asarray(holder, dtype=float)
         return poses
 
@@ -346,6 +361,7 @@ class Tracker:
             track.unseen_since = min(track.unseen_since, context.t) if in_vain else np.inf
         if report.n_accepted:
             track.last_update = ekf.t
+            track.held_at = None  # the filter knows where it is
             rec.status = TrackStatus.DEGRADED if rec.health.reasons else TrackStatus.TRACKING
         _record_estimate(rec, ekf)
         _check_cameras(self.camera_check, self.extractor, self.cameras, context, looked,
@@ -376,6 +392,13 @@ class Tracker:
         docstring); the filter starts from it. Returns the record of the windows that gave the
         fix (or of the guess's, when there is none)."""
         track, acquisition = context.track, self.components.acquisition
+        if track.held:  # held, not tracked: it is where the gripper holds it
+            rec = context.rec
+            self.initialise(rec.name, track.held_at, context.t, acquisition.covariance(
+                np.diag(np.square(self.config.held_std)[[0, 0, 0, 1, 1, 1]])))
+            rec.status = TrackStatus.ACQUIRED
+            _record_estimate(rec, track.ekf)
+            return rec
         fix = self._fix(context, acquisition.window_px)
         if fix is None and (found := self._search(context)) is not None:
             context, fix = found
