@@ -11,9 +11,10 @@ tracks on the first.
 
 The thread has its own OpenGL renderer (:meth:`GrayRenderer.twin
 <cellsight.world.render.GrayRenderer.twin>`: a context is current in one thread), made and
-freed on it. What it reads is not changed after it is handed over: a shot holds copies of the
-simulation's state, a frame's records are the tracker's of that frame. The video is the one
-the run's own thread would have drawn, frame for frame. At most ``depth`` frames wait; the
+freed on it, without multisampling: two threads rendering at once slow each other, and the
+tracker's renders keep theirs. What it reads is not changed after it is handed over: a shot
+holds copies of the simulation's state, a frame's records are the tracker's of that frame;
+the video is drawn from what each frame handed over, in order. At most ``depth`` frames wait; the
 run waits when the thread lags further behind. A failure on the thread (ffmpeg gone, a full
 disk) is raised by the next :meth:`ViewsVideo.add` or by :meth:`ViewsVideo.close`, as the run's
 own thread would have raised it.

@@ -69,13 +69,13 @@ must avoid), and each part's (first row, its visible feature indices) in them.""
 class _Track:
     """One workpiece's track: feature points (F, 3) in the part frame, the acquisition guess
     (also the ``support`` pose of the whole-image search), the near-occluder hold, the health
-    monitor, the filter, the last accepted measurement's time (s), the holder's pose last
-    frame, where a gripper holds the part or last held it since the filter last accepted a
-    measurement (``held_at``, ``T_base_part``), whether the last tracked frame accepted no
-    measurement (``coasted``), the last time (s) enough were accepted to confirm the estimate
-    for the unknown-occluder map (``confirmed``), since when its features were looked for in
-    vain (``unseen_since``, s; :mod:`.loss`) and when it was last searched for in the whole
-    images (``searched``, s)."""
+    monitor, the filter, the last accepted measurement's time (s), the holder's pose of the
+    part (the last frame's, this frame's once predicted), where a gripper holds the part or
+    last held it since the filter last accepted a measurement (``held_at``, ``T_base_part``),
+    whether the last tracked frame accepted no measurement (``coasted``), the last time (s)
+    enough were accepted to confirm the estimate for the unknown-occluder map (``confirmed``),
+    since when its features were looked for in vain (``unseen_since``, s; :mod:`.loss`) and
+    when it was last searched for in the whole images (``searched``, s)."""
 
     points: np.ndarray
     guess: np.ndarray | None
@@ -88,7 +88,6 @@ class _Track:
     lost: bool = False
     holder: np.ndarray | None = None
     held_at: np.ndarray | None = None
-    held: bool = False
     coasted: bool = False
     confirmed: float = -np.inf
     unseen_since: float = np.inf
@@ -298,8 +297,7 @@ class Tracker:
                 poses[name] = track.ekf.pose
             elif track.guess is not None:
                 poses[name] = track.guess
-            track.held = holder is not None
-            if track.held:
+            if holder is not None:
                 track.held_at = np.asarray(holder, dtype=float)
             if track.acquiring and track.held_at is not None:
                 poses[name] = track.held_at
@@ -392,7 +390,7 @@ class Tracker:
         docstring); the filter starts from it. Returns the record of the windows that gave the
         fix (or of the guess's, when there is none)."""
         track, acquisition = context.track, self.components.acquisition
-        if track.held:  # held, not tracked: it is where the gripper holds it
+        if track.holder is not None:  # held, not tracked: it is where the gripper holds it
             rec = context.rec
             self.initialise(rec.name, track.held_at, context.t, acquisition.covariance(
                 np.diag(np.square(self.config.held_std)[[0, 0, 0, 1, 1, 1]])))
