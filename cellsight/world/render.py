@@ -30,7 +30,7 @@ import numpy as np
 from cellsight.camera import Camera
 
 TILES = (128, 256, 384)  # px: sides of the square framebuffers that regions are rendered into
-_MAKING = threading.Lock()  # held while a context is made from the model's settings, changed
+_MAKING = threading.Lock()  # held while the model's framebuffer settings are changed to make one
 
 
 class GrayRenderer:
