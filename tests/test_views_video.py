@@ -18,6 +18,7 @@ from cellsight.experiments.keyframes import draw_frame
 from cellsight.experiments.runner import RunConfig, run_experiment
 from cellsight.report.video import VideoWriter
 from cellsight.runfolder import finished_metrics, read_metrics
+from cellsight.runfolder.framelog import FrameLog
 from cellsight.world.shots import Shot
 
 
@@ -80,3 +81,21 @@ def test_a_video_that_cannot_be_written_fails_the_run_naming_it(tmp_path: Path, 
     assert f"{out / 'views.mp4'}: cannot write it ({full})" in metrics["error"]
     assert finished_metrics(out) is None
     assert 4 <= metrics["frames"] < 26 and (out / "frames.csv").stat().st_size > 0
+
+
+def test_the_video_changes_nothing_the_run_measures(tmp_path: Path) -> None:
+    """The harsh world drops frames and draws each image's noise from a random stream: the
+    video's picture of a dropped frame is rendered anew, and must not draw from it (it did:
+    a run with the video and one without parted at the first dropped frame)."""
+    rows = {}
+    for every in (1, 0):
+        out = tmp_path / f"video_{every}"
+        metrics = run_experiment(RunConfig(2, out, realism="harsh", seed=2, duration=2.0,
+                                           progress=False, video_every=every))
+        assert metrics["frames_dropped"] > 0
+        rows[every] = FrameLog.read(out / "frames.csv")
+    assert (tmp_path / "video_1" / "views.mp4").stat().st_size > 0
+    assert rows[1].n == rows[0].n > 40
+    for name, values in rows[0].columns.items():
+        if not name.endswith("_ms"):
+            assert rows[1].text(name) == values, name

@@ -46,10 +46,12 @@ class Plant(Protocol):
         """The gripper's signal: its jaws closed on a part."""
         ...
 
-    def render(self, cameras: Sequence[int] | None = None, *, on_demand: bool = False) -> list:
+    def render(self, cameras: Sequence[int] | None = None, *, on_demand: bool = False,
+               picture: bool = False) -> list:
         """One image per camera, in the cell's camera order; with ``cameras`` (indices), only
         theirs (None for the others). ``on_demand``: each read when the tracker reads it (an
-        :class:`~cellsight.tracking.grabbing.OnDemandImage`, or an image)."""
+        :class:`~cellsight.tracking.grabbing.OnDemandImage`, or an image). ``picture``: for a
+        picture only, drawing nothing from the random streams the cameras' images use."""
         ...
 
     def close(self) -> None:

@@ -425,7 +425,7 @@ class ExperimentRun:
 
         def shown() -> list:
             complete = self.ideal is None and all(i is not None for i in observed)
-            return observed if complete else world.render(on_demand=True)
+            return observed if complete else world.render(on_demand=True, picture=True)
 
         def draw(caption: str) -> np.ndarray:
             return draw_frame([grabbed(o) for o in shown()], frame, self.part.name,

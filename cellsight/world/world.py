@@ -365,20 +365,22 @@ class World:
         """Every collision so far (:mod:`cellsight.world.contacts`), as plain data."""
         return self.contacts.report()
 
-    def render(self, cameras: Sequence[int] | None = None, *,
-               on_demand: bool = False) -> list[np.ndarray | Shot | None]:
+    def render(self, cameras: Sequence[int] | None = None, *, on_demand: bool = False,
+               picture: bool = False) -> list[np.ndarray | Shot | None]:
         """One (H, W) uint8 grayscale image per camera, in ``cell.cameras`` order, as the
         cameras grab it (``errors.images``); with ``cameras`` (indices), only theirs (None for
         the others: a camera triggered at another time). ``on_demand``: each image is a
         :class:`~cellsight.world.shots.Shot` of the state now, rendered when it is read (only
-        the region read)."""
+        the region read). ``picture``: for a picture only (a video frame of a dropped frame):
+        its noise is the pattern of offset 0, not drawn from the world's random stream, so
+        that drawing it changes nothing that the cameras take later."""
         self.scene.sync()
         if self._renderer is None:
             self._renderer = GrayRenderer(self.scene.model, self.cell.cameras, self._render_size)
         data = copy.copy(self.scene.data)
         fields = [[data]] if self._history is None else self._history.fields(self.time, data)
         shots = [Shot(self._renderer, self._imager, fields, c, self.time,
-                      0 if self._imager is None else self._imager.exposure())
+                      0 if self._imager is None or picture else self._imager.exposure())
                  if cameras is None or c in cameras else None
                  for c in range(len(self.cell.cameras))]
         return shots if on_demand else [None if s is None else s.whole() for s in shots]
