@@ -194,6 +194,13 @@ class PoseEKF:
         self._P = P
         self.t = float(t)
 
+    def stop(self) -> None:
+        """The part comes to rest (its holder let it go): its rates zero, their covariance as
+        it was (the holder's motion was known to it)."""
+        x = self._x.copy()  # a new array: records keep the old one
+        x[POSE_DIM:STATE_DIM] = 0.0
+        self._x = x
+
     def predict_carried(self, t: float, motion: np.ndarray, noise: tuple[float, float]) -> None:
         """Propagate to time ``t`` (s) by a rigid motion of the part: ``motion`` (4x4) maps the
         base frame to itself (the holder's ``T_base_holder(t) T_base_holder(t_prev)^-1``); the

@@ -248,8 +248,9 @@ class Tracker:
         frame puts it (a gripper closed on it: its TCP from the joint measurements times the
         grasp's ``T_tcp_part``); a part held at this frame and the last one is predicted by
         the holder's motion (:meth:`PoseEKF.predict_carried`) instead of its motion model; a
-        held part not tracked, or lost, starts there (``TrackerConfig.held_std``), and one let
-        go while not tracked is looked for where it was let go; ``stamps`` (optional):
+        held part not tracked, or lost, starts there (``TrackerConfig.held_std``), one let go
+        comes to rest (its rates zeroed: it no longer moves with the holder), and one let go
+        while not tracked is looked for where it was let go; ``stamps`` (optional):
         each camera's exposure time (s, at most ``t``; a sequence in camera order or a mapping
         by camera name, None for ``t``), for cameras not triggered together: the filter is
         predicted to ``t`` and each camera measures the pose of its own exposure
@@ -292,6 +293,8 @@ class Tracker:
                     track.ekf.predict_carried(t, holder @ invert_pose(track.holder),
                                               self.config.carried_noise)
                 elif loss.coasts(t, track.last_update):
+                    if track.holder is not None:  # let go since the last frame: at rest
+                        track.ekf.stop()
                     track.ekf.predict(t)
                 track.lost = loss.lost(t, track.last_update, track.unseen_since)
                 poses[name] = track.ekf.pose
