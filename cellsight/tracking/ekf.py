@@ -174,9 +174,11 @@ class PoseEKF:
         """Current pose estimate ``T_base_part`` (4x4)."""
         return make_pose(rotation_of_state(self.state), self.state[:3])
 
-    def predict(self, t: float) -> None:
+    def predict(self, t: float, at_rest: bool = False) -> None:
         """Propagate state and covariance to time ``t`` (s), ``t >= self.t``; the camera
-        offsets keep their values and gain their random walk."""
+        offsets keep their values and gain their random walk. ``at_rest``: the part came to
+        rest (its holder let it go): its rates are zeroed first, their covariance kept (the
+        holder's motion was known to it)."""
         dt = float(t) - self.t
         if dt < 0:
             raise ValueError(f"PoseEKF.predict: time goes backwards ({self.t} -> {t})")
@@ -184,7 +186,10 @@ class PoseEKF:
             self._transition = (dt, self.motion.matrix(dt), self.motion.covar(dt))
         _, A, Q = self._transition
         k, P = STATE_DIM, self._P.copy()  # new arrays: records keep the old ones
-        self._x = np.concatenate([A @ self._x[:k], self._x[k:]])
+        x = self._x[:k].copy()
+        if at_rest:
+            x[POSE_DIM:] = 0.0
+        self._x = np.concatenate([A @ x, self._x[k:]])
         P[:k, :k] = A @ P[:k, :k] @ A.T + Q
         model = self.camera_offsets
         if model is not None:
@@ -193,13 +198,6 @@ class PoseEKF:
             P[k:, k:] += model.walk(dt)
         self._P = P
         self.t = float(t)
-
-    def stop(self) -> None:
-        """The part comes to rest (its holder let it go): its rates zero, their covariance as
-        it was (the holder's motion was known to it)."""
-        x = self._x.copy()  # a new array: records keep the old one
-        x[POSE_DIM:STATE_DIM] = 0.0
-        self._x = x
 
     def predict_carried(self, t: float, motion: np.ndarray, noise: tuple[float, float]) -> None:
         """Propagate to time ``t`` (s) by a rigid motion of the part: ``motion`` (4x4) maps the

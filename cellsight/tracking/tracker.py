@@ -292,10 +292,8 @@ class Tracker:
                 if holder is not None and track.holder is not None:
                     track.ekf.predict_carried(t, holder @ invert_pose(track.holder),
                                               self.config.carried_noise)
-                elif loss.coasts(t, track.last_update):
-                    if track.holder is not None:  # let go since the last frame: at rest
-                        track.ekf.stop()
-                    track.ekf.predict(t)
+                elif loss.coasts(t, track.last_update):  # let go since the last frame: at rest
+                    track.ekf.predict(t, at_rest=track.holder is not None)
                 track.lost = loss.lost(t, track.last_update, track.unseen_since)
                 poses[name] = track.ekf.pose
             elif track.guess is not None:
