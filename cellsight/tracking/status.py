@@ -8,7 +8,8 @@ from enum import StrEnum
 class TrackStatus(StrEnum):
     """What the tracker did with a workpiece this frame (values are the ``frames.csv`` text).
 
-    ``WAITING``: not acquired yet; ``ACQUIRED``: its filter started this frame from a PnP fix;
+    ``WAITING``: not acquired yet; ``ACQUIRED``: its filter started this frame from a PnP fix
+    (or, with the kinematic prior, where the gripper holding it puts it);
     ``TRACKING``: updated by accepted measurements; ``DEGRADED``: updated by accepted
     measurements, but the health monitor finds the track inconsistent (:mod:`.health`; the
     record's ``health`` says why); ``COASTING``: no accepted measurement, prediction only;

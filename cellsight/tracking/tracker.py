@@ -292,17 +292,17 @@ class Tracker:
                 if holder is not None and track.holder is not None:
                     track.ekf.predict_carried(t, holder @ invert_pose(track.holder),
                                               self.config.carried_noise)
-                elif loss.coasts(t, track.last_update):  # let go since the last frame: at rest
-                    track.ekf.predict(t, at_rest=track.holder is not None)
+                elif loss.coasts(t, track.last_update):
+                    track.ekf.predict(t, at_rest=track.holder is not None)  # let go: at rest
                 track.lost = loss.lost(t, track.last_update, track.unseen_since)
                 poses[name] = track.ekf.pose
             elif track.guess is not None:
                 poses[name] = track.guess
-            if holder is not None:
-                track.held_at = np.asarray(holder, dtype=float)
+            track.holder = None if holder is None else np.asarray(holder, dtype=float)
+            if track.holder is not None:
+                track.held_at = track.holder
             if track.acquiring and track.held_at is not None:
                 poses[name] = track.held_at
-            track.holder = None if holder is None else np.asarray(holder, dtype=float)
         return poses
 
     def _record(self, name: str, track: _Track,
@@ -394,7 +394,7 @@ class Tracker:
         if track.holder is not None:  # held, not tracked: it is where the gripper holds it
             rec = context.rec
             self.initialise(rec.name, track.held_at, context.t, acquisition.covariance(
-                np.diag(np.square(self.config.held_std)[[0, 0, 0, 1, 1, 1]])))
+                np.diag(np.repeat(np.square(self.config.held_std), 3))))
             rec.status = TrackStatus.ACQUIRED
             _record_estimate(rec, track.ekf)
             return rec
