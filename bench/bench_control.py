@@ -14,11 +14,9 @@ and the CLIK (``Clik.step``): 24,000 times each in experiment 3. Compared, media
 
 from __future__ import annotations
 
-import statistics
-import time
-
 import numpy as np
 from scipy.spatial.transform import Rotation
+from timing import warm_median_s
 
 from cellsight import load_cell
 from cellsight.control import Clik, InterpolatingFilter
@@ -29,14 +27,7 @@ CALLS = 3000
 
 
 def _median_us(fn) -> float:
-    for _ in range(50):
-        fn()
-    times = []
-    for _ in range(CALLS):
-        t0 = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t0)
-    return 1e6 * statistics.median(times)
+    return 1e6 * warm_median_s(fn, CALLS, warmup=50)
 
 
 class ScipyFilter:

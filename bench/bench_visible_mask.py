@@ -13,9 +13,8 @@ of the rays viewpoint->point up to ``1 - 1e-4`` of their length (its peer tolera
 
 from __future__ import annotations
 
-import time
-
 import numpy as np
+from timing import warm_median_s
 
 from cellsight.occlusion import PolygonSoup, visible_mask
 
@@ -76,13 +75,7 @@ def open3d_mask(mesh, points, viewpoint) -> np.ndarray:
 
 def _median_ms(call, repeats: int = 30) -> float:
     """Warm median wall time of ``call`` in ms."""
-    call()
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        call()
-        times.append(time.perf_counter() - start)
-    return 1e3 * float(np.median(times))
+    return 1e3 * warm_median_s(call, repeats)
 
 
 def run() -> list[dict]:
