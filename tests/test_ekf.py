@@ -120,6 +120,31 @@ def test_update_matches_information_form_and_stays_symmetric():
     assert np.all(np.linalg.eigvalsh(ekf.covariance) > 0)
 
 
+def test_resting_on_a_support_matches_the_information_form():
+    """``rest_on``: the pseudo-measurement of height, roll, pitch (from the support's pose)
+    and their rates (zero) equals the information-form posterior with H selecting those six
+    states; the roll innovation is taken the short way round the circle, and the roll it
+    gives wrapped to [-pi, pi)."""
+    rng = np.random.default_rng(1)
+    x0 = np.concatenate([[0.6, 0.1, 0.63, np.pi - 0.01, -0.02, 0.3], rng.normal(0, 0.05, 6)])
+    A = rng.normal(size=(12, 12))
+    P0 = 1e-3 * (A @ A.T + np.eye(12))  # correlated: the update moves the other states too
+    rest = pose_from_xyz_rpy([0.5, 0.0, 0.62], [-np.pi + 0.01, 0.0, 0.1])
+    std = (0.002, 0.01)
+    ekf = PoseEKF(ConstantVelocity(), x0, P0, 0.0)
+    ekf.rest_on(rest, std)
+    rows = [2, 3, 4, 8, 9, 10]
+    H = np.eye(12)[rows]
+    R = np.diag(np.array([std[0], std[1], std[1], std[0], std[1], std[1]]) ** 2)
+    nu = np.array([0.62 - 0.63, 0.02, 0.02, 0.0, 0.0, 0.0]) - np.r_[0, 0, 0, x0[[8, 9, 10]]]
+    P_info = np.linalg.inv(np.linalg.inv(P0) + H.T @ np.linalg.inv(R) @ H)
+    x_info = x0 + P_info @ H.T @ np.linalg.inv(R) @ nu
+    x_info[3] -= 2 * np.pi  # past pi: wrapped
+    np.testing.assert_allclose(ekf.covariance, P_info, rtol=1e-6, atol=1e-12)
+    np.testing.assert_allclose(ekf.state, x_info, atol=1e-9)
+    assert abs(ekf.state[2] - 0.62) < 2 * std[0] and np.all(np.linalg.eigvalsh(ekf.covariance) > 0)
+
+
 def test_no_measurement_only_predicts():
     motion = ConstantVelocity()
     x0 = _state(TARGET, [0, 0, 0.1], [0.1, 0, 0, 0, 0, 0.2])

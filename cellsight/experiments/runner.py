@@ -112,7 +112,9 @@ class RunConfig:
     the true projection on the built-in cell, i.e. 0.21 px per coordinate).
     ``kinematic_prior``: while the jaws are closed on the part, the tracker predicts it by the
     gripper's motion measured from the joints, and starts it where the gripper holds it (the
-    grasp the task chose) when it is not tracked (``holders`` of :meth:`Tracker.step`).
+    grasp the task chose) when it is not tracked (``holders`` of :meth:`Tracker.step`); until
+    the jaws first close on it, the part keeps the height, roll and pitch of the cell file's
+    pose of it, lying on its conveyor or table (``supports``).
     ``unknown_occluders``: the tracker learns where objects the cell file does not know hide
     the part (:mod:`cellsight.tracking.unknown`), and a coasting track resumes only on three
     features passing the gate together. ``camera_offsets_px``: the prior (px) of each camera's
@@ -222,6 +224,7 @@ class ExperimentRun:
         self.clock = FrameClock(self.draws.profile.timing, config.seed)
         self.deliveries = Deliveries()
         self.frames_dropped = 0
+        self.held_once = False  # the jaws have closed on the part (:meth:`_priors`)
         kidnap = self.draws.errors.kidnap
         self.kidnap = None if kidnap is None else KidnapMonitor(kidnap)
         self.exposures = Exposures(self.world, self.draws.trigger_skew_s, config.sensor == "ideal",
@@ -385,6 +388,19 @@ class ExperimentRun:
             world.step({name: q}, {name: opening})
             self.grasp.after_control_step(world.time)
 
+    def _priors(self, q: np.ndarray) -> tuple[dict | None, dict | None]:
+        """The kinematic prior's ``holders`` and ``supports`` for :meth:`Tracker.step` (None
+        without it), from the robot's measured joints ``q``: while the jaws are closed on the
+        part, the part as the gripper holds it (the TCP times the grasp the task chose); until
+        they first close on it, the part lying on its support (the cell file's pose of it)."""
+        if not self.config.kinematic_prior:
+            return None, None
+        if self.world.jaws_closed_on_part(self.robot.name):
+            self.held_once = True
+            return {self.part.name: self.robot.tcp_pose(q)
+                    @ invert_pose(self.task.planner.chosen_grasp)}, None
+        return None, (None if self.held_once else {self.part.name: self.part.T_base_part})
+
     def _vision_frame(self, k: int, t: float, writer: FrameWriter, video: ViewsVideo | None,
                       keys: KeyFrames) -> None:
         """Frame ``k`` at time ``t`` (s): track, plan, log, picture."""
@@ -395,12 +411,9 @@ class ExperimentRun:
         truth = FrameTruth.of(world, self.part.name, name)
         dropped = fate.dropped or (self.kidnap is not None and self.kidnap.kidnap.blind(t))
         observed = self._grab(dropped, truth.part)
-        holders = None
-        if self.config.kinematic_prior and world.jaws_closed_on_part(name):
-            holders = {self.part.name: self.robot.tcp_pose(joints[name])
-                       @ invert_pose(self.task.planner.chosen_grasp)}
+        holders, supports = self._priors(joints[name])
         frame = self.tracker.step(observed, joints, t, openings, holders,
-                                  None if dropped else self.exposures.stamps)
+                                  None if dropped else self.exposures.stamps, supports)
         rec = frame.parts[self.part.name]
         estimate = Estimate.of(t, rec)
         if self.clock.ideal:

@@ -84,7 +84,10 @@ class TrackerConfig:
     axis) of each camera's image offset, its calibration error as the filter estimates it
     (0: not estimated; :mod:`.offsets`), with a random walk of ``camera_offsets_walk_px``
     (px/sqrt(s)); ``held_std``: one sigma (m, rad) of where a holder puts a part (the grasp's
-    seat, the joints' errors), with which a held part that is not tracked starts there.
+    seat, the joints' errors), with which a held part that is not tracked starts there;
+    ``rest_std``: one sigma (m, rad) of the height and the roll and pitch of a part lying on its
+    support, with the kinematic prior (``supports`` in :meth:`Tracker.step`; the support's
+    height and flatness as the cell file knows them).
     """
 
     sigma_px: float = 0.5
@@ -95,3 +98,4 @@ class TrackerConfig:
     camera_offsets_px: float = 0.0
     camera_offsets_walk_px: float = 0.0
     held_std: tuple[float, float] = (0.01, 0.05)
+    rest_std: tuple[float, float] = (0.002, 0.01)

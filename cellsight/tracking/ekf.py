@@ -24,6 +24,13 @@ Carried part (optional, beyond the paper: the kinematic prior): while a robot ho
 last frame instead of the constant-velocity model, and adds a small random-walk noise for slip
 and kinematic error; the images update it as usual.
 
+Resting part (optional, beyond the paper: the kinematic prior): while a part lies on a level
+support (a conveyor's belt, a table; the base frame's z up), :meth:`PoseEKF.rest_on` fuses the
+pseudo-measurement that its height, roll and pitch are the support's and do not change (their
+rates zero), each with its own sigma (constrained Kalman filtering by pseudo-measurements):
+with one camera alone, the estimate can no longer slide along that camera's rays into the
+support.
+
 Adaptive noise (optional, beyond the paper): a scalar pixel variance per camera re-estimated by
 robust covariance matching over a sliding window of the last innovations (:class:`AdaptiveNoise`).
 
@@ -51,6 +58,7 @@ from cellsight.tracking.offsets import CameraOffsets, with_offset
 MIN_FOR_MEDIAN = 3  # features for a camera's median innovation to stand for its offset
 LONE_SIGMA_PX = 2.0  # widest prediction (px, 1 sigma) a camera of fewer features is gated on
 SMALL_STEP = (0.01, 0.05)  # m, rad: an update's pose change below which it is not checked
+RESTING = np.array([2, 3, 4, 8, 9, 10])  # state rows a level support fixes: z, roll, pitch, rates
 
 
 @dataclass(frozen=True)
@@ -221,6 +229,26 @@ class PoseEKF:
             P[STATE_DIM:, STATE_DIM:] += model.walk(dt)
         self._x, self._P, self.t = x, P, float(t)
 
+    def rest_on(self, T_rest: np.ndarray, std: tuple[float, float]) -> None:
+        """Fuse that the part rests on a level support (module docstring): its height, roll and
+        pitch are those of ``T_rest`` (4x4, ``T_base_part`` of the part lying there) and their
+        rates are zero; ``std`` = (m, rad) one sigma of the height and the angles, and of the
+        rates per second (m/s, rad/s). A linear update (Joseph form) of those six states."""
+        xyz, rpy = xyz_rpy_from_pose(np.asarray(T_rest, dtype=float))
+        target = np.array([xyz[2], rpy[0], rpy[1], 0.0, 0.0, 0.0])
+        nu = target - self._x[RESTING]
+        nu[1:3] = (nu[1:3] + np.pi) % (2 * np.pi) - np.pi
+        r = np.array([std[0], std[1], std[1], std[0], std[1], std[1]]) ** 2
+        P = self._P
+        S = P[np.ix_(RESTING, RESTING)] + np.diag(r)
+        K = np.linalg.solve(S, P[RESTING]).T  # P H^T S^-1
+        IKH = np.eye(len(self._x))
+        IKH[:, RESTING] -= K
+        P_new = IKH @ P @ IKH.T + (K * r) @ K.T
+        x = self._x + K @ nu
+        x[[3, 5]] = (x[[3, 5]] + np.pi) % (2 * np.pi) - np.pi  # roll and yaw to [-pi, pi)
+        self._x, self._P = x, 0.5 * (P_new + P_new.T)
+
     def sigma_px(self, model: PinholeMeasurement, camera_index: int) -> float:
         """Pixel noise sigma (px) used for a camera: adaptive estimate or the model's default."""
         if self.adaptive is None:
@@ -313,18 +341,11 @@ class PoseEKF:
             state, P_new = _joseph_update(self._x, self._P, H, nu, sigma2, accepted)
             for i in (3, 5):  # roll and yaw to [-pi, pi)
                 state[i] = (state[i] + np.pi) % (2 * np.pi) - np.pi
-            if self._small(state) or self._fits(observations, state, nu, accepted):
+            if _small_step(state, self._x) or self._fits(observations, state, nu, accepted):
                 self._x, self._P = state, P_new
             else:
                 report = replace(report, accepted=np.zeros_like(accepted), refused=True)
         return report
-
-    def _small(self, state: np.ndarray) -> bool:
-        """Whether the update moves the pose less than ``SMALL_STEP`` (m, rad): where the
-        projection is that close to linear, :meth:`_fits` need not look (it costs as much as
-        the update)."""
-        step = np.abs(state[:POSE_DIM] - self._x[:POSE_DIM])
-        return bool(np.all(step[:3] < SMALL_STEP[0]) and np.all(step[3:] < SMALL_STEP[1]))
 
     def _fits(self, observations: list[Observation], state: np.ndarray, nu: np.ndarray,
               accepted: np.ndarray) -> bool:
@@ -348,6 +369,14 @@ class PoseEKF:
             residual += float(np.sum((np.asarray(obs.pixels)[used] - pred[used]) ** 2))
             rows += n
         return residual <= float(np.sum(nu[accepted] ** 2)) * (1 + 1e-9)
+
+
+def _small_step(new: np.ndarray, old: np.ndarray) -> bool:
+    """Whether an update moves the pose from ``old`` to ``new`` (states) by less than
+    ``SMALL_STEP`` (m, rad): where the projection is that close to linear,
+    :meth:`PoseEKF._fits` need not look (it costs as much as the update)."""
+    step = np.abs(new[:POSE_DIM] - old[:POSE_DIM])
+    return bool(np.all(step[:3] < SMALL_STEP[0]) and np.all(step[3:] < SMALL_STEP[1]))
 
 
 @numba.njit(cache=True)

@@ -236,6 +236,7 @@ class Tracker:
         openings: Mapping[str, float] | None = None,
         holders: Mapping[str, np.ndarray] | None = None,
         stamps: Any = None,
+        supports: Mapping[str, np.ndarray] | None = None,
     ) -> TrackerFrame:
         """Process one vision frame at time ``t`` (s): the paper's Fig. 5 (module docstring).
 
@@ -254,14 +255,17 @@ class Tracker:
         each camera's exposure time (s, at most ``t``; a sequence in camera order or a mapping
         by camera name, None for ``t``), for cameras not triggered together: the filter is
         predicted to ``t`` and each camera measures the pose of its own exposure
-        (:class:`~cellsight.tracking.measurement.Observation` ``lag_s``).
+        (:class:`~cellsight.tracking.measurement.Observation` ``lag_s``); ``supports`` (the
+        kinematic prior, optional): part name -> ``T_base_part`` of the part lying on the level
+        support it rests on this frame (a conveyor's belt, a table): a tracked part not held
+        keeps that height, roll and pitch (:meth:`PoseEKF.rest_on`, ``TrackerConfig.rest_std``).
         """
         lags = _lags(stamps, self.cameras, t)
         timer = StageTimer()
         records = {}
         with timer("total"):
             with timer("ekf"):
-                poses = self._predict(t, holders or {})
+                poses = self._predict(t, holders or {}, supports or {})
             with timer("occlusion"):
                 views = self.predictor.predict(joints, poses, openings) if poses else {}
             crowd = _visible_pixels(views, len(self.cameras))
@@ -280,10 +284,12 @@ class Tracker:
         return TrackerFrame(float(t), records, timer.seconds, _grabbed(records, len(self.cameras)),
                             masks)
 
-    def _predict(self, t: float, holders: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
-        """Predict every tracked part to time ``t``; the pose each is looked for at (the
-        prediction, or the acquisition guess of a part never acquired; for a part to be
-        acquired that a holder holds or let go, where it holds it or let it go)."""
+    def _predict(self, t: float, holders: Mapping[str, np.ndarray],
+                 supports: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
+        """Predict every tracked part to time ``t`` (on its support, if it rests on one); the
+        pose each is looked for at (the prediction, or the acquisition guess of a part never
+        acquired; for a part to be acquired that a holder holds or let go, where it holds it or
+        let it go)."""
         poses = {}
         loss = self.components.loss
         for name, track in self.tracks.items():
@@ -294,6 +300,8 @@ class Tracker:
                                               self.config.carried_noise)
                 elif loss.coasts(t, track.last_update):
                     track.ekf.predict(t, at_rest=track.holder is not None)  # let go: at rest
+                if holder is None and name in supports:
+                    track.ekf.rest_on(supports[name], self.config.rest_std)
                 track.lost = loss.lost(t, track.last_update, track.unseen_since)
                 poses[name] = track.ekf.pose
             elif track.guess is not None:
@@ -367,13 +375,16 @@ class Tracker:
                        report.n_accepted > 0)
         return rec
 
-    def _usable(self, context: StepContext, t_hold: float) -> np.ndarray:
+    def _usable(self, context: StepContext, t_hold: float | None) -> np.ndarray:
         """(C, F) bool: the features that may be measured: predicted visible, not held back
-        next to an occluder at time ``t_hold`` (s; :mod:`.eligibility`) and not under an
-        unknown occluder (recorded in ``rec.unknown``)."""
+        next to an occluder at time ``t_hold`` (s; :mod:`.eligibility`; None, for a pose
+        acquisition tries: not flagged next to one at that pose) and not under an unknown
+        occluder (recorded in ``rec.unknown``)."""
         rec = context.rec
         for c in range(len(self.cameras)):
             rec.unknown[c] = rec.visible[c] & self.unknown.covered(c, rec.pixels[c], context.t)
+        if t_hold is None:  # the track's hold is of its own predictions, not of a trial pose's
+            return rec.visible & ~rec.near_occluder & ~rec.unknown
         return context.track.hold.usable(rec.visible, rec.near_occluder, t_hold) & ~rec.unknown
 
     def _learn_unknown(self, t: float, rec: PartFrame, looked: np.ndarray) -> None:
@@ -418,7 +429,7 @@ class Tracker:
     def _fix(self, context: StepContext, size_px: float) -> PoseFix | None:
         """Windows of ``size_px`` (px) on every usable feature of the record's prediction, then
         a fix (:mod:`.acquisition`), or None."""
-        context.rec.selected = self._usable(context, context.t)
+        context.rec.selected = self._usable(context, None)
 
         def covariance(c: int, idx: np.ndarray) -> np.ndarray:
             return np.zeros((len(idx), 2, 2))
