@@ -74,6 +74,7 @@ from cellsight.export.live import LiveStream, parse_address
 from cellsight.export.mcap_run import check_jpeg, check_output
 from cellsight.geometry.transforms import invert_pose
 from cellsight.model.cell import Cell
+from cellsight.model.landing import Landing
 from cellsight.model.loader import load_cell
 from cellsight.occlusion.predictor import OBJECT_BVH, STRUCTURES
 from cellsight.rates import VISION_HZ
@@ -114,7 +115,8 @@ class RunConfig:
     gripper's motion measured from the joints, and starts it where the gripper holds it (the
     grasp the task chose) when it is not tracked (``holders`` of :meth:`Tracker.step`); until
     the jaws first close on it, the part keeps the height, roll and pitch of the cell file's
-    pose of it, lying on its conveyor or table (``supports``).
+    pose of it, lying on its conveyor or table (``supports``), and once they let it go, those
+    of where it falls to from the gripper, onto the cell file's static objects.
     ``unknown_occluders``: the tracker learns where objects the cell file does not know hide
     the part (:mod:`cellsight.tracking.unknown`), and a coasting track resumes only on three
     features passing the gate together. ``camera_offsets_px``: the prior (px) of each camera's
@@ -224,7 +226,9 @@ class ExperimentRun:
         self.clock = FrameClock(self.draws.profile.timing, config.seed)
         self.deliveries = Deliveries()
         self.frames_dropped = 0
-        self.held_once = False  # the jaws have closed on the part (:meth:`_priors`)
+        self.landing = Landing(cell)  # the kinematic prior (:meth:`_priors`): where the part
+        self.held_at: np.ndarray | None = None  # was last held, where it then came to rest
+        self.rest_at: np.ndarray | None = None
         kidnap = self.draws.errors.kidnap
         self.kidnap = None if kidnap is None else KidnapMonitor(kidnap)
         self.exposures = Exposures(self.world, self.draws.trigger_skew_s, config.sensor == "ideal",
@@ -392,14 +396,22 @@ class ExperimentRun:
         """The kinematic prior's ``holders`` and ``supports`` for :meth:`Tracker.step` (None
         without it), from the robot's measured joints ``q``: while the jaws are closed on the
         part, the part as the gripper holds it (the TCP times the grasp the task chose); until
-        they first close on it, the part lying on its support (the cell file's pose of it)."""
+        they first close on it, the part lying on its support (the cell file's pose of it);
+        once they let it go, the part where it falls to from where they held it last (onto
+        the cell file's static objects, :class:`~cellsight.model.landing.Landing`; none when
+        nothing lies below it)."""
         if not self.config.kinematic_prior:
             return None, None
+        name = self.part.name
         if self.world.jaws_closed_on_part(self.robot.name):
-            self.held_once = True
-            return {self.part.name: self.robot.tcp_pose(q)
-                    @ invert_pose(self.task.planner.chosen_grasp)}, None
-        return None, (None if self.held_once else {self.part.name: self.part.T_base_part})
+            self.held_at = self.robot.tcp_pose(q) @ invert_pose(self.task.planner.chosen_grasp)
+            self.rest_at = None
+            return {name: self.held_at}, None
+        if self.held_at is None:
+            return None, {name: self.part.T_base_part}
+        if self.rest_at is None:
+            self.rest_at = self.landing.rest_pose(self.part.solid.vertices, self.held_at)
+        return None, (None if self.rest_at is None else {name: self.rest_at})
 
     def _vision_frame(self, k: int, t: float, writer: FrameWriter, video: ViewsVideo | None,
                       keys: KeyFrames) -> None:

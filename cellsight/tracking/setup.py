@@ -16,7 +16,6 @@ from dataclasses import replace
 from cellsight.model.cell import Cell
 from cellsight.occlusion.predictor import OBJECT_BVH, VisibilityPredictor
 from cellsight.occlusion.projection import ProjectionOnly
-from cellsight.tracking.acquisition import PnPAcquisition
 from cellsight.tracking.config import TrackerConfig, TrackerParts
 from cellsight.tracking.interfaces import Extractor
 from cellsight.tracking.tracker import Tracker
@@ -31,8 +30,6 @@ def build_tracker(cell: Cell, *, occlusion_prediction: bool = True,
     predictor = (VisibilityPredictor(cell, structure=structure) if occlusion_prediction
                  else ProjectionOnly(cell))
     config, parts = TrackerConfig(camera_offsets_px=camera_offsets_px), TrackerParts()
-    if camera_offsets_px > 0:
-        parts = replace(parts, acquisition=PnPAcquisition(camera_offsets=True))
     if unknown_occluders:
         config = replace(config, resume_support=3)
         parts = replace(parts, unknown=UnknownOccluderRule())

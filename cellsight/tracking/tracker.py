@@ -13,9 +13,10 @@ protocol of :mod:`.interfaces` with its default in its own module):
    the guess or the last prediction, or where it was let go by a gripper; a part that a
    gripper holds starts where the gripper holds it, ``holders`` of :meth:`Tracker.step`;
    failing that, at most every ``search.every_s``, the
-   whole-image search over its support plane, :mod:`.search`, each candidate tried with the
-   same windows and PnP; a fix stands only when narrow windows where it predicts the part's
-   features confirm it); otherwise
+   whole-image search over its support plane, :mod:`.search`, each of its best candidates
+   tried with the same windows and PnP, the confirmed fix of the most points taken; a fix
+   stands only when narrow windows where it predicts the part's features confirm it);
+   otherwise
    the selector chooses among the usable features (:mod:`.eligibility`, :mod:`.selection`),
    the window planner places their windows (:mod:`.windowing`), the extractor finds them in
    what the sensors took (:mod:`.extraction`), the gate (:mod:`.gate`) screens the innovations
@@ -410,9 +411,9 @@ class Tracker:
             _record_estimate(rec, track.ekf)
             return rec
         fix = self._fix(context, acquisition.window_px)
-        if fix is None and (found := self._search(context)) is not None:
-            context, fix = found
         verified = None if fix is None else self._verify(context, fix)
+        if verified is None:
+            verified = self._search(context)
         if verified is None:
             track.search_on(acquisition)
             return context.rec
@@ -460,9 +461,11 @@ class Tracker:
         return (trial, again) if confirmed else None
 
     def _search(self, context: StepContext) -> tuple[StepContext, PoseFix] | None:
-        """The whole-image search, when it is due (:mod:`.search`): the first of its best
-        candidates whose windows give a fix of at least ``min_points`` points, with the
-        context of that candidate's record; None otherwise."""
+        """The whole-image search, when it is due (:mod:`.search`): of its best candidates
+        whose windows give a fix of at least ``min_points`` points that verification confirms,
+        the one whose verifying fix has the most points (the fewest pixels of RMS among equals;
+        a nearly symmetric part's turned twin fits fewer of its features than the part), with
+        the context of its record; None otherwise."""
         search, track, t = self.components.search, context.track, context.t
         detect = getattr(self.extractor, "detect", None)
         observed = [_observed(context.observed, self.cameras, c) for c in range(len(self.cameras))]
@@ -479,12 +482,14 @@ class Tracker:
                                                 [track.ekf.pose[:2, 3]])
             candidates = search.candidates(self.cameras, track.points, track.support,
                                            np.array(centres), corners)
+        confirmed = []
         for candidate in candidates[:search.verify]:
             trial = _looked_at(context, candidate.T_base_part, len(self.cameras))
             fix = self._fix(trial, self.components.acquisition.window_px)
             if fix is not None and fix.n_points >= search.min_points:
-                return trial, fix
-        return None
+                confirmed.append(self._verify(trial, fix))
+        confirmed = [c for c in confirmed if c is not None]
+        return max(confirmed, key=lambda c: (c[1].n_points, -c[1].rms_px), default=None)
 
     def _measure(self, context: StepContext,
                  covariance: Callable[[int, np.ndarray], np.ndarray],

@@ -1,0 +1,51 @@
+"""Where a workpiece let go comes to rest, as the cell file has it.
+
+A part a gripper lets go of falls straight down, without turning, until one of its vertices
+meets the top of a static object (a table, a conveyor): the shortest of the downward rays cast
+from its vertices onto the static objects' faces (trimesh's ray casts, base frame, metres).
+This is the tracker's side of the kinematic prior: the support a let-go part lies on, from the
+cell file alone (the simulated world lets its own part fall the same way onto its own, as-built
+objects, with MuJoCo's ray casts).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import trimesh
+
+from cellsight.geometry.transforms import transform_points
+from cellsight.model.cell import Cell
+
+LIFT_M = 1e-4  # rays start this far above each vertex, so that a part touching its support rests
+
+
+class Landing:
+    """The static objects of ``cell`` as one triangle mesh in the base frame, to drop parts on."""
+
+    def __init__(self, cell: Cell) -> None:
+        vertices, triangles, start = [], [], 0
+        for obj in cell.static:
+            for solid in obj.solids:
+                vertices.append(transform_points(obj.T_base_obj, solid.vertices))
+                triangles.append(solid.triangles() + start)
+                start += len(solid.vertices)
+        self._mesh = None if not vertices else trimesh.Trimesh(
+            np.concatenate(vertices), np.concatenate(triangles), process=False)
+
+    def rest_pose(self, vertices: np.ndarray, T_base_part: np.ndarray) -> np.ndarray | None:
+        """``T_base_part`` lowered onto what lies below the part's ``vertices`` (V, 3, part
+        frame) at ``T_base_part`` (4x4); None when no static object lies below any of them."""
+        if self._mesh is None:
+            return None
+        origins = transform_points(T_base_part, vertices) + [0.0, 0.0, LIFT_M]
+        down = np.tile([0.0, 0.0, -1.0], (len(origins), 1))
+        hits, rays, _ = self._mesh.ray.intersects_location(origins, down, multiple_hits=True)
+        if len(rays) == 0:
+            return None
+        drops = origins[rays, 2] - hits[:, 2] - LIFT_M
+        drops = drops[drops >= -LIFT_M]  # below the ray's start, not behind it
+        if len(drops) == 0:
+            return None
+        T = np.array(T_base_part, dtype=float)
+        T[2, 3] -= max(float(drops.min()), 0.0)
+        return T
