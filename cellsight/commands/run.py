@@ -32,7 +32,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                      help="windows on every model point inside the image (no BSP)")
     run.add_argument("--kinematic-prior", action="store_true",
                      help="once the jaws hold the part, predict it by the gripper's measured "
-                          "motion (off by default: the paper tracks from images alone)")
+                          "motion; before and after, keep it at its support's height, roll and "
+                          "pitch (off by default: the paper tracks from images alone)")
     run.add_argument("--unknown-occluders", action="store_true",
                      help="learn where objects the cell file does not know hide the part, and "
                           "select no feature there (off by default: on the rendered harsh "

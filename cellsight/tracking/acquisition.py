@@ -5,7 +5,7 @@ the last prediction of a lost part); every usable predicted-visible feature gets
 window of ``window_px``; the corners found there give a fused multi-camera PnP that drops up to
 three wrong corners (:func:`~cellsight.tracking.pnp.estimate_pose_robust`: while the RMS
 reprojection error exceeds ``max_rms_px`` or a corner lies more than ``max_residual_px`` from
-its reprojection). A fix whose RMS is at most ``max_rms_px`` is then verified against every
+its reprojection). A fix whose RMS is at most ``coarse_rms_px`` is then verified against every
 feature it predicts: the predictor runs at the fix, windows of ``verify_window_px`` are placed
 on every usable feature it predicts visible, and the corners found there must give a fix again
 (same RMS limit) of at least ``min_points`` points, and in some camera of at least
@@ -24,13 +24,18 @@ that pose does not fit. With the verification, 6 of 74 acquisitions in 15 ``hars
 more than 20 mm off, against 24 of 99 before; what it cannot tell is a pose every feature of
 which lies on a neighbour's corner.
 
+The first fix (at the guess, or at a candidate of the whole-image search, :mod:`.search`) is
+coarse: it only has to bring the verification's narrow windows near, so it stands within
+``coarse_rms_px``; the verifying fix must meet ``max_rms_px``. In ``harsh``, the right pose
+from the 64 px windows at the nominal guess (11 points, a few of them a neighbour's corner)
+was refused at 3.35 px, and the search then found the part's nearly symmetric turned twin,
+which 10 points confirmed.
+
 With ``camera_offsets`` (on by default), a fix whose RMS is too large is tried once more with
 each camera's median residual taken out of its pixels
 (:func:`~cellsight.tracking.pnp.camera_shifts`): two cameras whose calibrations disagree by a
-few pixels no longer keep a part from being acquired (in ``harsh``, the right pose from 11
-points was refused at 3.35 px, and the search then found the part's nearly symmetric turned
-twin, confirmed from fewer points), and a filter that estimates each camera's calibration
-error as an image offset (:mod:`.offsets`) starts from those offsets.
+few pixels no longer keep a part from being acquired, and a filter that estimates each
+camera's calibration error as an image offset (:mod:`.offsets`) starts from those offsets.
 """
 
 from __future__ import annotations
@@ -59,6 +64,7 @@ class PnPAcquisition:
     verify_window_px: float = 24.0
     verify_support: float = 0.6
     min_points: int = 6
+    coarse_rms_px: float = 6.0
 
     def guess(self, base: np.ndarray, attempt: int) -> np.ndarray:
         """``base`` (``T_base_part``) moved by the ``attempt``-th offset of the search (module
@@ -71,18 +77,21 @@ class PnPAcquisition:
         T[:2, 3] += offsets[attempt % len(offsets)]
         return T
 
-    def fix(self, observations: list[Observation], sigma_px: float) -> PoseFix | None:
-        """The pose to start from, or None when the corners found do not give one."""
+    def fix(self, observations: list[Observation], sigma_px: float,
+            coarse: bool = False) -> PoseFix | None:
+        """The pose to start from, or None when the corners found do not give one within
+        ``max_rms_px`` (``coarse_rms_px`` for a ``coarse`` first fix: module docstring)."""
+        limit = self.coarse_rms_px if coarse else self.max_rms_px
         fix = estimate_pose_robust(observations, self.max_rms_px, sigma_px=sigma_px,
                                    max_residual_px=self.max_residual_px)
-        if fix is not None and fix.rms_px > self.max_rms_px and self.camera_offsets:
+        if fix is not None and fix.rms_px > limit and self.camera_offsets:
             shifts = camera_shifts(observations, fix)
             moved = [replace(o, pixels=o.pixels - shifts.get(o.camera_index, 0.0))
                      for o in observations]
             fix = estimate_pose_robust(moved, self.max_rms_px, sigma_px=sigma_px,
                                        max_residual_px=self.max_residual_px)
             fix = None if fix is None else replace(fix, offsets_px=shifts)
-        return fix if fix is not None and fix.rms_px <= self.max_rms_px else None
+        return fix if fix is not None and fix.rms_px <= limit else None
 
     def confirms(self, fix: PoseFix, looked: np.ndarray, used: np.ndarray) -> bool:
         """Whether a verifying fix (module docstring) stands: at least ``min_points`` points,

@@ -147,8 +147,10 @@ class Acquisition(Protocol):
         part never acquired is not found."""
         ...
 
-    def fix(self, observations: list[Observation], sigma_px: float) -> PoseFix | None:
-        """The pose to start from (ideal pixels with noise ``sigma_px`` px), or None."""
+    def fix(self, observations: list[Observation], sigma_px: float,
+            coarse: bool = False) -> PoseFix | None:
+        """The pose to start from (ideal pixels with noise ``sigma_px`` px), or None;
+        ``coarse``: a first fix, which only has to bring the verification's windows near."""
         ...
 
     def confirms(self, fix: PoseFix, looked: np.ndarray, used: np.ndarray) -> bool:

@@ -410,7 +410,7 @@ class Tracker:
             rec.status = TrackStatus.ACQUIRED
             _record_estimate(rec, track.ekf)
             return rec
-        fix = self._fix(context, acquisition.window_px)
+        fix = self._fix(context, acquisition.window_px, coarse=True)
         verified = None if fix is None else self._verify(context, fix)
         if verified is None:
             verified = self._search(context)
@@ -427,9 +427,9 @@ class Tracker:
         _record_estimate(rec, track.ekf)
         return rec
 
-    def _fix(self, context: StepContext, size_px: float) -> PoseFix | None:
+    def _fix(self, context: StepContext, size_px: float, coarse: bool = False) -> PoseFix | None:
         """Windows of ``size_px`` (px) on every usable feature of the record's prediction, then
-        a fix (:mod:`.acquisition`), or None."""
+        a fix (:mod:`.acquisition`; ``coarse``: a first one, to be verified), or None."""
         context.rec.selected = self._usable(context, None)
 
         def covariance(c: int, idx: np.ndarray) -> np.ndarray:
@@ -437,7 +437,7 @@ class Tracker:
 
         obs = self._measure(context, covariance, size_px)
         with context.timer("ekf"):
-            return self.components.acquisition.fix(obs, self.config.sigma_px)
+            return self.components.acquisition.fix(obs, self.config.sigma_px, coarse)
 
     def _verify(self, context: StepContext,
                 fix: PoseFix) -> tuple[StepContext, PoseFix] | None:
@@ -485,7 +485,7 @@ class Tracker:
         confirmed = []
         for candidate in candidates[:search.verify]:
             trial = _looked_at(context, candidate.T_base_part, len(self.cameras))
-            fix = self._fix(trial, self.components.acquisition.window_px)
+            fix = self._fix(trial, self.components.acquisition.window_px, coarse=True)
             if fix is not None and fix.n_points >= search.min_points:
                 confirmed.append(self._verify(trial, fix))
         confirmed = [c for c in confirmed if c is not None]
