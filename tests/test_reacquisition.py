@@ -13,6 +13,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from cellsight import load_cell
+from cellsight.tracking.acquisition import TWIN_TOL, twin_turns
 from cellsight.tracking.extraction import CornerExtractor
 from cellsight.tracking.loss import LossRule
 from cellsight.tracking.search import PlaneSearch
@@ -304,3 +305,23 @@ def test_a_camera_is_dropped_for_one_offset_of_nearly_all_its_features(cell, mov
     check = run(agree_first=True)
     assert (1 in check.dropped) is dropped and 0 not in check.dropped
     assert not run(agree_first=False).dropped
+
+
+def test_a_part_s_twins_turn_half_its_points_or_more_onto_its_own(cell):
+    """``twin_turns`` against a count by hand: the built-in part (a U-shaped prism) maps all
+    16 feature points onto its own under a half turn about its y axis (upside down), and 8 of
+    16 (the outer box's corners; the notch's move 20 mm) under half turns about x and z through
+    its box's centre; quarter turns put fewer than half within 2 % of its size. A part of
+    random points has no twin."""
+    points = cell.workpieces[0].feature_points
+    turns = twin_turns(points)
+    tol = TWIN_TOL * np.linalg.norm(np.ptp(points, axis=0))
+    matched = []
+    for turn in turns:
+        moved = points @ turn[:3, :3].T + turn[:3, 3]
+        near = np.linalg.norm(moved[:, None] - points[None], axis=2).min(axis=1) <= tol
+        matched.append(int(near.sum()))
+        assert np.isclose(abs(np.trace(turn[:3, :3])), 1.0)  # a half turn: trace -1
+    assert sorted(matched) == [8, 8, 16]
+    rng = np.random.default_rng(0)
+    assert twin_turns(rng.uniform(-0.05, 0.05, (16, 3))) == []

@@ -31,6 +31,15 @@ from the 64 px windows at the nominal guess (11 points, a few of them a neighbou
 was refused at 3.35 px, and the search then found the part's nearly symmetric turned twin,
 which 10 points confirmed.
 
+A part that is nearly symmetric has twins: poses turned a quarter or a half turn about an axis
+through the centre of its feature points' box that put at least half of its feature points
+within ``TWIN_TOL`` (of the box's size) of one of them (:func:`twin_turns`; the built-in part
+has three: half turns about its three axes, one of them exact). Where a turned twin's features
+fall on the part's own corners, the verification confirms it too (in ``harsh``, from 10
+points against the part's 18); so every confirmed fix's twins are verified as well, and the
+confirmation of the most points stands, the fix itself on a tie (an exact twin cannot be told
+from the features: its features fall where the fix's do).
+
 With ``camera_offsets`` (on by default), a fix whose RMS is too large is tried once more with
 each camera's median residual taken out of its pixels
 (:func:`~cellsight.tracking.pnp.camera_shifts`): two cameras whose calibrations disagree by a
@@ -43,10 +52,31 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 
 import numpy as np
+from scipy.spatial import cKDTree
+from scipy.spatial.transform import Rotation
 
 from cellsight.tracking.measurement import Observation
 from cellsight.tracking.motion import POSE_DIM, STATE_DIM
 from cellsight.tracking.pnp import PoseFix, camera_shifts, estimate_pose_robust
+
+TWIN_TOL = 0.02  # a twin's turned feature point lies this close (share of the box) to one
+
+
+def twin_turns(points: np.ndarray) -> list[np.ndarray]:
+    """The part's twins (module docstring) as 4x4 motions in the part frame (a pose ``T``'s twin
+    is ``T @ turn``), for its feature points (F, 3)."""
+    lo, hi = points.min(axis=0), points.max(axis=0)
+    centre, tol = 0.5 * (lo + hi), TWIN_TOL * float(np.linalg.norm(hi - lo))
+    tree, turns = cKDTree(points), []
+    for axis in "xyz":
+        for degrees in (90, 180, 270):
+            R = Rotation.from_euler(axis, degrees, degrees=True).as_matrix()
+            turned = (points - centre) @ R.T + centre
+            if np.mean(tree.query(turned)[0] <= tol) >= 0.5:
+                turn = np.eye(4)
+                turn[:3, :3], turn[:3, 3] = R, centre - R @ centre
+                turns.append(turn)
+    return turns
 
 
 @dataclass(frozen=True)

@@ -36,13 +36,14 @@ statuses: :mod:`.status`; records: :mod:`.records`.
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
 
 from cellsight.camera import Camera
 from cellsight.geometry.transforms import invert_pose, xyz_rpy_from_pose
+from cellsight.tracking.acquisition import twin_turns
 from cellsight.tracking.camera_check import CameraCheck, CheckFrame
 from cellsight.tracking.config import TrackerConfig, TrackerParts
 from cellsight.tracking.ekf import AdaptiveNoise, PoseEKF, UpdateReport
@@ -76,7 +77,8 @@ class _Track:
     whether the last tracked frame accepted no measurement (``coasted``), the last time (s)
     enough were accepted to confirm the estimate for the unknown-occluder map (``confirmed``),
     since when its features were looked for in vain (``unseen_since``, s; :mod:`.loss`) and
-    when it was last searched for in the whole images (``searched``, s)."""
+    when it was last searched for in the whole images (``searched``, s); the part's ``twins``
+    (:func:`~cellsight.tracking.acquisition.twin_turns`)."""
 
     points: np.ndarray
     guess: np.ndarray | None
@@ -94,6 +96,7 @@ class _Track:
     unseen_since: float = np.inf
     searched: float = -np.inf
     support: np.ndarray | None = None
+    twins: list[np.ndarray] = field(default_factory=list)
 
     @property
     def acquiring(self) -> bool:
@@ -170,10 +173,12 @@ class Tracker:
         guesses = dict(initial_poses or {})
         names = [c.name for c in self.cameras]
         self.tracks = {
-            name: _Track(np.asarray(pts, dtype=float).reshape(-1, 3), guesses.get(name),
+            name: _Track(points, guesses.get(name),
                          NearOccluderHold(self.config.near_occluder_hold_s),
-                         self.components.health.monitor(names), support=guesses.get(name))
+                         self.components.health.monitor(names), support=guesses.get(name),
+                         twins=twin_turns(points))
             for name, pts in parts.items()
+            for points in [np.asarray(pts, dtype=float).reshape(-1, 3)]
         }
 
     @classmethod
@@ -414,6 +419,8 @@ class Tracker:
         verified = None if fix is None else self._verify(context, fix)
         if verified is None:
             verified = self._search(context)
+        if verified is not None:
+            verified = _best_twin(lambda fix: self._verify(context, fix), track.twins, verified)
         if verified is None:
             track.search_on(acquisition)
             return context.rec
@@ -521,6 +528,20 @@ class Tracker:
             observations.append(Observation(self._models[c], c, ids, track.points[ids],
                                             cam.undistort(px), float(context.lags[c])))
         return observations
+
+
+def _best_twin(verify: Callable[[PoseFix], tuple[StepContext, PoseFix] | None],
+               twins: Sequence[np.ndarray],
+               verified: tuple[StepContext, PoseFix]) -> tuple[StepContext, PoseFix]:
+    """``verified``, or the confirmation (``verify``) of one of its fix's ``twins`` (the part
+    turned onto itself, :func:`~cellsight.tracking.acquisition.twin_turns`) of more points (an
+    exact twin, whose features fall where the fix's do, is as good, and not taken)."""
+    best = verified
+    for turn in twins:
+        other = verify(replace(verified[1], T_base_part=verified[1].T_base_part @ turn))
+        if other is not None and other[1].n_points > best[1].n_points:
+            best = other
+    return best
 
 
 def _resolution(cameras: Sequence[Camera], track: _Track) -> np.ndarray:
