@@ -40,6 +40,7 @@ from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from cellsight.camera import Camera
 from cellsight.geometry.transforms import invert_pose, xyz_rpy_from_pose
@@ -62,6 +63,7 @@ from cellsight.tracking.status import TrackStatus
 from cellsight.tracking.timing import StageTimer
 from cellsight.visibility import CameraVisibility, Views, VisibilitySource
 
+TWIN_VERTICAL = np.cos(np.radians(10.0))  # a twin's turn axis this close to the vertical
 Crowd = list[tuple[np.ndarray, dict[str, tuple[int, np.ndarray]]]]
 """Per camera: (M, 2) predicted pixels of every visible feature of every part (what the windows
 must avoid), and each part's (first row, its visible feature indices) in them."""
@@ -534,11 +536,18 @@ def _best_twin(verify: Callable[[PoseFix], tuple[StepContext, PoseFix] | None],
                twins: Sequence[np.ndarray],
                verified: tuple[StepContext, PoseFix]) -> tuple[StepContext, PoseFix]:
     """``verified``, or the confirmation (``verify``) of one of its fix's ``twins`` (the part
-    turned onto itself, :func:`~cellsight.tracking.acquisition.twin_turns`) of more points (an
-    exact twin, whose features fall where the fix's do, is as good, and not taken)."""
-    best = verified
+    turned onto itself, :func:`~cellsight.tracking.acquisition.twin_turns`) that keep it the
+    right way up (turned about an axis within ``TWIN_VERTICAL`` of the vertical: a part found
+    lying on its support stays lying there; turned over, in ``harsh``, the twins' features
+    above the belt gave them more points than the part) of more
+    points (an exact twin, whose features fall where the fix's do, is as good, and not
+    taken)."""
+    best, T = verified, verified[1].T_base_part
     for turn in twins:
-        other = verify(replace(verified[1], T_base_part=verified[1].T_base_part @ turn))
+        axis = Rotation.from_matrix(turn[:3, :3]).as_rotvec()
+        if abs(T[:3, :3] @ axis)[2] < TWIN_VERTICAL * np.linalg.norm(axis):
+            continue  # it would turn the part over
+        other = verify(replace(verified[1], T_base_part=T @ turn))
         if other is not None and other[1].n_points > best[1].n_points:
             best = other
     return best
