@@ -36,9 +36,10 @@ through the centre of its feature points' box that put at least half of its feat
 within ``TWIN_TOL`` (of the box's size) of one of them (:func:`twin_turns`; the built-in part
 has three: half turns about its three axes, one of them exact). Where a turned twin's features
 fall on the part's own corners, the verification confirms it too (in ``harsh``, from 10
-points against the part's 18); so every confirmed fix's twins are verified as well, and the
-confirmation of the most points stands, the fix itself on a tie (an exact twin cannot be told
-from the features: its features fall where the fix's do).
+points against the part's 18); so every confirmed fix's twins that keep the part the right
+way up are verified as well (the tracker's choice), and the confirmation of the most points
+stands, the fix itself on a tie (an exact twin cannot be told from the features: its features
+fall where the fix's do).
 
 With ``camera_offsets`` (on by default), a fix whose RMS is too large is tried once more with
 each camera's median residual taken out of its pixels
