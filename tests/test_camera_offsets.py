@@ -108,8 +108,9 @@ def test_a_run_in_a_cell_of_disagreeing_cameras_holds_the_part_only_with_offsets
     image 6 px off, cam2's 9 px the other way), ideal sensor. Trusting the calibration, the
     part is acquired (the acquisition takes each camera's median residual out) but the filter
     cannot fuse the two views: it drifts to about 59 mm and, from its second tracked frame on
-    (the health monitor's first figures), never says `tracking`; estimating the offsets, it is acquired at once and held within the
-    calibration's own error, against the simulator's truth."""
+    (the health monitor's first figures), never says `tracking`; estimating the offsets, it is
+    acquired at once and held within the calibration's own error, against the simulator's
+    truth."""
     from cellsight.experiments import RunConfig, run_experiment
     from cellsight.runfolder import FrameLog
 
