@@ -8,7 +8,7 @@ reprojection error exceeds ``max_rms_px`` or a corner lies more than ``max_resid
 its reprojection). A fix whose RMS is at most ``coarse_rms_px`` is then verified against every
 feature it predicts: the predictor runs at the fix, windows of ``verify_window_px`` are placed
 on every usable feature it predicts visible, and the corners found there must give a fix again
-(same RMS limit) of at least ``min_points`` points, and in some camera of at least
+(within ``max_rms_px``) of at least ``min_points`` points, and in some camera of at least
 ``verify_support`` of the features looked for there (:meth:`PnPAcquisition.confirms`). The
 filter starts from that second fix, with the PnP covariance inflated by ``pose_inflation`` and a
 velocity uncertainty ``velocity_std`` (m/s, rad/s); the corners it dropped are recorded as
@@ -36,9 +36,9 @@ through the centre of its feature points' box that put at least half of its feat
 within ``TWIN_TOL`` (of the box's size) of one of them (:func:`twin_turns`; the built-in part
 has three: half turns about its three axes, one of them exact). Where a turned twin's features
 fall on the part's own corners, the verification confirms it too (in ``harsh``, from 10
-points against the part's 18); so every confirmed fix's twins that keep the part the right
-way up are verified as well (the tracker's choice), and the confirmation of the most points
-stands, the fix itself on a tie (an exact twin cannot be told from the features: its features
+points against the part's 18); so the tracker verifies a confirmed fix's twins as well (those
+turned about the vertical, which keep a lying part the right way up), and the confirmation of
+the most points stands, the fix itself on a tie (an exact twin cannot be told from the features: its features
 fall where the fix's do).
 
 With ``camera_offsets`` (on by default), a fix whose RMS is too large is tried once more with

@@ -536,12 +536,11 @@ def _best_twin(verify: Callable[[PoseFix], tuple[StepContext, PoseFix] | None],
                twins: Sequence[np.ndarray],
                verified: tuple[StepContext, PoseFix]) -> tuple[StepContext, PoseFix]:
     """``verified``, or the confirmation (``verify``) of one of its fix's ``twins`` (the part
-    turned onto itself, :func:`~cellsight.tracking.acquisition.twin_turns`) that keep it the
-    right way up (turned about an axis within ``TWIN_VERTICAL`` of the vertical: a part found
-    lying on its support stays lying there; turned over, in ``harsh``, the twins' features
-    above the belt gave them more points than the part) of more
-    points (an exact twin, whose features fall where the fix's do, is as good, and not
-    taken)."""
+    turned onto itself, :func:`~cellsight.tracking.acquisition.twin_turns`) with more points.
+    Only twins turned about an axis within ``TWIN_VERTICAL`` of the vertical are tried: they
+    keep a lying part the right way up (turned over, in ``harsh``, the twins' features above
+    the belt gave them more points than the part). An exact twin, whose features fall where
+    the fix's do, is as good, and not taken."""
     best, T = verified, verified[1].T_base_part
     for turn in twins:
         axis = Rotation.from_matrix(turn[:3, :3]).as_rotvec()
