@@ -38,8 +38,8 @@ has three: half turns about its three axes, one of them exact). Where a turned t
 fall on the part's own corners, the verification confirms it too (in ``harsh``, from 10
 points against the part's 18); so the tracker verifies a confirmed fix's twins as well (those
 turned about the vertical, which keep a lying part the right way up), and the confirmation of
-the most points stands, the fix itself on a tie (an exact twin cannot be told from the features: its features
-fall where the fix's do).
+the most points stands, the fix itself on a tie (an exact twin cannot be told from the
+features: its features fall where the fix's do).
 
 With ``camera_offsets`` (on by default), a fix whose RMS is too large is tried once more with
 each camera's median residual taken out of its pixels
