@@ -226,8 +226,10 @@ class ExperimentRun:
         self.clock = FrameClock(self.draws.profile.timing, config.seed)
         self.deliveries = Deliveries()
         self.frames_dropped = 0
-        self.landing = Landing(cell)  # the kinematic prior (:meth:`_priors`): where the part
-        self.held_at: np.ndarray | None = None  # was last held, where it then came to rest
+        # the kinematic prior (:meth:`_priors`): where the part was last held, where it then
+        # came to rest
+        self.landing = Landing(cell) if config.kinematic_prior else None
+        self.held_at: np.ndarray | None = None
         self.rest_at: np.ndarray | None = None
         kidnap = self.draws.errors.kidnap
         self.kidnap = None if kidnap is None else KidnapMonitor(kidnap)

@@ -218,7 +218,7 @@ class PoseEKF:
         xyz, rpy = xyz_rpy_from_pose(np.asarray(motion, dtype=float) @ self.pose)
         x, P = self._x.copy(), self._P.copy()  # new arrays: records keep the old ones
         old = x[:POSE_DIM].copy()
-        turn = (rpy - old[3:] + np.pi) % (2 * np.pi) - np.pi
+        turn = _wrapped(rpy - old[3:])
         x[:POSE_DIM] = np.concatenate([xyz, old[3:] + turn])
         if dt > 0:
             x[POSE_DIM:STATE_DIM] = (x[:POSE_DIM] - old) / dt
@@ -237,7 +237,7 @@ class PoseEKF:
         xyz, rpy = xyz_rpy_from_pose(np.asarray(T_rest, dtype=float))
         target = np.array([xyz[2], rpy[0], rpy[1], 0.0, 0.0, 0.0])
         nu = target - self._x[RESTING]
-        nu[1:3] = (nu[1:3] + np.pi) % (2 * np.pi) - np.pi
+        nu[1:3] = _wrapped(nu[1:3])
         r = np.array([std[0], std[1], std[1], std[0], std[1], std[1]]) ** 2
         P = self._P
         S = P[np.ix_(RESTING, RESTING)] + np.diag(r)
@@ -246,7 +246,7 @@ class PoseEKF:
         IKH[:, RESTING] -= K
         P_new = IKH @ P @ IKH.T + (K * r) @ K.T
         x = self._x + K @ nu
-        x[[3, 5]] = (x[[3, 5]] + np.pi) % (2 * np.pi) - np.pi  # roll and yaw to [-pi, pi)
+        x[[3, 5]] = _wrapped(x[[3, 5]])  # roll and yaw
         self._x, self._P = x, 0.5 * (P_new + P_new.T)
 
     def sigma_px(self, model: PinholeMeasurement, camera_index: int) -> float:
@@ -339,8 +339,7 @@ class PoseEKF:
                 self.adaptive.add(int(c), nu[rows], trace[rows])
         if accepted.any():
             state, P_new = _joseph_update(self._x, self._P, H, nu, sigma2, accepted)
-            for i in (3, 5):  # roll and yaw to [-pi, pi)
-                state[i] = (state[i] + np.pi) % (2 * np.pi) - np.pi
+            state[[3, 5]] = _wrapped(state[[3, 5]])  # roll and yaw
             if _small_step(state, self._x) or self._fits(observations, state, nu, accepted):
                 self._x, self._P = state, P_new
             else:
@@ -369,6 +368,11 @@ class PoseEKF:
             residual += float(np.sum((np.asarray(obs.pixels)[used] - pred[used]) ** 2))
             rows += n
         return residual <= float(np.sum(nu[accepted] ** 2)) * (1 + 1e-9)
+
+
+def _wrapped(angles: np.ndarray) -> np.ndarray:
+    """Angles (rad) wrapped to ``[-pi, pi)``."""
+    return (angles + np.pi) % (2 * np.pi) - np.pi
 
 
 def _small_step(new: np.ndarray, old: np.ndarray) -> bool:

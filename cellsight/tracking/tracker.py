@@ -496,8 +496,9 @@ class Tracker:
             trial = _looked_at(context, candidate.T_base_part, len(self.cameras))
             fix = self._fix(trial, self.components.acquisition.window_px, coarse=True)
             if fix is not None and fix.n_points >= search.min_points:
-                confirmed.append(self._verify(trial, fix))
-        confirmed = [c for c in confirmed if c is not None]
+                verified = self._verify(trial, fix)
+                if verified is not None:
+                    confirmed.append(verified)
         return max(confirmed, key=lambda c: (c[1].n_points, -c[1].rms_px), default=None)
 
     def _measure(self, context: StepContext,
