@@ -19,6 +19,7 @@ from cellsight.tracking import (
     estimate_pose_robust,
     solve_pnp_camera,
 )
+from cellsight.tracking.ekf import HELD, RESTING
 from cellsight.tracking.gate import ChiSquareGate
 from cellsight.tracking.measurement import rotation_of_state
 
@@ -121,10 +122,10 @@ def test_update_matches_information_form_and_stays_symmetric():
 
 
 def test_resting_on_a_support_matches_the_information_form():
-    """``rest_on``: the pseudo-measurement of height, roll, pitch (from the support's pose)
-    and their rates (zero) equals the information-form posterior with H selecting those six
-    states; the roll innovation is taken the short way round the circle, and the roll it
-    gives wrapped to [-pi, pi)."""
+    """``fuse_prior`` with ``RESTING``: the pseudo-measurement of height, roll, pitch (from
+    the support's pose) and their rates (zero) equals the information-form posterior with H
+    selecting those six states; the roll innovation is taken the short way round the circle,
+    and the roll it gives wrapped to [-pi, pi)."""
     rng = np.random.default_rng(1)
     x0 = np.concatenate([[0.6, 0.1, 0.63, np.pi - 0.01, -0.02, 0.3], rng.normal(0, 0.05, 6)])
     A = rng.normal(size=(12, 12))
@@ -132,7 +133,7 @@ def test_resting_on_a_support_matches_the_information_form():
     rest = pose_from_xyz_rpy([0.5, 0.0, 0.62], [-np.pi + 0.01, 0.0, 0.1])
     std = (0.002, 0.01)
     ekf = PoseEKF(ConstantVelocity(), x0, P0, 0.0)
-    ekf.rest_on(rest, std)
+    ekf.fuse_prior(rest, RESTING, [std[0], std[1], std[1], std[0], std[1], std[1]])
     rows = [2, 3, 4, 8, 9, 10]
     H = np.eye(12)[rows]
     R = np.diag(np.array([std[0], std[1], std[1], std[0], std[1], std[1]]) ** 2)
@@ -143,6 +144,32 @@ def test_resting_on_a_support_matches_the_information_form():
     np.testing.assert_allclose(ekf.covariance, P_info, rtol=1e-6, atol=1e-12)
     np.testing.assert_allclose(ekf.state, x_info, atol=1e-9)
     assert abs(ekf.state[2] - 0.62) < 2 * std[0] and np.all(np.linalg.eigvalsh(ekf.covariance) > 0)
+
+
+def test_held_by_a_gripper_matches_the_information_form():
+    """``fuse_prior`` with ``HELD``: the pseudo-measurement of the whole pose (the holder's)
+    equals the information-form posterior with H selecting the six pose states; the yaw
+    innovation is taken the short way round, and the rates move only through their
+    correlation with the pose."""
+    rng = np.random.default_rng(2)
+    x0 = np.concatenate([[0.4, -0.2, 0.9, 0.1, -0.05, -np.pi + 0.02], rng.normal(0, 0.05, 6)])
+    A = rng.normal(size=(12, 12))
+    P0 = 1e-3 * (A @ A.T + np.eye(12))
+    hold = pose_from_xyz_rpy([0.41, -0.19, 0.905], [0.12, -0.04, np.pi - 0.03])
+    std = np.array([0.002, 0.002, 0.002, 0.02, 0.02, 0.02])
+    ekf = PoseEKF(ConstantVelocity(), x0, P0, 0.0)
+    ekf.fuse_prior(hold, HELD, std)
+    H = np.eye(12)[:6]
+    R = np.diag(std**2)
+    xyz, rpy = xyz_rpy_from_pose(hold)
+    nu = np.concatenate([xyz, rpy]) - x0[:6]
+    nu[5] = -0.05  # from -pi + 0.02 to pi - 0.03 the short way
+    P_info = np.linalg.inv(np.linalg.inv(P0) + H.T @ np.linalg.inv(R) @ H)
+    x_info = x0 + P_info @ H.T @ np.linalg.inv(R) @ nu
+    x_info[5] = (x_info[5] + np.pi) % (2 * np.pi) - np.pi
+    np.testing.assert_allclose(ekf.covariance, P_info, rtol=1e-6, atol=1e-12)
+    np.testing.assert_allclose(ekf.state, x_info, atol=1e-9)
+    assert np.linalg.norm(ekf.state[:3] - xyz) < 3 * std[0]
 
 
 def test_no_measurement_only_predicts():

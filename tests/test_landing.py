@@ -14,7 +14,7 @@ from cellsight.model.landing import Landing
 
 CELL = load_cell("dual-arm")
 PART = CELL.workpieces[0]
-LANDING = Landing(CELL)
+LANDING = Landing(CELL.static)
 BOXES = [(pts.min(axis=0), pts.max(axis=0))
          for obj in CELL.static for solid in obj.solids
          for pts in [transform_points(obj.T_base_obj, solid.vertices)]]

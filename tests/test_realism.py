@@ -18,12 +18,14 @@ from cellsight import load_cell
 from cellsight.camera import Camera
 from cellsight.experiments.scenario import scenario
 from cellsight.experiments.sensors import IdealExtractor, IdealView
+from cellsight.geometry.transforms import transform_points
 from cellsight.occlusion.predictor import VisibilityPredictor
 from cellsight.realism import FrameClock, ProfileError, draw_world, load_profile
 from cellsight.realism.profile import Profile, TimingKnobs
 from cellsight.world import World
 from cellsight.world.images import ImageEffects, Imager
 from cellsight.world.imperfections import IDEAL, Imperfections
+from cellsight.world.mjcf import GROUP_STATIC
 from cellsight.world.servo import JointServo, ServoParams
 
 
@@ -161,6 +163,35 @@ def test_part_size_tolerance_changes_the_world_part(cell, tmp_path):
     np.testing.assert_allclose(np.ptp(built.vertices, axis=0) - np.ptp(nominal.vertices, axis=0),
                                5e-4, atol=1e-12)
     assert built.faces == nominal.faces and built.feature_names == nominal.feature_names
+
+
+def test_a_support_built_higher_carries_the_part_up_with_it_in_the_world_only(cell, tmp_path):
+    path = _profile(tmp_path, {"geometry": {"support_height_mm": {"dist": "normal",
+                                                                  "sigma": 3.0}}})
+    d = draw_world(load_profile(path), cell, 2)
+    lift = {s.name: b.T_base_obj[2, 3] - s.T_base_obj[2, 3]
+            for s, b in zip(cell.static, d.cell.static, strict=True)}
+    for s in cell.static:
+        assert lift[s.name] == pytest.approx(d.record[f"geometry.support_height_mm[{s.name}]"]
+                                             * 1e-3, abs=1e-9)
+    assert len({round(v, 9) for v in lift.values()}) == len(lift)  # drawn per object
+    part, built = cell.workpieces[0], d.cell.workpieces[0]
+    np.testing.assert_allclose(built.T_base_part - part.T_base_part,
+                               np.pad([[lift["conveyor"]]], ((2, 1), (3, 0))), atol=1e-12)
+    # MuJoCo's own geometry: the part stands on the world's belt, not the cell file's
+    import mujoco  # after cellsight.world, which sets MUJOCO_GL
+
+    world = World(d.cell)
+    T = world.scene.body_pose(world.scene.model.body(part.name).id)
+    np.testing.assert_allclose(T, built.T_base_part, atol=1e-9)
+    bottom = transform_points(T, part.solid.vertices)
+    low = bottom[np.argmin(bottom[:, 2])]
+    groups = np.zeros(6, dtype=np.uint8)
+    groups[GROUP_STATIC] = 1
+    gap = mujoco.mj_ray(world.scene.model, world.scene.data, low + [0.0, 0.0, 0.01],
+                        np.array([0.0, 0.0, -1.0]), groups, True, -1, np.zeros(1, np.int32))
+    assert gap - 0.01 == pytest.approx(0.0, abs=1e-6)
+    assert abs(lift["conveyor"]) > 1e-3  # the cell file's belt would be that far off
 
 
 def test_unknown_forearm_hides_features_the_predictor_thinks_visible(cell, tmp_path):

@@ -53,6 +53,7 @@ import numpy as np
 from rich.progress import BarColumn, Progress, TextColumn
 
 from cellsight.control import GraspTask, Phase, grasp_pose_in_part
+from cellsight.control.task import grasp_miss
 from cellsight.errors import CellsightError
 from cellsight.experiments.baseline import PnPBaseline
 from cellsight.experiments.exposure import Exposures
@@ -228,7 +229,7 @@ class ExperimentRun:
         self.frames_dropped = 0
         # the kinematic prior (:meth:`_priors`): where the part was last held, where it then
         # came to rest
-        self.landing = Landing(cell) if config.kinematic_prior else None
+        self.landing = Landing(cell.static) if config.kinematic_prior else None
         self.held_at: np.ndarray | None = None
         self.rest_at: np.ndarray | None = None
         kidnap = self.draws.errors.kidnap
@@ -394,18 +395,21 @@ class ExperimentRun:
             world.step({name: q}, {name: opening})
             self.grasp.after_control_step(world.time)
 
-    def _priors(self, q: np.ndarray) -> tuple[dict | None, dict | None]:
+    def _priors(self, q: np.ndarray, opening: float) -> tuple[dict | None, dict | None]:
         """The kinematic prior's ``holders`` and ``supports`` for :meth:`Tracker.step` (None
-        without it), from the robot's measured joints ``q``: while the jaws are closed on the
-        part, the part as the gripper holds it (the TCP times the grasp the task chose); until
-        they first close on it, the part lying on its support (the cell file's pose of it);
-        once they let it go, the part where it falls to from where they held it last (onto
-        the cell file's static objects, :class:`~cellsight.model.landing.Landing`; none when
-        nothing lies below it)."""
+        without it), from the robot's measured joints ``q`` and jaw ``opening`` (m): while the
+        jaws are closed on the part at the opening of its grasp (the task's own check,
+        :func:`~cellsight.control.task.grasp_miss`; closed at another, they caught it off its
+        grasp, and it is not where the task's grasp puts it), the part as the gripper holds it
+        (the TCP times the grasp the task chose); until they first hold it so, the part lying
+        on its support (the cell file's pose of it); once they let it go, the part where it
+        falls to from where they held it last (onto the cell file's static objects,
+        :class:`~cellsight.model.landing.Landing`; none when nothing lies below it)."""
         if not self.config.kinematic_prior:
             return None, None
-        name = self.part.name
-        if self.world.jaws_closed_on_part(self.robot.name):
+        name, task = self.part.name, self.task
+        closed = self.world.jaws_closed_on_part(self.robot.name)
+        if grasp_miss(closed, opening, task.grasp_opening, task.tolerances.opening) is None:
             self.held_at = self.robot.tcp_pose(q) @ invert_pose(self.task.planner.chosen_grasp)
             self.rest_at = None
             return {name: self.held_at}, None
@@ -425,7 +429,7 @@ class ExperimentRun:
         truth = FrameTruth.of(world, self.part.name, name)
         dropped = fate.dropped or (self.kidnap is not None and self.kidnap.kidnap.blind(t))
         observed = self._grab(dropped, truth.part)
-        holders, supports = self._priors(joints[name])
+        holders, supports = self._priors(joints[name], openings[name])
         frame = self.tracker.step(observed, joints, t, openings, holders,
                                   None if dropped else self.exposures.stamps, supports)
         rec = frame.parts[self.part.name]

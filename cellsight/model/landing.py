@@ -10,21 +10,24 @@ objects, with MuJoCo's ray casts).
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 import trimesh
 
 from cellsight.geometry.transforms import transform_points
-from cellsight.model.cell import Cell
+from cellsight.model.cell import StaticObject
 
 LIFT_M = 1e-4  # rays start this far above each vertex, so that a part touching its support rests
 
 
 class Landing:
-    """The static objects of ``cell`` as one triangle mesh in the base frame, to drop parts on."""
+    """Static objects (a cell's ``static``) as one triangle mesh in the base frame, to drop parts
+    on."""
 
-    def __init__(self, cell: Cell) -> None:
+    def __init__(self, static: Sequence[StaticObject]) -> None:
         vertices, triangles, start = [], [], 0
-        for obj in cell.static:
+        for obj in static:
             for solid in obj.solids:
                 vertices.append(transform_points(obj.T_base_obj, solid.vertices))
                 triangles.append(solid.triangles() + start)
@@ -35,6 +38,17 @@ class Landing:
     def rest_pose(self, vertices: np.ndarray, T_base_part: np.ndarray) -> np.ndarray | None:
         """``T_base_part`` lowered onto what lies below the part's ``vertices`` (V, 3, part
         frame) at ``T_base_part`` (4x4); None when no static object lies below any of them."""
+        drop = self.drop(vertices, T_base_part)
+        if drop is None:
+            return None
+        T = np.array(T_base_part, dtype=float)
+        T[2, 3] -= drop
+        return T
+
+    def drop(self, vertices: np.ndarray, T_base_part: np.ndarray) -> float | None:
+        """How far (m, >= 0) the part's ``vertices`` (V, 3, part frame) at ``T_base_part`` fall
+        straight down before one meets a static object; 0 when one already touches it, None when
+        no static object lies below any of them."""
         if self._mesh is None:
             return None
         origins = transform_points(T_base_part, vertices) + [0.0, 0.0, LIFT_M]
@@ -46,6 +60,4 @@ class Landing:
         drops = drops[drops >= -LIFT_M]  # below the ray's start, not behind it
         if len(drops) == 0:
             return None
-        T = np.array(T_base_part, dtype=float)
-        T[2, 3] -= max(float(drops.min()), 0.0)
-        return T
+        return max(float(drops.min()), 0.0)

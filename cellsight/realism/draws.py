@@ -96,7 +96,10 @@ def draw_world(profile: Profile | str, cell: Cell, seed: int) -> WorldDraws:
     cameras = {c.name: _camera_error(k, profile, c, work) for c in cell.cameras}
     robots = {r.name: _robot_error(k, profile, r) for r in cell.robots}
     parts = {p.name: _part_error(k, profile, p) for p in cell.workpieces}
-    world_cell = cell_as_built(cell, cameras, robots, parts)
+    support = profile.geometry.support_height_mm
+    heights = {s.name: float(k.draw("geometry.support_height_mm", support, (), 1e-3, s.name))
+               for s in cell.static}
+    world_cell = cell_as_built(cell, cameras, robots, parts, heights)
     errors = _imperfections(k, profile, cell, world_cell)
     shift = _scenario(k, profile, cell, parts)
     latest = 1.0 / VISION_HZ - 1.0 / CONTROL_HZ

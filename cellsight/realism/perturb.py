@@ -3,12 +3,14 @@
 Pure functions of a nominal :class:`~cellsight.model.Cell` and drawn numbers (SI units: m, rad):
 the cameras' extrinsics and intrinsics, the robots' bases and link lengths, the gripper's and
 the part's sizes (each solid scaled along its own axes about its frame's origin, so that faces
-stay planar), and the part's start pose. The nominal cell is never changed.
+stay planar), the part's start pose, and the static objects' heights (a table or a conveyor
+higher or lower than the cell file says, with the part that rests on it). The nominal cell is
+never changed.
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -19,7 +21,8 @@ from cellsight.geometry.polyhedron import Polyhedron
 from cellsight.geometry.transforms import make_pose
 from cellsight.kinematics import DHChain, KinematicChain, SerialChain
 from cellsight.model import Cell
-from cellsight.model.cell import Workpiece
+from cellsight.model.cell import StaticObject, Workpiece
+from cellsight.model.landing import Landing
 from cellsight.model.robot import Robot
 
 
@@ -140,33 +143,72 @@ def size_scale(solid: Polyhedron, change_m: np.ndarray) -> np.ndarray:
 class PartError:
     """A workpiece's errors: ``size_m`` (3,) changes of its extents, and where it starts:
     ``shift`` (2,) m in the base x-y plane, ``yaw`` rad about the base z axis through its
-    origin."""
+    origin, ``lift`` m along the base z axis (its support's height error)."""
 
     size_m: np.ndarray
     shift: np.ndarray
     yaw: float
+    lift: float = 0.0
 
 
 def part_as_built(part: Workpiece, err: PartError) -> Workpiece:
     """The workpiece as the world has it (itself when ``err`` is all zero)."""
-    if not (np.any(err.size_m) or np.any(err.shift) or err.yaw):
+    if not (np.any(err.size_m) or np.any(err.shift) or err.yaw or err.lift):
         return part
     T = part.T_base_part.copy()
     if err.yaw != 0.0:
         T[:3, :3] = Rotation.from_rotvec([0.0, 0.0, err.yaw]).as_matrix() @ T[:3, :3]
     T[:2, 3] += err.shift
+    T[2, 3] += err.lift
     return replace(part, solid=scaled(part.solid, size_scale(part.solid, err.size_m)),
                    T_base_part=T)
 
 
+SUPPORT_TOUCH_M = 1e-3
+"""A workpiece whose lowest vertices are within this height (m) of a static object's top at
+its start rests on that object."""
+
+
+def resting_on(part: Workpiece, static: Sequence[StaticObject]) -> str | None:
+    """The name of the static object ``part`` rests on at its start (the one it would fall onto
+    from at most :data:`SUPPORT_TOUCH_M` above); None when it rests on none."""
+    landing = Landing(static)
+    drop = landing.drop(part.solid.vertices, part.T_base_part)
+    if drop is None or drop > SUPPORT_TOUCH_M:
+        return None
+    for obj in static:
+        mine = Landing([obj]).drop(part.solid.vertices, part.T_base_part)
+        if mine is not None and mine <= drop + 1e-9:
+            return obj.name
+    return None
+
+
+def static_as_built(obj: StaticObject, lift: float) -> StaticObject:
+    """The static object raised by ``lift`` (m, base z; itself when 0)."""
+    if lift == 0.0:
+        return obj
+    T = obj.T_base_obj.copy()
+    T[2, 3] += lift
+    return replace(obj, T_base_obj=T)
+
+
 def cell_as_built(cell: Cell, cameras: Mapping[str, CameraError],
-                  robots: Mapping[str, RobotError], parts: Mapping[str, PartError]) -> Cell:
-    """The world's cell: ``cell`` with the errors of each named camera, robot and workpiece
-    (the others as they are)."""
+                  robots: Mapping[str, RobotError], parts: Mapping[str, PartError],
+                  heights: Mapping[str, float] | None = None) -> Cell:
+    """The world's cell: ``cell`` with the errors of each named camera, robot and workpiece,
+    and each named static object raised by its ``heights`` (m) together with the workpiece
+    resting on it (the others as they are)."""
+    heights = {name: h for name, h in (heights or {}).items() if h != 0.0}
+    parts = dict(parts)
+    for p in cell.workpieces:
+        under = resting_on(p, cell.static) if heights else None
+        if under in heights:
+            err = parts.get(p.name, PartError(np.zeros(3), np.zeros(2), 0.0))
+            parts[p.name] = replace(err, lift=err.lift + heights[under])
     return Cell(
         cell.name,
         [robot_as_built(r, robots[r.name]) if r.name in robots else r for r in cell.robots],
         [part_as_built(p, parts[p.name]) if p.name in parts else p for p in cell.workpieces],
-        cell.static,
+        [static_as_built(s, heights.get(s.name, 0.0)) for s in cell.static],
         [camera_as_built(c, cameras[c.name]) if c.name in cameras else c for c in cell.cameras],
         cell.source, cell.experiments)

@@ -149,13 +149,16 @@ class ServoKnobs(_Strict):
 class GeometryKnobs(_Strict):
     """Size errors of the part and of the gripper's palm and jaws (mm, per axis of their own
     frames); where the part settles in the jaws when they clamp (mm along, deg about the TCP
-    axes); the speed it then slips along the tool's approach axis (mm/s, absolute value)."""
+    axes); the speed it then slips along the tool's approach axis (mm/s, absolute value); each
+    static object's height error (mm along the base z axis, drawn per object: a table or a
+    conveyor as built; a part resting on one at the start rises or sinks with it)."""
 
     part_size_mm: Knob = ZERO
     gripper_size_mm: Knob = ZERO
     grasp_seat_mm: Knob = ZERO
     grasp_seat_deg: Knob = ZERO
     slip_mm_s: Knob = ZERO
+    support_height_mm: Knob = ZERO
 
 
 class UnmodelledKnobs(_Strict):

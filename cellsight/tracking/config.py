@@ -85,6 +85,9 @@ class TrackerConfig:
     (0: not estimated; :mod:`.offsets`), with a random walk of ``camera_offsets_walk_px``
     (px/sqrt(s)); ``held_std``: one sigma (m, rad) of where a holder puts a part (the grasp's
     seat, the joints' errors), with which a held part that is not tracked starts there;
+    ``hold_std``: one sigma (m, rad) of where a holder puts a part once the jaws' opening has
+    confirmed the grasp, with which its estimate is kept with the holder (tighter than
+    ``held_std``: the part is within its seat's error of the chosen grasp; :mod:`.tracker`);
     ``rest_std``: one sigma (m, rad) of the height and the roll and pitch of a part lying on its
     support, with the kinematic prior (``supports`` in :meth:`Tracker.step`; the support's
     height and flatness as the cell file knows them).
@@ -98,4 +101,5 @@ class TrackerConfig:
     camera_offsets_px: float = 0.0
     camera_offsets_walk_px: float = 0.0
     held_std: tuple[float, float] = (0.01, 0.05)
+    hold_std: tuple[float, float] = (0.003, 0.02)
     rest_std: tuple[float, float] = (0.002, 0.01)

@@ -22,14 +22,17 @@ Recursion, per vision frame:
 Carried part (optional, beyond the paper: the kinematic prior): while a robot holds the part,
 :meth:`PoseEKF.predict_carried` moves the estimate by the holder's measured motion since the
 last frame instead of the constant-velocity model, and adds a small random-walk noise for slip
-and kinematic error; the images update it as usual.
+and kinematic error; :meth:`PoseEKF.fuse_prior` then fuses the pseudo-measurement that the pose
+is where the holder puts it (:data:`HELD`), and the images update it as usual: a wrong corner
+can no longer carry a held part's estimate away from the gripper for good.
 
 Resting part (optional, beyond the paper: the kinematic prior): while a part lies on a level
-support (a conveyor's belt, a table; the base frame's z up), :meth:`PoseEKF.rest_on` fuses the
-pseudo-measurement that its height, roll and pitch are the support's and do not change (their
-rates zero), each with its own sigma (constrained Kalman filtering by pseudo-measurements):
-with one camera alone, the estimate can no longer slide along that camera's rays into the
-support.
+support (a conveyor's belt, a table; the base frame's z up), :meth:`PoseEKF.fuse_prior` fuses
+the pseudo-measurement that its height, roll and pitch are the support's and do not change
+(their rates zero; :data:`RESTING`), each with its own sigma (constrained Kalman filtering by
+pseudo-measurements): with one camera alone, the estimate can no longer slide along that
+camera's rays into the support. A part a holder let go lies still: :data:`STILL` fuses that its
+rates are zero.
 
 Adaptive noise (optional, beyond the paper): a scalar pixel variance per camera re-estimated by
 robust covariance matching over a sliding window of the last innovations (:class:`AdaptiveNoise`).
@@ -59,6 +62,9 @@ MIN_FOR_MEDIAN = 3  # features for a camera's median innovation to stand for its
 LONE_SIGMA_PX = 2.0  # widest prediction (px, 1 sigma) a camera of fewer features is gated on
 SMALL_STEP = (0.01, 0.05)  # m, rad: an update's pose change below which it is not checked
 RESTING = np.array([2, 3, 4, 8, 9, 10])  # state rows a level support fixes: z, roll, pitch, rates
+HELD = np.arange(6)  # state rows a holder fixes: the whole pose (its rates follow the holder)
+STILL = np.arange(6, 12)  # state rows a part at rest fixes: every rate (zero)
+FORGOTTEN = 1.0  # m^2, rad^2: the variance of a state whose estimate is forgotten
 
 
 @dataclass(frozen=True)
@@ -229,21 +235,32 @@ class PoseEKF:
             P[STATE_DIM:, STATE_DIM:] += model.walk(dt)
         self._x, self._P, self.t = x, P, float(t)
 
-    def rest_on(self, T_rest: np.ndarray, std: tuple[float, float]) -> None:
-        """Fuse that the part rests on a level support (module docstring): its height, roll and
-        pitch are those of ``T_rest`` (4x4, ``T_base_part`` of the part lying there) and their
-        rates are zero; ``std`` = (m, rad) one sigma of the height and the angles, and of the
-        rates per second (m/s, rad/s). A linear update (Joseph form) of those six states."""
-        xyz, rpy = xyz_rpy_from_pose(np.asarray(T_rest, dtype=float))
-        target = np.array([xyz[2], rpy[0], rpy[1], 0.0, 0.0, 0.0])
-        nu = target - self._x[RESTING]
-        nu[1:3] = _wrapped(nu[1:3])
-        r = np.array([std[0], std[1], std[1], std[0], std[1], std[1]]) ** 2
+    def fuse_prior(self, T_base_part: np.ndarray, rows: np.ndarray, std: np.ndarray,
+                   forget: bool = False) -> None:
+        """Fuse the pseudo-measurement (module docstring) that the states ``rows`` (indices
+        into the 12 of the pose and its rates; :data:`RESTING`, :data:`HELD`, :data:`STILL`) are
+        those of the part at ``T_base_part`` (4x4; the rates: zero), each with its own one
+        sigma ``std`` (m, rad, m/s, rad/s per row). A linear update (Joseph form); angle
+        innovations are taken the short way round, roll and yaw wrapped. ``forget``: the
+        estimate of those states is no longer trusted: their covariance is made wide
+        (``FORGOTTEN``) and uncorrelated first, so that they come out at the prior's values and
+        sigmas."""
+        rows = np.asarray(rows)
+        xyz, rpy = xyz_rpy_from_pose(np.asarray(T_base_part, dtype=float))
+        nu = np.concatenate([xyz, rpy, np.zeros(POSE_DIM)])[rows] - self._x[rows]
+        angles = (rows >= 3) & (rows < POSE_DIM)
+        nu[angles] = _wrapped(nu[angles])
+        r = np.asarray(std, dtype=float) ** 2
         P = self._P
-        S = P[np.ix_(RESTING, RESTING)] + np.diag(r)
-        K = np.linalg.solve(S, P[RESTING]).T  # P H^T S^-1
+        if forget:
+            P = P.copy()
+            P[rows, :] = 0.0
+            P[:, rows] = 0.0
+            P[rows, rows] = FORGOTTEN
+        S = P[np.ix_(rows, rows)] + np.diag(r)
+        K = np.linalg.solve(S, P[rows]).T  # P H^T S^-1
         IKH = np.eye(len(self._x))
-        IKH[:, RESTING] -= K
+        IKH[:, rows] -= K
         P_new = IKH @ P @ IKH.T + (K * r) @ K.T
         x = self._x + K @ nu
         x[[3, 5]] = _wrapped(x[[3, 5]])  # roll and yaw

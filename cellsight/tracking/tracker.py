@@ -47,7 +47,7 @@ from cellsight.geometry.transforms import invert_pose, xyz_rpy_from_pose
 from cellsight.tracking.acquisition import twin_turns
 from cellsight.tracking.camera_check import CameraCheck, CheckFrame
 from cellsight.tracking.config import TrackerConfig, TrackerParts
-from cellsight.tracking.ekf import AdaptiveNoise, PoseEKF, UpdateReport
+from cellsight.tracking.ekf import HELD, RESTING, STILL, AdaptiveNoise, PoseEKF, UpdateReport
 from cellsight.tracking.eligibility import NearOccluderHold
 from cellsight.tracking.extraction import CornerExtractor
 from cellsight.tracking.gate import SupportedGate
@@ -64,6 +64,8 @@ from cellsight.tracking.timing import StageTimer
 from cellsight.visibility import CameraVisibility, Views, VisibilitySource
 
 TWIN_VERTICAL = np.cos(np.radians(10.0))  # a twin's turn axis this close to the vertical
+HOLD_SIGMAS = 3.0  # a held part's estimate this many holder sigmas off has left the grasp
+LYING_TOL = (0.015, 0.15)  # m, rad: a fix this far from its support's height and tilt is wrong
 Crowd = list[tuple[np.ndarray, dict[str, tuple[int, np.ndarray]]]]
 """Per camera: (M, 2) predicted pixels of every visible feature of every part (what the windows
 must avoid), and each part's (first row, its visible feature indices) in them."""
@@ -72,7 +74,8 @@ must avoid), and each part's (first row, its visible feature indices) in them.""
 @dataclass
 class _Track:
     """One workpiece's track: feature points (F, 3) in the part frame, the acquisition guess
-    (also the ``support`` pose of the whole-image search), the near-occluder hold, the health
+    (also the ``support`` pose of the whole-image search, until the kinematic prior gives the
+    support the part lies on), the near-occluder hold, the health
     monitor, the filter, the last accepted measurement's time (s), the holder's pose of the
     part (the last frame's, this frame's once predicted), where a gripper holds the part or
     last held it since the filter last accepted a measurement (``held_at``, ``T_base_part``),
@@ -80,7 +83,9 @@ class _Track:
     enough were accepted to confirm the estimate for the unknown-occluder map (``confirmed``),
     since when its features were looked for in vain (``unseen_since``, s; :mod:`.loss`) and
     when it was last searched for in the whole images (``searched``, s); the part's ``twins``
-    (:func:`~cellsight.tracking.acquisition.twin_turns`)."""
+    (:func:`~cellsight.tracking.acquisition.twin_turns`); with the kinematic prior, the pose
+    of the part lying on its support this frame (``lying``, None: held, or not known) and
+    whether a holder let it go (``let_go``, until one holds it again)."""
 
     points: np.ndarray
     guess: np.ndarray | None
@@ -99,6 +104,8 @@ class _Track:
     searched: float = -np.inf
     support: np.ndarray | None = None
     twins: list[np.ndarray] = field(default_factory=list)
+    lying: np.ndarray | None = None
+    let_go: bool = False
 
     @property
     def acquiring(self) -> bool:
@@ -256,17 +263,21 @@ class Tracker:
         prior, optional): part name -> ``T_base_part`` where what holds the part rigidly this
         frame puts it (a gripper closed on it: its TCP from the joint measurements times the
         grasp's ``T_tcp_part``); a part held at this frame and the last one is predicted by
-        the holder's motion (:meth:`PoseEKF.predict_carried`) instead of its motion model; a
-        held part not tracked, or lost, starts there (``TrackerConfig.held_std``), one let go
-        comes to rest (its rates zeroed: it no longer moves with the holder), and one let go
-        while not tracked is looked for where it was let go; ``stamps`` (optional):
+        the holder's motion (:meth:`PoseEKF.predict_carried`) instead of its motion model, a
+        held part's estimate is kept with the holder's pose (:func:`_hold`,
+        ``TrackerConfig.hold_std``) and is never lost, a held part never tracked starts there
+        (``TrackerConfig.held_std``), one let go comes to rest (its rates zeroed: it no longer
+        moves with the holder), and one let go while not tracked is looked for where it was
+        let go; ``stamps`` (optional):
         each camera's exposure time (s, at most ``t``; a sequence in camera order or a mapping
         by camera name, None for ``t``), for cameras not triggered together: the filter is
         predicted to ``t`` and each camera measures the pose of its own exposure
         (:class:`~cellsight.tracking.measurement.Observation` ``lag_s``); ``supports`` (the
         kinematic prior, optional): part name -> ``T_base_part`` of the part lying on the level
         support it rests on this frame (a conveyor's belt, a table): a tracked part not held
-        keeps that height, roll and pitch (:meth:`PoseEKF.rest_on`, ``TrackerConfig.rest_std``).
+        keeps that height, roll and pitch (:meth:`PoseEKF.fuse_prior`,
+        ``TrackerConfig.rest_std``),
+        and a lost one is searched for on that support's plane.
         """
         lags = _lags(stamps, self.cameras, t)
         timer = StageTimer()
@@ -301,19 +312,23 @@ class Tracker:
         poses = {}
         loss = self.components.loss
         for name, track in self.tracks.items():
-            holder = holders.get(name)
+            holder, lying = holders.get(name), supports.get(name)
+            track.lying = None if holder is not None or lying is None else np.asarray(
+                lying, dtype=float)
+            track.let_go = holder is None and (track.let_go or track.holder is not None)
             if track.ekf is not None:
                 if holder is not None and track.holder is not None:
                     track.ekf.predict_carried(t, holder @ invert_pose(track.holder),
                                               self.config.carried_noise)
                 elif loss.coasts(t, track.last_update):
                     track.ekf.predict(t, at_rest=track.holder is not None)  # let go: at rest
-                if holder is None and name in supports:
-                    track.ekf.rest_on(supports[name], self.config.rest_std)
+                _fuse_priors(track, t, holder, self.config)
                 track.lost = loss.lost(t, track.last_update, track.unseen_since)
                 poses[name] = track.ekf.pose
             elif track.guess is not None:
                 poses[name] = track.guess
+            if track.lying is not None:  # the whole-image search's plane
+                track.support = track.lying
             track.holder = None if holder is None else np.asarray(holder, dtype=float)
             if track.holder is not None:
                 track.held_at = track.holder
@@ -419,6 +434,8 @@ class Tracker:
             return rec
         fix = self._fix(context, acquisition.window_px, coarse=True)
         verified = None if fix is None else self._verify(context, fix)
+        if verified is not None and not _lies_on(track.lying, verified[1].T_base_part):
+            verified = None  # off the support it lies on: a wrong pose the corners fit
         if verified is None:
             verified = self._search(context)
         if verified is not None:
@@ -497,7 +514,7 @@ class Tracker:
             fix = self._fix(trial, self.components.acquisition.window_px, coarse=True)
             if fix is not None and fix.n_points >= search.min_points:
                 verified = self._verify(trial, fix)
-                if verified is not None:
+                if verified is not None and _lies_on(track.lying, verified[1].T_base_part):
                     confirmed.append(verified)
         return max(confirmed, key=lambda c: (c[1].n_points, -c[1].rms_px), default=None)
 
@@ -531,6 +548,54 @@ class Tracker:
             observations.append(Observation(self._models[c], c, ids, track.points[ids],
                                             cam.undistort(px), float(context.lags[c])))
         return observations
+
+
+def _fuse_priors(track: _Track, t: float, holder: np.ndarray | None,
+                 config: TrackerConfig) -> None:
+    """The kinematic prior's pseudo-measurements of a tracked part at time ``t`` (s;
+    :meth:`PoseEKF.fuse_prior`): held, it is kept with its ``holder`` (:func:`_hold`) and never
+    lost (the holder measures it); lying on a support, it keeps the support's height, roll and
+    pitch (``RESTING``); let go, it stays where it came to rest (``STILL``: every rate zero;
+    a wrong corner's update can no longer set it moving). ``config.rest_std`` gives the
+    sigmas of the height and the angles and of their rates per second."""
+    if holder is not None:
+        _hold(track.ekf, holder, config.hold_std)
+        track.last_update, track.unseen_since = float(t), np.inf
+        return
+    h, a = config.rest_std
+    if track.lying is not None:
+        track.ekf.fuse_prior(track.lying, RESTING, [h, a, a, h, a, a])
+    if track.let_go:
+        track.ekf.fuse_prior(track.ekf.pose, STILL, [h, h, h, a, a, a])
+
+
+def _lies_on(lying: np.ndarray | None, T_base_part: np.ndarray) -> bool:
+    """Whether a pose found for a part lies on the support the kinematic prior says it lies on
+    (``lying``: ``T_base_part`` there; None: nothing known): its height within
+    ``LYING_TOL[0]`` (m) and its tilt from the lying pose within ``LYING_TOL[1]`` (rad)."""
+    if lying is None:
+        return True
+    R = T_base_part[:3, :3] @ lying[:3, :3].T
+    tilt = float(np.arccos(np.clip(R[2, 2], -1.0, 1.0)))
+    return abs(T_base_part[2, 3] - lying[2, 3]) <= LYING_TOL[0] and tilt <= LYING_TOL[1]
+
+
+def _hold(ekf: PoseEKF, holder: np.ndarray, std: tuple[float, float]) -> None:
+    """Keep a held part's estimate with its holder's pose ``holder`` (the kinematic prior;
+    ``std``: its one sigma, m and rad): where the filter knows the pose less well than the
+    holder does, fuse the holder's pose; where the estimate is more than ``HOLD_SIGMAS`` of
+    them from it (wrong corners carried it off, or the cameras' shared calibration error
+    did), forget it and take the holder's. In between the images alone update it: a holder's
+    error is a bias, and fused every frame it would soon outweigh every camera."""
+    T = ekf.pose
+    moved = np.linalg.norm(T[:3, 3] - holder[:3, 3]) / std[0]
+    turned = Rotation.from_matrix(T[:3, :3].T @ holder[:3, :3]).magnitude() / std[1]
+    P = ekf.covariance
+    wide = (np.linalg.eigvalsh(P[:3, :3])[-1] > std[0] ** 2
+            or np.linalg.eigvalsh(P[3:6, 3:6])[-1] > std[1] ** 2)
+    off = max(moved, turned) > HOLD_SIGMAS
+    if wide or off:
+        ekf.fuse_prior(holder, HELD, np.repeat(std, 3), forget=off)
 
 
 def _best_twin(verify: Callable[[PoseFix], tuple[StepContext, PoseFix] | None],
