@@ -424,6 +424,28 @@ def test_grasp_engages_at_the_grasp_pose_carries_and_releases_the_part(cell):
     np.testing.assert_allclose(world.true_part_poses()["part"], rest, atol=1e-12)
 
 
+def test_a_part_let_go_pressed_into_the_table_rests_on_its_top(cell):
+    """A held part put down 8 mm too low (its bottom inside the table's slab: a kinematic part
+    goes where the jaws take it) rests on the table's top once let go, as the tracker's
+    landing (``cellsight.model.landing``) has it; it did fall 22 mm further into the slab."""
+    from cellsight.model.landing import Landing
+
+    world = World(cell)
+    table = next(o for o in cell.static if o.name == "table")
+    top = transform_points(table.T_base_obj, table.solids[0].vertices)[:, 2].max()
+    part = cell.workpiece("part")
+    T = pose_from_xyz_rpy([0.88, -0.28, top - 0.008], [0.0, 0.0, 0.4])
+    world.place_part("part", T)
+    world.parts.release("part")
+    _run_until(world, world.time + 0.3, setpoints={})
+    rest = world.true_part_poses()["part"]
+    bottom = transform_points(rest, part.solid.vertices)[:, 2].min()
+    assert bottom == pytest.approx(top, abs=1e-6)
+    np.testing.assert_allclose(rest[:2, 3], T[:2, 3], atol=1e-12)
+    model = Landing(cell.static).rest_pose(part.solid.vertices, T)
+    np.testing.assert_allclose(model, rest, atol=1e-6)
+
+
 def test_jaws_centre_a_slightly_offset_part_and_grasp_it(cell):
     world = World(cell)
     placed = _part_in_gripper(world, cell, make_pose(None, (0.0, 0.005, 0.0)))

@@ -18,7 +18,10 @@ import trimesh
 from cellsight.geometry.transforms import transform_points
 from cellsight.model.cell import StaticObject
 
-LIFT_M = 1e-4  # rays start this far above each vertex, so that a part touching its support rests
+PRESSED_M = 0.02
+"""A part let go with a vertex up to this far (m) below the top of a support (put down too low)
+rests on that top, as the simulated world's part does; the rays start this far above each
+vertex."""
 
 
 class Landing:
@@ -37,7 +40,8 @@ class Landing:
 
     def rest_pose(self, vertices: np.ndarray, T_base_part: np.ndarray) -> np.ndarray | None:
         """``T_base_part`` lowered onto what lies below the part's ``vertices`` (V, 3, part
-        frame) at ``T_base_part`` (4x4); None when no static object lies below any of them."""
+        frame) at ``T_base_part`` (4x4; raised onto it, when pressed into it); None when no
+        static object lies below any of them."""
         drop = self.drop(vertices, T_base_part)
         if drop is None:
             return None
@@ -46,18 +50,15 @@ class Landing:
         return T
 
     def drop(self, vertices: np.ndarray, T_base_part: np.ndarray) -> float | None:
-        """How far (m, >= 0) the part's ``vertices`` (V, 3, part frame) at ``T_base_part`` fall
-        straight down before one meets a static object; 0 when one already touches it, None when
-        no static object lies below any of them."""
+        """How far (m) the part's ``vertices`` (V, 3, part frame) at ``T_base_part`` fall
+        straight down before one meets a static object: 0 when one touches it, negative when
+        one is pressed into it (by up to :data:`PRESSED_M`); None when no static object lies
+        below any of them."""
         if self._mesh is None:
             return None
-        origins = transform_points(T_base_part, vertices) + [0.0, 0.0, LIFT_M]
+        origins = transform_points(T_base_part, vertices) + [0.0, 0.0, PRESSED_M]
         down = np.tile([0.0, 0.0, -1.0], (len(origins), 1))
         hits, rays, _ = self._mesh.ray.intersects_location(origins, down, multiple_hits=True)
-        if len(rays) == 0:
-            return None
-        drops = origins[rays, 2] - hits[:, 2] - LIFT_M
-        drops = drops[drops >= -LIFT_M]  # below the ray's start, not behind it
-        if len(drops) == 0:
-            return None
-        return max(float(drops.min()), 0.0)
+        drops = origins[rays, 2] - hits[:, 2] - PRESSED_M
+        drops = drops[drops >= -PRESSED_M]  # below the ray's start, not behind it
+        return float(drops.min()) if len(drops) else None

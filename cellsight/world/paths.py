@@ -17,6 +17,10 @@ from cellsight.world.mjcf import GROUP_PART, GROUP_STATIC
 from cellsight.world.scene import Scene
 
 GRAVITY = 9.81  # m/s^2
+PRESSED_M = 0.02
+"""A part let go with a vertex up to this far (m) below the top of a support (pressed into it
+by jaws that put it down too low: a kinematic part goes where the jaws take it) rests on that
+top; the rays that find the support start this far above each vertex."""
 
 
 @dataclass(frozen=True)
@@ -233,11 +237,16 @@ class PartMotion:
 
     def release(self, name: str) -> None:
         """Let go of a held workpiece: it starts falling (it rests where it is if nothing lies
-        below it or it already touches a support)."""
+        below it or it already touches a support; one pressed into a support rises onto its
+        top, :data:`PRESSED_M`)."""
         part = self._parts[name]
         part.mode, part.T_tcp_part = "resting", None
         self.scene.sync()
-        part.fall_left, part.fall_speed = self._drop_height(name), 0.0
+        drop = self._drop_height(name)
+        if drop < 0:
+            part.pose[2, 3] -= drop
+            self._write(name)
+        part.fall_left, part.fall_speed = max(drop, 0.0), 0.0
 
     def place(self, name: str, T_base_part: np.ndarray) -> None:
         """Put a workpiece at a pose, resting there (off the conveyor, out of any gripper)."""
@@ -253,18 +262,20 @@ class PartMotion:
 
     def _drop_height(self, name: str) -> float:
         """How far the part can fall straight down before it rests on a static object or
-        another workpiece (m): the shortest downward ray cast from its vertices."""
+        another workpiece (m; negative: it is pressed that far into one): the shortest
+        downward ray cast from :data:`PRESSED_M` above its vertices, less that lift; 0 when
+        nothing lies below it."""
         groups = np.zeros(6, dtype=np.uint8)
         groups[[GROUP_STATIC, GROUP_PART]] = 1
-        lift, down = 1e-4, np.array([0.0, 0.0, -1.0])  # start just above a touching support
+        down = np.array([0.0, 0.0, -1.0])
         drops = []
         solid = self.cell.workpiece(name).solid
         for v in transform_points(self._parts[name].pose, solid.vertices):
-            d = mujoco.mj_ray(self.scene.model, self.scene.data, v + [0.0, 0.0, lift], down,
-                              groups, True, self._body[name], None)
+            d = mujoco.mj_ray(self.scene.model, self.scene.data, v + [0.0, 0.0, PRESSED_M],
+                              down, groups, True, self._body[name], None)
             if d >= 0:
-                drops.append(d - lift)
-        return max(min(drops), 0.0) if drops else 0.0
+                drops.append(d - PRESSED_M)
+        return min(drops) if drops else 0.0
 
     def _conveyor_pose(self, t: float) -> np.ndarray:
         T = self.cell.workpiece(self._carried).T_base_part.copy()
