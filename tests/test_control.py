@@ -598,11 +598,12 @@ def test_smoothness_check_fails_without_the_interpolating_filter() -> None:
 # ---- the task against the MuJoCo world (when it is available) ---------------------------------
 
 def _world_run(speed: float, world_grasp: bool, t_end: float = 40.0, miss_x: float = 0.0,
-               check_opening: bool = False):
+               check_opening: bool = False, retry_shift: float = 0.005):
     """The task (compressed timing) against the MuJoCo world, the part on a conveyor moving
     along +x at ``speed`` (m/s); the grasp is the world's own (``world_grasp``) or the
     controller's default, aimed ``miss_x`` (m) off along the part's x; ``check_opening``: the
-    task checks the jaws' opening against the grasp's."""
+    task checks the jaws' opening against the grasp's, and moves its retries by
+    ``retry_shift``."""
     world_mod = pytest.importorskip("cellsight.world")
     start = PART.T_base_part[:2, 3]
     conveyor = (world_mod.ConveyorPath(np.array([start, start + [0.8, 0.0]]), speed)
@@ -614,7 +615,8 @@ def _world_run(speed: float, world_grasp: bool, t_end: float = 40.0, miss_x: flo
     planner = TrajectoryPlanner(aim, max_speed=0.5, max_angular_speed=1.2)
     opening = (pytest.importorskip("cellsight.world.grasp").grasp_opening(
         PART.solid, ROBOT.tool, T_part_tcp) if check_opening else None)
-    task = GraspTask(ROBOT, PART, timing=FAST, planner=planner, grasp_opening=opening)
+    task = GraspTask(ROBOT, PART, timing=FAST, planner=planner, grasp_opening=opening,
+                     retry_shift=retry_shift)
     rng = np.random.default_rng(2)
     name = ROBOT.name
     next_vision, grasped_at = 0.0, None
@@ -670,7 +672,8 @@ def test_jaws_caught_off_the_grasp_are_opened_again_in_the_mujoco_world() -> Non
     """Aimed 4 mm along the part's x, the jaws (35 mm wide) miss the U's 40 mm slot and close
     on its 60 mm ends; the world does not weld that grasp (the part pushed 1 cm off it).
     Without the opening check the task lifts empty jaws; with it, it opens them and tries
-    again."""
+    again, 5 mm along the jaws' width: 1 mm off the slot's middle, the world welds the grasp
+    and the part is lifted. Tried again at the same aim, it misses again."""
     grasp_opening = pytest.importorskip("cellsight.world.grasp").grasp_opening
     assert grasp_opening(PART.solid, ROBOT.tool, grasp_pose_in_part(PART)) == \
         pytest.approx(0.04)
@@ -679,9 +682,14 @@ def test_jaws_caught_off_the_grasp_are_opened_again_in_the_mujoco_world() -> Non
     lifted = world.true_part_poses()[PART.name][2, 3] - PART.T_base_part[2, 3]
     assert abs(lifted) < 1e-3  # left behind
     task, world, *_ = _world_run(0.0, True, t_end=12.0, miss_x=0.004, check_opening=True)
-    assert _phases(task)[:4] == [Phase.WAITING, Phase.APPROACH, Phase.GRASP, Phase.APPROACH]
+    assert _phases(task)[:6] == [Phase.WAITING, Phase.APPROACH, Phase.GRASP, Phase.APPROACH,
+                                 Phase.GRASP, Phase.MANIPULATE]
     assert "they caught the part off its grasp (attempt 1)" in task.transitions[2][3]
-    assert Phase.MANIPULATE not in _phases(task)
+    assert "the next grasp" in task.transitions[2][3]
+    assert world.grasp(ROBOT.name) is not None
+    same, world, *_ = _world_run(0.0, True, t_end=12.0, miss_x=0.004, check_opening=True,
+                                 retry_shift=0.0)
+    assert Phase.MANIPULATE not in _phases(same) and same.attempts >= 2
 
 
 @settings(max_examples=300, deadline=None)

@@ -15,7 +15,11 @@ Phases, in order: ``waiting`` -> ``approach`` -> ``grasp`` -> ``manipulate`` -> 
   part, at the opening the part's section between the jaws gives at its grasp (within
   ``tolerances.opening``, when the task knows that opening and the jaws' reading): ``holding``
   for ``timing.hold``; not closed, or closed at another opening (the jaws caught a wider part
-  of it, off the grasp): open the jaws and go back to ``approach``.
+  of it, off the grasp): open the jaws and go back to ``approach``. Jaws that caught the part
+  off its grasp were off along their own width (across it, closing jaws centre the part), by
+  more than the grasp leaves them, and the estimate that put them there is off the same way
+  on the next attempt: the next grasp is moved by ``retry_shift`` along the jaws' width, one
+  way, then the other (:func:`shifted_grasp`).
 - manipulate: ``lift`` by ``lift_height``, then ``home`` (back to the HOME pose carrying the part).
   No vision from here on: the planner uses the joint measurements only.
 - release: ``final`` (go to the FINAL pose), ``opening`` (open the jaws, ``timing.open``), ``home``.
@@ -103,6 +107,19 @@ class TaskTolerances:
     opening: float = 0.005
 
 
+RETRY_SIDES = (1.0, -1.0)
+"""Which way each retry after a grasp caught off the part moves the grasp, in turn."""
+
+
+def shifted_grasp(T_part_tcp: np.ndarray, shift: float) -> np.ndarray:
+    """The grasp ``T_part_tcp`` moved by ``shift`` (m) along the jaws' width (the TCP's x
+    axis: the jaws close along its y and approach along its z); the grasp turned half a turn
+    about z moves the same way in the part's frame."""
+    T = np.array(T_part_tcp, dtype=float)
+    T[:3, 3] += shift * T[:3, 0]
+    return T
+
+
 def grasp_miss(jaws_closed: bool, opening: float | None, expected: float | None,
                tolerance: float) -> str | None:
     """Why jaws closed at ``opening`` (m; None: no reading) do not hold a part whose grasp
@@ -163,7 +180,8 @@ class GraspTask:
     :class:`InterpolatingFilter` with their default parameters; the control period is the
     interpolator's ``dt``. Gripper commands: ``robot.tool.max_opening`` open, 0 closed.
     ``grasp_opening`` (m): the jaws' opening when closed on the part at its grasp (None: any
-    opening counts).
+    opening counts); ``retry_shift`` (m): how far a retry after a grasp caught off the part
+    moves the grasp along the jaws' width (module docstring; 0: not at all).
     """
 
     def __init__(
@@ -180,6 +198,7 @@ class GraspTask:
         clik: Clik | None = None,
         interpolator: InterpolatingFilter | None = None,
         grasp_opening: float | None = None,
+        retry_shift: float = 0.005,
     ) -> None:
         if robot.tool is None or robot.final is None:
             raise ValueError(f"GraspTask: robot {robot.name} needs a tool and a FINAL pose")
@@ -197,6 +216,9 @@ class GraspTask:
         self.open_command = robot.tool.max_opening
         self.closed_command = 0.0
         self.grasp_opening = None if grasp_opening is None else float(grasp_opening)
+        self.retry_shift = float(retry_shift)
+        self._first_grasp = self.planner.T_part_tcp.copy()
+        self._shifts = 0
         self.phase = Phase.WAITING
         self.stage = "start"
         self.attempts = 0
@@ -297,6 +319,11 @@ class GraspTask:
             self.attempts += 1
             self._gripper = self.open_command
             reason = f"{miss} (attempt {self.attempts})"
+            if jaws_closed and self.retry_shift > 0:  # caught off the grasp: move it
+                shift = RETRY_SIDES[self._shifts % len(RETRY_SIDES)] * self.retry_shift
+                self._shifts += 1
+                self.planner.T_part_tcp = shifted_grasp(self._first_grasp, shift)
+                reason += f"; the next grasp {1e3 * shift:+.1f} mm along the jaws' width"
             if self.attempts >= self.max_attempts:
                 self._go(t, Phase.FAILED, f"{reason}; giving up")
                 self._set_stage(t, "home", "returning HOME")
