@@ -598,7 +598,7 @@ def test_smoothness_check_fails_without_the_interpolating_filter() -> None:
 # ---- the task against the MuJoCo world (when it is available) ---------------------------------
 
 def _world_run(speed: float, world_grasp: bool, t_end: float = 40.0, miss_x: float = 0.0,
-               check_opening: bool = False, retry_shift: float = 0.005):
+               check_opening: bool = False, retry_shift: float = 0.0035):
     """The task (compressed timing) against the MuJoCo world, the part on a conveyor moving
     along +x at ``speed`` (m/s); the grasp is the world's own (``world_grasp``) or the
     controller's default, aimed ``miss_x`` (m) off along the part's x; ``check_opening``: the
@@ -672,8 +672,8 @@ def test_jaws_caught_off_the_grasp_are_opened_again_in_the_mujoco_world() -> Non
     """Aimed 4 mm along the part's x, the jaws (35 mm wide) miss the U's 40 mm slot and close
     on its 60 mm ends; the world does not weld that grasp (the part pushed 1 cm off it).
     Without the opening check the task lifts empty jaws; with it, it opens them and tries
-    again, 5 mm along the jaws' width: 1 mm off the slot's middle, the world welds the grasp
-    and the part is lifted. Tried again at the same aim, it misses again."""
+    again, 3.5 mm along the jaws' width: 0.5 mm off the slot's middle, the world welds the
+    grasp and the part is lifted. Tried again at the same aim, it misses again."""
     grasp_opening = pytest.importorskip("cellsight.world.grasp").grasp_opening
     assert grasp_opening(PART.solid, ROBOT.tool, grasp_pose_in_part(PART)) == \
         pytest.approx(0.04)

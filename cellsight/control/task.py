@@ -198,7 +198,7 @@ class GraspTask:
         clik: Clik | None = None,
         interpolator: InterpolatingFilter | None = None,
         grasp_opening: float | None = None,
-        retry_shift: float = 0.005,
+        retry_shift: float = 0.0035,
     ) -> None:
         if robot.tool is None or robot.final is None:
             raise ValueError(f"GraspTask: robot {robot.name} needs a tool and a FINAL pose")
