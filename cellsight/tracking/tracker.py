@@ -75,8 +75,8 @@ must avoid), and each part's (first row, its visible feature indices) in them.""
 class _Track:
     """One workpiece's track: feature points (F, 3) in the part frame, the acquisition guess
     (also the ``support`` pose of the whole-image search, until the kinematic prior gives the
-    support the part lies on), the near-occluder hold, the health
-    monitor, the filter, the last accepted measurement's time (s), the holder's pose of the
+    support the part lies on), the near-occluder hold, the health monitor, the filter, the
+    last accepted measurement's time (s), the holder's pose of the
     part (the last frame's, this frame's once predicted), where a gripper holds the part or
     last held it since the filter last accepted a measurement (``held_at``, ``T_base_part``),
     whether the last tracked frame accepted no measurement (``coasted``), the last time (s)
@@ -267,17 +267,17 @@ class Tracker:
         held part's estimate is kept with the holder's pose (:func:`_hold`,
         ``TrackerConfig.hold_std``) and is never lost, a held part never tracked starts there
         (``TrackerConfig.held_std``), one let go comes to rest (its rates zeroed: it no longer
-        moves with the holder), and one let go while not tracked is looked for where it was
-        let go; ``stamps`` (optional):
-        each camera's exposure time (s, at most ``t``; a sequence in camera order or a mapping
-        by camera name, None for ``t``), for cameras not triggered together: the filter is
-        predicted to ``t`` and each camera measures the pose of its own exposure
+        moves with the holder, and stays still), and one let go while not tracked is looked
+        for where it was let go; ``stamps`` (optional): each camera's exposure time (s, at
+        most ``t``; a sequence in camera order or a mapping by camera name, None for ``t``),
+        for cameras not triggered together: the filter is predicted to ``t`` and each camera
+        measures the pose of its own exposure
         (:class:`~cellsight.tracking.measurement.Observation` ``lag_s``); ``supports`` (the
         kinematic prior, optional): part name -> ``T_base_part`` of the part lying on the level
         support it rests on this frame (a conveyor's belt, a table): a tracked part not held
         keeps that height, roll and pitch (:meth:`PoseEKF.fuse_prior`,
-        ``TrackerConfig.rest_std``),
-        and a lost one is searched for on that support's plane.
+        ``TrackerConfig.rest_std``), and a lost one is searched for on that support's plane
+        (an acquisition off it is refused, ``LYING_TOL``).
         """
         lags = _lags(stamps, self.cameras, t)
         timer = StageTimer()
