@@ -57,7 +57,8 @@ experiments: venv
 	$(SWEEP) --out out/faults --seeds 0 1 2 3 4 --variants pred nopred \
 		--realism harsh/cameras harsh/robots harsh/servo harsh/geometry harsh/unmodelled \
 		harsh/images harsh/timing harsh/scenario
-	$(SWEEP) --out out/harsh-hold --realism harsh --variants prior pred --seeds 0 1 2 3 4 5
+	$(SWEEP) --out out/harsh-hold --realism harsh --variants prior pred \
+		--seeds 0 1 2 3 4 5 6 7 8 9 10 11
 
 # The README's recording table: experiment 3 in the lab world recorded lossless and as JPEG,
 # each tracked back with `cellsight track`, against the run (docs/recording_roundtrip.png).
