@@ -410,7 +410,7 @@ class ExperimentRun:
         name, task = self.part.name, self.task
         closed = self.world.jaws_closed_on_part(self.robot.name)
         if grasp_miss(closed, opening, task.grasp_opening, task.tolerances.opening) is None:
-            self.held_at = self.robot.tcp_pose(q) @ invert_pose(self.task.planner.chosen_grasp)
+            self.held_at = self.robot.tcp_pose(q) @ invert_pose(task.planner.chosen_grasp)
             self.rest_at = None
             return {name: self.held_at}, None
         if self.held_at is None:

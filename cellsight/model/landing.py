@@ -19,9 +19,10 @@ from cellsight.geometry.transforms import transform_points
 from cellsight.model.cell import StaticObject
 
 PRESSED_M = 0.02
-"""A part let go with a vertex up to this far (m) below the top of a support (put down too low)
-rests on that top, as the simulated world's part does; the rays start this far above each
-vertex."""
+"""A part let go with a vertex up to this far (m) below the top of a support (pressed into it
+by jaws that put it down too low: a kinematic part goes where the jaws take it) rests on that
+top, here and in the simulated world (:mod:`cellsight.world.paths`); the rays that find the
+support start this far above each vertex."""
 
 
 class Landing:

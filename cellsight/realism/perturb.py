@@ -172,15 +172,11 @@ its start rests on that object."""
 def resting_on(part: Workpiece, static: Sequence[StaticObject]) -> str | None:
     """The name of the static object ``part`` rests on at its start (the one it would fall onto
     from at most :data:`SUPPORT_TOUCH_M` above); None when it rests on none."""
-    landing = Landing(static)
-    drop = landing.drop(part.solid.vertices, part.T_base_part)
-    if drop is None or drop > SUPPORT_TOUCH_M:
-        return None
-    for obj in static:
-        mine = Landing([obj]).drop(part.solid.vertices, part.T_base_part)
-        if mine is not None and mine <= drop + 1e-9:
-            return obj.name
-    return None
+    drops = {obj.name: Landing([obj]).drop(part.solid.vertices, part.T_base_part)
+             for obj in static}
+    drops = {name: drop for name, drop in drops.items() if drop is not None}
+    under = min(drops, key=drops.get, default=None)
+    return under if under is not None and drops[under] <= SUPPORT_TOUCH_M else None
 
 
 def static_as_built(obj: StaticObject, lift: float) -> StaticObject:

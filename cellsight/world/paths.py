@@ -13,14 +13,11 @@ import numpy as np
 
 from cellsight.geometry.transforms import invert_pose, rotation_z, transform_points
 from cellsight.model import Cell
+from cellsight.model.landing import PRESSED_M
 from cellsight.world.mjcf import GROUP_PART, GROUP_STATIC
 from cellsight.world.scene import Scene
 
 GRAVITY = 9.81  # m/s^2
-PRESSED_M = 0.02
-"""A part let go with a vertex up to this far (m) below the top of a support (pressed into it
-by jaws that put it down too low: a kinematic part goes where the jaws take it) rests on that
-top; the rays that find the support start this far above each vertex."""
 
 
 @dataclass(frozen=True)
