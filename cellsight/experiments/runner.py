@@ -97,6 +97,7 @@ from cellsight.runfolder import (
 from cellsight.runfolder.writes import log_to, stop_logging_to
 from cellsight.tracking.grabbing import grabbed
 from cellsight.tracking.records import PartFrame
+from cellsight.tracking.registration import RegistrationRule
 from cellsight.tracking.setup import build_tracker
 from cellsight.world import World
 from cellsight.world.grasp import grasp_opening
@@ -242,6 +243,8 @@ class ExperimentRun:
                                      unknown_occluders=config.unknown_occluders,
                                      structure=config.structure, extractor=self.ideal,
                                      camera_offsets_px=config.camera_offsets_px)
+        self.registration = (RegistrationRule().registration(cell, self.robot.name)
+                             if config.kinematic_prior and config.sensor == "rendered" else None)
         tool = self.robot.tool  # GraspTask names a robot without one
         self.task = GraspTask(self.robot, self.part, grasp_opening=None if tool is None else
                               grasp_opening(self.part.solid, tool, grasp_pose_in_part(self.part)))
@@ -429,6 +432,9 @@ class ExperimentRun:
         truth = FrameTruth.of(world, self.part.name, name)
         dropped = fate.dropped or (self.kidnap is not None and self.kidnap.kidnap.blind(t))
         observed = self._grab(dropped, truth.part)
+        if self.registration is not None and not dropped:
+            for c, camera in self.registration.add(t, observed, joints, openings).items():
+                self.tracker.recalibrate(c, camera)
         holders, supports = self._priors(joints[name], openings[name])
         frame = self.tracker.step(observed, joints, t, openings, holders,
                                   None if dropped else self.exposures.stamps, supports)
@@ -499,6 +505,27 @@ class ExperimentRun:
         return knock_record(knock, check.dropped, check.recovered, self.cell.cameras,
                             None if truth is None else truth.cell.cameras)
 
+    def _registration(self) -> dict | None:
+        """Each camera's registration to the gripper (:mod:`cellsight.tracking.registration`),
+        for ``metrics.json``: its offset and corners and, where the world's true camera is
+        known, the true camera's offset at the part's nominal pose (the median, over its
+        feature points, of the true camera's pixel less the cell file's camera's, px)."""
+        if self.registration is None:
+            return None
+        truth = getattr(self.world, "truth", None)
+        part, out = self.part, {}
+        points = part.feature_points @ part.T_base_part[:3, :3].T + part.T_base_part[:3, 3]
+        for c, cam in enumerate(self.cell.cameras):
+            done = self.registration.registered.get(c)
+            entry = {"offset_px": None if done is None else np.round(done.offset_px, 3).tolist(),
+                     "corners": None if done is None else done.corners,
+                     "t": None if done is None else round(done.t, 4)}
+            if truth is not None:
+                gap = truth.cell.cameras[c].project(points) - cam.project(points)
+                entry["true_offset_px"] = np.round(np.median(gap, axis=0), 3).tolist()
+            out[cam.name] = entry
+        return out
+
     def _metrics(self, wall_s: float, ending: dict) -> dict:
         """The metrics for ``metrics.json`` (checked, not written yet): the run's facts, how it
         ended (``ending``: :meth:`_ending`; its ``error`` with every failed write so far),
@@ -532,6 +559,7 @@ class ExperimentRun:
             "cameras_dropped": {self.cell.cameras[c].name: round(t, 4)
                                 for c, t in self.tracker.camera_check.dropped.items()},
             "knock": self._knock(),
+            "registration": self._registration(),
             "grasp_success": bool(self.grasp.held_at_manipulate),
             "grasp_position_error_mm": self.grasp.error_mm,
             "final_phase": str(self.task.phase),

@@ -131,6 +131,12 @@ class VisibilityPredictor(ABC):
         self.labels = [o.label for o in cell.objects]
         self._ring_offsets: dict[str, np.ndarray] = {}  # camera name -> (K, 3) ring directions
 
+    def recalibrate(self, index: int, camera: Camera) -> None:
+        """Predict for the predictor's camera ``index`` with ``camera`` from now on (its
+        calibration refined: :mod:`cellsight.tracking.registration`)."""
+        self._ring_offsets.pop(self.cameras[index].name, None)
+        self.cameras[index] = camera
+
     def predict(self, joints: Mapping[str, np.ndarray] | None = None,
                 part_poses: Mapping[str, np.ndarray] | None = None,
                 openings: Mapping[str, float] | None = None) -> Views:

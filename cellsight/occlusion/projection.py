@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from cellsight.camera import MIN_DEPTH_M
+from cellsight.camera import MIN_DEPTH_M, Camera
 from cellsight.model.cell import Cell
 from cellsight.visibility import (
     STATUS_BEHIND,
@@ -25,7 +25,12 @@ class ProjectionOnly:
 
     def __init__(self, cell: Cell) -> None:
         self.cell = cell
+        self.cameras = list(cell.cameras)
         self.labels = [o.label for o in cell.objects]
+
+    def recalibrate(self, index: int, camera: Camera) -> None:
+        """Project into camera ``index`` with ``camera`` from now on."""
+        self.cameras[index] = camera
 
     def predict(self, joints=None, part_poses=None, openings=None) -> Views:
         """Workpiece name -> one :class:`CameraVisibility` per camera; ``joints`` and
@@ -36,7 +41,7 @@ class ProjectionOnly:
             T = (part_poses or {}).get(part.name, part.T_base_part)
             points = part.feature_points @ T[:3, :3].T + T[:3, 3]
             out[part.name] = []
-            for cam in self.cell.cameras:
+            for cam in self.cameras:
                 front = cam.depth(points) > MIN_DEPTH_M
                 pixels = cam.project(points)
                 inside = front & cam.in_image(np.nan_to_num(pixels, nan=-1e9))

@@ -303,6 +303,18 @@ class Tracker:
         return TrackerFrame(float(t), records, timer.seconds, _grabbed(records, len(self.cameras)),
                             masks)
 
+    def recalibrate(self, index: int, camera: Camera) -> None:
+        """Take ``camera`` for camera ``index`` from now on (its calibration refined, e.g. by
+        :mod:`.registration`): in the measurement model, the windows, the search and the camera
+        check, and in the visibility source where it can (its ``recalibrate(index, camera)``:
+        the BSP predictors and the projection baseline have one)."""
+        self.cameras[index] = camera
+        self.camera_check.cameras[index] = camera
+        self._models[index] = self.components.measurement(camera, self.config.sigma_px)
+        move = getattr(self.predictor, "recalibrate", None)
+        if move is not None:
+            move(index, camera)
+
     def _predict(self, t: float, holders: Mapping[str, np.ndarray],
                  supports: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
         """Predict every tracked part to time ``t`` (on its support, if it rests on one); the
