@@ -25,8 +25,7 @@ REACH = 15
 def test_the_coarse_offset_is_the_peak_among_scattered_votes(du, dv, seed):
     """Twelve corners agree on the offset over ten frames (a vote each, some a pixel off, as
     the rounding of a corner half-way between two bins gives); four hundred wrong pairings
-    scatter over the whole reach. The coarse offset is within the pixel the second stage's
-    windows need (a 3x3 sum of votes a pixel off either way can peak one bin aside)."""
+    scatter over the whole reach."""
     rng = np.random.default_rng(seed)
     votes = np.zeros((2 * REACH + 1, 2 * REACH + 1))
     right = np.array([du, dv]) + rng.integers(-1, 2, size=(120, 2)) * (rng.random((120, 1)) < 0.3)
@@ -34,7 +33,7 @@ def test_the_coarse_offset_is_the_peak_among_scattered_votes(du, dv, seed):
     for u, v in np.concatenate([right, wrong]):
         if abs(u) <= REACH and abs(v) <= REACH:
             votes[v + REACH, u + REACH] += 1
-    assert np.abs(coarse_offset(votes) - [du, dv]).max() <= 1.0
+    np.testing.assert_array_equal(coarse_offset(votes), [du, dv])
 
 
 @settings(max_examples=60, deadline=None)
@@ -103,10 +102,9 @@ def test_a_rendered_run_registers_each_camera_to_the_gripper_as_the_true_camera_
         expected = np.median(true_cam.project(corners) - cam.project(corners), axis=0)
         assert np.linalg.norm(expected) > 4.0  # a camera well off: the case is not trivial
         done = run.registration.registered[c]
+        assert done.corners >= run.registration.rule.min_corners
         np.testing.assert_allclose(done.offset_px, expected, atol=0.35)
         np.testing.assert_allclose(run.tracker.cameras[c].K[:2, 2], cam.K[:2, 2] + done.offset_px)
         entry = metrics["registration"][cam.name]
         np.testing.assert_allclose(entry["offset_px"], done.offset_px, atol=1e-3)
-        # made once: at HOME the gripper is further than near_m from the part, where an offset
-        # is made again
-        assert entry["first_t"] < 1.5 and entry["updates"] == 1
+        assert entry["t"] < 2.5

@@ -245,7 +245,6 @@ class ExperimentRun:
                                      camera_offsets_px=config.camera_offsets_px)
         self.registration = (RegistrationRule().registration(cell, self.robot.name)
                              if config.kinematic_prior and config.sensor == "rendered" else None)
-        self.part_at: np.ndarray | None = None  # the part's last estimated position (m)
         tool = self.robot.tool  # GraspTask names a robot without one
         self.task = GraspTask(self.robot, self.part, grasp_opening=None if tool is None else
                               grasp_opening(self.part.solid, tool, grasp_pose_in_part(self.part)))
@@ -434,15 +433,13 @@ class ExperimentRun:
         dropped = fate.dropped or (self.kidnap is not None and self.kidnap.kidnap.blind(t))
         observed = self._grab(dropped, truth.part)
         if self.registration is not None and not dropped:
-            for c, camera in self.registration.add(t, observed, joints, openings,
-                                                   self.exposures.stamps, self.part_at).items():
+            for c, camera in self.registration.add(t, observed, joints, openings).items():
                 self.tracker.recalibrate(c, camera)
         holders, supports = self._priors(joints[name], openings[name])
         frame = self.tracker.step(observed, joints, t, openings, holders,
                                   None if dropped else self.exposures.stamps, supports)
         rec = frame.parts[self.part.name]
         estimate = Estimate.of(t, rec)
-        self.part_at = None if estimate.pose is None else estimate.pose[:3, 3]
         if self.clock.ideal:
             self._plan(t, estimate, joints[name])
         elif not dropped:
@@ -510,8 +507,7 @@ class ExperimentRun:
 
     def _registration(self) -> dict | None:
         """Each camera's registration to the gripper (:mod:`cellsight.tracking.registration`),
-        for ``metrics.json``: its latest offset, the votes' offset, when it was first and
-        last made and how many times and, where the world's true camera is
+        for ``metrics.json``: its offset and corners and, where the world's true camera is
         known, the true camera's offset at the part's nominal pose (the median, over its
         feature points, of the true camera's pixel less the cell file's camera's, px)."""
         if self.registration is None:
@@ -521,12 +517,9 @@ class ExperimentRun:
         points = part.feature_points @ part.T_base_part[:3, :3].T + part.T_base_part[:3, 3]
         for c, cam in enumerate(self.cell.cameras):
             done = self.registration.registered.get(c)
-            entry = {"offset_px": None, "coarse_px": None, "first_t": None, "t": None,
-                     "updates": 0}
-            if done is not None:
-                entry.update(offset_px=np.round(done.offset_px, 3).tolist(),
-                             coarse_px=done.coarse_px.tolist(), first_t=round(done.first_t, 4),
-                             t=round(done.t, 4), updates=done.updates)
+            entry = {"offset_px": None if done is None else np.round(done.offset_px, 3).tolist(),
+                     "corners": None if done is None else done.corners,
+                     "t": None if done is None else round(done.t, 4)}
             if truth is not None:
                 gap = truth.cell.cameras[c].project(points) - cam.project(points)
                 entry["true_offset_px"] = np.round(np.median(gap, axis=0), 3).tolist()

@@ -1,35 +1,29 @@
 """Each camera registered to the robot by its gripper (beyond the paper; with the kinematic
 prior).
 
-A camera's calibration error moves its image of the work area by a few pixels, nearly one
-offset over a small region (in the realistic world's ``harsh`` cells, 2-9 px per camera; its
-lens distortion's error makes it vary across the image, by up to 6 px between the arm's HOME
-and the part in one ``harsh`` camera); the part of it the cameras share moves the estimate by
-millimetres that no corner of the part shows (3-10 mm, steady, in every ``harsh`` run), and
-the gripper then grasps where the estimate says. The robot knows where its gripper is: the
-joint measurements and the arm's model put the corners of the gripper's palm and jaws (the
-cell file's boxes) in the base frame. Each camera looks at the corners with a face turned
-towards it, ``margin_px`` inside its image, in two stages:
+A camera's calibration error moves its whole image of the work area by nearly one offset (in
+the realistic world's ``harsh`` cells, 2-9 px per camera); the part of it the cameras share
+moves the estimate by millimetres that no corner of the part shows (3-10 mm, steady, in every
+``harsh`` run), and the gripper then grasps where the estimate says. The robot knows where its
+gripper is: the joint measurements and the arm's model put the corners of the gripper's palm
+and jaws (the cell file's boxes) in the base frame. While the gripper stands still in view
+(moved less than ``still_mm`` since the last frame: the exposure's time then does not matter),
+each camera looks at the corners with a face turned towards it, ``margin_px`` inside its
+image, in two stages:
 
 1. votes: the Shi-Tomasi corners of the region around them (the tracker's extractor's
    settings) vote for every offset within ``reach_px`` that brings a predicted corner onto one
-   (1 px bins; the earlier frames' votes weigh ``vote_decay`` less each frame); from
-   ``vote_frames`` frames on, the bin with the most votes in its 3x3 neighbourhood is the
-   coarse offset (the gripper's corners all vote for the camera's offset, the pairs of a
-   corner with its neighbours' scatter), and it follows the offset as the gripper moves;
+   (1 px bins); after ``vote_frames`` frames, the bin with the most votes in its 3x3
+   neighbourhood is the coarse offset (the gripper's corners all vote for the camera's
+   offset, the pairs of a corner with its neighbours' scatter);
 2. residuals: the sub-pixel corner (:func:`~cellsight.tracking.extraction.extract_corner`) in
-   a window of ``window_px`` centred on each predicted corner moved by the coarse offset; one
-   within ``agree_px`` of it is a residual (found minus predicted, px).
+   a window of ``window_px`` centred on each predicted corner moved by the coarse offset;
+   one within ``agree_px`` of the coarse offset is a residual (found minus predicted, px).
 
-The corners are predicted at the camera's exposure time: the joints interpolated between the
-last frame's and this one's (a moving gripper, cameras not triggered together).
-
-The camera's offset is the median of its latest ``corners`` residuals, made again every
-``every_s`` while the gripper is within ``near_m`` of the part's estimate (anywhere, for the
-first): so the offset is the one where the gripper works, by the part, and stays so when the
-gripper leaves it. The tracker then takes each camera with its principal point moved by the
-offset (:meth:`~cellsight.tracking.Tracker.recalibrate`): every pixel it predicts moves by the
-offset exactly, the lens distortion included.
+Once every camera has ``min_corners`` residuals its offset is their median, and the tracker
+takes each camera with its principal point moved by it
+(:meth:`~cellsight.tracking.Tracker.recalibrate`): every pixel it predicts moves by the offset
+exactly, the lens distortion included.
 
 What it registers is the camera against the arm: the arm's own error (its base, its links, the
 gripper's size) goes into the offset, which is what a task driven by the arm wants.
@@ -38,7 +32,6 @@ gripper's size) goes into the offset, which is what a task driven by the arm wan
 from __future__ import annotations
 
 import logging
-from collections import deque
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
 from typing import Any
@@ -56,18 +49,16 @@ log = logging.getLogger(__name__)
 
 @dataclass(frozen=True)
 class RegistrationRule:
-    """The numbers of the module docstring. Units: px, mm, s, m. ``enabled`` False: never
+    """The numbers of the module docstring. Units: px, mm. ``enabled`` False: never
     registers."""
 
     margin_px: float = 15.0
+    still_mm: float = 0.5
     reach_px: int = 15
     vote_frames: int = 10
-    vote_decay: float = 0.9
     window_px: int = 15
-    agree_px: float = 3.0
-    corners: int = 100
-    every_s: float = 0.5
-    near_m: float = 0.3
+    agree_px: float = 2.0
+    min_corners: int = 100
     enabled: bool = True
 
     def registration(self, cell: Cell, robot: str) -> GripperRegistration:
@@ -78,19 +69,19 @@ class RegistrationRule:
 @dataclass(frozen=True)
 class Registered:
     """One camera's registration: its ``offset_px`` (2,) (u, v), the ``coarse_px`` (2,) offset
-    of the votes, when it was first made and last made again (``first_t``, ``t``, s) and how
-    many times it was made (``updates``)."""
+    of the votes, how many residuals it had (``corners``) and the time it was made (``t``,
+    s)."""
 
     offset_px: np.ndarray
     coarse_px: np.ndarray
-    first_t: float
+    corners: int
     t: float
-    updates: int
 
 
 class GripperRegistration:
-    """The votes and residuals gathered per camera, and each camera's registration (module
-    docstring). ``registered``: camera index -> :class:`Registered`, its latest."""
+    """The votes and residuals gathered per camera, and the registrations once made (module
+    docstring). ``registered``: camera index -> :class:`Registered`; ``done``: True once the
+    offsets are made."""
 
     def __init__(self, rule: RegistrationRule, cell: Cell, robot: str) -> None:
         self.rule = rule
@@ -98,58 +89,42 @@ class GripperRegistration:
         self.robot = robot
         self.objects = [i for i, f in enumerate(cell.frames)
                         if f.kind in ("palm", "jaw") and f.owner == robot]
-        side, n = 2 * rule.reach_px + 1, len(cell.cameras)
-        self._votes = np.zeros((n, side, side))
-        self._voted = np.zeros(n, dtype=int)
-        self._coarse: list[np.ndarray | None] = [None] * n
-        self._residuals = [deque(maxlen=rule.corners) for _ in range(n)]
-        self._last: tuple[float, dict, dict] | None = None
+        side = 2 * rule.reach_px + 1
+        self._votes = np.zeros((len(cell.cameras), side, side))
+        self._voted = np.zeros(len(cell.cameras), dtype=int)
+        self._coarse: list[np.ndarray | None] = [None] * len(cell.cameras)
+        self._residuals: list[list[np.ndarray]] = [[] for _ in cell.cameras]
+        self._last: np.ndarray | None = None
         self.registered: dict[int, Registered] = {}
-        self.enabled = rule.enabled and bool(self.objects)
+        self.done = not rule.enabled or not self.objects
 
     def add(self, t: float, observed: Sequence[Any], joints: Mapping[str, np.ndarray],
-            openings: Mapping[str, float], stamps: Sequence[float | None] | None = None,
-            part_at: np.ndarray | None = None) -> dict[int, Camera]:
+            openings: Mapping[str, float]) -> dict[int, Camera]:
         """One frame at ``t`` (s): ``observed`` what each camera took (images, or
         :class:`~cellsight.tracking.grabbing.OnDemandImage`; None: nothing), ``joints`` and
-        ``openings`` the measured joints and jaw openings, ``stamps`` each camera's exposure
-        time (None: ``t``), ``part_at`` (3,) the part's estimated position (m; None: none).
-        Returns the cameras registered on this frame (index -> the cell file's camera with its
-        principal point moved by its offset)."""
-        if not self.enabled:
+        ``openings`` the measured joints and jaw openings. Returns the registered cameras
+        (index -> camera with its principal point moved) on the frame the offsets are made,
+        else an empty dict."""
+        if self.done:
             return {}
         poses = self.cell.snapshot(joints, None, openings).poses
         tcp = poses[self.objects[0]][:3, 3]
-        last, self._last = self._last, (float(t), dict(joints), dict(openings))
-        near = part_at is not None and np.linalg.norm(tcp - part_at) <= self.rule.near_m
-        out = {}
+        still = self._last is not None and \
+            1e3 * np.linalg.norm(tcp - self._last) <= self.rule.still_mm
+        self._last = tcp.copy()
+        if not still:
+            return {}
         for c, cam in enumerate(self.cell.cameras):
-            if observed[c] is None or (c in self.registered and not near):
+            pixels = self._predicted(poses, cam)
+            if observed[c] is None or not len(pixels):
                 continue
-            stamp = None if stamps is None else stamps[c]
-            exposed = poses if stamp is None or last is None else self._at(stamp, last, t,
-                                                                           joints, openings)
-            pixels = self._predicted(exposed, cam)
-            if not len(pixels):
-                continue
-            self._vote(c, observed[c], pixels)
-            if self._coarse[c] is not None:
+            if self._coarse[c] is None:
+                self._vote(c, observed[c], pixels)
+            else:
                 self._measure(c, observed[c], pixels)
-            if self._due(c, t):
-                out[c] = self._register(c, float(t))
-        return out
-
-    def _at(self, stamp: float, last: tuple, t: float, joints: Mapping[str, np.ndarray],
-            openings: Mapping[str, float]) -> np.ndarray:
-        """The cell's poses at time ``stamp`` (s): the joints and openings interpolated between
-        the ``last`` frame's and this one's (at ``t``)."""
-        t0, joints0, openings0 = last
-        f = float(np.clip((stamp - t0) / (t - t0), 0.0, 1.0)) if t > t0 else 1.0
-        q = {n: np.asarray(joints0[n]) + f * (np.asarray(v) - np.asarray(joints0[n]))
-             if n in joints0 else v for n, v in joints.items()}
-        o = {n: openings0[n] + f * (v - openings0[n]) if n in openings0 else v
-             for n, v in openings.items()}
-        return self.cell.snapshot(q, None, o).poses
+        if min(len(r) for r in self._residuals) < self.rule.min_corners:
+            return {}
+        return self._register(float(t))
 
     def _predicted(self, poses: np.ndarray, cam: Camera) -> np.ndarray:
         """(N, 2) px: the gripper's corners with a face turned towards ``cam``, projected,
@@ -169,10 +144,9 @@ class GripperRegistration:
         return pixels[cam.in_image(pixels, self.rule.margin_px)]
 
     def _vote(self, c: int, observed: Any, pixels: np.ndarray) -> None:
-        """Camera ``c``'s votes of this frame (stage 1), and its coarse offset from
-        ``vote_frames`` frames on."""
+        """Camera ``c``'s votes of this frame (stage 1); the coarse offset after
+        ``vote_frames`` frames."""
         reach = self.rule.reach_px
-        self._votes[c] *= self.rule.vote_decay
         box = np.concatenate([np.floor(pixels.min(axis=0)) - reach - 8,
                               np.ceil(pixels.max(axis=0)) + reach + 9]).astype(int)
         corners = _corners_in(grabbed(observed, [box.tolist()]), box)
@@ -186,8 +160,8 @@ class GripperRegistration:
 
     def _measure(self, c: int, observed: Any, pixels: np.ndarray) -> None:
         """Camera ``c``'s residuals of this frame (stage 2)."""
-        half = self.rule.window_px // 2
-        centres = pixels + self._coarse[c]
+        coarse, half = self._coarse[c], self.rule.window_px // 2
+        centres = pixels + coarse
         corner = np.floor(centres).astype(int)
         boxes = np.column_stack([corner - half, corner + half + 1]).tolist()
         image = grabbed(observed, boxes)
@@ -196,24 +170,19 @@ class GripperRegistration:
             if found is not None and np.linalg.norm(found - centre) <= self.rule.agree_px:
                 self._residuals[c].append(found - predicted)
 
-    def _due(self, c: int, t: float) -> bool:
-        """Whether camera ``c``'s offset is to be made (again) at ``t``."""
-        done = self.registered.get(c)
-        return len(self._residuals[c]) >= self.rule.corners and (
-            done is None or t - done.t >= self.rule.every_s - 1e-9)
-
-    def _register(self, c: int, t: float) -> Camera:
-        """Camera ``c``'s offset from its latest residuals: the registered camera."""
-        cam, done = self.cell.cameras[c], self.registered.get(c)
-        offset = np.median(np.array(self._residuals[c]), axis=0)
-        if done is None:
+    def _register(self, t: float) -> dict[int, Camera]:
+        """Every camera's offset (once): the registered cameras."""
+        self.done = True
+        out = {}
+        for c, cam in enumerate(self.cell.cameras):
+            residuals = np.array(self._residuals[c])
+            offset = np.median(residuals, axis=0)
             log.info("camera %s registered to %s's gripper at %.2f s: offset (%.2f, %.2f) px "
-                     "(votes: (%.0f, %.0f) px)", cam.name, self.robot, t, offset[0],
-                     offset[1], *self._coarse[c])
-        self.registered[c] = Registered(offset, self._coarse[c], t if done is None
-                                        else done.first_t, t,
-                                        1 if done is None else done.updates + 1)
-        return shifted(cam, offset)
+                     "from %d corners (votes: (%.0f, %.0f) px)", cam.name, self.robot, t,
+                     offset[0], offset[1], len(residuals), *self._coarse[c])
+            self.registered[c] = Registered(offset, self._coarse[c], len(residuals), t)
+            out[c] = shifted(cam, offset)
+        return out
 
 
 def _corners_in(image: np.ndarray, box: np.ndarray) -> np.ndarray:
