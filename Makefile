@@ -40,7 +40,8 @@ demo: venv
 # the plain tracker; the paper's per-frame BSP against the per-object hierarchies, experiment 3,
 # 20 seeds (the later --experiments wins); the fault table: each knob group of
 # `harsh` alone, 5 seeds, prediction on and off; the kinematic prior (the held part, the part
-# on its support) in `harsh`, seeds 0-5, and the plain tracker on seeds 0-2.
+# on its support, the cameras registered to the gripper) in `harsh`, 20 seeds, paired with the
+# plain tracker.
 SEEDS20 := 0 1 2 3 4 5 6 7 8 9 10 11 12 13 14 15 16 17 18 19
 SWEEP   := .venv/bin/cellsight sweep --experiments 1 2 3 --sensors rendered --jobs 2
 experiments: venv
@@ -57,8 +58,7 @@ experiments: venv
 	$(SWEEP) --out out/faults --seeds 0 1 2 3 4 --variants pred nopred \
 		--realism harsh/cameras harsh/robots harsh/servo harsh/geometry harsh/unmodelled \
 		harsh/images harsh/timing harsh/scenario
-	$(SWEEP) --out out/harsh-hold --realism harsh --variants prior pred \
-		--seeds 0 1 2 3 4 5 6 7 8 9 10 11
+	$(SWEEP) --out out/harsh-hold --realism harsh --variants prior pred --seeds $(SEEDS20)
 
 # The README's recording table: experiment 3 in the lab world recorded lossless and as JPEG,
 # each tracked back with `cellsight track`, against the run (docs/recording_roundtrip.png).
