@@ -25,7 +25,8 @@ REACH = 15
 def test_the_coarse_offset_is_the_peak_among_scattered_votes(du, dv, seed):
     """Twelve corners agree on the offset over ten frames (a vote each, some a pixel off, as
     the rounding of a corner half-way between two bins gives); four hundred wrong pairings
-    scatter over the whole reach."""
+    scatter over the whole reach. The coarse offset is within the pixel the second stage's
+    windows need (a 3x3 sum of votes a pixel off either way can peak one bin aside)."""
     rng = np.random.default_rng(seed)
     votes = np.zeros((2 * REACH + 1, 2 * REACH + 1))
     right = np.array([du, dv]) + rng.integers(-1, 2, size=(120, 2)) * (rng.random((120, 1)) < 0.3)
@@ -33,7 +34,7 @@ def test_the_coarse_offset_is_the_peak_among_scattered_votes(du, dv, seed):
     for u, v in np.concatenate([right, wrong]):
         if abs(u) <= REACH and abs(v) <= REACH:
             votes[v + REACH, u + REACH] += 1
-    np.testing.assert_array_equal(coarse_offset(votes), [du, dv])
+    assert np.abs(coarse_offset(votes) - [du, dv]).max() <= 1.0
 
 
 @settings(max_examples=60, deadline=None)

@@ -52,7 +52,7 @@ from cellsight.tracking.eligibility import NearOccluderHold
 from cellsight.tracking.extraction import CornerExtractor
 from cellsight.tracking.gate import SupportedGate
 from cellsight.tracking.grabbing import grabbed
-from cellsight.tracking.interfaces import Acquisition, Extractor, TrackMonitor
+from cellsight.tracking.interfaces import Acquisition, Extractor, OccluderMap, TrackMonitor
 from cellsight.tracking.measurement import Observation
 from cellsight.tracking.motion import POSE_DIM
 from cellsight.tracking.offsets import CameraOffsets
@@ -396,7 +396,7 @@ class Tracker:
             if report.n_accepted >= unknown.min_accepted:
                 track.confirmed = context.t
             if context.t - track.confirmed <= unknown.trust_s:
-                self._learn_unknown(context.t, rec, looked)
+                _learn_unknown(self.unknown, context.t, rec, looked)
         in_view = any(cam.in_image(rec.pixels[c]).any() for c, cam in enumerate(self.cameras))
         in_vain = loss.in_vain(int(looked.sum()), report.n_accepted, in_view)
         if in_vain is not None:
@@ -421,16 +421,6 @@ class Tracker:
         if t_hold is None:  # the track's hold is of its own predictions, not of a trial pose's
             return rec.visible & ~rec.near_occluder & ~rec.unknown
         return context.track.hold.usable(rec.visible, rec.near_occluder, t_hold) & ~rec.unknown
-
-    def _learn_unknown(self, t: float, rec: PartFrame, looked: np.ndarray) -> None:
-        """Teach the unknown-occluder map this frame's failures: per camera, the predicted
-        pixels of the looked-for features not found, or rejected where the camera had none of
-        the part's corners accepted (:mod:`.unknown`)."""
-        found = np.isfinite(rec.measured[..., 0])
-        blinded = ~(found & ~rec.rejected).any(axis=1, keepdims=True)
-        failed = looked & (~found | (rec.rejected & blinded))
-        for c in np.flatnonzero(failed.any(axis=1)):
-            self.unknown.learn(int(c), t, rec.pixels[c, failed[c]])
 
     def _acquire(self, context: StepContext) -> PartFrame:
         """A fix at the guess or the last prediction, else from the whole-image search (module
@@ -560,6 +550,17 @@ class Tracker:
             observations.append(Observation(self._models[c], c, ids, track.points[ids],
                                             cam.undistort(px), float(context.lags[c])))
         return observations
+
+
+def _learn_unknown(unknown: OccluderMap, t: float, rec: PartFrame, looked: np.ndarray) -> None:
+    """Teach the ``unknown``-occluder map this frame's failures: per camera, the predicted
+    pixels of the looked-for features not found, or rejected where the camera had none of
+    the part's corners accepted (:mod:`.unknown`)."""
+    found = np.isfinite(rec.measured[..., 0])
+    blinded = ~(found & ~rec.rejected).any(axis=1, keepdims=True)
+    failed = looked & (~found | (rec.rejected & blinded))
+    for c in np.flatnonzero(failed.any(axis=1)):
+        unknown.learn(int(c), t, rec.pixels[c, failed[c]])
 
 
 def _fuse_priors(track: _Track, t: float, holder: np.ndarray | None,
