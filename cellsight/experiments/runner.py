@@ -73,7 +73,7 @@ from cellsight.experiments.sensors import IdealExtractor
 from cellsight.experiments.views_video import ViewsVideo
 from cellsight.export.live import LiveStream, parse_address
 from cellsight.export.mcap_run import check_jpeg, check_output
-from cellsight.geometry.transforms import invert_pose
+from cellsight.geometry.transforms import invert_pose, transform_points
 from cellsight.model.cell import Cell
 from cellsight.model.landing import Landing
 from cellsight.model.loader import load_cell
@@ -514,7 +514,7 @@ class ExperimentRun:
             return None
         truth = getattr(self.world, "truth", None)
         part, out = self.part, {}
-        points = part.feature_points @ part.T_base_part[:3, :3].T + part.T_base_part[:3, 3]
+        points = transform_points(part.T_base_part, part.feature_points)
         for c, cam in enumerate(self.cell.cameras):
             done = self.registration.registered.get(c)
             entry = {"offset_px": None if done is None else np.round(done.offset_px, 3).tolist(),

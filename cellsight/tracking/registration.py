@@ -44,6 +44,7 @@ import cv2
 import numpy as np
 
 from cellsight.camera import Camera
+from cellsight.geometry.transforms import transform_points
 from cellsight.model.cell import Cell
 from cellsight.tracking.extraction import ExtractionConfig, extract_corner
 from cellsight.tracking.grabbing import grabbed
@@ -136,7 +137,7 @@ class GripperRegistration:
         points = []
         for i in self.objects:
             solid, T = self.cell.objects[i].solid, poses[i]
-            V = solid.vertices @ T[:3, :3].T + T[:3, 3]
+            V = transform_points(T, solid.vertices)
             normals = solid.normals @ T[:3, :3].T
             seen = np.zeros(len(V), dtype=bool)
             for k, face in enumerate(solid.faces):
