@@ -6,8 +6,11 @@ hulls) lists the geoms in contact. A contact counts when the geoms overlap by mo
 
 - two solids of the same robot (its links overlap at the joints by construction, and its own
   controller keeps it clear of itself);
-- a pair of objects already touching at the start (a robot's base on the floor, a carriage in
-  its track: mounts, not collisions);
+- a mount (:func:`mount_pairs`): a pair of objects already touching at the start (a robot's
+  base on the floor), or a robot's base or carriage and a fixed object within
+  :data:`MOUNT_GAP_M` of it at the start (a carriage in its track: the track, set up by eye,
+  a little out of line with the carriage's travel, whose contact the travel makes and
+  breaks);
 - a gripper's palm and the workpiece its jaws clamp or hold (the grasp);
 - a gripper's jaw and any workpiece: the jaws straddle and clamp parts, and MuJoCo's convex
   hull of a non-convex part swallows them (so a jaw hitting a part is not detected; the palm
@@ -30,10 +33,16 @@ import mujoco
 import numpy as np
 
 from cellsight.model import Cell
+from cellsight.world.mjcf import body_name
 from cellsight.world.scene import Scene
 
 APART_S = 0.1
 """How long (s) two objects must be apart for their episode of contact to end."""
+
+MOUNT_GAP_M = 0.005
+"""How far (m) a robot's base or carriage may be from a fixed object at the start for the pair
+to be a mount (:func:`mount_pairs`): a track 0.06 deg out of line with a carriage's travel (the
+`harsh` profile's base rotation, 1 sigma) rises or falls 1 mm over a metre of it."""
 
 
 @dataclass
@@ -79,7 +88,7 @@ class ContactMonitor:
         self._open: dict[tuple[str, str], Collision] = {}
         self._apart_since: dict[tuple[str, str], float] = {}  # open episodes not in contact
         self.collisions: list[Collision] = []
-        for (g1, g2), _ in self._geom_pairs(0.0):
+        for g1, g2 in mount_pairs(scene, cell):
             self._counts[g1, g2] = False
 
     def check(self, t: float) -> None:
@@ -162,12 +171,30 @@ def merge_episodes(collisions: list[dict], apart_s: float = APART_S) -> list[dic
     return merged
 
 
-def touching_bodies(scene: Scene) -> list[tuple[str, str]]:
-    """The pairs of distinct bodies (names, sorted) whose geoms are in contact in the scene's
-    state (MuJoCo's ``mj_collision``): at the start, a cell's mounts."""
+def mount_pairs(scene: Scene, cell: Cell) -> set[tuple[int, int]]:
+    """The (geom, geom) pairs, in increasing order, that are mounts in the scene's state (the
+    start): those in contact (MuJoCo's ``mj_collision``), and each robot's base and carriage
+    (its bodies before its first revolute joint) with every geom fixed to the world within
+    :data:`MOUNT_GAP_M` of it (``mj_geomDistance``)."""
     scene.sync()
     model, data = scene.model, scene.data
     mujoco.mj_collision(model, data)
-    bodies = model.geom_bodyid[data.contact.geom]
+    pairs = {(int(min(a, b)), int(max(a, b))) for a, b in data.contact.geom}
+    fixed = np.flatnonzero(model.body_weldid[model.geom_bodyid] == 0)
+    for robot in cell.robots:
+        lead = next((i for i, p in enumerate(robot.chain.prismatic) if not p), robot.n_joints)
+        for i in range(lead + 1):
+            body = model.body(body_name(robot.name, i)).id
+            for g in np.flatnonzero(model.geom_bodyid == body):
+                pairs.update((int(min(g, f)), int(max(g, f))) for f in fixed if f != g and
+                             mujoco.mj_geomDistance(model, data, int(g), int(f), MOUNT_GAP_M,
+                                                    None) < MOUNT_GAP_M)
+    return pairs
+
+
+def mount_bodies(scene: Scene, cell: Cell) -> list[tuple[str, str]]:
+    """The pairs of distinct bodies (names, sorted) of :func:`mount_pairs`."""
+    model = scene.model
     return sorted({tuple(sorted((model.body(a).name, model.body(b).name)))
-                   for a, b in bodies if a != b})
+                   for a, b in (model.geom_bodyid[list(p)] for p in mount_pairs(scene, cell))
+                   if a != b})

@@ -275,12 +275,12 @@ def _dynamics(cell: Cell, servo: ServoParams | None,
             f"<contact>{chr(10).join(pairs)}</contact>" if pairs else "")
 
 
-def excluded_pairs(cell: Cell, touching: Iterable[tuple[str, str]] = ()) -> list[tuple[str, str]]:
+def excluded_pairs(cell: Cell, mounts: Iterable[tuple[str, str]] = ()) -> list[tuple[str, str]]:
     """The body pairs whose contacts exert no force in a world of MuJoCo's actuators: every
     pair of one robot's bodies (its solids overlap at the joints by construction), each jaw
     with each workpiece (the jaws straddle a part, and MuJoCo's convex hull of a non-convex
-    part swallows them), and the pairs ``touching`` (bodies in contact at the start: a base on
-    the floor, a carriage in its track)."""
+    part swallows them), and the pairs ``mounts`` (:func:`~cellsight.world.contacts.mount_bodies`:
+    a base on the floor, a carriage in its track)."""
     pairs: list[tuple[str, str]] = []
     for robot in cell.robots:
         bodies = [body_name(robot.name, i) for i in range(robot.n_joints + 1)]
@@ -289,7 +289,7 @@ def excluded_pairs(cell: Cell, touching: Iterable[tuple[str, str]] = ()) -> list
             bodies += [body_name(robot.name, "tool")] + jaws
             pairs += [(jaw, part.name) for jaw in jaws for part in cell.workpieces]
         pairs += list(combinations(bodies, 2))
-    return pairs + [pair for pair in touching if pair not in pairs]
+    return pairs + [pair for pair in mounts if pair not in pairs]
 
 
 def cell_mjcf(cell: Cell, render_size: tuple[int, int] | None = None,

@@ -43,7 +43,7 @@ import numpy as np
 from cellsight.model import Cell
 from cellsight.rates import CONTROL_HZ, VISION_HZ
 from cellsight.visibility import Views
-from cellsight.world.contacts import ContactMonitor, touching_bodies
+from cellsight.world.contacts import ContactMonitor, mount_bodies
 from cellsight.world.exposure_time import ExposureHistory
 from cellsight.world.faults import Faults
 from cellsight.world.grasp import Grasp, Grippers
@@ -185,14 +185,14 @@ def _model(cell: Cell, render_size: tuple[int, int] | None, errors: Imperfection
            initial_joints: Mapping[str, np.ndarray]) -> mujoco.MjModel:
     """The world's MuJoCo model (:func:`~cellsight.world.mjcf.cell_mjcf`): kinematic, or with
     MuJoCo's actuators when the servo asks for them, its contacts pushing back except between
-    :func:`~cellsight.world.mjcf.excluded_pairs` (the bodies touching at the start found in
-    the kinematic model, the robots at their initial joints)."""
+    :func:`~cellsight.world.mjcf.excluded_pairs` (the mounts found in the kinematic model,
+    the robots at their initial joints: :func:`~cellsight.world.contacts.mount_bodies`)."""
     kinematic = mujoco.MjModel.from_xml_string(cell_mjcf(cell, render_size, errors.intruders))
     if not errors.servo.mujoco:
         return kinematic
     scene = Scene(kinematic, mujoco.MjData(kinematic))
     RobotJoints(scene, cell, initial_joints, {}, replace(errors, servo=ServoParams()), 0.0)
-    exclude = excluded_pairs(cell, touching_bodies(scene))
+    exclude = excluded_pairs(cell, mount_bodies(scene, cell))
     return mujoco.MjModel.from_xml_string(
         cell_mjcf(cell, render_size, errors.intruders, errors.servo, exclude))
 
