@@ -245,6 +245,7 @@ class ExperimentRun:
                                      camera_offsets_px=config.camera_offsets_px)
         self.registration = (RegistrationRule().registration(cell, self.robot.name)
                              if config.kinematic_prior and config.sensor == "rendered" else None)
+        self._part_at: np.ndarray | None = None  # the part's last estimated position (m)
         tool = self.robot.tool  # GraspTask names a robot without one
         self.task = GraspTask(self.robot, self.part, grasp_opening=None if tool is None else
                               grasp_opening(self.part.solid, tool, grasp_pose_in_part(self.part)))
@@ -433,13 +434,16 @@ class ExperimentRun:
         dropped = fate.dropped or (self.kidnap is not None and self.kidnap.kidnap.blind(t))
         observed = self._grab(dropped, truth.part)
         if self.registration is not None and not dropped:
-            for c, camera in self.registration.add(t, observed, joints, openings).items():
+            for c, camera in self.registration.add(t, observed, joints, openings,
+                                                   self.exposures.stamps,
+                                                   self._part_at).items():
                 self.tracker.recalibrate(c, camera)
         holders, supports = self._priors(joints[name], openings[name])
         frame = self.tracker.step(observed, joints, t, openings, holders,
                                   None if dropped else self.exposures.stamps, supports)
         rec = frame.parts[self.part.name]
         estimate = Estimate.of(t, rec)
+        self._part_at = None if estimate.pose is None else estimate.pose[:3, 3]
         if self.clock.ideal:
             self._plan(t, estimate, joints[name])
         elif not dropped:
@@ -507,19 +511,23 @@ class ExperimentRun:
 
     def _registration(self) -> dict | None:
         """Each camera's registration to the gripper (:mod:`cellsight.tracking.registration`),
-        for ``metrics.json``: its offset and corners and, where the world's true camera is
-        known, the true camera's offset at the part's nominal pose (the median, over its
-        feature points, of the true camera's pixel less the cell file's camera's, px)."""
+        for ``metrics.json``: its latest offset, its corners, when and where it was made
+        (``home``, ``part``), its offset at HOME and, where the world's true camera is known,
+        the true camera's offset at the part's nominal pose (the median, over its feature
+        points, of the true camera's pixel less the cell file's camera's, px)."""
         if self.registration is None:
             return None
         truth = getattr(self.world, "truth", None)
         part, out = self.part, {}
         points = transform_points(part.T_base_part, part.feature_points)
         for c, cam in enumerate(self.cell.cameras):
-            done = self.registration.registered.get(c)
+            done, home = self.registration.registered.get(c), self.registration.at_home.get(c)
             entry = {"offset_px": None if done is None else np.round(done.offset_px, 3).tolist(),
                      "corners": None if done is None else done.corners,
-                     "t": None if done is None else round(done.t, 4)}
+                     "t": None if done is None else round(done.t, 4),
+                     "where": None if done is None else done.where,
+                     "home_offset_px": None if home is None else
+                     np.round(home.offset_px, 3).tolist()}
             if truth is not None:
                 gap = truth.cell.cameras[c].project(points) - cam.project(points)
                 entry["true_offset_px"] = np.round(np.median(gap, axis=0), 3).tolist()

@@ -26,11 +26,16 @@ takes each camera with its principal point moved by it
 exactly, the lens distortion included.
 
 What it registers is the camera against the arm: the arm's own error (its base, its links, the
-gripper's size) goes into the offset, which is what a task driven by the arm wants. One offset,
-made where the gripper stood: a lens distortion error makes a camera's offset vary across its
-image (in one ``harsh`` camera by 6 px between the gripper at HOME and the part), which it does
-not follow. Every camera is registered on the same frame, once each has ``min_corners``
-residuals: a camera that never sees the gripper standing still leaves them all as they are.
+gripper's size) goes into the offset, which is what a task driven by the arm wants. A lens
+distortion error makes a camera's offset vary across its image (in one ``harsh`` camera by
+6 px between the gripper at HOME and the part), so each camera is registered once more, by
+the part: once the gripper's TCP comes within ``near_m`` of the part's estimate, the two stages
+start again from nothing, on every frame it is that near (moving or not: its corners are
+predicted at the camera's exposure time, the joints interpolated between the last frame's
+and this one's), and the camera takes the new offset once it has ``min_corners`` residuals.
+Each camera is registered at HOME on the same frame, once each has its residuals (a camera
+that never sees the gripper standing still leaves them all as they are); by the part, each on
+its own. ``near_m`` 0: at HOME only.
 """
 
 from __future__ import annotations
@@ -54,7 +59,7 @@ log = logging.getLogger(__name__)
 
 @dataclass(frozen=True)
 class RegistrationRule:
-    """The numbers of the module docstring. Units: px, mm. ``enabled`` False: never
+    """The numbers of the module docstring. Units: px, mm, m. ``enabled`` False: never
     registers."""
 
     margin_px: float = 15.0
@@ -64,6 +69,7 @@ class RegistrationRule:
     window_px: int = 15
     agree_px: float = 2.0
     min_corners: int = 100
+    near_m: float = 0.10
     enabled: bool = True
 
     def registration(self, cell: Cell, robot: str) -> GripperRegistration:
@@ -74,19 +80,70 @@ class RegistrationRule:
 @dataclass(frozen=True)
 class Registered:
     """One camera's registration: its ``offset_px`` (2,) (u, v), the ``coarse_px`` (2,) offset
-    of the votes, how many residuals it had (``corners``) and the time it was made (``t``,
-    s)."""
+    of the votes, how many residuals it had (``corners``), the time it was made (``t``, s) and
+    where (``where``: ``home`` or ``part``)."""
 
     offset_px: np.ndarray
     coarse_px: np.ndarray
     corners: int
     t: float
+    where: str = "home"
+
+
+class _Gathering:
+    """One camera's votes (stage 1) and residuals (stage 2) of the module docstring."""
+
+    def __init__(self, rule: RegistrationRule) -> None:
+        self.rule = rule
+        side = 2 * rule.reach_px + 1
+        self.votes = np.zeros((side, side))
+        self.voted = 0
+        self.coarse: np.ndarray | None = None
+        self.residuals: list[np.ndarray] = []
+
+    @property
+    def ready(self) -> bool:
+        """Whether it has the residuals an offset is made of."""
+        return len(self.residuals) >= self.rule.min_corners
+
+    def add(self, observed: Any, pixels: np.ndarray) -> None:
+        """This frame's image (or what grabs from it) and the gripper's predicted corners
+        (N, 2) px in it: votes until the coarse offset is known, residuals after."""
+        if self.coarse is None:
+            self._vote(observed, pixels)
+        else:
+            self._measure(observed, pixels)
+
+    def _vote(self, observed: Any, pixels: np.ndarray) -> None:
+        reach = self.rule.reach_px
+        box = np.concatenate([np.floor(pixels.min(axis=0)) - reach - 8,
+                              np.ceil(pixels.max(axis=0)) + reach + 9]).astype(int)
+        corners = _corners_in(grabbed(observed, [box.tolist()]), box)
+        if len(corners):
+            gap = np.rint(corners[None, :, :] - pixels[:, None, :]).reshape(-1, 2).astype(int)
+            gap = gap[(np.abs(gap) <= reach).all(axis=1)]
+            np.add.at(self.votes, (gap[:, 1] + reach, gap[:, 0] + reach), 1.0)
+        self.voted += 1
+        if self.voted >= self.rule.vote_frames:
+            self.coarse = coarse_offset(self.votes)
+
+    def _measure(self, observed: Any, pixels: np.ndarray) -> None:
+        half = self.rule.window_px // 2
+        centres = pixels + self.coarse
+        corner = np.floor(centres).astype(int)
+        boxes = np.column_stack([corner - half, corner + half + 1]).tolist()
+        image = grabbed(observed, boxes)
+        for box, centre, predicted in zip(boxes, centres, pixels, strict=True):
+            found = extract_corner(image, np.array(box), centre)
+            if found is not None and np.linalg.norm(found - centre) <= self.rule.agree_px:
+                self.residuals.append(found - predicted)
 
 
 class GripperRegistration:
     """The votes and residuals gathered per camera, and the registrations once made (module
-    docstring). ``registered``: camera index -> :class:`Registered`; ``done``: True once the
-    offsets are made."""
+    docstring). ``registered``: camera index -> its latest :class:`Registered`; ``at_home``:
+    camera index -> its registration at HOME; ``done``: True once nothing is left to
+    register."""
 
     def __init__(self, rule: RegistrationRule, cell: Cell, robot: str) -> None:
         self.rule = rule
@@ -94,42 +151,79 @@ class GripperRegistration:
         self.robot = robot
         self.objects = [i for i, f in enumerate(cell.frames)
                         if f.kind in ("palm", "jaw") and f.owner == robot]
-        side = 2 * rule.reach_px + 1
-        self._votes = np.zeros((len(cell.cameras), side, side))
-        self._voted = np.zeros(len(cell.cameras), dtype=int)
-        self._coarse: list[np.ndarray | None] = [None] * len(cell.cameras)
-        self._residuals: list[list[np.ndarray]] = [[] for _ in cell.cameras]
-        self._last: np.ndarray | None = None
+        self._gathering = [_Gathering(rule) for _ in cell.cameras]
+        self._last_tcp: np.ndarray | None = None
+        self._last_frame: tuple[float, Mapping, Mapping] | None = None
         self.registered: dict[int, Registered] = {}
+        self.at_home: dict[int, Registered] = {}
         self.done = not rule.enabled or not self.objects
 
     def add(self, t: float, observed: Sequence[Any], joints: Mapping[str, np.ndarray],
-            openings: Mapping[str, float]) -> dict[int, Camera]:
+            openings: Mapping[str, float], stamps: Sequence[float | None] | None = None,
+            part_at: np.ndarray | None = None) -> dict[int, Camera]:
         """One frame at ``t`` (s): ``observed`` what each camera took (images, or
         :class:`~cellsight.tracking.grabbing.OnDemandImage`; None: nothing), ``joints`` and
-        ``openings`` the measured joints and jaw openings. Returns the registered cameras
-        (index -> camera with its principal point moved) on the frame the offsets are made,
-        else an empty dict."""
+        ``openings`` the measured joints and jaw openings, ``stamps`` each camera's exposure
+        time (s; None: ``t``), ``part_at`` (3,) the part's estimated position (m; None: not
+        known). Returns the cameras registered on this frame (index -> the cell file's camera
+        with its principal point moved by its offset), else an empty dict."""
         if self.done:
             return {}
         poses = self.cell.snapshot(joints, None, openings).poses
+        last, self._last_frame = self._last_frame, (float(t), joints, openings)
+        if not self.at_home:
+            return self._at_home(float(t), observed, poses)
+        tcp = self.cell.robot(self.robot).tcp_pose(joints[self.robot])[:3, 3]
+        if part_at is None or np.linalg.norm(tcp - part_at) > self.rule.near_m:
+            return {}
+        out = {}
+        for c, cam in enumerate(self.cell.cameras):
+            if observed[c] is None or self.registered[c].where == "part":
+                continue
+            stamp = None if stamps is None else stamps[c]
+            exposed = poses if stamp is None or last is None else \
+                self._poses_at(stamp, last, float(t), joints, openings)
+            pixels = self._predicted(exposed, cam)
+            if len(pixels):
+                self._gathering[c].add(observed[c], pixels)
+            if self._gathering[c].ready:
+                out[c] = self._register(c, float(t), "part")
+        self.done = all(r.where == "part" for r in self.registered.values())
+        return out
+
+    def _at_home(self, t: float, observed: Sequence[Any], poses: np.ndarray
+                 ) -> dict[int, Camera]:
+        """The first registration: on frames where the gripper stands still, every camera on
+        the frame all have their residuals."""
         tcp = poses[self.objects[0]][:3, 3]
-        still = self._last is not None and \
-            1e3 * np.linalg.norm(tcp - self._last) <= self.rule.still_mm
-        self._last = tcp.copy()
+        still = self._last_tcp is not None and \
+            1e3 * np.linalg.norm(tcp - self._last_tcp) <= self.rule.still_mm
+        self._last_tcp = tcp.copy()
         if not still:
             return {}
         for c, cam in enumerate(self.cell.cameras):
             pixels = self._predicted(poses, cam)
-            if observed[c] is None or not len(pixels):
-                continue
-            if self._coarse[c] is None:
-                self._vote(c, observed[c], pixels)
-            else:
-                self._measure(c, observed[c], pixels)
-        if min(len(r) for r in self._residuals) < self.rule.min_corners:
+            if observed[c] is not None and len(pixels):
+                self._gathering[c].add(observed[c], pixels)
+        if not all(g.ready for g in self._gathering):
             return {}
-        return self._register(float(t))
+        out = {c: self._register(c, t, "home") for c in range(len(self.cell.cameras))}
+        self.at_home = dict(self.registered)
+        self._gathering = [_Gathering(self.rule) for _ in self.cell.cameras]
+        self.done = self.rule.near_m <= 0.0
+        return out
+
+    def _poses_at(self, stamp: float, last: tuple, t: float, joints: Mapping[str, np.ndarray],
+                  openings: Mapping[str, float]) -> np.ndarray:
+        """The cell's poses at time ``stamp`` (s): the joints and openings interpolated between
+        the ``last`` frame's and this one's (at ``t``)."""
+        t0, joints0, openings0 = last
+        f = float(np.clip((stamp - t0) / (t - t0), 0.0, 1.0)) if t > t0 else 1.0
+        q = {n: np.asarray(joints0[n]) + f * (np.asarray(v) - np.asarray(joints0[n]))
+             if n in joints0 else v for n, v in joints.items()}
+        o = {n: openings0[n] + f * (v - openings0[n]) if n in openings0 else v
+             for n, v in openings.items()}
+        return self.cell.snapshot(q, None, o).poses
 
     def _predicted(self, poses: np.ndarray, cam: Camera) -> np.ndarray:
         """(N, 2) px: the gripper's corners with a face turned towards ``cam``, projected,
@@ -148,46 +242,17 @@ class GripperRegistration:
         pixels = pixels[np.isfinite(pixels).all(axis=1)]
         return pixels[cam.in_image(pixels, self.rule.margin_px)]
 
-    def _vote(self, c: int, observed: Any, pixels: np.ndarray) -> None:
-        """Camera ``c``'s votes of this frame (stage 1); the coarse offset after
-        ``vote_frames`` frames."""
-        reach = self.rule.reach_px
-        box = np.concatenate([np.floor(pixels.min(axis=0)) - reach - 8,
-                              np.ceil(pixels.max(axis=0)) + reach + 9]).astype(int)
-        corners = _corners_in(grabbed(observed, [box.tolist()]), box)
-        if len(corners):
-            gap = np.rint(corners[None, :, :] - pixels[:, None, :]).reshape(-1, 2).astype(int)
-            gap = gap[(np.abs(gap) <= reach).all(axis=1)]
-            np.add.at(self._votes[c], (gap[:, 1] + reach, gap[:, 0] + reach), 1.0)
-        self._voted[c] += 1
-        if self._voted[c] >= self.rule.vote_frames:
-            self._coarse[c] = coarse_offset(self._votes[c])
-
-    def _measure(self, c: int, observed: Any, pixels: np.ndarray) -> None:
-        """Camera ``c``'s residuals of this frame (stage 2)."""
-        coarse, half = self._coarse[c], self.rule.window_px // 2
-        centres = pixels + coarse
-        corner = np.floor(centres).astype(int)
-        boxes = np.column_stack([corner - half, corner + half + 1]).tolist()
-        image = grabbed(observed, boxes)
-        for box, centre, predicted in zip(boxes, centres, pixels, strict=True):
-            found = extract_corner(image, np.array(box), centre)
-            if found is not None and np.linalg.norm(found - centre) <= self.rule.agree_px:
-                self._residuals[c].append(found - predicted)
-
-    def _register(self, t: float) -> dict[int, Camera]:
-        """Every camera's offset (once): the registered cameras."""
-        self.done = True
-        out = {}
-        for c, cam in enumerate(self.cell.cameras):
-            residuals = np.array(self._residuals[c])
-            offset = np.median(residuals, axis=0)
-            log.info("camera %s registered to %s's gripper at %.2f s: offset (%.2f, %.2f) px "
-                     "from %d corners (votes: (%.0f, %.0f) px)", cam.name, self.robot, t,
-                     offset[0], offset[1], len(residuals), *self._coarse[c])
-            self.registered[c] = Registered(offset, self._coarse[c], len(residuals), t)
-            out[c] = shifted(cam, offset)
-        return out
+    def _register(self, c: int, t: float, where: str) -> Camera:
+        """Camera ``c``'s offset from its residuals: the registered camera."""
+        cam, gathering = self.cell.cameras[c], self._gathering[c]
+        residuals = np.array(gathering.residuals)
+        offset = np.median(residuals, axis=0)
+        log.info("camera %s registered to %s's gripper %s at %.2f s: offset (%.2f, %.2f) px "
+                 "from %d corners (votes: (%.0f, %.0f) px)", cam.name, self.robot,
+                 "at HOME" if where == "home" else "by the part", t, offset[0], offset[1],
+                 len(residuals), *gathering.coarse)
+        self.registered[c] = Registered(offset, gathering.coarse, len(residuals), t, where)
+        return shifted(cam, offset)
 
 
 def _corners_in(image: np.ndarray, box: np.ndarray) -> np.ndarray:
