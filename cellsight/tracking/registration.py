@@ -29,10 +29,13 @@ What it registers is the camera against the arm: the arm's own error (its base, 
 gripper's size) goes into the offset, which is what a task driven by the arm wants. A lens
 distortion error makes a camera's offset vary across its image (in one ``harsh`` camera by
 6 px between the gripper at HOME and the part), so each camera is registered once more, by
-the part: once the gripper's TCP comes within ``near_m`` of the part's estimate, the two stages
-start again from nothing, on every frame it is that near (moving or not: its corners are
-predicted at the camera's exposure time, the joints interpolated between the last frame's
-and this one's), and the camera takes the new offset once it has ``min_corners`` residuals.
+the part: once the gripper's TCP comes within ``near_m`` of the part's estimate, the two
+stages start again from nothing, on every frame it is that near with its jaws open (within
+``open_mm`` of their widest: closed on the part, the part's corners among the jaws' would
+lead the votes astray, by 4-6 px in the ``harsh`` runs that registered so), moving or not
+(its corners are predicted at the camera's exposure time, the joints interpolated between the
+last frame's and this one's), and the camera takes the new offset once it has
+``min_corners`` residuals.
 Each camera is registered at HOME on the same frame, once each has its residuals (a camera
 that never sees the gripper standing still leaves them all as they are); by the part, each on
 its own. ``near_m`` 0: at HOME only.
@@ -70,6 +73,7 @@ class RegistrationRule:
     agree_px: float = 2.0
     min_corners: int = 100
     near_m: float = 0.10
+    open_mm: float = 5.0
     enabled: bool = True
 
     def registration(self, cell: Cell, robot: str) -> GripperRegistration:
@@ -173,9 +177,12 @@ class GripperRegistration:
         last, self._last_frame = self._last_frame, (float(t), joints, openings)
         if not self.at_home:
             return self._at_home(float(t), observed, poses)
-        tcp = self.cell.robot(self.robot).tcp_pose(joints[self.robot])[:3, 3]
+        robot = self.cell.robot(self.robot)
+        tcp = robot.tcp_pose(joints[self.robot])[:3, 3]
         if part_at is None or np.linalg.norm(tcp - part_at) > self.rule.near_m:
             return {}
+        if 1e3 * (robot.tool.max_opening - openings[self.robot]) > self.rule.open_mm:
+            return {}  # the jaws on the part: its corners among the jaws' would vote
         out = {}
         for c, cam in enumerate(self.cell.cameras):
             if observed[c] is None or self.registered[c].where == "part":
