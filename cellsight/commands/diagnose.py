@@ -36,16 +36,18 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
         print(json.dumps([s.as_dict() for s in spans], indent=2))
         return 0
     accepted = sum(s.accepted for s in spans)
-    table = Table(title=f"{folder}: {sum(s.frames for s in spans)} wrong corners (more than "
-                        f"{WRONG_PX:g} px off), {accepted} accepted by the gate, in "
-                        f"{len(spans)} spans")
+    console = Console(width=160)
+    console.print(f"{folder}: {sum(s.frames for s in spans)} wrong corners (more than "
+                  f"{WRONG_PX:g} px off), {accepted} accepted by the gate, in {len(spans)} "
+                  f"spans", soft_wrap=True)
+    table = Table()
     for col in ("camera", "feature", "t (s)", "phase", "frames", "accepted", "rejected",
-                "truly", "predicted"):
-        table.add_column(col, justify="right" if col in ("frames", "accepted", "rejected")
-                         else "left")
+                "unused", "truly", "predicted"):
+        table.add_column(col, justify="right" if col in ("frames", "accepted", "rejected",
+                                                         "unused") else "left")
     for s in spans:
         when = f"{s.t_start:.2f}" if s.t_end == s.t_start else f"{s.t_start:.2f}-{s.t_end:.2f}"
         table.add_row(s.camera, s.feature, when, s.phase, str(s.frames), str(s.accepted),
-                      str(s.rejected), s.truth, s.predicted)
-    Console(width=160).print(table)
+                      str(s.rejected), str(s.unused), s.truth, s.predicted)
+    console.print(table)
     return 0

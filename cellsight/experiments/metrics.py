@@ -176,18 +176,11 @@ def _measurements(log: FrameLog) -> dict:
         "measurements": int(meas.sum()),
         "rejected_measurements": int(rej.sum()),
         "wrong_measurements": int(wrong.sum()) if _truth_rows(log).any() else None,
-        "wrong_accepted": (int(np.sum((wrong & ~rej)[_used(log)])) if _truth_rows(log).any()
+        "wrong_accepted": (int(np.sum((wrong & ~rej)[log.used()])) if _truth_rows(log).any()
                            else None),
         "pixels_grabbed_fraction": float(np.mean(grabbed)) if grabbed.size else None,
         "extraction_error_px_median": float(np.median(px)) if px.size else None,
     }
-
-
-def _used(log: FrameLog) -> np.ndarray:
-    """(N,) bool: the frame's measurements went into an estimate (its status is neither
-    ``waiting`` nor ``lost``: an acquisition that gave no fix)."""
-    status = np.array(log.text("status"), dtype=str)
-    return ~np.isin(status, ("waiting", "lost"))
 
 
 def _row_major(log: FrameLog, name: str) -> np.ndarray:

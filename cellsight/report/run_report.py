@@ -521,11 +521,13 @@ def _wrong_corners_html(run_dir: Path, metrics: dict, shown: int = 12) -> str:
     if not spans:
         return ""
     head = "".join(f"<th>{h}</th>" for h in ("camera", "feature", "t [s]", "phase", "frames",
-                                             "accepted", "rejected", "truly", "predicted"))
+                                             "accepted", "rejected", "unused", "truly",
+                                             "predicted"))
     body = "".join(
         "<tr>" + "".join(f"<td>{html.escape(str(v))}</td>" for v in (
             s.camera, s.feature, f"{s.t_start:.2f}-{s.t_end:.2f}", s.phase, s.frames,
-            s.accepted, s.rejected, s.truth, s.predicted)) + "</tr>" for s in spans[:shown])
+            s.accepted, s.rejected, s.unused, s.truth, s.predicted)) + "</tr>"
+        for s in spans[:shown])
     more = f" (the first {shown} of {len(spans)} spans)" if len(spans) > shown else ""
     try:
         crops = wrong_corner_crops(run_dir, spans, metrics=metrics)

@@ -293,6 +293,11 @@ class FrameLog:
         """(N,) bool: rows where the column has a value."""
         return np.array([bool(v) for v in self.text(name)], dtype=bool)
 
+    def used(self) -> np.ndarray:
+        """(N,) bool: rows whose measurements went into an estimate (the status is neither
+        ``waiting`` nor ``lost``: an acquisition that gave no fix used nothing)."""
+        return ~np.isin(np.array(self.text("status"), dtype=str), ("waiting", "lost"))
+
     def bits(self, name: str, n_features: int | None = None) -> np.ndarray:
         """A 0/1 column as (N, F) bool; missing rows are all False. ``n_features`` defaults to
         :attr:`n_features`; a row of another length is an error."""

@@ -1,7 +1,9 @@
 """Where a run's wrong corners come from: every corner measured more than ``WRONG_PX`` (3 px)
 from its feature's true projection (``wrong_c{c}`` of ``frames.csv``), grouped by camera and
-feature into spans of frames, each with what the gate did (accepted, rejected) and what the
-simulator and the tracker said of the feature then.
+feature into spans of frames, each with what the gate did (accepted, rejected; a frame of an
+acquisition that gave no fix, ``waiting`` or ``lost``, used none of its corners: ``unused``,
+as the run's ``wrong_accepted`` counts) and what the simulator and the tracker said of the
+feature then.
 
 A span is a run of frames of one camera and feature with a wrong corner, frames less than
 ``GAP_FRAMES`` apart joined. Its ``truth`` is the simulator's most frequent label of the
@@ -28,7 +30,8 @@ __all__ = ["GAP_FRAMES", "WRONG_PX", "WrongSpan", "wrong_corner_spans"]
 @dataclass(frozen=True)
 class WrongSpan:
     """Wrong corners of one camera and feature over ``t_start``..``t_end`` (s): ``frames``
-    with one, ``accepted`` by the gate, ``rejected`` by it; the ``phase`` (the first);
+    with one, ``accepted`` by the gate (and used), ``rejected`` by it, ``unused`` (frames that
+    used nothing); the ``phase`` (the first);
     ``truth`` and ``predicted``: the most frequent labels (module docstring)."""
 
     camera: str
@@ -38,6 +41,7 @@ class WrongSpan:
     frames: int
     accepted: int
     rejected: int
+    unused: int
     phase: str
     truth: str
     predicted: str
@@ -52,7 +56,7 @@ def wrong_corner_spans(run_dir: str | Path, cameras: list[str] | None = None,
     ``cameras`` and ``features`` name them (default ``cam<c>``, 1-based, and ``#<j>``, the
     0-based index of the log's flags)."""
     log = FrameLog.read(Path(run_dir) / "frames.csv")
-    t, phases = log.floats("t"), log.text("phase")
+    t, phases, used = log.floats("t"), log.text("phase"), log.used()
     F = log.n_features
     spans: list[WrongSpan] = []
     for c in range(1, log.n_cameras + 1):
@@ -65,8 +69,9 @@ def wrong_corner_spans(run_dir: str | Path, cameras: list[str] | None = None,
             for rows in _runs(np.flatnonzero(wrong[:, f])):
                 spans.append(WrongSpan(
                     camera, features[f] if features else f"#{f}", float(t[rows[0]]),
-                    float(t[rows[-1]]), len(rows), int((~rejected[rows, f]).sum()),
-                    int(rejected[rows, f].sum()), phases[rows[0]],
+                    float(t[rows[-1]]), len(rows), int((~rejected[rows, f] & used[rows]).sum()),
+                    int(rejected[rows, f].sum()), int((~rejected[rows, f] & ~used[rows]).sum()),
+                    phases[rows[0]],
                     _most(truth[rows, f]), _most(predicted[rows, f])))
     return sorted(spans, key=lambda s: (-s.accepted, -s.frames, s.t_start))
 

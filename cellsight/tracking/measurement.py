@@ -166,12 +166,12 @@ class Observation:
         """Predicted pixels (n, 2) and Jacobian (2n, 12) at the filter's ``state`` of the
         features as exposed ``lag_s`` earlier: the pose moved back along its velocity
         (:meth:`exposed_state`; the process noise over the lag, a few milliseconds, is
-        neglected). The Jacobian is the pose's alone (its velocity columns zero, as without a lag):
-        the filter learns no velocity from the lag. Through the lag's own
-        ``-lag_s`` times the pose columns it would, and two cameras exposed a few milliseconds
-        apart that disagree by the few pixels calibrated cameras do would show a still part
-        moving at centimetres per second (measured: 15-30 mm/s on `harsh` runs, followed by
-        the grasp). ``rotation``: the state's ``R_base_part``, when the caller has it (used
+        neglected). The Jacobian is the pose's alone (its velocity columns zero, as without a
+        lag): the filter learns no velocity from the lag. With the lag's own ``-lag_s`` times
+        the pose columns it would, and two cameras exposed a few milliseconds apart that
+        disagree by the few pixels calibrated cameras do would show a still part moving at
+        centimetres per second (measured: 15-30 mm/s on `harsh` runs, which the grasp
+        followed). ``rotation``: the state's ``R_base_part``, when the caller has it (used
         without a lag)."""
         if self.lag_s == 0.0:
             return self.model.evaluate(state, self.points_model, rotation)

@@ -200,8 +200,8 @@ class GripperRegistration:
 
     def _at_home(self, t: float, observed: Sequence[Any], poses: np.ndarray
                  ) -> dict[int, Camera]:
-        """The first registration: on frames where the gripper stands still, every camera on
-        the frame all have their residuals."""
+        """The first registration, from the frames where the gripper stands still: every
+        camera on the frame where all have their residuals."""
         tcp = poses[self.objects[0]][:3, 3]
         still = self._last_tcp is not None and \
             1e3 * np.linalg.norm(tcp - self._last_tcp) <= self.rule.still_mm
