@@ -156,7 +156,7 @@ class GripperRegistration:
         self.objects = [i for i, f in enumerate(cell.frames)
                         if f.kind in ("palm", "jaw") and f.owner == robot]
         self._gathering = [_Gathering(rule) for _ in cell.cameras]
-        self._last_tcp: np.ndarray | None = None
+        self._last_palm: np.ndarray | None = None
         self._last_frame: tuple[float, Mapping, Mapping] | None = None
         self.registered: dict[int, Registered] = {}
         self.at_home: dict[int, Registered] = {}
@@ -173,9 +173,9 @@ class GripperRegistration:
         with its principal point moved by its offset), else an empty dict."""
         if self.done:
             return {}
-        poses = self.cell.snapshot(joints, None, openings).poses
         last, self._last_frame = self._last_frame, (float(t), joints, openings)
         if not self.at_home:
+            poses = self.cell.snapshot(joints, None, openings).poses
             return self._at_home(float(t), observed, poses)
         robot = self.cell.robot(self.robot)
         tcp = robot.tcp_pose(joints[self.robot])[:3, 3]
@@ -183,7 +183,7 @@ class GripperRegistration:
             return {}
         if 1e3 * (robot.tool.max_opening - openings[self.robot]) > self.rule.open_mm:
             return {}  # the jaws on the part: its corners among the jaws' would vote
-        out = {}
+        poses, out = self.cell.snapshot(joints, None, openings).poses, {}
         for c, cam in enumerate(self.cell.cameras):
             if observed[c] is None or self.registered[c].where == "part":
                 continue
@@ -202,10 +202,10 @@ class GripperRegistration:
                  ) -> dict[int, Camera]:
         """The first registration, from the frames where the gripper stands still: every
         camera on the frame where all have their residuals."""
-        tcp = poses[self.objects[0]][:3, 3]
-        still = self._last_tcp is not None and \
-            1e3 * np.linalg.norm(tcp - self._last_tcp) <= self.rule.still_mm
-        self._last_tcp = tcp.copy()
+        palm = poses[self.objects[0]][:3, 3]
+        still = self._last_palm is not None and \
+            1e3 * np.linalg.norm(palm - self._last_palm) <= self.rule.still_mm
+        self._last_palm = palm.copy()
         if not still:
             return {}
         for c, cam in enumerate(self.cell.cameras):
