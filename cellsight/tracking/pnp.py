@@ -92,6 +92,12 @@ def _residuals(observations: list[Observation], params: np.ndarray):
     return np.concatenate(res), np.concatenate(jac)
 
 
+STEP_TOL = 1e-9
+"""The refinement stops at a step shorter than this (m and rad of the pose): after it, the
+cost changes only by rounding, and the steps were rejected one by one until the damping ran
+out (about half of the evaluations of a frame's refinement)."""
+
+
 def refine_pose(
     observations: list[Observation],
     T_init: np.ndarray,
@@ -117,12 +123,12 @@ def refine_pose(
             if np.isfinite(cost_t) and cost_t < cost:
                 params, r, J, cost = trial, r_t, J_t, cost_t
                 lam = max(lam / 10, 1e-9)
-                if np.linalg.norm(step) < 1e-10:
-                    break
             else:
                 lam *= 10
                 if lam > 1e8:
                     break
+            if np.linalg.norm(step) < STEP_TOL:  # converged: what is left is rounding
+                break
         cov = sigma_px**2 * np.linalg.inv(J.T @ J)
     except np.linalg.LinAlgError:
         return None
