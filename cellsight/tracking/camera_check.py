@@ -100,7 +100,8 @@ class CameraCheck:
             return
         for c in range(len(self.cameras)):
             rows = frame.innovation[c][np.isfinite(frame.innovation[c, :, 0])]
-            _slide(self._innovations[c], t, [(t, r) for r in rows], self.rule.window_s)
+            _slide(self._innovations[c], t, [(t, rows)] if len(rows) else [],
+                   self.rule.window_s)
             looked = int(frame.looked[c].sum())
             if looked:
                 found = int((frame.looked[c] & np.isfinite(frame.measured[c, :, 0])).sum())
@@ -197,10 +198,10 @@ class CameraCheck:
     def _biased(self, c: int) -> float | None:
         """The mean innovation's length (px) when camera ``c`` is biased, 0.0 when it has
         enough innovations and is not, None when it has too few."""
-        window = self._innovations[c]
-        if len(window) < self.rule.min_points:
+        window = self._innovations[c]  # (t, (k, 2) innovations of that frame)
+        if sum(len(block) for _, block in window) < self.rule.min_points:
             return None
-        rows = np.array([r for _, r in window])
+        rows = np.concatenate([block for _, block in window])
         mean = rows.mean(axis=0)
         spread = rows.std(axis=0, ddof=1) / np.sqrt(len(rows))
         length = float(np.linalg.norm(mean))
