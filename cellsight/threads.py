@@ -4,7 +4,7 @@ how its idle threads wait.
 The pools: numba's (the predictor's kernel on large scenes,
 :data:`~cellsight.occlusion.forest.PARALLEL_MIN_POINTS`), OpenCV's, the BLAS's under NumPy and
 SciPy (through threadpoolctl), and Mesa's software OpenGL renderer (llvmpipe,
-``LP_NUM_THREADS``, read when the first OpenGL context is made; none of its own, below).
+``LP_NUM_THREADS``, read when the first OpenGL context is made).
 
 - **How many:** a process uses the cores it may run on (its CPU affinity); a sweep's jobs
   share them, each ``cores // jobs`` of them, at least one (:func:`share`).
@@ -17,10 +17,7 @@ SciPy (through threadpoolctl), and Mesa's software OpenGL renderer (llvmpipe,
   and 1.45 (and only 1.5x serial where OpenMP gives 2x on 55,520 points); serial 1.0 and
   1.9.
 - **Where:** no parallel region where the work is smaller than waking a thread (the
-  predictor's kernel runs serially below its threshold), and Mesa's llvmpipe rasterises on the
-  thread that renders (``LP_NUM_THREADS=0``): a camera's region of windows (about 136 x 93 px)
-  took 1.24 ms a render in a run against 2.15 with a rasteriser thread per core (experiment 3,
-  median of 579), the whole image 39 against 32 ms (two cameras), the pixels the same.
+  predictor's kernel runs serially below its threshold).
 
 The answers do not depend on the number of threads. :func:`apply` sets the policy in this
 process (the CLI does it first thing; a sweep's workers in their initializer; a program using
@@ -57,7 +54,7 @@ def environment(threads: int) -> dict[str, str]:
     the libraries when they load (set them before a child process starts), except those the
     user set."""
     n = str(max(1, int(threads)))
-    values = dict(zip(_VARIABLES, ("PASSIVE", n, n, n, "0"), strict=True))
+    values = dict(zip(_VARIABLES, ("PASSIVE", n, n, n, n), strict=True))
     return {name: value for name, value in values.items() if name not in _USER_SET}
 
 

@@ -5,9 +5,6 @@ measures what a run rendering whole frames measures."""
 
 from __future__ import annotations
 
-import os
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -132,33 +129,3 @@ def test_a_run_on_windows_measures_what_a_run_on_whole_frames_measures(tmp_path:
     assert windows["position_rmse_mm"] == pytest.approx(whole["position_rmse_mm"], abs=0.01)
     assert windows["timing_ms"]["grab"] > 0.0 and whole["timing_ms"]["grab"] < 0.5
     assert windows["pixels_grabbed_fraction"] == whole["pixels_grabbed_fraction"] < 0.02
-
-
-_RENDER_CHILD = """
-import hashlib, sys
-import numpy as np
-from cellsight import load_cell
-from cellsight.world import World
-world = World(load_cell())
-for _ in range(400):
-    world.step({}, {})
-images = world.render()
-regions = [world._renderer.render_region(world.scene.data, c, (250, 180, 390, 290))
-           for c in range(len(images))]
-print(hashlib.sha256(b"".join(np.ascontiguousarray(a).tobytes()
-                              for a in images + regions)).hexdigest())
-"""
-
-
-def test_the_renderers_threads_change_no_pixel():
-    """The threading policy's llvmpipe setting (``LP_NUM_THREADS=0``: rasterised on the
-    rendering thread) gives the pixels that rasteriser threads give, whole images and regions
-    alike (each in a process of its own: the setting is read when the first context is
-    made)."""
-    digests = set()
-    for lp in ("0", "2"):
-        env = {**os.environ, "LP_NUM_THREADS": lp}
-        out = subprocess.run([sys.executable, "-c", _RENDER_CHILD], env=env, check=True,
-                             capture_output=True, text=True, timeout=300)
-        digests.add(out.stdout.split()[-1])
-    assert len(digests) == 1
