@@ -13,7 +13,8 @@ the predictor's (``t_occlusion_ms``), in three conditions:
 Each condition twice: with the threading policy (:mod:`cellsight.threads`) and with the
 policy before it, its peer (OpenMP's idle threads spinning, and the predictor's kernel
 parallel over the cameras whatever the work). Printed: median, p99 and max
-per frame (ms) and the wall time of the run; the p99 under load against the quiet p99.
+per frame (ms) of the row's runs pooled (``REPEATS`` runs a row, interleaved), each run's p99,
+and the median wall time of the runs; the p99 under load against the quiet p99.
 
     .venv/bin/python bench/bench_latency.py [DURATION]
 """
@@ -35,6 +36,7 @@ from cellsight import threads
 from cellsight.runfolder.framelog import FrameLog
 
 DURATION = 12.0  # s of simulated time per run (312 frames)
+REPEATS = 3  # runs per row: one run's p99 moves by half between runs on a shared machine
 OUT = Path(__file__).resolve().parent.parent / "out" / "bench"
 CONDITIONS = ("quiet", "beside a second run", "beside busy loops")
 POLICIES = ("threading policy", "before it: spinning, parallel kernel")
@@ -73,7 +75,8 @@ def busy_loops() -> list[subprocess.Popen]:
 
 
 def measure(condition: str, old: bool, duration: float, folder: Path) -> dict:
-    """Per-frame times of one run in ``condition`` (one of :data:`CONDITIONS`)."""
+    """Per-frame times (ms) of one run in ``condition`` (one of :data:`CONDITIONS`): the
+    tracker's and the predictor's, the first frame left out, and the run's wall time (s)."""
     out = folder / f"{CONDITIONS.index(condition)}{'old' if old else 'new'}"
     load = busy_loops() if condition == "beside busy loops" else []
     if condition == "beside a second run":
@@ -87,29 +90,44 @@ def measure(condition: str, old: bool, duration: float, folder: Path) -> dict:
             process.wait()
     log = FrameLog.read(out / "frames.csv")
     metrics = json.loads((out / "metrics.json").read_text())
-    tracker, occlusion = log.floats("t_total_ms")[1:], log.floats("t_occlusion_ms")[1:]
+    return {"tracker": log.floats("t_total_ms")[1:], "occlusion": log.floats("t_occlusion_ms")[1:],
+            "wall_s": float(metrics["wall_s"])}
+
+
+def summary(runs: list[dict]) -> dict:
+    """The figures of a condition's runs: median, p99 and max of their frames pooled, each
+    run's p99, the predictor's pooled p99 and the median wall time."""
+    tracker = np.concatenate([r["tracker"] for r in runs])
+    occlusion = np.concatenate([r["occlusion"] for r in runs])
     return {"median": float(np.median(tracker)), "p99": float(np.percentile(tracker, 99)),
             "max": float(tracker.max()), "occlusion_p99": float(np.percentile(occlusion, 99)),
-            "wall_s": metrics["wall_s"], "frames": int(tracker.size)}
+            "p99_runs": [float(np.percentile(r["tracker"], 99)) for r in runs],
+            "wall_s": float(np.median([r["wall_s"] for r in runs])),
+            "frames": int(tracker.size)}
 
 
 def main(duration: float = DURATION) -> None:
-    results: dict[str, dict[str, dict]] = {}
+    runs: dict[str, dict[str, list]] = {p: {c: [] for c in CONDITIONS} for p in POLICIES}
     with tempfile.TemporaryDirectory() as tmp:
         _run(Path(tmp) / "warm", 1.0, False).wait()  # numba's caches, once
-        for policy, old in zip(POLICIES, (False, True), strict=True):
-            results[policy] = {c: measure(c, old, duration, Path(tmp)) for c in CONDITIONS}
+        for _ in range(REPEATS):  # interleaved: the machine's drift falls on every row alike
+            for policy, old in zip(POLICIES, (False, True), strict=True):
+                for c in CONDITIONS:
+                    runs[policy][c].append(measure(c, old, duration, Path(tmp)))
+    results = {p: {c: summary(r) for c, r in rows.items()} for p, rows in runs.items()}
     table = Table(title=f"tracker time per frame (ms), rendered experiment 3, {duration:g} s, "
-                        f"{threads.cores()} cores (first frame left out)")
-    for col in ("threads", "condition", "median", "p99", "max", "p99 / quiet p99",
-                "predictor p99", "run wall s"):
+                        f"{REPEATS} runs a row pooled, {threads.cores()} cores (first frame "
+                        f"left out)")
+    for col in ("threads", "condition", "median", "p99", "p99 of each run", "max",
+                "p99 / quiet p99", "predictor p99", "run wall s"):
         table.add_column(col, justify="left" if col in ("threads", "condition") else "right")
     for policy, rows in results.items():
         quiet = rows["quiet"]["p99"]
         for condition, r in rows.items():
             table.add_row(policy, condition, f"{r['median']:.2f}", f"{r['p99']:.2f}",
-                          f"{r['max']:.1f}", f"{r['p99'] / quiet:.2f}x",
-                          f"{r['occlusion_p99']:.2f}", f"{r['wall_s']:.1f}")
+                          " ".join(f"{x:.1f}" for x in r["p99_runs"]), f"{r['max']:.1f}",
+                          f"{r['p99'] / quiet:.2f}x", f"{r['occlusion_p99']:.2f}",
+                          f"{r['wall_s']:.1f}")
     Console(width=150).print(table)
     OUT.mkdir(parents=True, exist_ok=True)
     (OUT / "latency.json").write_text(json.dumps(results, indent=1))

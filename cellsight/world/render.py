@@ -88,8 +88,8 @@ class GrayRenderer:
 
     def render_preview(self, data, camera: int, scale: float) -> np.ndarray:
         """(H, W) uint8: camera ``camera``'s whole image rendered at ``scale`` (0-1] of its
-        resolution (the same field of view, the viewport shrunk, in the smallest framebuffer that
-        holds it) and resized back to it, then distorted as :meth:`render` does: a picture for a
+        resolution (the same field of view, the viewport shrunk, in a framebuffer of that size)
+        and resized back to it, then distorted as :meth:`render` does: a picture for a
         video, at a fraction of the cost, blurrier than the image the tracker reads."""
         width, height = self._sizes[camera]
         w, h = max(1, round(width * scale)), max(1, round(height * scale))
