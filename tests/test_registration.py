@@ -14,7 +14,7 @@ from cellsight.camera import Camera
 from cellsight.geometry.transforms import pose_from_xyz_rpy
 from cellsight.occlusion.predictor import VisibilityPredictor
 from cellsight.tracking import Tracker
-from cellsight.tracking.registration import coarse_offset, shifted
+from cellsight.tracking.registration import RegistrationRule, coarse_offset, shifted
 
 REACH = 15
 
@@ -135,3 +135,28 @@ def test_each_camera_is_registered_again_by_the_part(tmp_path):
             far += 1
             assert near < home
     assert far >= 1  # the case is not trivial
+
+
+def test_a_recording_registers_each_camera_as_its_run_did(tmp_path):
+    """``cellsight track --register-cameras`` on the recording of a ``harsh/cameras`` run
+    (seed 1, the arm exact; ``cellsight run --kinematic-prior --record``): the recorded whole
+    images, joints and jaw openings give each camera the offset the run found, and the tracker
+    predicts with it; without the option nothing is registered."""
+    from cellsight.experiments.runner import ExperimentRun, RunConfig
+    from cellsight.recording.track import TrackOptions, track_recording
+
+    recording = tmp_path / "rec.mcap"
+    run = ExperimentRun(RunConfig(1, tmp_path / "run", seed=1, realism="harsh/cameras",
+                                  duration=2.5, kinematic_prior=True, progress=False,
+                                  video_every=0, record=recording))
+    metrics = run.run()
+    tracked = track_recording(None, recording, tmp_path / "tracked",
+                              TrackOptions(progress=False, register_cameras=True)).metrics
+    for cam in run.cell.cameras:
+        ran, got = metrics["registration"][cam.name], tracked["registration"][cam.name]
+        assert ran["where"] == got["where"] == "home"
+        assert np.linalg.norm(ran["offset_px"]) > 4.0  # a camera well off
+        np.testing.assert_allclose(got["offset_px"], ran["offset_px"], atol=0.01)
+        assert got["corners"] >= RegistrationRule().min_corners
+    plain = track_recording(None, recording, tmp_path / "plain", TrackOptions(progress=False))
+    assert plain.metrics["registration"] is None

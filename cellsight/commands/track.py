@@ -47,6 +47,11 @@ def register(sub: argparse._SubParsersAction) -> None:
                        help="every feature in the image counts as visible")
     track.add_argument("--unknown-occluders", action="store_true",
                        help="learn where objects the cell file does not know hide the part")
+    track.add_argument("--register-cameras", action="store_true",
+                       help="register each camera to the gripper from the recorded images, "
+                            "joints and jaw openings, at HOME and again by the part (as "
+                            "'cellsight run --kinematic-prior' does); metrics.json says the "
+                            "offsets")
     track.add_argument("--quiet", action="store_true", help="no progress bar")
     track.add_argument("--overwrite", action="store_true",
                        help="clear --out first if it holds an earlier run, and replace --mcap")
@@ -73,7 +78,8 @@ def cmd_track(args: argparse.Namespace) -> int:
                            calibration_from_bag=args.calibration_from_bag, part=args.part,
                            occlusion_prediction=not args.no_occlusion_prediction,
                            unknown_occluders=args.unknown_occluders, overwrite=args.overwrite,
-                           progress=not args.quiet, live=args.live)
+                           progress=not args.quiet, live=args.live,
+                           register_cameras=args.register_cameras)
     if args.mcap is not None:
         _check_not_the_recording(Path(args.mcap), Path(args.recording))
         check_output(args.mcap, args.overwrite, Path(args.out))

@@ -518,20 +518,12 @@ class ExperimentRun:
         if self.registration is None:
             return None
         truth = getattr(self.world, "truth", None)
-        part, out = self.part, {}
-        points = transform_points(part.T_base_part, part.feature_points)
-        for c, cam in enumerate(self.cell.cameras):
-            done, home = self.registration.registered.get(c), self.registration.at_home.get(c)
-            entry = {"offset_px": None if done is None else np.round(done.offset_px, 3).tolist(),
-                     "corners": None if done is None else done.corners,
-                     "t": None if done is None else round(done.t, 4),
-                     "where": None if done is None else done.where,
-                     "home_offset_px": None if home is None else
-                     np.round(home.offset_px, 3).tolist()}
-            if truth is not None:
-                gap = truth.cell.cameras[c].project(points) - cam.project(points)
-                entry["true_offset_px"] = np.round(np.median(gap, axis=0), 3).tolist()
-            out[cam.name] = entry
+        out = self.registration.record()
+        if truth is not None:
+            points = transform_points(self.part.T_base_part, self.part.feature_points)
+            for cam, true_cam in zip(self.cell.cameras, truth.cell.cameras, strict=True):
+                gap = true_cam.project(points) - cam.project(points)
+                out[cam.name]["true_offset_px"] = np.round(np.median(gap, axis=0), 3).tolist()
         return out
 
     def _metrics(self, wall_s: float, ending: dict) -> dict:

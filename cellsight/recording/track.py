@@ -56,6 +56,7 @@ from cellsight.runfolder import (
     write_metrics,
 )
 from cellsight.runfolder.writes import log_to, stop_logging_to
+from cellsight.tracking.registration import RegistrationRule
 from cellsight.tracking.setup import build_tracker
 
 log = logging.getLogger(__name__)
@@ -71,7 +72,10 @@ class TrackOptions:
     images of several cameras within it form one frame; ``calibration_from_bag``: the
     recording's CameraInfo replaces the cell's intrinsics; ``part``: the workpiece logged
     (default the cell's first); the tracker's options as in ``cellsight run``; ``live``:
-    ``[HOST:]PORT`` to stream the tracking to Foxglove (:mod:`cellsight.export.live`)."""
+    ``[HOST:]PORT`` to stream the tracking to Foxglove (:mod:`cellsight.export.live`);
+    ``register_cameras``: each camera registered to the gripper from the recorded images,
+    joints and jaw openings, at HOME and by the part (:mod:`cellsight.tracking.registration`,
+    as ``cellsight run --kinematic-prior`` does)."""
 
     topics: str | Path | None = None
     tolerance_s: float = 0.019
@@ -82,6 +86,7 @@ class TrackOptions:
     overwrite: bool = False
     progress: bool = True
     live: str | None = None
+    register_cameras: bool = False
 
 
 @dataclass
@@ -112,6 +117,9 @@ class _Session:
         self.truth_views = VisibilityPredictor(self.cell)
         robot = next((r for r in self.cell.robots if r.tool is not None), self.cell.robots[0])
         self.robot = robot
+        self.registration = (RegistrationRule().registration(self.cell, robot.name)
+                             if options.register_cameras and robot.tool is not None else None)
+        self._part_at: np.ndarray | None = None  # the part's last estimated position (m)
         self.rows = FrameRows(robot, len(self.cell.cameras), pixel_errors=True)
         start = recording.span_ns[0]
         self.origin_ns = start - start % 1_000_000_000  # the whole second of the first message
@@ -154,9 +162,14 @@ class _Session:
             log.warning("t = %.3f s: joints held %.3f s past their last sample", frame.t, held)
         self.held_s = max(self.held_s, held)
         openings = self.signals.openings_at(frame.ns)
+        if self.registration is not None and self.robot.name in openings:
+            for c, camera in self.registration.add(frame.t, frame.images, joints, openings,
+                                                   frame.stamps, self._part_at).items():
+                self.tracker.recalibrate(c, camera)
         result = self.tracker.step(frame.images, joints, frame.t, openings or None,
                                    stamps=frame.stamps)
         rec = result.parts[self.part.name]
+        self._part_at = rec.T_base_part[:3, 3] if rec.status.has_estimate else None
         T_true = self.signals.truth_at(self.part.name, frame.ns, TRUTH_HOLD_S)
         part_truth = None
         if T_true is not None:
@@ -181,6 +194,8 @@ class _Session:
                 "frames_dropped": sum(g.frames for g in self.grouper.gaps),
                 "joints_held_s": round(self.held_s, 4),
                 "calibration": self.calibration,
+                "registration": None if self.registration is None else
+                self.registration.record(),
                 "truth": "the recorded pose; vis_true: the cell's geometry at it"
                          if self.topics.truth else None}
 

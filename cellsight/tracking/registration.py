@@ -198,6 +198,21 @@ class GripperRegistration:
         self.done = all(r.where == "part" for r in self.registered.values())
         return out
 
+    def record(self) -> dict[str, dict]:
+        """Each camera's registration as plain data (``metrics.json``), by camera name: its
+        latest offset (px), its corners, when (s) and where (``home``, ``part``) it was made,
+        and its offset at HOME; None where there is none."""
+        out = {}
+        for c, cam in enumerate(self.cell.cameras):
+            done, home = self.registered.get(c), self.at_home.get(c)
+            out[cam.name] = {
+                "offset_px": None if done is None else np.round(done.offset_px, 3).tolist(),
+                "corners": None if done is None else done.corners,
+                "t": None if done is None else round(done.t, 4),
+                "where": None if done is None else done.where,
+                "home_offset_px": None if home is None else np.round(home.offset_px, 3).tolist()}
+        return out
+
     def _at_home(self, t: float, observed: Sequence[Any], poses: np.ndarray
                  ) -> dict[int, Camera]:
         """The first registration, from the frames where the gripper stands still: every
