@@ -140,8 +140,8 @@ def test_each_camera_is_registered_again_by_the_part(tmp_path):
 def test_a_recording_registers_each_camera_as_its_run_did(tmp_path):
     """``cellsight track --register-cameras`` on the recording of a ``harsh/cameras`` run
     (seed 1, the arm exact; ``cellsight run --kinematic-prior --record``): the recorded whole
-    images, joints and jaw openings give each camera the offset the run found, and the tracker
-    predicts with it; without the option nothing is registered."""
+    images, joints and jaw openings give each camera the offset the run found; without the
+    option nothing is registered."""
     from cellsight.experiments.runner import ExperimentRun, RunConfig
     from cellsight.recording.track import TrackOptions, track_recording
 
