@@ -136,7 +136,9 @@ class _Session:
         for robot in self.cell.robots:
             if robot.tool is not None and robot.name not in self.signals.openings:
                 log.warning("%s: no jaw opening in the recording; the predictor takes the "
-                            "gripper's jaws open", robot.name)
+                            "gripper's jaws open%s", robot.name,
+                            "; --register-cameras registers no camera without it"
+                            if self.registration is not None and robot is self.robot else "")
         span = (self.recording.span_ns[1] - self.origin_ns) / 1e9
         with _progress(self.options.progress) as bar:
             task = bar.add_task("tracking", total=max(span, 1e-9))
