@@ -75,6 +75,9 @@ def check_joint_vector(name: str, qlim: np.ndarray, q, check_limits: bool = Fals
     (not words, not complex), length n, finite, and (if asked) inside the limits within
     ``tol``; a :class:`KinematicsError` naming the chain."""
     n = len(qlim)
+    if (not check_limits and type(q) is np.ndarray and q.dtype == np.float64
+            and q.shape == (n,) and np.isfinite(q).all()):
+        return q  # the control rate's case: a float vector, all finite
     if np.iscomplexobj(q):
         raise KinematicsError(f"{name}: joint values must be real numbers, got complex "
                               f"{short_repr(q)}")
@@ -101,19 +104,26 @@ def check_joint_vector(name: str, qlim: np.ndarray, q, check_limits: bool = Fals
     return q
 
 
+@njit(cache=True)
 def geometric_jacobian(axes: np.ndarray, origins: np.ndarray, p_end: np.ndarray,
                        prismatic: np.ndarray) -> np.ndarray:
     """Geometric Jacobian (6, n) of the point ``p_end`` (m) from each joint's unit axis and a
-    point on it, ``axes`` and ``origins`` (3, n), all in one frame: rows 0-2 linear velocity,
-    3-5 angular; a prismatic joint moves along its axis."""
-    z, r = axes, p_end[:, None] - origins  # joint origin -> point, (3, n)
-    J = np.empty((6, z.shape[1]))
-    J[0] = z[1] * r[2] - z[2] * r[1]  # z x r, written out: np.cross costs ten times more
-    J[1] = z[2] * r[0] - z[0] * r[2]
-    J[2] = z[0] * r[1] - z[1] * r[0]
-    J[3:] = z
-    J[:3, prismatic] = z[:, prismatic]
-    J[3:, prismatic] = 0.0
+    point on it, ``axes`` and ``origins`` (n, 3), all in one frame: rows 0-2 linear velocity,
+    3-5 angular; a prismatic joint moves along its axis (a numba kernel: called at the
+    control rate)."""
+    n = axes.shape[0]
+    J = np.empty((6, n))
+    for i in range(n):
+        x, y, z = axes[i, 0], axes[i, 1], axes[i, 2]
+        if prismatic[i]:
+            J[0, i], J[1, i], J[2, i] = x, y, z
+            J[3, i] = J[4, i] = J[5, i] = 0.0
+            continue
+        rx, ry, rz = p_end[0] - origins[i, 0], p_end[1] - origins[i, 1], p_end[2] - origins[i, 2]
+        J[0, i] = y * rz - z * ry  # axis x (point - origin)
+        J[1, i] = z * rx - x * rz
+        J[2, i] = x * ry - y * rx
+        J[3, i], J[4, i], J[5, i] = x, y, z
     return J
 
 
@@ -209,8 +219,8 @@ class DHChain:
         """Geometric Jacobian (6, n) of the point ``p_end`` (chain base frame, m) moving with
         the last frame, from the frames (n+1, 4, 4) of :meth:`fkine` (so that a caller that
         needs both pays for one forward kinematics)."""
-        axes, points = self.joint_axes(frames)
-        return geometric_jacobian(axes.T, points.T, p_end, self._prismatic)
+        return geometric_jacobian(frames[:-1, :3, 2], frames[:-1, :3, 3],
+                                  np.asarray(p_end, dtype=float), self._prismatic)
 
     def joint_axes(self, frames: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Every joint's unit axis and a point on it, (n, 3) each, chain base frame, from the
@@ -377,7 +387,7 @@ class SerialChain:
         """Geometric Jacobian (6, n) of the point ``p_end`` (chain base frame, m) moving with
         frame n, from the frames (n+1, 4, 4) of :meth:`fkine`."""
         axes, points = self.joint_axes(frames)
-        return geometric_jacobian(axes.T, points.T, p_end, self._prismatic)
+        return geometric_jacobian(axes, points, np.asarray(p_end, dtype=float), self._prismatic)
 
     def joint_axes(self, frames: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Every joint's unit axis and a point on it, (n, 3) each, chain base frame, from the

@@ -210,7 +210,8 @@ class Grippers:
         """Command jaw openings (robot name -> m, clipped to the gripper's range); a command
         stays in force until the next one."""
         for name, opening in openings.items():
-            self._jaws[name].command = float(np.clip(opening, 0.0, self._tools[name].max_opening))
+            self._jaws[name].command = float(min(max(float(opening), 0.0),
+                                                 self._tools[name].max_opening))
 
     def step(self) -> None:
         """One control period: move every gripper's jaws, then the held parts with the TCPs."""

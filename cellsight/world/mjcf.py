@@ -21,7 +21,8 @@ get a nominal inertia (1 kg). Every geom may collide (``contype`` and ``conaffin
 
 By default the world is kinematic: the model is never integrated, and contacts only serve
 MuJoCo's collision detection to report them (:mod:`cellsight.world.contacts`); no contact force
-acts. With a servo of MuJoCo's actuators (``ServoParams.mujoco``,
+acts, and the body pairs of ``exclude`` are left out of the detection (contacts the report
+leaves out anyway). With a servo of MuJoCo's actuators (``ServoParams.mujoco``,
 :mod:`cellsight.world.servo`), the robots' joints get their rotor inertia (``armature``) and a
 position actuator ``R/a<i>`` each, the robots' bodies are gravity compensated
 (``gravcomp``), the integrator is ``implicitfast``, and contacts push back, except between the
@@ -257,10 +258,12 @@ def _world_bodies(cell: Cell, geoms: dict[str, list[str]], dynamic: bool) -> lis
 
 def _dynamics(cell: Cell, servo: ServoParams | None,
               exclude: Sequence[tuple[str, str]]) -> tuple[str, str]:
-    """The ``<actuator>`` and ``<contact>`` sections of a world of MuJoCo's actuators (module
-    docstring), else empty."""
+    """The ``<actuator>`` section of a world of MuJoCo's actuators (module docstring; else
+    empty) and the ``<contact>`` section excluding the body pairs ``exclude``."""
+    pairs = [f"<exclude body1={quoteattr(a)} body2={quoteattr(b)}/>" for a, b in exclude]
+    contacts = f"<contact>{chr(10).join(pairs)}</contact>" if pairs else ""
     if servo is None or not servo.mujoco:
-        return "", ""
+        return "", contacts
     actuators = []
     for robot in cell.robots:
         for i, prismatic in enumerate(robot.chain.prismatic, start=1):
@@ -270,9 +273,7 @@ def _dynamics(cell: Cell, servo: ServoParams | None,
             actuators.append(f"<position name={quoteattr(f'{robot.name}/a{i}')} "
                              f"joint={quoteattr(joint_name(robot.name, i))} kp=\"{kp:.17g}\" "
                              f'kv="{kv:.17g}"{force}/>')
-    pairs = [f"<exclude body1={quoteattr(a)} body2={quoteattr(b)}/>" for a, b in exclude]
-    return (f"<actuator>{chr(10).join(actuators)}</actuator>",
-            f"<contact>{chr(10).join(pairs)}</contact>" if pairs else "")
+    return f"<actuator>{chr(10).join(actuators)}</actuator>", contacts
 
 
 def excluded_pairs(cell: Cell, mounts: Iterable[tuple[str, str]] = ()) -> list[tuple[str, str]]:
@@ -300,7 +301,7 @@ def cell_mjcf(cell: Cell, render_size: tuple[int, int] | None = None,
 
     ``render_size`` = (width, height) of the rendered images (default: each camera's own).
     ``servo``: the joints' servo; with ``servo.mujoco`` the model is MuJoCo's dynamics, its
-    contacts pushing back except between the body pairs of ``exclude`` (module docstring).
+    contacts pushing back; never between the body pairs of ``exclude`` (module docstring).
     """
     dynamic = servo is not None and servo.mujoco
     geoms, assets = _geoms_and_assets(cell)

@@ -4,6 +4,7 @@ released, held by a gripper)."""
 
 from __future__ import annotations
 
+import bisect
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -73,7 +74,7 @@ class ConveyorPath:
             raise ValueError("ConveyorPath.still() has no position of its own")
         run = min(max(t, self.t_start), self.t_stop) - self.t_start
         s = min(self.speed * run, self.length)
-        k = int(np.clip(np.searchsorted(self._arc, s, side="right") - 1, 0, len(self.points) - 1))
+        k = min(max(bisect.bisect_right(self._arc, s) - 1, 0), len(self.points) - 1)
         if k == len(self.points) - 1:
             return self.points[-1].copy()
         frac = (s - self._arc[k]) / max(self._arc[k + 1] - self._arc[k], 1e-15)
@@ -163,6 +164,7 @@ class PartMotion:
         self._body = {p.name: model.body(p.name).id for p in cell.workpieces}
         self._mocap = {name: model.body_mocapid[b] for name, b in self._body.items()}
         self._parts = {p.name: _Part("resting", p.T_base_part.copy()) for p in cell.workpieces}
+        self._nominal = {p.name: p.T_base_part for p in cell.workpieces}
         self._carried: str | None = None
         if cell.workpieces and not conveyor.is_still:
             self._carried = cell.workpiece(conveyor.workpiece or cell.workpieces[0].name).name
@@ -178,7 +180,8 @@ class PartMotion:
         for name, part in self._parts.items():
             if part.mode == "conveyor":
                 part.pose = self._conveyor_pose(t)
-                part.pose[:3, :3] = rotation_z(part.turn) @ part.pose[:3, :3]
+                if part.turn:  # (rotation_z(0) is the identity, exactly)
+                    part.pose[:3, :3] = rotation_z(part.turn) @ part.pose[:3, :3]
                 part.pose[:3, 3] += part.offset
                 self._write(name)
             elif part.fall_left > 0:
@@ -275,7 +278,7 @@ class PartMotion:
         return min(drops) if drops else 0.0
 
     def _conveyor_pose(self, t: float) -> np.ndarray:
-        T = self.cell.workpiece(self._carried).T_base_part.copy()
+        T = self._nominal[self._carried].copy()
         T[:2, 3] = self.conveyor.position(t)
         return T
 

@@ -86,6 +86,7 @@ class RobotJoints:
                        for r in cell.robots}
         self._quantum = {r.name: np.where(r.chain.prismatic, errors.quantum_m, errors.quantum_rad)
                          for r in cell.robots}
+        self._quantised = {name: bool(step.any()) for name, step in self._quantum.items()}
         initial = dict(initial_joints)
         q0 = {r.name: r.chain.check_q(initial.pop(r.name, r.home), check_limits=True)
               for r in cell.robots}
@@ -141,7 +142,8 @@ class RobotJoints:
         """Clip every joint's velocity to the servo's limit (after MuJoCo's step)."""
         qvel = self.scene.data.qvel
         for dofs in self._dofs.values():
-            qvel[dofs] = np.clip(qvel[dofs], -self._max_velocity, self._max_velocity)
+            qvel[dofs] = np.minimum(np.maximum(qvel[dofs], -self._max_velocity),
+                                    self._max_velocity)  # np.clip, at a third of its cost
 
     def place(self, joints: Mapping[str, np.ndarray]) -> None:
         """Put robots at joint vectors (as the encoders read) at once, at rest (a replayed
@@ -166,28 +168,33 @@ class RobotJoints:
         for name, adr in self._qadr.items():
             q = qpos[adr] + self._offset[name]
             step = self._quantum[name]
-            if step.any():
+            if self._quantised[name]:
                 q = np.where(step > 0, np.round(q / np.where(step > 0, step, 1.0)) * step, q)
-            out[name] = q + rng.normal(0.0, self._noise[name], q.shape)
+            # the draws of rng.normal(0, noise): loc + scale * z, the same numbers
+            out[name] = q + self._noise[name] * rng.standard_normal(q.shape)
         return out
 
     def _true_target(self, name: str, q: np.ndarray) -> np.ndarray:
         lim = self._lims[name]
-        return np.clip(np.asarray(q, dtype=float) - self._offset[name], lim[:, 0], lim[:, 1])
+        return np.minimum(np.maximum(np.asarray(q, dtype=float) - self._offset[name], lim[:, 0]),
+                          lim[:, 1])
 
     def _write(self, name: str) -> None:
         lim = self._lims[name]
-        self.scene.set_qpos(self._qadr[name], np.clip(self._servo[name].q, lim[:, 0], lim[:, 1]))
+        self.scene.set_qpos(self._qadr[name],
+                            np.minimum(np.maximum(self._servo[name].q, lim[:, 0]), lim[:, 1]))
 
 
 
 def _model(cell: Cell, render_size: tuple[int, int] | None, errors: Imperfections,
            initial_joints: Mapping[str, np.ndarray]) -> mujoco.MjModel:
-    """The world's MuJoCo model (:func:`~cellsight.world.mjcf.cell_mjcf`): kinematic, or with
+    """The world's MuJoCo model (:func:`~cellsight.world.mjcf.cell_mjcf`): kinematic (the
+    pairs of :func:`~cellsight.world.mjcf.excluded_pairs` left out of its collisions), or with
     MuJoCo's actuators when the servo asks for them, its contacts pushing back except between
     :func:`~cellsight.world.mjcf.excluded_pairs` (the mounts found in the kinematic model,
     the robots at their initial joints: :func:`~cellsight.world.contacts.mount_bodies`)."""
-    kinematic = mujoco.MjModel.from_xml_string(cell_mjcf(cell, render_size, errors.intruders))
+    kinematic = mujoco.MjModel.from_xml_string(
+        cell_mjcf(cell, render_size, errors.intruders, exclude=excluded_pairs(cell)))
     if not errors.servo.mujoco:
         return kinematic
     scene = Scene(kinematic, mujoco.MjData(kinematic))
