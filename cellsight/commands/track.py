@@ -52,6 +52,11 @@ def register(sub: argparse._SubParsersAction) -> None:
                             "joints and jaw openings, at HOME and again by the part (as "
                             "'cellsight run --kinematic-prior' does); metrics.json says the "
                             "offsets")
+    track.add_argument("--kinematic-prior", action="store_true",
+                       help="register the cameras (as --register-cameras) and keep the part "
+                            "where the gripper holds it while the recorded jaws stand at its "
+                            "grasp's opening, else on what it lies on (as 'cellsight run "
+                            "--kinematic-prior' does)")
     track.add_argument("--quiet", action="store_true", help="no progress bar")
     track.add_argument("--overwrite", action="store_true",
                        help="clear --out first if it holds an earlier run, and replace --mcap")
@@ -79,7 +84,8 @@ def cmd_track(args: argparse.Namespace) -> int:
                            occlusion_prediction=not args.no_occlusion_prediction,
                            unknown_occluders=args.unknown_occluders, overwrite=args.overwrite,
                            progress=not args.quiet, live=args.live,
-                           register_cameras=args.register_cameras)
+                           register_cameras=args.register_cameras or args.kinematic_prior,
+                           kinematic_prior=args.kinematic_prior)
     if args.mcap is not None:
         _check_not_the_recording(Path(args.mcap), Path(args.recording))
         check_output(args.mcap, args.overwrite, Path(args.out))

@@ -38,7 +38,8 @@ from cellsight.geometry.transforms import make_pose
 from cellsight.model.cell import Workpiece
 
 MIN_JERK_PEAK = 1.875  # peak of ds/dtau for the minimum-jerk profile
-_HALF_TURN_Z = make_pose(np.diag([-1.0, -1.0, 1.0]))
+HALF_TURN_Z = make_pose(np.diag([-1.0, -1.0, 1.0]))
+"""A half turn about the TCP's approach axis (z): a parallel gripper's grasp and its twin."""
 
 
 def min_jerk(tau: float) -> tuple[float, float, float]:
@@ -177,7 +178,7 @@ class TrajectoryPlanner:
         return T_base_part @ self._nearer_grasp(T_base_part, T_near)
 
     def _nearer_grasp(self, T_base_part: np.ndarray, T_near: np.ndarray) -> np.ndarray:
-        candidates = (self.T_part_tcp, self.T_part_tcp @ _HALF_TURN_Z)
+        candidates = (self.T_part_tcp, self.T_part_tcp @ HALF_TURN_Z)
         angles = [np.linalg.norm(rotation_error(T_base_part[:3, :3] @ c[:3, :3], T_near[:3, :3]))
                   for c in candidates]
         return candidates[int(np.argmin(angles))]

@@ -96,6 +96,7 @@ from cellsight.runfolder import (
 )
 from cellsight.runfolder.writes import log_to, stop_logging_to
 from cellsight.tracking.grabbing import grabbed
+from cellsight.tracking.prior import KinematicPrior
 from cellsight.tracking.records import PartFrame
 from cellsight.tracking.registration import RegistrationRule
 from cellsight.tracking.setup import build_tracker
@@ -228,11 +229,8 @@ class ExperimentRun:
         self.clock = FrameClock(self.draws.profile.timing, config.seed)
         self.deliveries = Deliveries()
         self.frames_dropped = 0
-        # the kinematic prior (:meth:`_priors`): where the part was last held, where it then
-        # came to rest
-        self.landing = Landing(cell.static) if config.kinematic_prior else None
-        self.held_at: np.ndarray | None = None
-        self.rest_at: np.ndarray | None = None
+        self.prior = (KinematicPrior(sc.workpiece, Landing(cell.static))
+                      if config.kinematic_prior else None)  # :meth:`_priors`
         kidnap = self.draws.errors.kidnap
         self.kidnap = None if kidnap is None else KidnapMonitor(kidnap)
         self.exposures = Exposures(self.world, self.draws.trigger_skew_s, config.sensor == "ideal",
@@ -401,27 +399,18 @@ class ExperimentRun:
 
     def _priors(self, q: np.ndarray, opening: float) -> tuple[dict | None, dict | None]:
         """The kinematic prior's ``holders`` and ``supports`` for :meth:`Tracker.step` (None
-        without it), from the robot's measured joints ``q`` and jaw ``opening`` (m): while the
-        jaws are closed on the part at the opening of its grasp (the task's own check,
-        :func:`~cellsight.control.task.grasp_miss`; closed at another, they caught it off its
-        grasp, and it is not where the task's grasp puts it), the part as the gripper holds it
-        (the TCP times the grasp the task chose); until they first hold it so, the part lying
-        on its support (the cell file's pose of it); once they let it go, the part where it
-        falls to from where they held it last (onto the cell file's static objects,
-        :class:`~cellsight.model.landing.Landing`; none when nothing lies below it)."""
-        if not self.config.kinematic_prior:
+        without it; :mod:`cellsight.tracking.prior`), from the robot's measured joints ``q`` and
+        jaw ``opening`` (m): the part is held while the jaws are closed on it at the opening of
+        its grasp (the task's own check, :func:`~cellsight.control.task.grasp_miss`; closed at
+        another, they caught it off its grasp, and it is not where the task's grasp puts it),
+        at the grasp the task chose."""
+        if self.prior is None:
             return None, None
-        name, task = self.part.name, self.task
+        task = self.task
         closed = self.world.jaws_closed_on_part(self.robot.name)
-        if grasp_miss(closed, opening, task.grasp_opening, task.tolerances.opening) is None:
-            self.held_at = self.robot.tcp_pose(q) @ invert_pose(task.planner.chosen_grasp)
-            self.rest_at = None
-            return {name: self.held_at}, None
-        if self.held_at is None:
-            return None, {name: self.part.T_base_part}
-        if self.rest_at is None:
-            self.rest_at = self.landing.rest_pose(self.part.solid.vertices, self.held_at)
-        return None, (None if self.rest_at is None else {name: self.rest_at})
+        held = grasp_miss(closed, opening, task.grasp_opening, task.tolerances.opening) is None
+        return self.prior.update(self.robot.tcp_pose(q) @ invert_pose(task.planner.chosen_grasp)
+                                 if held else None)
 
     def _vision_frame(self, k: int, t: float, writer: FrameWriter, video: ViewsVideo | None,
                       keys: KeyFrames) -> None:

@@ -30,13 +30,17 @@ from pathlib import Path
 import numpy as np
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
+from cellsight.control import grasp_pose_in_part
+from cellsight.control.task import TaskTolerances
 from cellsight.experiments.baseline import PnPBaseline
 from cellsight.experiments.metrics import frame_metrics
 from cellsight.experiments.rows import FrameRows, FrameTruth, PartTruth
 from cellsight.experiments.runner import StopSignals
 from cellsight.export.live import LiveStream, parse_address
 from cellsight.model.cell import Cell, Workpiece
+from cellsight.model.landing import Landing
 from cellsight.model.loader import load_cell
+from cellsight.model.robot import Robot
 from cellsight.occlusion.predictor import VisibilityPredictor
 from cellsight.recording.calibration import checked_cell
 from cellsight.recording.frames import Frame, FrameGrouper, resolve_topics
@@ -56,8 +60,10 @@ from cellsight.runfolder import (
     write_metrics,
 )
 from cellsight.runfolder.writes import log_to, stop_logging_to
+from cellsight.tracking.prior import KinematicPrior, RecordedGrasp
 from cellsight.tracking.registration import RegistrationRule
 from cellsight.tracking.setup import build_tracker
+from cellsight.world.grasp import grasp_opening
 
 log = logging.getLogger(__name__)
 
@@ -75,7 +81,10 @@ class TrackOptions:
     ``[HOST:]PORT`` to stream the tracking to Foxglove (:mod:`cellsight.export.live`);
     ``register_cameras``: each camera registered to the gripper from the recorded images,
     joints and jaw openings, at HOME and by the part (:mod:`cellsight.tracking.registration`,
-    as ``cellsight run --kinematic-prior`` does)."""
+    as ``cellsight run --kinematic-prior`` does); ``kinematic_prior``: the part kept where the
+    gripper holds it while the recorded jaws stand at its grasp's opening, else on what it lies
+    on (:mod:`cellsight.tracking.prior`; the cameras are registered only with
+    ``register_cameras``)."""
 
     topics: str | Path | None = None
     tolerance_s: float = 0.019
@@ -87,6 +96,7 @@ class TrackOptions:
     progress: bool = True
     live: str | None = None
     register_cameras: bool = False
+    kinematic_prior: bool = False
 
 
 @dataclass
@@ -119,7 +129,8 @@ class _Session:
         self.robot = robot
         self.registration = (RegistrationRule().registration(self.cell, robot.name)
                              if options.register_cameras and robot.tool is not None else None)
-        self._part_at: np.ndarray | None = None  # the part's last estimated position (m)
+        self._estimate: np.ndarray | None = None  # the part's last estimated pose
+        self.prior = _prior(self.cell, robot, self.part) if options.kinematic_prior else None
         self.rows = FrameRows(robot, len(self.cell.cameras), pixel_errors=True)
         start = recording.span_ns[0]
         self.origin_ns = start - start % 1_000_000_000  # the whole second of the first message
@@ -165,13 +176,19 @@ class _Session:
         self.held_s = max(self.held_s, held)
         openings = self.signals.openings_at(frame.ns)
         if self.registration is not None and self.robot.name in openings:
+            part_at = None if self._estimate is None else self._estimate[:3, 3]
             for c, camera in self.registration.add(frame.t, frame.images, joints, openings,
-                                                   frame.stamps, self._part_at).items():
+                                                   frame.stamps, part_at).items():
                 self.tracker.recalibrate(c, camera)
-        result = self.tracker.step(frame.images, joints, frame.t, openings or None,
-                                   stamps=frame.stamps)
+        holders, supports = None, None
+        if self.prior is not None:
+            grasp, prior = self.prior
+            holders, supports = prior.update(grasp.held_at(
+                joints[self.robot.name], openings.get(self.robot.name), self._estimate))
+        result = self.tracker.step(frame.images, joints, frame.t, openings or None, holders,
+                                   stamps=frame.stamps, supports=supports)
         rec = result.parts[self.part.name]
-        self._part_at = rec.T_base_part[:3, 3] if rec.status.has_estimate else None
+        self._estimate = rec.T_base_part if rec.status.has_estimate else None
         T_true = self.signals.truth_at(self.part.name, frame.ns, TRUTH_HOLD_S)
         part_truth = None
         if T_true is not None:
@@ -198,8 +215,25 @@ class _Session:
                 "calibration": self.calibration,
                 "registration": None if self.registration is None else
                 self.registration.record(),
+                "kinematic_prior": self.prior is not None,
                 "truth": "the recorded pose; vis_true: the cell's geometry at it"
                          if self.topics.truth else None}
+
+
+def _prior(cell: Cell, robot: Robot, part: Workpiece) -> tuple[RecordedGrasp,
+                                                                KinematicPrior] | None:
+    """The kinematic prior of ``part`` grasped by ``robot`` from a recording's joints and jaw
+    openings (:mod:`cellsight.tracking.prior`; the task's grasp and tolerance), or None, with a
+    warning, where the robot has no gripper or its jaws would close on no material at the
+    part's grasp."""
+    T_part_tcp = grasp_pose_in_part(part)
+    opening = None if robot.tool is None else grasp_opening(part.solid, robot.tool, T_part_tcp)
+    if opening is None:
+        log.warning("--kinematic-prior: %s's jaws close on no material of %s at its grasp; "
+                    "no prior", robot.name, part.name)
+        return None
+    grasp = RecordedGrasp(robot, part, T_part_tcp, opening, TaskTolerances().opening)
+    return grasp, KinematicPrior(part, Landing(cell.static))
 
 
 def _workpiece(cell: Cell, name: str | None) -> Workpiece:
