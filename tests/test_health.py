@@ -134,6 +134,31 @@ def test_not_found_and_rejected_fractions_of_hand_made_records():
     np.testing.assert_allclose(report.missing_fraction, [2 / 4, 0.0])
 
 
+def _found(k: int) -> tuple:
+    """cam1 finds ``k`` of its 6 selected visible features (none rejected), cam2 all of its."""
+    return _frame(visible=[[1] * 6, [1] * 6], selected=[[1] * 6, [1] * 6],
+                  found=[[1] * k + [0] * (6 - k), [1] * 6], rejected=[[0] * 6, [0] * 6])
+
+
+def test_a_reason_holds_until_its_figure_falls_below_the_release_fraction():
+    """Hysteresis: 67 % not found passes the 50 % limit; 50 % and 33 % not found (above 0.6
+    of it, 30 %) keep the reason; 17 % releases it; 33 % again does not bring it back."""
+    rule = HealthRule(window_s=0.01, missing_limit=0.5, min_measurements=1, release=0.6)
+    monitor = HealthMonitor(rule, CAMS)
+    reasons = [monitor.update(0.1 * i, *_found(k)).reasons
+               for i, k in enumerate([6, 3, 2, 3, 4, 5, 4])]
+    assert reasons == [(), (), ("67% not found in cam1",), ("50% not found in cam1",),
+                       ("33% not found in cam1",), (), ()]
+    monitor.update(1.0, *_found(2))
+    assert monitor.update(1.1, *_found(4)).reasons == ("33% not found in cam1",)
+    monitor.reset()  # a new filter: nothing held
+    assert monitor.update(2.0, *_found(4)).reasons == ()
+    without = HealthMonitor(HealthRule(window_s=0.01, missing_limit=0.5, min_measurements=1,
+                                       release=1.0), CAMS)
+    assert [without.update(0.1 * i, *_found(k)).reasons != ()
+            for i, k in enumerate([2, 3, 2, 3])] == [True, False, True, False]
+
+
 def test_rule_refuses_nonsense():
     for bad in ({"window_s": 0.0}, {"band_probability": 1.0}, {"missing_limit": 1.5},
                 {"rejected_limit": -0.1}, {"min_measurements": 0}, {"nis_ratio_limit": 0.0}):

@@ -23,7 +23,10 @@ A figure is judged once its camera has ``min_measurements`` of what it counts in
 (accepted measurements; selected visible features; measured features). A track whose figures
 pass a limit is inconsistent: the report says why, one reason per camera and figure, e.g.
 ``NIS 6.3x in cam2``, ``60% not found in cam1``, ``35% rejected in cam1``, ``80% under
-unknown occluders in cam1``.
+unknown occluders in cam1``. A reason holds while its figure stays above ``release`` times
+its limit and is judged (hysteresis; ``release`` 1: none): a figure hovering about its limit,
+as a wrong estimate finding half its features does, would otherwise flicker between
+``tracking`` and ``degraded`` frame by frame.
 """
 
 from __future__ import annotations
@@ -84,7 +87,8 @@ class HealthRule:
     dof from which a sum above the band is inconsistent; ``missing_limit``,
     ``rejected_limit``, ``unknown_limit`` in [0, 1]: fractions above which a camera's features
     are too often not found, rejected, or under unknown occluders; ``min_measurements``: what a
-    camera needs in the window before it is judged (module docstring).
+    camera needs in the window before it is judged; ``release`` in (0, 1]: the fraction of its
+    limit below which a figure that passed it stops being a reason (module docstring).
 
     The defaults come from rendered runs of experiments 1-3 (issue 24): on the ``exact`` and
     ``lab`` worlds a camera's window reaches at most NIS 1.3x (typically below 0.6x: the motion
@@ -100,6 +104,7 @@ class HealthRule:
     rejected_limit: float = 0.4
     unknown_limit: float = 0.5
     min_measurements: int = 10
+    release: float = 0.7
 
     def __post_init__(self) -> None:
         checks = {
@@ -110,6 +115,7 @@ class HealthRule:
             "rejected_limit": 0 <= self.rejected_limit <= 1,
             "unknown_limit": 0 <= self.unknown_limit <= 1,
             "min_measurements": self.min_measurements >= 1,
+            "release": 0 < self.release <= 1,
         }
         for name, ok in checks.items():
             if not ok:
@@ -128,10 +134,12 @@ class HealthMonitor:
         self.rule = rule
         self.cameras = list(cameras)
         self._frames: deque[tuple[float, np.ndarray]] = deque()
+        self._held: set[tuple[int, int]] = set()  # (figure, camera) reasons held (hysteresis)
 
     def reset(self) -> None:
-        """Forget every frame (a new filter has nothing to answer for yet)."""
+        """Forget every frame and reason (a new filter has nothing to answer for yet)."""
         self._frames.clear()
+        self._held.clear()
 
     def update(self, t: float, visible: np.ndarray, selected: np.ndarray, measured: np.ndarray,
                rejected: np.ndarray, mahalanobis2: np.ndarray,
@@ -171,17 +179,28 @@ class HealthMonitor:
         bands = np.array([nis_band(int(n), rule.band_probability) if n else (np.nan, np.nan)
                           for n in dof]).reshape(C, 2)
         above, below = total[_NIS] > bands[:, 1], total[_NIS] < bands[:, 0]
-        judged = {k: total[k] >= rule.min_measurements for k in (_ACCEPTED, _SELECTED,
-                                                                _MEASURED, _VISIBLE)}
-        reasons = (
-            [f"NIS {ratio[c]:.1f}x in {cam}" for c, cam in enumerate(self.cameras)
-             if judged[_ACCEPTED][c] and above[c] and ratio[c] >= rule.nis_ratio_limit]
-            + [f"{100 * missing[c]:.0f}% not found in {cam}" for c, cam in enumerate(self.cameras)
-               if judged[_SELECTED][c] and missing[c] > rule.missing_limit]
-            + [f"{100 * rejected[c]:.0f}% rejected in {cam}" for c, cam in enumerate(self.cameras)
-               if judged[_MEASURED][c] and rejected[c] > rule.rejected_limit]
-            + [f"{100 * unknown[c]:.0f}% under unknown occluders in {cam}"
-               for c, cam in enumerate(self.cameras)
-               if judged[_VISIBLE][c] and unknown[c] > rule.unknown_limit])
+        with np.errstate(invalid="ignore"):
+            # per figure: its values, what it counts, its limit, where it passes it, its reason
+            figures = [
+                (ratio, _ACCEPTED, rule.nis_ratio_limit, above & (ratio >= rule.nis_ratio_limit),
+                 "NIS {:.1f}x in {}", 1),
+                (missing, _SELECTED, rule.missing_limit, missing > rule.missing_limit,
+                 "{:.0f}% not found in {}", 100),
+                (rejected, _MEASURED, rule.rejected_limit, rejected > rule.rejected_limit,
+                 "{:.0f}% rejected in {}", 100),
+                (unknown, _VISIBLE, rule.unknown_limit, unknown > rule.unknown_limit,
+                 "{:.0f}% under unknown occluders in {}", 100)]
+        reasons = []
+        for f, (value, kind, limit, over, text, scale) in enumerate(figures):
+            judged = total[kind] >= rule.min_measurements
+            passes = judged & over
+            with np.errstate(invalid="ignore"):
+                holds = judged & (value > rule.release * limit)
+            for c, cam in enumerate(self.cameras):
+                if passes[c] or ((f, c) in self._held and holds[c]):
+                    self._held.add((f, c))
+                    reasons.append(text.format(scale * value[c], cam))
+                else:
+                    self._held.discard((f, c))
         return TrackHealthReport(ratio, dof, above, below, missing, rejected, tuple(reasons),
                                  unknown)
