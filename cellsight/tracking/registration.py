@@ -183,14 +183,13 @@ class GripperRegistration:
             return {}
         if 1e3 * (robot.tool.max_opening - openings[self.robot]) > self.rule.open_mm:
             return {}  # the jaws on the part: its corners among the jaws' would vote
-        poses, out = self.cell.snapshot(joints, None, openings).poses, {}
+        out = {}
         for c, cam in enumerate(self.cell.cameras):
             if observed[c] is None or self.registered[c].where == "part":
                 continue
             stamp = None if stamps is None else stamps[c]
-            exposed = poses if stamp is None or last is None else \
-                self._poses_at(stamp, last, float(t), joints, openings)
-            pixels = self._predicted(exposed, cam)
+            pixels = self._predicted(self._poses_at(stamp, last, float(t), joints, openings),
+                                     cam)
             if len(pixels):
                 self._gathering[c].add(observed[c], pixels)
             if self._gathering[c].ready:
@@ -235,10 +234,13 @@ class GripperRegistration:
         self.done = self.rule.near_m <= 0.0
         return out
 
-    def _poses_at(self, stamp: float, last: tuple, t: float, joints: Mapping[str, np.ndarray],
-                  openings: Mapping[str, float]) -> np.ndarray:
+    def _poses_at(self, stamp: float | None, last: tuple | None, t: float,
+                  joints: Mapping[str, np.ndarray], openings: Mapping[str, float]) -> np.ndarray:
         """The cell's poses at time ``stamp`` (s): the joints and openings interpolated between
-        the ``last`` frame's and this one's (at ``t``)."""
+        the ``last`` frame's and this one's (at ``t``); this frame's without a ``stamp`` or a
+        ``last`` frame."""
+        if stamp is None or last is None:
+            return self.cell.snapshot(joints, None, openings).poses
         t0, joints0, openings0 = last
         f = float(np.clip((stamp - t0) / (t - t0), 0.0, 1.0)) if t > t0 else 1.0
         q = {n: np.asarray(joints0[n]) + f * (np.asarray(v) - np.asarray(joints0[n]))

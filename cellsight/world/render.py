@@ -93,14 +93,8 @@ class GrayRenderer:
         video, at a fraction of the cost, blurrier than the image the tracker reads."""
         width, height = self._sizes[camera]
         w, h = max(1, round(width * scale)), max(1, round(height * scale))
-        renderer = self._sized(w, h)
-        renderer.update_scene(data, camera=self._names[camera])
-        rect = mujoco.MjrRect(0, 0, w, h)
-        mujoco.mjr_render(rect, renderer.scene, renderer._mjr_context)
-        rgb = np.empty((h, w, 3), np.uint8)
-        mujoco.mjr_readPixels(rgb, None, rect, renderer._mjr_context)
-        gray = cv2.resize(cv2.cvtColor(np.flipud(rgb), cv2.COLOR_RGB2GRAY), (width, height),
-                          interpolation=cv2.INTER_LINEAR)
+        gray = cv2.resize(self._offscreen_gray(data, camera, w, h, mujoco.MjrRect(0, 0, w, h)),
+                          (width, height), interpolation=cv2.INTER_LINEAR)
         maps = self._maps[camera]
         if maps is None:
             return gray
@@ -137,11 +131,16 @@ class GrayRenderer:
         """The pixels ``box`` of camera ``camera``'s pinhole (undistorted) render."""
         u0, v0, u1, v1 = box
         width, height = self._sizes[camera]
-        w, h = u1 - u0, v1 - v0
+        # OpenGL's rows count from the bottom: the framebuffer's bottom row is image row v1
+        return self._offscreen_gray(data, camera, u1 - u0, v1 - v0,
+                                    mujoco.MjrRect(-u0, -(height - v1), width, height))
+
+    def _offscreen_gray(self, data, camera: int, w: int, h: int,
+                        viewport: mujoco.MjrRect) -> np.ndarray:
+        """(h, w) uint8: camera ``camera`` rendered through ``viewport`` into the offscreen
+        framebuffer sized ``w`` x ``h`` px, read back top row first, in grey."""
         renderer = self._sized(w, h)
         renderer.update_scene(data, camera=self._names[camera])
-        # OpenGL's rows count from the bottom: the framebuffer's bottom row is image row v1
-        viewport = mujoco.MjrRect(-u0, -(height - v1), width, height)
         mujoco.mjr_render(viewport, renderer.scene, renderer._mjr_context)
         rgb = np.empty((h, w, 3), np.uint8)
         mujoco.mjr_readPixels(rgb, None, mujoco.MjrRect(0, 0, w, h), renderer._mjr_context)
