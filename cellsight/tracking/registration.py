@@ -20,32 +20,40 @@ image, in two stages:
    a window of ``window_px`` centred on each predicted corner moved by the coarse offset;
    one within ``agree_px`` of the coarse offset is a residual (found minus predicted, px).
 
-Once every camera has ``min_corners`` residuals its offset is their median, and the tracker
-takes each camera with its principal point moved by it
-(:meth:`~cellsight.tracking.Tracker.recalibrate`): every pixel it predicts moves by the offset
-exactly, the lens distortion included.
+Once every camera has ``min_corners`` residuals, the tracker takes each camera with its pose
+refitted to every corner gathered so far (:func:`~cellsight.tracking.camera_fit.refit_pose`:
+the corners' model points in the base frame against the pixels they were found at; its
+intrinsics kept) through :meth:`~cellsight.tracking.Tracker.recalibrate`; the residuals'
+median against the cell file's camera is the camera's ``offset_px`` at that place (logged,
+and in ``metrics.json``).
 
 What it registers is the camera against the arm: the arm's own error (its base, its links, the
-gripper's size) goes into the offset, which is what a task driven by the arm wants. A lens
-distortion error makes a camera's offset vary across its image (in one ``harsh`` camera by
-6 px between the gripper at HOME and the part), so each camera is registered once more, by
-the part: once the gripper's TCP comes within ``near_m`` of the part's estimate, the two
-stages start again from nothing, on every frame it is that near with its jaws open (within
-``open_mm`` of their widest: closed on the part, the part's corners among the jaws' would
-lead the votes astray, by 4-6 px in the ``harsh`` runs that registered so), moving or not
-(its corners are predicted at the camera's exposure time, the joints interpolated between the
-last frame's and this one's), and the camera takes the new offset once it has
-``min_corners`` residuals.
+gripper's size) goes into the fit, which is what a task driven by the arm wants. One offset
+fits one place only: a lens or pose error moves the image by different amounts across the
+work area (in one ``harsh`` camera by 6 px between the gripper at HOME and the part; a part
+set down 40 cm from where an offset was found was 5-11 mm off), so each camera gathers again
+at more places and is refitted to all of them: **by the part**, once the gripper's TCP comes
+within ``near_m`` of the part's estimate, on every frame it is that near with its jaws open
+(within ``open_mm`` of their widest: closed on the part, the part's corners among the jaws'
+would lead the votes astray, by 4-6 px in the ``harsh`` runs that registered so), moving or
+not (its corners are predicted at the camera's exposure time, the joints interpolated between
+the last frame's and this one's); and **where the jaws open again** near the part after they
+closed (the release, or a grasp tried again), the same way. Each place starts both stages from
+nothing, and after HOME the corners are predicted by the camera as registered so far, the votes
+within ``reach_again_px`` (the fit should bring them that close; the part's corners among the
+opening jaws voted 14 px away in one ``harsh`` run). A place whose corners do not fit one
+pose with the earlier places' (fewer than ``agree_fraction`` of them within 3 pixel sd of the
+fit) is not taken, and gathered again.
 Each camera is registered at HOME on the same frame, once each has its residuals (a camera
-that never sees the gripper standing still leaves them all as they are); by the part, each on
-its own. ``near_m`` 0: at HOME only.
+that never sees the gripper standing still leaves them all as they are); at the later places,
+each on its own. ``near_m`` 0: at HOME only.
 """
 
 from __future__ import annotations
 
 import logging
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import Any
 
 import cv2
@@ -54,6 +62,7 @@ import numpy as np
 from cellsight.camera import Camera
 from cellsight.geometry.transforms import transform_points
 from cellsight.model.cell import Cell
+from cellsight.tracking.camera_fit import refit_pose
 from cellsight.tracking.extraction import ExtractionConfig, extract_corner
 from cellsight.tracking.grabbing import grabbed
 
@@ -68,12 +77,14 @@ class RegistrationRule:
     margin_px: float = 15.0
     still_mm: float = 0.5
     reach_px: int = 15
+    reach_again_px: int = 5
     vote_frames: int = 10
     window_px: int = 15
     agree_px: float = 2.0
     min_corners: int = 100
     near_m: float = 0.10
     open_mm: float = 5.0
+    agree_fraction: float = 0.7
     enabled: bool = True
 
     def registration(self, cell: Cell, robot: str) -> GripperRegistration:
@@ -81,45 +92,57 @@ class RegistrationRule:
         return GripperRegistration(self, cell, robot)
 
 
+SITES = ("home", "part", "release")
+"""The places a camera is registered at, in order (module docstring)."""
+
+
 @dataclass(frozen=True)
 class Registered:
-    """One camera's registration: its ``offset_px`` (2,) (u, v), the ``coarse_px`` (2,) offset
-    of the votes, how many residuals it had (``corners``), the time it was made (``t``, s) and
-    where (``where``: ``home`` or ``part``)."""
+    """One camera's registration: its ``offset_px`` (2,) (u, v) and the ``coarse_px`` (2,)
+    offset of the votes at this place, how many residuals it had (``corners``), the time it was
+    made (``t``, s), where (``where``: one of :data:`SITES`), and the pose correction fitted to
+    every place's corners so far (``position_mm`` (3,), ``rotation_deg`` (3,), in the cell
+    file's camera axes; ``rms_px`` the fit's reprojection error)."""
 
     offset_px: np.ndarray
     coarse_px: np.ndarray
     corners: int
     t: float
-    where: str = "home"
+    where: str
+    position_mm: np.ndarray
+    rotation_deg: np.ndarray
+    rms_px: float
 
 
 class _Gathering:
     """One camera's votes (stage 1) and residuals (stage 2) of the module docstring."""
 
-    def __init__(self, rule: RegistrationRule) -> None:
+    def __init__(self, rule: RegistrationRule, reach_px: int) -> None:
         self.rule = rule
-        side = 2 * rule.reach_px + 1
+        self.reach = reach_px
+        side = 2 * reach_px + 1
         self.votes = np.zeros((side, side))
         self.voted = 0
         self.coarse: np.ndarray | None = None
-        self.residuals: list[np.ndarray] = []
+        self.points: list[np.ndarray] = []  # the corners found, base frame (m)
+        self.found: list[np.ndarray] = []  # where they were found (px)
 
     @property
     def ready(self) -> bool:
         """Whether it has the residuals an offset is made of."""
-        return len(self.residuals) >= self.rule.min_corners
+        return len(self.points) >= self.rule.min_corners
 
-    def add(self, observed: Any, pixels: np.ndarray) -> None:
-        """This frame's image (or what grabs from it) and the gripper's predicted corners
-        (N, 2) px in it: votes until the coarse offset is known, residuals after."""
+    def add(self, observed: Any, points: np.ndarray, pixels: np.ndarray) -> None:
+        """This frame's image (or what grabs from it) and the gripper's corners (N, 3) m, base
+        frame, predicted at (N, 2) px in it: votes until the coarse offset is known, residuals
+        after."""
         if self.coarse is None:
             self._vote(observed, pixels)
         else:
-            self._measure(observed, pixels)
+            self._measure(observed, points, pixels)
 
     def _vote(self, observed: Any, pixels: np.ndarray) -> None:
-        reach = self.rule.reach_px
+        reach = self.reach
         box = np.concatenate([np.floor(pixels.min(axis=0)) - reach - 8,
                               np.ceil(pixels.max(axis=0)) + reach + 9]).astype(int)
         corners = _corners_in(grabbed(observed, [box.tolist()]), box)
@@ -131,16 +154,17 @@ class _Gathering:
         if self.voted >= self.rule.vote_frames:
             self.coarse = coarse_offset(self.votes)
 
-    def _measure(self, observed: Any, pixels: np.ndarray) -> None:
+    def _measure(self, observed: Any, points: np.ndarray, pixels: np.ndarray) -> None:
         half = self.rule.window_px // 2
         centres = pixels + self.coarse
         corner = np.floor(centres).astype(int)
         boxes = np.column_stack([corner - half, corner + half + 1]).tolist()
         image = grabbed(observed, boxes)
-        for box, centre, predicted in zip(boxes, centres, pixels, strict=True):
+        for box, centre, point in zip(boxes, centres, points, strict=True):
             found = extract_corner(image, np.array(box), centre)
             if found is not None and np.linalg.norm(found - centre) <= self.rule.agree_px:
-                self.residuals.append(found - predicted)
+                self.points.append(point)
+                self.found.append(found)
 
 
 class GripperRegistration:
@@ -155,7 +179,11 @@ class GripperRegistration:
         self.robot = robot
         self.objects = [i for i, f in enumerate(cell.frames)
                         if f.kind in ("palm", "jaw") and f.owner == robot]
-        self._gathering = [_Gathering(rule) for _ in cell.cameras]
+        self._gathering = [_Gathering(rule, rule.reach_px) for _ in cell.cameras]
+        self.cameras = list(cell.cameras)  # as registered so far
+        self._gathered: list[list[tuple[np.ndarray, np.ndarray]]] = [[] for _ in cell.cameras]
+        self._site = SITES[1]
+        self._waiting: set[int] = set()  # the cameras not registered at this place yet
         self._last_palm: np.ndarray | None = None
         self._last_frame: tuple[float, Mapping, Mapping] | None = None
         self.registered: dict[int, Registered] = {}
@@ -170,7 +198,7 @@ class GripperRegistration:
         ``openings`` the measured joints and jaw openings, ``stamps`` each camera's exposure
         time (s; None: ``t``), ``part_at`` (3,) the part's estimated position (m; None: not
         known). Returns the cameras registered on this frame (index -> the cell file's camera
-        with its principal point moved by its offset), else an empty dict."""
+        with its pose refitted), else an empty dict."""
         if self.done:
             return {}
         last, self._last_frame = self._last_frame, (float(t), joints, openings)
@@ -178,29 +206,33 @@ class GripperRegistration:
             poses = self.cell.snapshot(joints, None, openings).poses
             return self._at_home(float(t), observed, poses)
         robot = self.cell.robot(self.robot)
+        if 1e3 * (robot.tool.max_opening - openings[self.robot]) > self.rule.open_mm:
+            self._jaws_closed()
+            return {}  # the jaws on the part: its corners among the jaws' would vote
         tcp = robot.tcp_pose(joints[self.robot])[:3, 3]
         if part_at is None or np.linalg.norm(tcp - part_at) > self.rule.near_m:
             return {}
-        if 1e3 * (robot.tool.max_opening - openings[self.robot]) > self.rule.open_mm:
-            return {}  # the jaws on the part: its corners among the jaws' would vote
         out = {}
-        for c, cam in enumerate(self.cell.cameras):
-            if observed[c] is None or self.registered[c].where == "part":
+        for c, cam in enumerate(self.cameras):
+            if observed[c] is None or c not in self._waiting:
                 continue
             stamp = None if stamps is None else stamps[c]
-            pixels = self._predicted(self._poses_at(stamp, last, float(t), joints, openings),
-                                     cam)
+            poses = self._poses_at(stamp, last, float(t), joints, openings)
+            points, pixels = self._predicted(poses, cam)
             if len(pixels):
-                self._gathering[c].add(observed[c], pixels)
+                self._gathering[c].add(observed[c], points, pixels)
             if self._gathering[c].ready:
-                out[c] = self._register(c, float(t), "part")
-        self.done = all(r.where == "part" for r in self.registered.values())
+                camera = self._register(c, float(t), self._site)
+                if camera is not None:
+                    out[c] = camera
+                    self._waiting.discard(c)
         return out
 
     def record(self) -> dict[str, dict]:
         """Each camera's registration as plain data (``metrics.json``), by camera name: its
-        latest offset (px), its corners, when (s) and where (``home``, ``part``) it was made,
-        and its offset at HOME; None where there is none."""
+        latest offset (px), its corners, when (s) and where (:data:`SITES`) it was made, its
+        pose correction (mm, deg) and the fit's error (px), and its offset at HOME; None where
+        there is none."""
         out = {}
         for c, cam in enumerate(self.cell.cameras):
             done, home = self.registered.get(c), self.at_home.get(c)
@@ -209,8 +241,19 @@ class GripperRegistration:
                 "corners": None if done is None else done.corners,
                 "t": None if done is None else round(done.t, 4),
                 "where": None if done is None else done.where,
+                "position_mm": None if done is None else np.round(done.position_mm, 3).tolist(),
+                "rotation_deg": None if done is None else
+                np.round(done.rotation_deg, 4).tolist(),
+                "rms_px": None if done is None else round(done.rms_px, 3),
                 "home_offset_px": None if home is None else np.round(home.offset_px, 3).tolist()}
         return out
+
+    def _jaws_closed(self) -> None:
+        """The jaws are closed: once a camera has been registered near the part since they last
+        were, the next place is where they open again (a release, or a grasp tried again)."""
+        if len(self._waiting) < len(self.cell.cameras):
+            self._site = SITES[2]
+            self._again()
 
     def _at_home(self, t: float, observed: Sequence[Any], poses: np.ndarray
                  ) -> dict[int, Camera]:
@@ -223,16 +266,23 @@ class GripperRegistration:
         if not still:
             return {}
         for c, cam in enumerate(self.cell.cameras):
-            pixels = self._predicted(poses, cam)
+            points, pixels = self._predicted(poses, cam)
             if observed[c] is not None and len(pixels):
-                self._gathering[c].add(observed[c], pixels)
+                self._gathering[c].add(observed[c], points, pixels)
         if not all(g.ready for g in self._gathering):
             return {}
-        out = {c: self._register(c, t, "home") for c in range(len(self.cell.cameras))}
+        out = {c: self._register(c, t, SITES[0]) for c in range(len(self.cell.cameras))}
         self.at_home = dict(self.registered)
-        self._gathering = [_Gathering(self.rule) for _ in self.cell.cameras]
+        self._again()
         self.done = self.rule.near_m <= 0.0
         return out
+
+    def _again(self) -> None:
+        """Every camera to be registered at the next place, looked for with its registered
+        camera within ``reach_again_px``."""
+        self._waiting = set(range(len(self.cell.cameras)))
+        self._gathering = [_Gathering(self.rule, self.rule.reach_again_px)
+                           for _ in self.cell.cameras]
 
     def _poses_at(self, stamp: float | None, last: tuple | None, t: float,
                   joints: Mapping[str, np.ndarray], openings: Mapping[str, float]) -> np.ndarray:
@@ -249,9 +299,9 @@ class GripperRegistration:
              for n, v in openings.items()}
         return self.cell.snapshot(q, None, o).poses
 
-    def _predicted(self, poses: np.ndarray, cam: Camera) -> np.ndarray:
-        """(N, 2) px: the gripper's corners with a face turned towards ``cam``, projected,
-        ``margin_px`` inside its image."""
+    def _predicted(self, poses: np.ndarray, cam: Camera) -> tuple[np.ndarray, np.ndarray]:
+        """The gripper's corners with a face turned towards ``cam`` that project
+        ``margin_px`` inside its image: (N, 3) m, base frame, and (N, 2) px."""
         points = []
         for i in self.objects:
             solid, T = self.cell.objects[i].solid, poses[i]
@@ -262,21 +312,46 @@ class GripperRegistration:
                 if normals[k] @ (cam.center - V[face[0]]) > 0:
                     seen[list(face)] = True
             points.append(V[seen])
-        pixels = cam.project(np.concatenate(points))
-        pixels = pixels[np.isfinite(pixels).all(axis=1)]
-        return pixels[cam.in_image(pixels, self.rule.margin_px)]
+        points = np.concatenate(points)
+        pixels = cam.project(points)
+        keep = np.isfinite(pixels).all(axis=1)
+        keep[keep] = cam.in_image(pixels[keep], self.rule.margin_px)
+        return points[keep], pixels[keep]
 
-    def _register(self, c: int, t: float, where: str) -> Camera:
-        """Camera ``c``'s offset from its residuals: the registered camera."""
+    def _register(self, c: int, t: float, where: str) -> Camera | None:
+        """Camera ``c``'s offset from its residuals here, and its pose refitted to every
+        place's corners so far: the registered camera; None (the place's corners dropped, to
+        be gathered again) where fewer than ``agree_fraction`` of this place's corners come
+        within 3 ``pixel_sd`` of the pose that fits every place (a place led astray)."""
         cam, gathering = self.cell.cameras[c], self._gathering[c]
-        residuals = np.array(gathering.residuals)
-        offset = np.median(residuals, axis=0)
+        points, found = np.array(gathering.points), np.array(gathering.found)
+        places = [*self._gathered[c], (points, found)]
+        fit = refit_pose(cam, np.concatenate([p for p, _ in places]),
+                         np.concatenate([uv for _, uv in places]))
+        self._gathering[c] = _Gathering(self.rule, gathering.reach)
+        offset = np.median(found - cam.project(points), axis=0)
+        agree = float(fit.inlier[-len(points):].mean())
+        if len(places) > 1 and agree < self.rule.agree_fraction:
+            log.info("camera %s: the corners of %s's gripper %s at %.2f s (offset (%.2f, %.2f) "
+                     "px) disagree with the earlier places' (%.0f %% of them fit one pose): "
+                     "not taken", cam.name, self.robot, _PLACES[where], t, *offset, 100 * agree)
+            return None
+        self._gathered[c] = places
         log.info("camera %s registered to %s's gripper %s at %.2f s: offset (%.2f, %.2f) px "
-                 "from %d corners (votes: (%.0f, %.0f) px)", cam.name, self.robot,
-                 "at HOME" if where == "home" else "by the part", t, offset[0], offset[1],
-                 len(residuals), *gathering.coarse)
-        self.registered[c] = Registered(offset, gathering.coarse, len(residuals), t, where)
-        return shifted(cam, offset)
+                 "from %d corners (votes: (%.0f, %.0f) px); its pose fitted to %d corners at "
+                 "%d places: moved (%.1f, %.1f, %.1f) mm, turned (%.3f, %.3f, %.3f) deg, "
+                 "%.2f px rms, %.0f %% of this place's within 3 sd", cam.name, self.robot,
+                 _PLACES[where], t, *offset, len(points), *gathering.coarse, fit.inliers,
+                 len(places), *1e3 * fit.position, *np.degrees(fit.rotation), fit.rms_px,
+                 100 * agree)
+        self.registered[c] = Registered(offset, gathering.coarse, len(points), t, where,
+                                        1e3 * fit.position, np.degrees(fit.rotation),
+                                        fit.rms_px)
+        self.cameras[c] = fit.camera
+        return fit.camera
+
+
+_PLACES = {"home": "at HOME", "part": "by the part", "release": "where the jaws opened again"}
 
 
 def _corners_in(image: np.ndarray, box: np.ndarray) -> np.ndarray:
@@ -303,11 +378,3 @@ def coarse_offset(votes: np.ndarray) -> np.ndarray:
                  for dv in (-1, 0, 1) for du in (-1, 0, 1))
     v, u = np.unravel_index(int(np.argmax(summed)), summed.shape)
     return np.array([u - reach, v - reach], dtype=float)
-
-
-def shifted(camera: Camera, offset_px: np.ndarray) -> Camera:
-    """``camera`` with its principal point moved by ``offset_px`` (u, v): every pixel it
-    projects moves by the offset."""
-    K = camera.K.copy()
-    K[:2, 2] += offset_px
-    return replace(camera, K=K)
