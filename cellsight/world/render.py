@@ -30,7 +30,11 @@ import numpy as np
 
 from cellsight.camera import Camera
 
-_MAKING = threading.Lock()  # held while the model's framebuffer settings are changed to make one
+# Held while a thread makes, uses or frees an OpenGL context (each thread renders with contexts
+# of its own): with the run's thread rendering a region while the video's thread rendered a
+# preview, Mesa crashed in mjr_render in both (a segmentation fault, two runs of 120 in harsh
+# sweeps); and while the model's framebuffer settings are changed to make a context.
+_GL = threading.RLock()
 
 
 class GrayRenderer:
@@ -78,8 +82,9 @@ class GrayRenderer:
                 images.append(None)
                 continue
             renderer = self._renderers[size]
-            renderer.update_scene(data, camera=name)
-            rgb = renderer.render(out=self._rgb[size])
+            with _GL:
+                renderer.update_scene(data, camera=name)
+                rgb = renderer.render(out=self._rgb[size])
             gray = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
             if maps is not None:
                 gray = cv2.remap(gray, maps[0], maps[1], cv2.INTER_LINEAR, borderValue=0)
@@ -139,11 +144,12 @@ class GrayRenderer:
                         viewport: mujoco.MjrRect) -> np.ndarray:
         """(h, w) uint8: camera ``camera`` rendered through ``viewport`` into the offscreen
         framebuffer sized ``w`` x ``h`` px, read back top row first, in grey."""
-        renderer = self._sized(w, h)
-        renderer.update_scene(data, camera=self._names[camera])
-        mujoco.mjr_render(viewport, renderer.scene, renderer._mjr_context)
         rgb = np.empty((h, w, 3), np.uint8)
-        mujoco.mjr_readPixels(rgb, None, mujoco.MjrRect(0, 0, w, h), renderer._mjr_context)
+        with _GL:
+            renderer = self._sized(w, h)
+            renderer.update_scene(data, camera=self._names[camera])
+            mujoco.mjr_render(viewport, renderer.scene, renderer._mjr_context)
+            mujoco.mjr_readPixels(rgb, None, mujoco.MjrRect(0, 0, w, h), renderer._mjr_context)
         return cv2.cvtColor(np.flipud(rgb), cv2.COLOR_RGB2GRAY)
 
     def _sized(self, width: int, height: int) -> mujoco.Renderer:
@@ -166,7 +172,7 @@ class GrayRenderer:
         ``offsamples`` when it is made, set for the moment (under a lock: another thread may be
         making one of its own)."""
         glob, quality = self._model.vis.global_, self._model.vis.quality
-        with _MAKING:
+        with _GL:
             kept = glob.offwidth, glob.offheight, quality.offsamples
             if framebuffer is not None:
                 glob.offwidth, glob.offheight = framebuffer
@@ -178,7 +184,8 @@ class GrayRenderer:
 
     def close(self) -> None:
         kept = [] if self._offscreen is None else [self._offscreen]
-        for renderer in [*self._renderers.values(), *kept]:
-            renderer.close()
+        with _GL:
+            for renderer in [*self._renderers.values(), *kept]:
+                renderer.close()
         self._renderers.clear()
         self._offscreen = None
