@@ -7,6 +7,7 @@ import logging
 import math
 from collections import Counter
 from collections.abc import Sequence
+from dataclasses import replace
 
 import numpy as np
 
@@ -139,21 +140,33 @@ class KidnapMonitor:
 
 
 def knock_record(knock, dropped: dict[int, float], recovered: dict[int, np.ndarray],
-                 cameras: Sequence, true_cameras: Sequence | None) -> dict:
+                 taken_back: dict[int, float], cameras: Sequence,
+                 true_cameras: Sequence | None, points: np.ndarray | None = None) -> dict:
     """How the tracker met a knocked camera (:class:`~cellsight.world.faults.Knock`), for
     ``metrics.json``: the fault; ``detected_s``, from the knock until the tracker dropped that
-    camera (None: never; negative: dropped before it was knocked); ``recovered``: the
-    re-estimated pose's move from the cell file's (mm, deg) and, where the world's true camera
-    is known (``true_cameras``), its error against it (mm, deg)."""
+    camera (None: never; negative: dropped before it was knocked); ``taken_back_s``, from the
+    knock until it last took the camera back (None: never); ``recovered``: the re-estimated
+    pose's move from the cell file's (mm, deg) and, where the world's true camera is known
+    (``true_cameras``), its error against it (mm, deg) and, given ``points`` (N, 3), base
+    frame, the median distance (px) between the true camera's pixels of them and the
+    re-estimated camera's (``error_px``)."""
     c = knock.camera
-    out = {**knock.record(cameras[c].name), "detected_s": None, "recovered": None}
+    out = {**knock.record(cameras[c].name), "detected_s": None, "taken_back_s": None,
+           "recovered": None}
     if c in dropped:
         out["detected_s"] = round(dropped[c] - knock.t, 4)
+    if c in taken_back:
+        out["taken_back_s"] = round(taken_back[c] - knock.t, 4)
     if c in recovered:
         T = recovered[c]
         out["recovered"] = {"moved": _pose_gap(cameras[c].T_base_cam, T)}
         if true_cameras is not None:
             out["recovered"]["error"] = _pose_gap(true_cameras[c].T_base_cam, T)
+            if points is not None:
+                fitted = replace(cameras[c], T_base_cam=T)
+                gap = fitted.project(points) - true_cameras[c].project(points)
+                out["recovered"]["error_px"] = round(
+                    float(np.median(np.linalg.norm(gap, axis=1))), 3)
     return out
 
 

@@ -495,8 +495,10 @@ class ExperimentRun:
             return None
         check = self.tracker.camera_check
         truth = getattr(self.world, "truth", None)
-        return knock_record(knock, check.dropped, check.recovered, self.cell.cameras,
-                            None if truth is None else truth.cell.cameras)
+        points = transform_points(self.part.T_base_part, self.part.feature_points)
+        return knock_record(knock, check.dropped, check.recovered, check.taken_back,
+                            self.cell.cameras, None if truth is None else truth.cell.cameras,
+                            points)
 
     def _registration(self) -> dict | None:
         """Each camera's registration to the gripper (:mod:`cellsight.tracking.registration`),

@@ -22,6 +22,7 @@ Units: m, rad, px.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -60,13 +61,15 @@ def corrected(camera: Camera, correction: np.ndarray) -> Camera:
 
 
 def refit_pose(camera: Camera, points: np.ndarray, pixels: np.ndarray, *,
-               pixel_sd: float = 0.5, position_sd: float = 0.010,
-               rotation_sd: float = np.radians(0.5)) -> PoseFit:
+               pixel_sd: float = 0.5, position_sd: float | Sequence[float] = 0.010,
+               rotation_sd: float | Sequence[float] = np.radians(0.5)) -> PoseFit:
     """``camera`` with its pose fitted to ``points`` (N, 3) m, base frame, seen at ``pixels``
-    (N, 2) px (module docstring)."""
+    (N, 2) px (module docstring); ``position_sd`` (m) and ``rotation_sd`` (rad), one for all
+    three of the camera's axes or one per axis (x, y across the view, z along it)."""
     points = np.asarray(points, dtype=float)
     pixels = np.asarray(pixels, dtype=float)
-    prior = np.array([rotation_sd] * 3 + [position_sd] * 3)
+    prior = np.concatenate([np.broadcast_to(np.asarray(rotation_sd, dtype=float), 3),
+                            np.broadcast_to(np.asarray(position_sd, dtype=float), 3)])
 
     def residuals(x: np.ndarray, keep: np.ndarray) -> np.ndarray:
         gap = corrected(camera, x).project(points[keep]) - pixels[keep]
