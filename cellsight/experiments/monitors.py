@@ -140,23 +140,19 @@ class KidnapMonitor:
 
 
 def knock_record(knock, dropped: dict[int, float], recovered: dict[int, np.ndarray],
-                 taken_back: dict[int, float], cameras: Sequence,
-                 true_cameras: Sequence | None, points: np.ndarray | None = None) -> dict:
+                 cameras: Sequence, true_cameras: Sequence | None,
+                 points: np.ndarray | None = None) -> dict:
     """How the tracker met a knocked camera (:class:`~cellsight.world.faults.Knock`), for
     ``metrics.json``: the fault; ``detected_s``, from the knock until the tracker dropped that
-    camera (None: never; negative: dropped before it was knocked); ``taken_back_s``, from the
-    knock until it last took the camera back (None: never); ``recovered``: the re-estimated
+    camera (None: never; negative: dropped before it was knocked); ``recovered``: the re-estimated
     pose's move from the cell file's (mm, deg) and, where the world's true camera is known
     (``true_cameras``), its error against it (mm, deg) and, given ``points`` (N, 3), base
     frame, the median distance (px) between the true camera's pixels of them and the
     re-estimated camera's (``error_px``)."""
     c = knock.camera
-    out = {**knock.record(cameras[c].name), "detected_s": None, "taken_back_s": None,
-           "recovered": None}
+    out = {**knock.record(cameras[c].name), "detected_s": None, "recovered": None}
     if c in dropped:
         out["detected_s"] = round(dropped[c] - knock.t, 4)
-    if c in taken_back:
-        out["taken_back_s"] = round(taken_back[c] - knock.t, 4)
     if c in recovered:
         T = recovered[c]
         out["recovered"] = {"moved": _pose_gap(cameras[c].T_base_cam, T)}

@@ -423,10 +423,8 @@ class ExperimentRun:
         dropped = fate.dropped or (self.kidnap is not None and self.kidnap.kidnap.blind(t))
         observed = self._grab(dropped, truth.part)
         if self.registration is not None and not dropped:
-            for c, camera in self.registration.add(t, observed, joints, openings,
-                                                   self.exposures.stamps,
-                                                   self._part_at).items():
-                self.tracker.recalibrate(c, camera)
+            self.registration.feed(self.tracker, t, observed, joints, openings,
+                                   self.exposures.stamps, self._part_at)
         holders, supports = self._priors(joints[name], openings[name])
         frame = self.tracker.step(observed, joints, t, openings, holders,
                                   None if dropped else self.exposures.stamps, supports)
@@ -496,9 +494,8 @@ class ExperimentRun:
         check = self.tracker.camera_check
         truth = getattr(self.world, "truth", None)
         points = transform_points(self.part.T_base_part, self.part.feature_points)
-        return knock_record(knock, check.dropped, check.recovered, check.taken_back,
-                            self.cell.cameras, None if truth is None else truth.cell.cameras,
-                            points)
+        return knock_record(knock, check.dropped, check.recovered, self.cell.cameras,
+                            None if truth is None else truth.cell.cameras, points)
 
     def _registration(self) -> dict | None:
         """Each camera's registration to the gripper (:mod:`cellsight.tracking.registration`),

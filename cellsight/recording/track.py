@@ -177,9 +177,8 @@ class _Session:
         openings = self.signals.openings_at(frame.ns)
         if self.registration is not None and self.robot.name in openings:
             part_at = None if self._estimate is None else self._estimate[:3, 3]
-            for c, camera in self.registration.add(frame.t, frame.images, joints, openings,
-                                                   frame.stamps, part_at).items():
-                self.tracker.recalibrate(c, camera)
+            self.registration.feed(self.tracker, frame.t, frame.images, joints, openings,
+                                   frame.stamps, part_at)
         holders, supports = None, None
         if self.prior is not None:
             grasp, prior = self.prior

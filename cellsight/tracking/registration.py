@@ -90,6 +90,8 @@ class RegistrationRule:
     near_m: float = 0.10
     open_mm: float = 5.0
     agree_fraction: float = 0.7
+    position_sd_mm: float = 10.0
+    rotation_sd_deg: float = 0.5
     enabled: bool = True
 
     def registration(self, cell: Cell, robot: str) -> GripperRegistration:
@@ -270,7 +272,7 @@ class GripperRegistration:
         self._last_palm = palm.copy()
         if not still:
             return {}
-        for c, cam in enumerate(self.cell.cameras):
+        for c, cam in enumerate(self.cameras):
             points, pixels = self._predicted(poses, cam)
             if observed[c] is not None and len(pixels):
                 self._gathering[c].add(observed[c], points, pixels)
@@ -284,9 +286,20 @@ class GripperRegistration:
 
     def _again(self, reach_px: int) -> None:
         """Every camera to be registered at the next place, looked for with its registered
-        camera within ``reach_px``."""
+        camera within ``reach_px`` (``reach_part_px`` where it has no place yet)."""
         self._waiting = set(range(len(self.cell.cameras)))
-        self._gathering = [_Gathering(self.rule, reach_px) for _ in self.cell.cameras]
+        self._gathering = [_Gathering(self.rule, reach_px if self._gathered[c]
+                                      else self.rule.reach_part_px)
+                           for c in range(len(self.cell.cameras))]
+
+    def feed(self, tracker: Any, t: float, observed: Sequence[Any],
+             joints: Mapping[str, np.ndarray], openings: Mapping[str, float],
+             stamps: Sequence[float | None] | None = None,
+             part_at: np.ndarray | None = None) -> None:
+        """One frame (:meth:`add`) for ``tracker`` (a :class:`~cellsight.tracking.Tracker`):
+        each camera registered goes to it (``recalibrate``)."""
+        for c, camera in self.add(t, observed, joints, openings, stamps, part_at).items():
+            tracker.recalibrate(c, camera)
 
     def _poses_at(self, stamp: float | None, last: tuple | None, t: float,
                   joints: Mapping[str, np.ndarray], openings: Mapping[str, float]) -> np.ndarray:
@@ -331,7 +344,9 @@ class GripperRegistration:
         points, found = np.array(gathering.points), np.array(gathering.found)
         places = [*self._gathered[c], (points, found)]
         fit = refit_pose(cam, np.concatenate([p for p, _ in places]),
-                         np.concatenate([uv for _, uv in places]))
+                         np.concatenate([uv for _, uv in places]),
+                         position_sd=1e-3 * self.rule.position_sd_mm,
+                         rotation_sd=np.radians(self.rule.rotation_sd_deg))
         self._gathering[c] = _Gathering(self.rule, gathering.reach)
         offset = np.median(found - cam.project(points), axis=0)
         ends = np.cumsum([len(p) for p, _ in places])

@@ -408,8 +408,6 @@ class Tracker:
         _record_estimate(rec, ekf)
         _check_cameras(self.camera_check, self.extractor, self.cameras, context, looked,
                        report.n_accepted > 0)
-        for c, camera in self.camera_check.take_back():
-            self.recalibrate(c, camera)
         return rec
 
     def _usable(self, context: StepContext, t_hold: float | None) -> np.ndarray:
