@@ -12,10 +12,12 @@ of the reprojection errors, each in units of ``pixel_sd``, with a prior that hol
 correction near none (``position_sd`` along the camera's axes, ``rotation_sd`` about them),
 then the same fit, plain least squares, to the points it left within 3 ``pixel_sd`` (the
 corners of something else, pixels off, then weigh nothing).
-Seen from one place only, a move across the view and a turn look alike there; the prior then
-keeps the smaller, and points from several places (the gripper at HOME, at the part's grasp,
-where it lets the part go) pin both down. The intrinsics' own errors end up in the pose as a
-calibration's do: right in the work area the points cover.
+Seen from one place only, a move across the view and a turn look alike there (a caller then
+holds what one place cannot show with a tiny sd: :mod:`.registration` holds the position and
+the roll); points from several places (the gripper at HOME, at the part's grasp, where it lets
+the part go) pin both down, and the prior keeps the smaller of what stays alike. The
+intrinsics' own errors end up in the pose as a calibration's do: right in the work area the
+points cover.
 
 Units: m, rad, px.
 """
