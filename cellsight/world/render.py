@@ -31,9 +31,10 @@ import numpy as np
 from cellsight.camera import Camera
 
 # Held while a thread makes, uses or frees an OpenGL context (each thread renders with contexts
-# of its own): with the run's thread rendering a region while the video's thread rendered a
-# preview, Mesa crashed in mjr_render in both (a segmentation fault, two runs of 120 in harsh
-# sweeps); and while the model's framebuffer settings are changed to make a context.
+# of its own), and while the model's framebuffer settings are changed to make one. A harsh sweep
+# run died of a segmentation fault with the run's thread and the video's thread both in
+# mjr_render; with the lock one more did (of about 150), in the run's thread's mjr_readPixels
+# while the video's thread waited here: the lock rules out the first, the cause is not found.
 _GL = threading.RLock()
 
 
