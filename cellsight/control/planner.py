@@ -42,6 +42,17 @@ HALF_TURN_Z = make_pose(np.diag([-1.0, -1.0, 1.0]))
 """A half turn about the TCP's approach axis (z): a parallel gripper's grasp and its twin."""
 
 
+def nearer_grasp(T_part_tcp: np.ndarray, T_base_part: np.ndarray,
+                 T_near: np.ndarray) -> np.ndarray:
+    """Of a parallel gripper's grasp ``T_part_tcp`` and its twin (turned half about the TCP's
+    approach axis), the ``T_part_tcp`` whose TCP orientation at the part pose ``T_base_part`` is
+    nearer to ``T_near``'s."""
+    candidates = (T_part_tcp, T_part_tcp @ HALF_TURN_Z)
+    angles = [np.linalg.norm(rotation_error(T_base_part[:3, :3] @ c[:3, :3], T_near[:3, :3]))
+              for c in candidates]
+    return candidates[int(np.argmin(angles))]
+
+
 def min_jerk(tau: float) -> tuple[float, float, float]:
     """Minimum-jerk profile ``s(tau) = 10 tau^3 - 15 tau^4 + 6 tau^5`` and its first and second
     derivatives with respect to ``tau``, with ``tau`` clamped to [0, 1]."""
@@ -178,10 +189,7 @@ class TrajectoryPlanner:
         return T_base_part @ self._nearer_grasp(T_base_part, T_near)
 
     def _nearer_grasp(self, T_base_part: np.ndarray, T_near: np.ndarray) -> np.ndarray:
-        candidates = (self.T_part_tcp, self.T_part_tcp @ HALF_TURN_Z)
-        angles = [np.linalg.norm(rotation_error(T_base_part[:3, :3] @ c[:3, :3], T_near[:3, :3]))
-                  for c in candidates]
-        return candidates[int(np.argmin(angles))]
+        return nearer_grasp(self.T_part_tcp, T_base_part, T_near)
 
     def goal_at(self, goal: PoseGoal | PartGoal, t: float) -> tuple[np.ndarray, np.ndarray]:
         """Pose of a goal at time ``t`` and its linear velocity."""

@@ -17,15 +17,14 @@ part is held and where (the simulated run: the task's grasp and the jaws' check)
 track --kinematic-prior``): the part is held while the jaws stand at the opening its grasp
 closes them to, within a tolerance, and it is held at the one of the grasp and its half-turn
 twin about the TCP's approach axis whose orientation is nearer the TCP's when they close (the
-choice the task's planner makes, :meth:`~cellsight.control.planner.TrajectoryPlanner.grasp_pose`).
+choice the task's planner makes, :func:`~cellsight.control.planner.nearer_grasp`).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from cellsight.control.clik import rotation_error
-from cellsight.control.planner import HALF_TURN_Z
+from cellsight.control.planner import nearer_grasp
 from cellsight.geometry.transforms import invert_pose
 from cellsight.model.cell import Workpiece
 from cellsight.model.landing import Landing
@@ -64,8 +63,7 @@ class RecordedGrasp:
     def __init__(self, robot: Robot, part: Workpiece, T_part_tcp: np.ndarray, opening: float,
                  tolerance: float) -> None:
         self.robot, self.part = robot, part
-        self.grasps = (np.asarray(T_part_tcp, dtype=float),
-                       np.asarray(T_part_tcp, dtype=float) @ HALF_TURN_Z)
+        self.T_part_tcp = np.asarray(T_part_tcp, dtype=float)
         self.opening, self.tolerance = float(opening), float(tolerance)
         self.chosen: np.ndarray | None = None  # T_part_tcp of the grasp held, while held
 
@@ -81,7 +79,5 @@ class RecordedGrasp:
         tcp = self.robot.tcp_pose(q)
         if self.chosen is None:
             part = self.part.T_base_part if estimate is None else estimate
-            turns = [np.linalg.norm(rotation_error(part[:3, :3] @ g[:3, :3], tcp[:3, :3]))
-                     for g in self.grasps]
-            self.chosen = self.grasps[int(np.argmin(turns))]
+            self.chosen = nearer_grasp(self.T_part_tcp, part, tcp)
         return tcp @ invert_pose(self.chosen)
