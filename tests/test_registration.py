@@ -155,3 +155,97 @@ def test_a_recording_registers_each_camera_as_its_run_did(tmp_path):
         assert got["corners"] >= RegistrationRule().min_corners
     plain = track_recording(None, recording, tmp_path / "plain", TrackOptions(progress=False))
     assert plain.metrics["registration"] is None
+
+
+def _drawn(cam, cell, poses, objects) -> np.ndarray:
+    """A grey image of the gripper's boxes as ``cam`` sees them at ``poses``: each face filled
+    (painter's order, far first) with a grey of its own from its normal, on a mid-grey
+    background, drawn at four times the size and averaged down (a pixel integrates its area);
+    an independent drawing of the corners the registration looks for."""
+    up = 4
+    image = np.full((cam.height * up, cam.width * up), 90, np.uint8)
+    faces = []
+    for i in objects:
+        solid, T = cell.objects[i].solid, poses[i]
+        V = solid.vertices @ T[:3, :3].T + T[:3, 3]
+        for k, face in enumerate(solid.faces):
+            normal = T[:3, :3] @ solid.normals[k]
+            if normal @ (cam.center - V[face[0]]) > 0:
+                depth = np.linalg.norm(V[list(face)].mean(axis=0) - cam.center)
+                grey = 40 + int(170 * abs(normal @ np.array([0.3, 0.5, 0.81])))
+                faces.append((depth, cam.project(V[list(face)]), grey))
+    for _, pixels, grey in sorted(faces, key=lambda f: -f[0]):
+        big = (pixels + 0.5) * up - 0.5  # pixel centres at integers at both sizes
+        cv2.fillPoly(image, [np.rint(big * 16).astype(np.int32)], grey, cv2.LINE_AA, 4)
+    return cv2.resize(image, (cam.width, cam.height), interpolation=cv2.INTER_AREA)
+
+
+def test_a_camera_that_cannot_find_the_gripper_at_home_does_not_hold_the_others_back():
+    """Camera 1 sees the gripper drawn by a camera whose principal point is 3 px right and 2 px
+    up of the cell file's; camera 2 sees a blank image (the gripper too dark, or cut by its
+    image's edge). While the gripper stands at HOME nothing is registered; on the first frame
+    it moves, camera 1 is, with the 3 px and -2 px offset within 0.3 px, and the registered
+    camera projects the corners within 0.3 px of the drawing camera; camera 2 is left to the
+    part's place, its votes reaching the rule's full 15 px."""
+    from dataclasses import replace
+
+    cell = load_cell()
+    robot = cell.robot("R7AX")
+    rule = RegistrationRule()
+    registration = rule.registration(cell, robot.name)
+    openings = {r.name: r.tool.max_opening for r in cell.robots}
+    K = cell.cameras[0].K.copy()
+    K[:2, 2] += [3.0, -2.0]
+    drawer = replace(cell.cameras[0], K=K)
+    blank = np.full((cell.cameras[1].height, cell.cameras[1].width), 90, np.uint8)
+    home = {r.name: r.home for r in cell.robots}
+    poses = cell.snapshot(home, None, openings).poses
+    image = _drawn(drawer, cell, poses, registration.objects)
+    for k in range(60):
+        assert registration.add(k / 26, [image, blank], home, openings) == {}
+    moved = dict(home, R7AX=home["R7AX"] + 0.002)
+    done = registration.add(60 / 26, [image, blank], moved, openings)
+    assert list(done) == [0] and registration.registered[0].where == "home"
+    np.testing.assert_allclose(registration.registered[0].offset_px, [3.0, -2.0], atol=0.3)
+    corners = np.concatenate([cell.objects[i].solid.vertices @ poses[i][:3, :3].T
+                              + poses[i][:3, 3] for i in registration.objects])
+    gap = np.linalg.norm(done[0].project(corners) - drawer.project(corners), axis=1)
+    assert np.median(gap) < 0.3
+    assert 1 not in registration.registered and registration._gathering[1].reach == rule.reach_px
+
+
+def test_a_wrong_peak_of_the_votes_is_struck_out():
+    """Camera 1 at HOME, the gripper drawn 3 px right and 2 px up of the cell file's camera,
+    its votes first loaded with a false peak 10 px away (a pattern that fitted the predicted
+    corners there): the false peak gives no residuals, is struck out, and the right offset
+    is found; the camera is registered at 3 px, -2 px within 0.3 px."""
+    from dataclasses import replace
+
+    from cellsight.tracking.registration import _Gathering
+
+    cell = load_cell()
+    rule = RegistrationRule()
+    registration = rule.registration(cell, "R7AX")
+    openings = {r.name: r.tool.max_opening for r in cell.robots}
+    home = {r.name: r.home for r in cell.robots}
+    poses = cell.snapshot(home, None, openings).poses
+    K = cell.cameras[0].K.copy()
+    K[:2, 2] += [3.0, -2.0]
+    image = _drawn(replace(cell.cameras[0], K=K), cell, poses, registration.objects)
+    points, pixels = registration._predicted(poses, cell.cameras[0])
+    gathering = _Gathering(rule, rule.reach_px)
+    gathering.votes[rule.reach_px + 8, rule.reach_px - 10] = 1000.0  # (u, v) = (-10, 8)
+    coarse = []
+    for _ in range(200):
+        gathering.add(image, points, pixels)
+        if gathering.coarse is not None and (not coarse or
+                                             (coarse[-1] != gathering.coarse).any()):
+            coarse.append(gathering.coarse.copy())
+        if gathering.ready:
+            break
+    assert gathering.ready
+    assert np.abs(coarse[0] - [-10, 8]).max() <= 1  # the false peak first
+    assert np.abs(coarse[-1] - [3, -2]).max() <= 1
+    offset = np.median(np.array(gathering.found) - cell.cameras[0].project(
+        np.array(gathering.points)), axis=0)
+    np.testing.assert_allclose(offset, [3.0, -2.0], atol=0.3)

@@ -76,8 +76,8 @@ class TrackerConfig:
     :meth:`Tracker.step`); ``near_occluder_hold_s``: how long a feature stays unusable after it
     was last flagged ``near_occluder`` (:mod:`.eligibility`); ``resume_support``: how many
     features the gate must accept together in the first update after a tracked frame without
-    one (a coasting track's prediction is wide, and a lone intruder's corner fits it: in the
-    realistic world one such corner threw the velocity off by 0.5 m/s;
+    one, or after an acquisition (a coasting track's prediction is wide, and a lone intruder's
+    corner fits it: in the realistic world one such corner threw the velocity off by 0.5 m/s;
     :class:`~cellsight.tracking.gate.SupportedGate`; at least the loss rule's
     :meth:`~cellsight.tracking.loss.LossRule.resume_support` share of the features looked for
     applies too; 3 goes with the unknown-occluder map); ``camera_offsets_px``: the prior (px per

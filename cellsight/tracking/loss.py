@@ -9,7 +9,11 @@ corner that fits a wide prediction does not hold such a track, nor does a veloci
 corners threw out of the views). For the same reason a coasting track resumes only on a frame
 that accepts, together, at least ``resume_found`` of the features it looked for (after a blind
 second, four wrong corners of eleven fitted the wide prediction of a kidnapped part;
-:meth:`LossRule.resume_support`). The tracker then
+:meth:`LossRule.resume_support`), and so does a filter's first update after an acquisition
+(its covariance is as wide: in ``harsh`` runs re-acquired under the approaching gripper, two
+to five of eleven features, the gripper's corners among them, moved the estimate 15-25 mm
+in that update and gave it a velocity that carried it 100 mm off while it coasted). The
+tracker then
 re-acquires it, from the whole image when it can (:mod:`.search`); until then frames without
 measurements only predict. The prediction
 coasts at most ``coast_s`` seconds after the last accepted measurement, then stops: the last

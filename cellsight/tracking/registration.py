@@ -53,9 +53,14 @@ where that place moved the camera's fit by 20 mm and 0.7 deg and the part's esti
 place whose corners do not fit one pose with the earlier places' (fewer than ``agree_fraction``
 of its corners, or of an earlier place's, within 3 pixel sd of the fit to all) is not taken,
 and gathered again.
-Each camera is registered at HOME on the same frame, once each has its residuals (a camera
-that never sees the gripper standing still leaves them all as they are); at the later places,
-each on its own. ``near_m`` 0: at HOME only.
+HOME's registration is made on one frame: the one where every camera has its residuals, or
+the first frame the gripper moves again after standing still (with the cameras that have them;
+a camera that sees the gripper too dark, too small or cut by its image's edge to find them
+there, as ``ur-cell``'s camera 3 does in ``harsh``, is registered first by the part, its votes
+reaching ``reach_px`` around the cell file's camera). At the later places each camera is
+registered on its own. A coarse offset that gives fewer than one residual a frame over
+``vote_frames`` frames is taken back: its votes are struck out, and the camera's next frame
+votes with the rest for another. ``near_m`` 0: at HOME only.
 """
 
 from __future__ import annotations
@@ -136,6 +141,7 @@ class _Gathering:
         self.votes = np.zeros((side, side))
         self.voted = 0
         self.coarse: np.ndarray | None = None
+        self.measured = 0  # frames measured at the coarse offset
         self.points: list[np.ndarray] = []  # the corners found, base frame (m)
         self.found: list[np.ndarray] = []  # where they were found (px)
 
@@ -165,6 +171,7 @@ class _Gathering:
         self.voted += 1
         if self.voted >= self.rule.vote_frames:
             self.coarse = coarse_offset(self.votes)
+            self.measured = 0
 
     def _measure(self, observed: Any, points: np.ndarray, pixels: np.ndarray) -> None:
         half = self.rule.window_px // 2
@@ -177,6 +184,17 @@ class _Gathering:
             if found is not None and np.linalg.norm(found - centre) <= self.rule.agree_px:
                 self.points.append(point)
                 self.found.append(found)
+        self.measured += 1
+        if self.measured == self.rule.vote_frames and len(self.points) < self.rule.vote_frames:
+            self._strike_out()
+
+    def _strike_out(self) -> None:
+        """The coarse offset found too few residuals: its votes (3x3 bins) are struck out, and
+        the next frame's votes with the rest give another."""
+        u, v = (self.coarse + self.reach).astype(int)
+        self.votes[max(v - 1, 0):v + 2, max(u - 1, 0):u + 2] = 0.0
+        self.coarse, self.points, self.found = None, [], []
+        self.voted = self.rule.vote_frames - 1
 
 
 class GripperRegistration:
@@ -194,9 +212,10 @@ class GripperRegistration:
         self._gathering = [_Gathering(rule, rule.reach_px) for _ in cell.cameras]
         self.cameras = list(cell.cameras)  # as registered so far
         self._gathered: list[list[tuple[np.ndarray, np.ndarray]]] = [[] for _ in cell.cameras]
-        self._site = SITES[1]
+        self._site = SITES[0]
         self._waiting: set[int] = set()  # the cameras not registered at this place yet
         self._last_palm: np.ndarray | None = None
+        self._stood = False  # the gripper has stood still since the run began
         self._last_frame: tuple[float, Mapping, Mapping] | None = None
         self.registered: dict[int, Registered] = {}
         self.at_home: dict[int, Registered] = {}
@@ -214,7 +233,7 @@ class GripperRegistration:
         if self.done:
             return {}
         last, self._last_frame = self._last_frame, (float(t), joints, openings)
-        if not self.at_home:
+        if self._site == SITES[0]:
             poses = self.cell.snapshot(joints, None, openings).poses
             return self._at_home(float(t), observed, poses)
         robot = self.cell.robot(self.robot)
@@ -269,32 +288,35 @@ class GripperRegistration:
 
     def _at_home(self, t: float, observed: Sequence[Any], poses: np.ndarray
                  ) -> dict[int, Camera]:
-        """The first registration, from the frames where the gripper stands still: every
-        camera on the frame where all have their residuals."""
+        """The first registration, from the frames where the gripper stands still: on the
+        frame where every camera has its residuals, or where the gripper moves again, the
+        cameras that have them (module docstring)."""
         palm = poses[self.objects[0]][:3, 3]
         still = self._last_palm is not None and \
             1e3 * np.linalg.norm(palm - self._last_palm) <= self.rule.still_mm
         self._last_palm = palm.copy()
-        if not still:
+        if still:
+            self._stood = True
+            for c, cam in enumerate(self.cameras):
+                points, pixels = self._predicted(poses, cam)
+                if observed[c] is not None and len(pixels):
+                    self._gathering[c].add(observed[c], points, pixels)
+        ready = [c for c, g in enumerate(self._gathering) if g.ready]
+        if len(ready) < len(self.cameras) and (still or not self._stood):
             return {}
-        for c, cam in enumerate(self.cameras):
-            points, pixels = self._predicted(poses, cam)
-            if observed[c] is not None and len(pixels):
-                self._gathering[c].add(observed[c], points, pixels)
-        if not all(g.ready for g in self._gathering):
-            return {}
-        out = {c: self._register(c, t, SITES[0]) for c in range(len(self.cell.cameras))}
+        out = {c: self._register(c, t, SITES[0]) for c in ready}
         self.at_home = dict(self.registered)
+        self._site = SITES[1]
         self._again(self.rule.reach_part_px)
         self.done = self.rule.near_m <= 0.0
         return out
 
     def _again(self, reach_px: int) -> None:
         """Every camera to be registered at the next place, looked for with its registered
-        camera within ``reach_px`` (``reach_part_px`` where it has no place yet)."""
+        camera within ``reach_px`` (``reach_px`` of the rule where it has no place yet)."""
         self._waiting = set(range(len(self.cell.cameras)))
         self._gathering = [_Gathering(self.rule, reach_px if self._gathered[c]
-                                      else self.rule.reach_part_px)
+                                      else self.rule.reach_px)
                            for c in range(len(self.cell.cameras))]
 
     def feed(self, tracker: Any, t: float, observed: Sequence[Any],

@@ -79,7 +79,8 @@ class _Track:
     last accepted measurement's time (s), the holder's pose of the
     part (the last frame's, this frame's once predicted), where a gripper holds the part or
     last held it since the filter last accepted a measurement (``held_at``, ``T_base_part``),
-    whether the last tracked frame accepted no measurement (``coasted``), the last time (s)
+    whether the last tracked frame accepted no measurement, or the filter has just started
+    (``coasted``: its next update needs the resume support, :mod:`.loss`), the last time (s)
     enough were accepted to confirm the estimate for the unknown-occluder map (``confirmed``),
     since when its features were looked for in vain (``unseen_since``, s; :mod:`.loss`) and
     when it was last searched for in the whole images (``searched``, s); the part's ``twins``
@@ -238,7 +239,7 @@ class Tracker:
         track.ekf = PoseEKF(self.components.motion, state, covariance, t, adaptive, model, offsets)
         track.last_update = float(t)
         track.lost = False
-        track.coasted = False
+        track.coasted = True  # a new filter's first update needs the resume support too
         track.unseen_since = np.inf
         track.held_at = None
         track.monitor.reset()
