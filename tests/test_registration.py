@@ -214,11 +214,11 @@ def test_a_camera_that_cannot_find_the_gripper_at_home_does_not_hold_the_others_
     assert 1 not in registration.registered and registration._gathering[1].reach == rule.reach_px
 
 
-def test_a_wrong_peak_of_the_votes_is_struck_out():
-    """Camera 1 at HOME, the gripper drawn 3 px right and 2 px up of the cell file's camera,
-    its votes first loaded with a false peak 10 px away (a pattern that fitted the predicted
-    corners there): the false peak gives no residuals, is struck out, and the right offset
-    is found; the camera is registered at 3 px, -2 px within 0.3 px."""
+def _gathered_at_home(shift_px, reach_px, false_peak=None):
+    """Camera 1's gathering at HOME (votes within ``reach_px``, loaded first with a
+    ``false_peak`` (u, v) of 1000 votes where given) on the gripper drawn by a camera whose
+    principal point is ``shift_px`` off the cell file's: the coarse offsets it took in turn and
+    the offset of its residuals' median (px)."""
     from dataclasses import replace
 
     from cellsight.tracking.registration import _Gathering
@@ -230,11 +230,12 @@ def test_a_wrong_peak_of_the_votes_is_struck_out():
     home = {r.name: r.home for r in cell.robots}
     poses = cell.snapshot(home, None, openings).poses
     K = cell.cameras[0].K.copy()
-    K[:2, 2] += [3.0, -2.0]
+    K[:2, 2] += shift_px
     image = _drawn(replace(cell.cameras[0], K=K), cell, poses, registration.objects)
     points, pixels = registration._predicted(poses, cell.cameras[0])
-    gathering = _Gathering(rule, rule.reach_px)
-    gathering.votes[rule.reach_px + 8, rule.reach_px - 10] = 1000.0  # (u, v) = (-10, 8)
+    gathering = _Gathering(rule, reach_px)
+    if false_peak is not None:
+        gathering.votes[reach_px + false_peak[1], reach_px + false_peak[0]] = 1000.0
     coarse = []
     for _ in range(200):
         gathering.add(image, points, pixels)
@@ -244,8 +245,27 @@ def test_a_wrong_peak_of_the_votes_is_struck_out():
         if gathering.ready:
             break
     assert gathering.ready
-    assert np.abs(coarse[0] - [-10, 8]).max() <= 1  # the false peak first
-    assert np.abs(coarse[-1] - [3, -2]).max() <= 1
     offset = np.median(np.array(gathering.found) - cell.cameras[0].project(
         np.array(gathering.points)), axis=0)
+    return coarse, offset
+
+
+def test_a_wrong_peak_of_the_votes_is_struck_out():
+    """The gripper drawn 3 px right and 2 px up of the cell file's camera, the votes first
+    loaded with a false peak 10 px away (a pattern that fitted the predicted corners there):
+    the false peak gives no residuals, is struck out, and the right offset is found, within
+    0.3 px."""
+    coarse, offset = _gathered_at_home([3.0, -2.0], RegistrationRule().reach_px, (-10, 8))
+    assert np.abs(coarse[0] - [-10, 8]).max() <= 1  # the false peak first
+    assert np.abs(coarse[-1] - [3, -2]).max() <= 1
     np.testing.assert_allclose(offset, [3.0, -2.0], atol=0.3)
+
+
+def test_votes_that_fall_short_start_again_with_the_full_reach():
+    """The gripper drawn 10 px right and 6 px up of the cell file's camera, the votes reaching
+    5 px (the reach by the part): the peak they find gives no residuals, the votes start again
+    reaching the rule's 15 px, and the offset is found, within 0.3 px."""
+    coarse, offset = _gathered_at_home([10.0, -6.0], RegistrationRule().reach_part_px)
+    assert np.abs(coarse[0]).max() <= RegistrationRule().reach_part_px
+    assert np.abs(coarse[-1] - [10, -6]).max() <= 1
+    np.testing.assert_allclose(offset, [10.0, -6.0], atol=0.3)
