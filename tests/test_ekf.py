@@ -19,7 +19,7 @@ from cellsight.tracking import (
     estimate_pose_robust,
     solve_pnp_camera,
 )
-from cellsight.tracking.ekf import HELD, RESTING
+from cellsight.tracking.ekf import HELD, RESTING, SUPPORT_RATES
 from cellsight.tracking.gate import ChiSquareGate
 from cellsight.tracking.measurement import rotation_of_state
 
@@ -144,6 +144,27 @@ def test_resting_on_a_support_matches_the_information_form():
     np.testing.assert_allclose(ekf.covariance, P_info, rtol=1e-6, atol=1e-12)
     np.testing.assert_allclose(ekf.state, x_info, atol=1e-9)
     assert abs(ekf.state[2] - 0.62) < 2 * std[0] and np.all(np.linalg.eigvalsh(ekf.covariance) > 0)
+
+
+def test_rates_fused_at_a_bound_match_the_information_form():
+    """``fuse_prior`` with ``SUPPORT_RATES`` and given ``rates``: the pseudo-measurement that
+    the x, y and yaw rates are those rates (the pose's states unmeasured) equals the
+    information-form posterior with H selecting those three states."""
+    rng = np.random.default_rng(3)
+    x0 = np.concatenate([[0.6, 0.1, 0.63, 0.01, -0.02, 0.3], [0.3, -0.2, 0.0, 0.0, 0.0, 0.5]])
+    A = rng.normal(size=(12, 12))
+    P0 = 1e-3 * (A @ A.T + np.eye(12))
+    rates = np.array([0.04, -0.03, 0.0, 0.0, 0.0, 0.1])
+    std = np.array([0.005, 0.005, 0.01])
+    ekf = PoseEKF(ConstantVelocity(), x0, P0, 0.0)
+    ekf.fuse_prior(pose_from_xyz_rpy([9.0, 9.0, 9.0], [1.0, 1.0, 1.0]), SUPPORT_RATES, std,
+                   rates=rates)
+    H = np.eye(12)[SUPPORT_RATES]
+    nu = rates[[0, 1, 5]] - x0[SUPPORT_RATES]
+    P_info = np.linalg.inv(np.linalg.inv(P0) + H.T @ np.diag(std**-2.0) @ H)
+    x_info = x0 + P_info @ H.T @ np.diag(std**-2.0) @ nu
+    np.testing.assert_allclose(ekf.covariance, P_info, rtol=1e-6, atol=1e-12)
+    np.testing.assert_allclose(ekf.state, x_info, atol=1e-9)
 
 
 def test_held_by_a_gripper_matches_the_information_form():

@@ -197,6 +197,32 @@ def test_a_support_3_mm_off_costs_nothing_with_two_cameras_and_its_error_with_on
     assert worst < (1e-3 if not blind else 5e-3), worst
 
 
+@pytest.mark.parametrize("bound", [0.08, None])
+def test_a_lying_part_coasts_no_faster_than_its_support_moves(bound):
+    """The part rides the conveyor at 0.06 m/s, told that it lies on its support. A wrong
+    update throws its velocity to 0.5 m/s across the support, then both cameras are blind for
+    8 frames: held to a support speed of 0.08 m/s, the estimate coasts at most that fast
+    (within 3 cm of the part after the 0.3 s); without the bound it runs off with the wrong
+    velocity (over 10 cm)."""
+    speed = (bound, 0.1) if bound is not None else (10.0, 10.0)
+    run = Run(seed=5, sway=0.0, config=TrackerConfig(support_speed=speed))
+    run.resting = True
+    k0 = int(1.0 / VISION_PERIOD)
+    for k in range(k0 + 8):
+        if k == k0:
+            ekf = run.tracker.tracks[run.part.name].ekf
+            ekf._x[6:8] = [0.5 / np.sqrt(2), -0.5 / np.sqrt(2)]
+        run.predictor.blind = run.truth_vis.blind = {0, 1} if k >= k0 else set()
+        run.step(k)
+    assert all(run.frames[k].status == "coasting" for k in range(k0, k0 + 8))
+    across = np.hypot(*run.frames[-1].state[6:8])
+    off = run.errors(k0 + 7)[0]
+    if bound is not None:
+        assert across <= bound + 1e-6 and off < 0.03, (across, off)
+    else:
+        assert across > 0.4 and off > 0.1, (across, off)
+
+
 def test_a_feature_flagged_near_an_occluder_stays_out_for_the_hold_time():
     """Flagged for one frame only, a feature is not selected for ``near_occluder_hold_s``
     (a flag flickering at the ring's edge keeps it out), then comes back."""

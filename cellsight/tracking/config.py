@@ -90,7 +90,10 @@ class TrackerConfig:
     ``held_std``: the part is within its seat's error of the chosen grasp; :mod:`.tracker`);
     ``rest_std``: one sigma (m, rad) of the height and the roll and pitch of a part lying on its
     support, with the kinematic prior (``supports`` in :meth:`Tracker.step`; the support's
-    height and flatness as the cell file knows them).
+    height and flatness as the cell file knows them); ``support_speed``: how fast (m/s across
+    the support, rad/s about its normal) a support moves a part lying on it at most (a
+    conveyor's belt), with the kinematic prior: the rates a lying part's filter starts with
+    (one sigma) and the bound its rates are held to (:func:`~.tracker._keep_support_speed`).
     """
 
     sigma_px: float = 0.5
@@ -103,3 +106,4 @@ class TrackerConfig:
     held_std: tuple[float, float] = (0.01, 0.05)
     hold_std: tuple[float, float] = (0.003, 0.02)
     rest_std: tuple[float, float] = (0.002, 0.01)
+    support_speed: tuple[float, float] = (0.1, 0.1)

@@ -64,6 +64,7 @@ SMALL_STEP = (0.01, 0.05)  # m, rad: an update's pose change below which it is n
 RESTING = np.array([2, 3, 4, 8, 9, 10])  # state rows a level support fixes: z, roll, pitch, rates
 HELD = np.arange(6)  # state rows a holder fixes: the whole pose (its rates follow the holder)
 STILL = np.arange(6, 12)  # state rows a part at rest fixes: every rate (zero)
+SUPPORT_RATES = np.array([6, 7, 11])  # the rates a support moves a lying part at: x, y, yaw
 FORGOTTEN = 1.0  # m^2, rad^2: the variance of a state whose estimate is forgotten
 
 
@@ -236,18 +237,20 @@ class PoseEKF:
         self._x, self._P, self.t = x, P, float(t)
 
     def fuse_prior(self, T_base_part: np.ndarray, rows: np.ndarray, std: np.ndarray,
-                   forget: bool = False) -> None:
+                   forget: bool = False, rates: np.ndarray | None = None) -> None:
         """Fuse the pseudo-measurement (module docstring) that the states ``rows`` (indices
         into the 12 of the pose and its rates; :data:`RESTING`, :data:`HELD`, :data:`STILL`) are
-        those of the part at ``T_base_part`` (4x4; the rates: zero), each with its own one
-        sigma ``std`` (m, rad, m/s, rad/s per row). A linear update (Joseph form); angle
+        those of the part at ``T_base_part`` (4x4) moving at ``rates`` ((6,) m/s and rad/s,
+        the state's order; None: zero), each with its own one sigma ``std`` (m, rad, m/s,
+        rad/s per row). A linear update (Joseph form); angle
         innovations are taken the short way round, roll and yaw wrapped. ``forget``: the
         estimate of those states is no longer trusted: their covariance is made wide
         (``FORGOTTEN``) and uncorrelated first, so that they come out at the prior's values and
         sigmas."""
         rows = np.asarray(rows)
         xyz, rpy = xyz_rpy_from_pose(np.asarray(T_base_part, dtype=float))
-        nu = np.concatenate([xyz, rpy, np.zeros(POSE_DIM)])[rows] - self._x[rows]
+        moving = np.zeros(POSE_DIM) if rates is None else np.asarray(rates, dtype=float)
+        nu = np.concatenate([xyz, rpy, moving])[rows] - self._x[rows]
         angles = (rows >= 3) & (rows < POSE_DIM)
         nu[angles] = _wrapped(nu[angles])
         r = np.asarray(std, dtype=float) ** 2
