@@ -54,7 +54,8 @@ place whose corners do not fit one pose with the earlier places' (fewer than ``a
 of its corners, or of an earlier place's, within 3 pixel sd of the fit to all) is not taken,
 and gathered again.
 HOME's registration is made on one frame: the one where every camera has its residuals, or
-the first frame the gripper moves again after standing still (with the cameras that have them;
+the first frame the gripper is ``leave_mm`` from where it first stood still (it has left HOME;
+with the cameras that have them;
 a camera that sees the gripper too dark, too small or cut by its image's edge to find them
 there, as ``ur-cell``'s camera 3 does in ``harsh``, is registered first by the part, its votes
 reaching ``reach_px`` around the cell file's camera). At the later places each camera is
@@ -92,6 +93,7 @@ class RegistrationRule:
 
     margin_px: float = 15.0
     still_mm: float = 0.5
+    leave_mm: float = 20.0
     reach_px: int = 15
     reach_part_px: int = 5
     reach_release_px: int = 3
@@ -226,7 +228,7 @@ class GripperRegistration:
         self._site = SITES[0]
         self._waiting: set[int] = set()  # the cameras not registered at this place yet
         self._last_palm: np.ndarray | None = None
-        self._stood = False  # the gripper has stood still since the run began
+        self._stood_at: np.ndarray | None = None  # where the gripper first stood still (m)
         self._last_frame: tuple[float, Mapping, Mapping] | None = None
         self.registered: dict[int, Registered] = {}
         self.at_home: dict[int, Registered] = {}
@@ -300,20 +302,23 @@ class GripperRegistration:
     def _at_home(self, t: float, observed: Sequence[Any], poses: np.ndarray
                  ) -> dict[int, Camera]:
         """The first registration, from the frames where the gripper stands still: on the
-        frame where every camera has its residuals, or where the gripper moves again, the
+        frame where every camera has its residuals, or where the gripper has left HOME, the
         cameras that have them (module docstring)."""
         palm = poses[self.objects[0]][:3, 3]
         still = self._last_palm is not None and \
             1e3 * np.linalg.norm(palm - self._last_palm) <= self.rule.still_mm
         self._last_palm = palm.copy()
         if still:
-            self._stood = True
+            if self._stood_at is None:
+                self._stood_at = palm.copy()
             for c, cam in enumerate(self.cameras):
                 points, pixels = self._predicted(poses, cam)
                 if observed[c] is not None and len(pixels):
                     self._gathering[c].add(observed[c], points, pixels)
         ready = [c for c, g in enumerate(self._gathering) if g.ready]
-        if len(ready) < len(self.cameras) and (still or not self._stood):
+        left = self._stood_at is not None and \
+            1e3 * np.linalg.norm(palm - self._stood_at) > self.rule.leave_mm
+        if len(ready) < len(self.cameras) and not left:
             return {}
         out = {c: self._register(c, t, SITES[0]) for c in ready}
         self.at_home = dict(self.registered)
