@@ -54,16 +54,15 @@ place whose corners do not fit one pose with the earlier places' (fewer than ``a
 of its corners, or of an earlier place's, within 3 pixel sd of the fit to all) is not taken,
 and gathered again.
 HOME's registration is made on one frame: the one where every camera has its residuals, or
-the first frame the gripper is ``leave_mm`` from where it first stood still (it has left HOME;
-with the cameras that have them;
-a camera that sees the gripper too dark, too small or cut by its image's edge to find them
-there, as ``ur-cell``'s camera 3 does in ``harsh``, is registered first by the part, its votes
-reaching ``reach_px`` around the cell file's camera). At the later places each camera is
-registered on its own. A coarse offset that gives fewer than one residual a frame over
-``vote_frames`` frames is taken back: votes of a reach short of ``reach_px`` start again with
-that reach (in one ``harsh`` camera, a 1.8 % focal error put the offset by the part 8 px from
-HOME's), others have the offset's votes struck out, and the camera's next frame votes with the
-rest for another. ``near_m`` 0: at HOME only.
+else the first frame the gripper is ``leave_mm`` from where it first stood still (it has left
+HOME), with the cameras that have them. A camera that sees the gripper too dark, too small or
+cut by its image's edge to find them there, as ``ur-cell``'s camera 3 does in ``harsh``, is
+registered first by the part, its votes reaching ``reach_px`` around the cell file's camera.
+At the later places each camera is registered on its own. A coarse offset that gives fewer
+than one residual a frame over ``vote_frames`` frames is taken back: votes of a reach short
+of ``reach_px`` start again with that reach (in one ``harsh`` camera, a 1.8 % focal error put
+the offset by the part 8 px from HOME's), others have the offset's votes struck out, and the
+camera's next frame votes with the rest for another. ``near_m`` 0: at HOME only.
 """
 
 from __future__ import annotations
