@@ -294,16 +294,16 @@ def test_wrong_corners_are_gated_out_and_recorded():
 
 
 class _FirstFewWrong:
-    """On the frame numbered ``wrong_frame`` of its calls' frames, measures only two features
-    per camera, each 6 px right and 5 px up of the truth (an approaching gripper's corners
-    where the part's are hidden); the wrapped extractor otherwise."""
+    """On frame ``wrong_frame`` (the caller sets ``frame`` before each step), measures only two
+    features per camera, each 6 px right and 5 px up of the truth (an approaching gripper's
+    corners where the part's are hidden); the wrapped extractor otherwise."""
 
-    def __init__(self, inner, frames: int) -> None:
-        self.inner, self.frames, self.frame = inner, frames, -1
+    def __init__(self, inner, wrong_frame: int) -> None:
+        self.inner, self.wrong_frame, self.frame = inner, wrong_frame, -1
 
     def extract(self, camera_index, view, plan):
         out = self.inner.extract(camera_index, view, plan)
-        if self.frame != self.frames:
+        if self.frame != self.wrong_frame:
             return out
         return {f: uv + np.array([6.0, -5.0]) for f, uv in list(out.items())[:2]}
 
@@ -314,7 +314,7 @@ def test_a_new_filters_first_update_needs_half_of_what_it_looked_for():
     they are not taken (the track coasts, its estimate where the acquisition put it, no
     velocity), and the frame after, with every feature found again, tracks within 2 mm."""
     run = Run(seed=3, sway=0.0)
-    run.tracker.extractor = wrong = _FirstFewWrong(run.extractor, frames=1)
+    run.tracker.extractor = wrong = _FirstFewWrong(run.extractor, wrong_frame=1)
     for k in range(12):
         wrong.frame = k
         run.step(k)

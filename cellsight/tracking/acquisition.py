@@ -80,6 +80,13 @@ def twin_turns(points: np.ndarray) -> list[np.ndarray]:
     return turns
 
 
+def rates_covariance(std: tuple[float, float]) -> np.ndarray:
+    """The 6x6 covariance of a filter's rates, ``std`` = (m/s, rad/s) one sigma on each of the
+    three linear and the three angular rates, uncorrelated."""
+    lin, ang = std
+    return np.diag([lin**2] * 3 + [ang**2] * 3)
+
+
 @dataclass(frozen=True)
 class PnPAcquisition:
     """Acquisition by robust multi-camera PnP (module docstring). Units: px, m/s, rad/s."""
@@ -137,8 +144,7 @@ class PnPAcquisition:
         velocity uncertainty; the caller inflates a PnP covariance first (:meth:`start`)."""
         P = np.zeros((STATE_DIM, STATE_DIM))
         P[:POSE_DIM, :POSE_DIM] = pose_covariance
-        lin, ang = self.velocity_std
-        P[POSE_DIM:, POSE_DIM:] = np.diag([lin**2] * 3 + [ang**2] * 3)
+        P[POSE_DIM:, POSE_DIM:] = rates_covariance(self.velocity_std)
         return P
 
     def start(self, fix: PoseFix) -> np.ndarray:

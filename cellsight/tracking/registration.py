@@ -410,7 +410,6 @@ class GripperRegistration:
         self.cameras[c] = fit.camera
         return fit.camera
 
-
     def _fit(self, cam: Camera, places: list[tuple[np.ndarray, np.ndarray]]) -> PoseFit:
         """``cam`` refitted to every place's corners: at one place only pointed (turned about
         its x and y axes, its position and roll held), at more moved and turned (module

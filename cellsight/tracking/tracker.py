@@ -44,7 +44,7 @@ from scipy.spatial.transform import Rotation
 
 from cellsight.camera import Camera
 from cellsight.geometry.transforms import invert_pose, xyz_rpy_from_pose
-from cellsight.tracking.acquisition import twin_turns
+from cellsight.tracking.acquisition import rates_covariance, twin_turns
 from cellsight.tracking.camera_check import CameraCheck, CheckFrame
 from cellsight.tracking.config import TrackerConfig, TrackerParts
 from cellsight.tracking.ekf import (
@@ -458,8 +458,7 @@ class Tracker:
         rec = context.rec
         covariance = acquisition.start(fix)
         if track.lying is not None:  # on its support: as fast as a support moves it, at most
-            lin, ang = self.config.support_speed
-            covariance[POSE_DIM:, POSE_DIM:] = np.diag([lin**2] * 3 + [ang**2] * 3)
+            covariance[POSE_DIM:, POSE_DIM:] = rates_covariance(self.config.support_speed)
         self.initialise(rec.name, fix.T_base_part, context.t, covariance, fix.offsets_px)
         for c, f in fix.dropped:
             rec.rejected[c, f] = True
