@@ -217,11 +217,12 @@ def test_a_camera_that_cannot_find_the_gripper_at_home_does_not_hold_the_others_
     assert 1 not in registration.registered and registration._gathering[1].reach == rule.reach_px
 
 
-def _gathered_at_home(shift_px, reach_px, false_peak=None):
-    """Camera 1's gathering at HOME (votes within ``reach_px``, loaded first with a
-    ``false_peak`` (u, v) of 1000 votes where given) on the gripper drawn by a camera whose
-    principal point is ``shift_px`` off the cell file's: the coarse offsets it took in turn and
-    the offset of its residuals' median (px)."""
+def _gathered_at_home(shift_px, reach_px, false_peak=None, false_votes=1000.0):
+    """Camera 1's gathering at HOME (votes within ``reach_px``, loaded first with
+    ``false_votes`` at a ``false_peak`` (u, v) where given) on the gripper drawn by a camera
+    whose principal point is ``shift_px`` off the cell file's: the coarse offsets it took in
+    turn, each with the frame it was first taken on (0-based), and the offset of its residuals'
+    median (px)."""
     from dataclasses import replace
 
     from cellsight.tracking.registration import _Gathering
@@ -238,19 +239,19 @@ def _gathered_at_home(shift_px, reach_px, false_peak=None):
     points, pixels = registration._predicted(poses, cell.cameras[0])
     gathering = _Gathering(rule, reach_px)
     if false_peak is not None:
-        gathering.votes[reach_px + false_peak[1], reach_px + false_peak[0]] = 1000.0
+        gathering.votes[reach_px + false_peak[1], reach_px + false_peak[0]] = false_votes
     coarse = []
-    for _ in range(200):
+    for frame in range(200):
         gathering.add(image, points, pixels)
         if gathering.coarse is not None and (not coarse or
-                                             (coarse[-1] != gathering.coarse).any()):
-            coarse.append(gathering.coarse.copy())
+                                             (coarse[-1][1] != gathering.coarse).any()):
+            coarse.append((frame, gathering.coarse.copy()))
         if gathering.ready:
             break
     assert gathering.ready
     offset = np.median(np.array(gathering.found) - cell.cameras[0].project(
         np.array(gathering.points)), axis=0)
-    return coarse, offset
+    return coarse, offset, gathering.votes
 
 
 def test_a_wrong_peak_of_the_votes_is_struck_out():
@@ -258,17 +259,35 @@ def test_a_wrong_peak_of_the_votes_is_struck_out():
     loaded with a false peak 10 px away (a pattern that fitted the predicted corners there):
     the false peak gives no residuals, is struck out, and the right offset is found, within
     0.3 px."""
-    coarse, offset = _gathered_at_home([3.0, -2.0], RegistrationRule().reach_px, (-10, 8))
-    assert np.abs(coarse[0] - [-10, 8]).max() <= 1  # the false peak first
-    assert np.abs(coarse[-1] - [3, -2]).max() <= 1
+    coarse, offset, _ = _gathered_at_home([3.0, -2.0], RegistrationRule().reach_px, (-10, 8))
+    assert np.abs(coarse[0][1] - [-10, 8]).max() <= 1  # the false peak first
+    assert np.abs(coarse[-1][1] - [3, -2]).max() <= 1
     np.testing.assert_allclose(offset, [3.0, -2.0], atol=0.3)
+
+
+def test_nearly_tied_votes_are_settled_by_the_corners_found():
+    """The votes loaded with a false peak 10 px away that just outvotes the true offset's (its
+    3x3 sum one more): the true peak is measured beside it as a rival, finds the corners the
+    false one does not, and is the coarse offset from the first measured frames on (no strike
+    out: the votes are not taken again), moved to its residuals' median."""
+    rule = RegistrationRule()
+    shift = [3.4, -2.4]
+    _, _, votes = _gathered_at_home(shift, rule.reach_px)
+    padded = np.pad(votes, 1)
+    true_sum = max(padded[v:v + 3, u:u + 3].sum() for v in range(votes.shape[0])
+                   for u in range(votes.shape[1]))
+    coarse, offset, _ = _gathered_at_home(shift, rule.reach_px, (-10, 8), true_sum + 1.0)
+    assert [frame for frame, _ in coarse] == [rule.vote_frames - 1, 2 * rule.vote_frames - 1]
+    assert np.abs(coarse[0][1] - [-10, 8]).max() <= 1  # the false peak first
+    np.testing.assert_array_equal(coarse[1][1], np.rint(offset))
+    np.testing.assert_allclose(offset, shift, atol=0.3)
 
 
 def test_votes_that_fall_short_start_again_with_the_full_reach():
     """The gripper drawn 10 px right and 6 px up of the cell file's camera, the votes reaching
     5 px (the reach by the part): the peak they find gives no residuals, the votes start again
     reaching the rule's 15 px, and the offset is found, within 0.3 px."""
-    coarse, offset = _gathered_at_home([10.0, -6.0], RegistrationRule().reach_part_px)
-    assert np.abs(coarse[0]).max() <= RegistrationRule().reach_part_px
-    assert np.abs(coarse[-1] - [10, -6]).max() <= 1
+    coarse, offset, _ = _gathered_at_home([10.0, -6.0], RegistrationRule().reach_part_px)
+    assert np.abs(coarse[0][1]).max() <= RegistrationRule().reach_part_px
+    assert np.abs(coarse[-1][1] - [10, -6]).max() <= 1
     np.testing.assert_allclose(offset, [10.0, -6.0], atol=0.3)

@@ -19,6 +19,14 @@ image, in two stages:
 2. residuals: the sub-pixel corner (:func:`~cellsight.tracking.extraction.extract_corner`) in
    a window of ``window_px`` centred on each predicted corner moved by the coarse offset;
    one within ``agree_px`` of the coarse offset is a residual (found minus predicted, px).
+   Up to ``rivals`` other peaks of the votes (more than 2 px away, with at least
+   ``rival_fraction`` of the first's votes) are measured beside it for the first
+   ``vote_frames`` frames, and the one that found the most residuals is kept, its coarse
+   offset moved to their median's nearest whole pixel: where few corners vote (a camera that
+   sees the gripper small or dark by the part), a pattern of neighbouring corners can outvote
+   the true offset by a vote or two (in one ``harsh`` camera, 14 votes against 13, and 1.8
+   corners a frame found there against 2.4), and the 1 px bins and 3x3 sums leave the offset
+   up to 2 px off, where fewer corners come within ``agree_px``.
 
 Once every camera has ``min_corners`` residuals, the tracker takes each camera with its pose
 refitted to every corner gathered so far (:func:`~cellsight.tracking.camera_fit.refit_pose`:
@@ -60,9 +68,9 @@ cut by its image's edge to find them there, as ``ur-cell``'s camera 3 does in ``
 registered first by the part, its votes reaching ``reach_px`` around the cell file's camera.
 At the later places each camera is registered on its own. A coarse offset that gives fewer
 than one residual a frame over ``vote_frames`` frames is taken back: votes of a reach short
-of ``reach_px`` start again with that reach (in one ``harsh`` camera, a 1.8 % focal error put
-the offset by the part 8 px from HOME's), others have the offset's votes struck out, and the
-camera's next frame votes with the rest for another. ``near_m`` 0: at HOME only.
+of ``reach_px`` start again with that reach (the camera as registered so far is further off
+there than the reach allowed for), others have the offset's votes struck out, and the camera's
+next frame votes with the rest for another. ``near_m`` 0: at HOME only.
 """
 
 from __future__ import annotations
@@ -97,6 +105,8 @@ class RegistrationRule:
     reach_part_px: int = 5
     reach_release_px: int = 3
     vote_frames: int = 10
+    rivals: int = 2
+    rival_fraction: float = 0.7
     window_px: int = 15
     agree_px: float = 2.0
     min_corners: int = 100
@@ -143,6 +153,10 @@ class _Gathering:
         self.measured = 0  # frames measured at the coarse offset
         self.points: list[np.ndarray] = []  # the corners found, base frame (m)
         self.found: list[np.ndarray] = []  # where they were found (px)
+        self.gaps: list[np.ndarray] = []  # found less predicted (px)
+        # the votes' other peaks, measured beside the coarse offset until one is chosen:
+        # (offset (2,) px, and its points, found and gaps)
+        self.rivals: list[tuple[np.ndarray, list, list, list]] = []
         self._start_votes(reach_px)
 
     def _start_votes(self, reach_px: int) -> None:
@@ -155,7 +169,7 @@ class _Gathering:
     @property
     def ready(self) -> bool:
         """Whether it has the residuals an offset is made of."""
-        return len(self.points) >= self.rule.min_corners
+        return not self.rivals and len(self.points) >= self.rule.min_corners
 
     def add(self, observed: Any, points: np.ndarray, pixels: np.ndarray) -> None:
         """This frame's image (or what grabs from it) and the gripper's corners (N, 3) m, base
@@ -177,23 +191,43 @@ class _Gathering:
             np.add.at(self.votes, (gap[:, 1] + reach, gap[:, 0] + reach), 1.0)
         self.voted += 1
         if self.voted >= self.rule.vote_frames:
-            self.coarse = coarse_offset(self.votes)
+            peaks = vote_peaks(self.votes, self.rule.rivals + 1, self.rule.rival_fraction)
+            self.coarse = peaks[0]
+            self.rivals = [(peak, [], [], []) for peak in peaks[1:]]
             self.measured = 0
 
     def _measure(self, observed: Any, points: np.ndarray, pixels: np.ndarray) -> None:
+        tallies = [(self.coarse, self.points, self.found, self.gaps), *self.rivals]
         half = self.rule.window_px // 2
-        centres = pixels + self.coarse
-        corner = np.floor(centres).astype(int)
-        boxes = np.column_stack([corner - half, corner + half + 1]).tolist()
-        image = grabbed(observed, boxes)
-        for box, centre, point in zip(boxes, centres, points, strict=True):
-            found = extract_corner(image, np.array(box), centre)
-            if found is not None and np.linalg.norm(found - centre) <= self.rule.agree_px:
-                self.points.append(point)
-                self.found.append(found)
+        starts = [np.floor(pixels + offset).astype(int) for offset, *_ in tallies]
+        every = np.concatenate(starts)
+        image = grabbed(observed, np.column_stack([every - half, every + half + 1]).tolist())
+        for (offset, kept, found, gaps), start in zip(tallies, starts, strict=True):
+            for pixel, corner, point in zip(pixels, start, points, strict=True):
+                at = extract_corner(image, np.concatenate([corner - half, corner + half + 1]),
+                                    pixel + offset)
+                if at is not None and np.linalg.norm(at - pixel - offset) <= self.rule.agree_px:
+                    kept.append(point)
+                    found.append(at)
+                    gaps.append(at - pixel)
         self.measured += 1
-        if self.measured == self.rule.vote_frames and len(self.points) < self.rule.vote_frames:
-            self._strike_out()
+        if self.measured == self.rule.vote_frames:
+            self._choose()
+            if len(self.points) < self.rule.vote_frames:
+                self._strike_out()
+
+    def _choose(self) -> None:
+        """The coarse offset becomes whichever of it and its rivals found the most residuals
+        over the first ``vote_frames`` frames (votes nearly tied between two peaks, as the
+        pairs of neighbouring corners can make them, are settled by the corners found), moved
+        to the nearest whole pixel of its residuals' median (the votes' 1 px bins and 3x3 sums
+        leave it up to 2 px off, where fewer corners come within ``agree_px``)."""
+        best = max(self.rivals, key=lambda rival: len(rival[1]), default=None)
+        if best is not None and len(best[1]) > len(self.points):
+            self.coarse, self.points, self.found, self.gaps = best
+        self.rivals = []
+        if self.gaps:
+            self.coarse = np.rint(np.median(self.gaps, axis=0))
 
     def _strike_out(self) -> None:
         """The coarse offset found too few residuals. Votes of a reach short of the rule's
@@ -201,7 +235,7 @@ class _Gathering:
         off here than the reach allowed for); otherwise the offset's votes (3x3 bins) are
         struck out, and the next frame's votes with the rest give another."""
         u, v = (self.coarse + self.reach).astype(int)
-        self.coarse, self.points, self.found = None, [], []
+        self.coarse, self.points, self.found, self.gaps = None, [], [], []
         if self.reach < self.rule.reach_px:
             self._start_votes(self.rule.reach_px)
             return
@@ -398,7 +432,7 @@ class GripperRegistration:
             return None
         self._gathered[c] = places
         log.info("camera %s registered to %s's gripper %s at %.2f s: offset (%.2f, %.2f) px "
-                 "from %d corners (votes: (%.0f, %.0f) px); its pose fitted to %d corners at "
+                 "from %d corners (coarse: (%.0f, %.0f) px); its pose fitted to %d corners at "
                  "%d places: moved (%.1f, %.1f, %.1f) mm, turned (%.3f, %.3f, %.3f) deg, "
                  "%.2f px rms, %.0f %% of each place's within 3 sd", cam.name, self.robot,
                  _PLACES[where], t, *offset, len(points), *gathering.coarse, fit.inliers,
@@ -446,9 +480,23 @@ def _corners_in(image: np.ndarray, box: np.ndarray) -> np.ndarray:
 def coarse_offset(votes: np.ndarray) -> np.ndarray:
     """The offset (2,) (u, v), px, of the bin of ``votes`` ((2R+1, 2R+1), rows v, columns u,
     offset -R at index 0) with the most votes in its 3x3 neighbourhood."""
+    return vote_peaks(votes, 1)[0]
+
+
+def vote_peaks(votes: np.ndarray, count: int, fraction: float = 1.0) -> list[np.ndarray]:
+    """Up to ``count`` offsets (2,) (u, v), px, of :func:`coarse_offset`'s peak and the next
+    peaks of ``votes``' 3x3 sums, each more than 2 px from the ones before (in u or v) and with
+    at least ``fraction`` of the first's votes; the first always."""
     reach = votes.shape[0] // 2
     padded = np.pad(votes, 1)
     summed = sum(padded[1 + dv:1 + dv + votes.shape[0], 1 + du:1 + du + votes.shape[1]]
                  for dv in (-1, 0, 1) for du in (-1, 0, 1))
     v, u = np.unravel_index(int(np.argmax(summed)), summed.shape)
-    return np.array([u - reach, v - reach], dtype=float)
+    best = summed[v, u]
+    peaks: list[np.ndarray] = []
+    while not peaks or (len(peaks) < count and summed[v, u] > 0.0
+                        and summed[v, u] >= fraction * best):
+        peaks.append(np.array([u - reach, v - reach], dtype=float))
+        summed[max(v - 2, 0):v + 3, max(u - 2, 0):u + 3] = -np.inf
+        v, u = np.unravel_index(int(np.argmax(summed)), summed.shape)
+    return peaks
