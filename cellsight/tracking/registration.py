@@ -19,14 +19,18 @@ image, in two stages:
 2. residuals: the sub-pixel corner (:func:`~cellsight.tracking.extraction.extract_corner`) in
    a window of ``window_px`` centred on each predicted corner moved by the coarse offset;
    one within ``agree_px`` of the coarse offset is a residual (found minus predicted, px).
-   Up to ``rivals`` other peaks of the votes (more than 2 px away, with at least
-   ``rival_fraction`` of the first's votes) are measured beside it for the first
-   ``vote_frames`` frames, and the one that found the most residuals is kept, its coarse
-   offset moved to their median's nearest whole pixel: where few corners vote (a camera that
-   sees the gripper small or dark by the part), a pattern of neighbouring corners can outvote
-   the true offset by a vote or two (in one ``harsh`` camera, 14 votes against 13, and 1.8
-   corners a frame found there against 2.4), and the 1 px bins and 3x3 sums leave the offset
-   up to 2 px off, where fewer corners come within ``agree_px``.
+   Around a camera registered already (votes reaching less than ``reach_px``), up to
+   ``rivals`` other peaks of the votes (more than 2 px away, with at least ``rival_fraction``
+   of the first's votes) are measured beside it for the first ``vote_frames`` frames, and the
+   one that found the most residuals is kept: where few corners vote (a camera that sees the
+   gripper small or dark by the part), a pattern of neighbouring corners can outvote the true
+   offset by a vote or two (in one ``harsh`` camera, 14 votes against 13, and 1.8 corners a
+   frame found there against 2.4). Not over the full reach: there a camera that sees the
+   gripper dark at its image's edge (``ur-cell``'s camera 3 at HOME) had a rival 15 px off
+   the true offset find more corners than the first, a repeated pattern of the gripper's, and
+   was registered there. The coarse offset kept is moved to its residuals' median's nearest
+   whole pixel (the 1 px bins and 3x3 sums leave it up to 2 px off, where fewer corners come
+   within ``agree_px``).
 
 Once every camera has ``min_corners`` residuals, the tracker takes each camera with its pose
 refitted to every corner gathered so far (:func:`~cellsight.tracking.camera_fit.refit_pose`:
@@ -191,7 +195,9 @@ class _Gathering:
             np.add.at(self.votes, (gap[:, 1] + reach, gap[:, 0] + reach), 1.0)
         self.voted += 1
         if self.voted >= self.rule.vote_frames:
-            peaks = vote_peaks(self.votes, self.rule.rivals + 1, self.rule.rival_fraction)
+            near = self.reach < self.rule.reach_px  # around a camera registered already
+            peaks = vote_peaks(self.votes, self.rule.rivals + 1 if near else 1,
+                               self.rule.rival_fraction)
             self.coarse = peaks[0]
             self.rivals = [(peak, [], [], []) for peak in peaks[1:]]
             self.measured = 0
