@@ -13,7 +13,7 @@ from cellsight import load_cell
 from cellsight.occlusion.predictor import VisibilityPredictor
 from cellsight.tracking import Tracker
 from cellsight.tracking.camera_fit import corrected
-from cellsight.tracking.registration import RegistrationRule, coarse_offset
+from cellsight.tracking.registration import RegistrationRule, vote_peaks
 
 REACH = 15
 
@@ -33,7 +33,7 @@ def test_the_coarse_offset_is_the_peak_among_scattered_votes(du, dv, seed):
     for u, v in np.concatenate([right, wrong]):
         if abs(u) <= REACH and abs(v) <= REACH:
             votes[v + REACH, u + REACH] += 1
-    assert np.abs(coarse_offset(votes) - [du, dv]).max() <= 1.0
+    assert np.abs(vote_peaks(votes, 1)[0] - [du, dv]).max() <= 1.0
 
 
 def test_the_tracker_and_its_predictor_take_a_recalibrated_camera():

@@ -483,16 +483,12 @@ def _corners_in(image: np.ndarray, box: np.ndarray) -> np.ndarray:
     return np.zeros((0, 2)) if found is None else found.reshape(-1, 2) + [u0, v0]
 
 
-def coarse_offset(votes: np.ndarray) -> np.ndarray:
-    """The offset (2,) (u, v), px, of the bin of ``votes`` ((2R+1, 2R+1), rows v, columns u,
-    offset -R at index 0) with the most votes in its 3x3 neighbourhood."""
-    return vote_peaks(votes, 1)[0]
-
-
 def vote_peaks(votes: np.ndarray, count: int, fraction: float = 1.0) -> list[np.ndarray]:
-    """Up to ``count`` offsets (2,) (u, v), px, of :func:`coarse_offset`'s peak and the next
-    peaks of ``votes``' 3x3 sums, each more than 2 px from the ones before (in u or v) and with
-    at least ``fraction`` of the first's votes; the first always."""
+    """Up to ``count`` offsets (2,) (u, v), px, of the peaks of ``votes`` ((2R+1, 2R+1), rows
+    v, columns u, offset -R at index 0): first the bin with the most votes in its 3x3
+    neighbourhood (the coarse offset), then the next such peaks, each more than 2 px from the
+    ones before (in u or v) and with at least ``fraction`` of the first's votes; the first
+    always."""
     reach = votes.shape[0] // 2
     padded = np.pad(votes, 1)
     summed = sum(padded[1 + dv:1 + dv + votes.shape[0], 1 + du:1 + du + votes.shape[1]]
