@@ -41,6 +41,15 @@ turned about the vertical, which keep a lying part the right way up), and the co
 the most points stands, the fix itself on a tie (an exact twin cannot be told from the
 features: its features fall where the fix's do).
 
+A part lying on a level support (the kinematic prior says where: ``support``) keeps its
+height, roll and pitch there; where the six numbers cannot be fitted (fewer points than
+``min_points``, or not within the limit), ``x``, ``y`` and the yaw are, from at least
+``min_points_on_support`` points (:data:`~cellsight.tracking.pnp.ON_SUPPORT`), seeded by the
+pose the windows were placed at. A part put back at the image's edge with the arm before the
+other camera shows four points to one camera and one or two to the other: no camera's PnP,
+and five points for six numbers, one of them a neighbour's corner, fit anything; three
+numbers from five points drop the wrong one and hold.
+
 With ``camera_offsets`` (on by default), a fix whose RMS is too large is tried once more with
 each camera's median residual taken out of its pixels
 (:func:`~cellsight.tracking.pnp.camera_shifts`): two cameras whose calibrations disagree by a
@@ -103,6 +112,7 @@ class PnPAcquisition:
     verify_support: float = 0.6
     min_points: int = 6
     coarse_rms_px: float = 6.0
+    min_points_on_support: int = 4
 
     def guess(self, base: np.ndarray, attempt: int) -> np.ndarray:
         """``base`` (``T_base_part``) moved by the ``attempt``-th offset of the search (module
@@ -116,20 +126,49 @@ class PnPAcquisition:
         return T
 
     def fix(self, observations: list[Observation], sigma_px: float,
-            coarse: bool = False) -> PoseFix | None:
+            coarse: bool = False, guess: np.ndarray | None = None,
+            support: tuple[np.ndarray, tuple[float, float]] | None = None) -> PoseFix | None:
         """The pose to start from, or None when the corners found do not give one within
-        ``max_rms_px`` (``coarse_rms_px`` for a ``coarse`` first fix: module docstring)."""
+        ``max_rms_px`` (``coarse_rms_px`` for a ``coarse`` first fix: module docstring).
+        ``guess``: the pose the windows were placed at, where it is already near the part (a
+        search's candidate, a fix being verified), seeds the PnP too
+        (:func:`~cellsight.tracking.pnp.estimate_pose`). ``support``: ``(T_base_part, (m,
+        rad))``, the part lying on a level support and one sigma of its height and of its roll
+        and pitch there; where the six numbers cannot be fitted (too few points, or not within
+        the limit), ``x``, ``y`` and the yaw are, on the support, from at least
+        ``min_points_on_support`` points, those sigmas kept for the other three."""
         limit = self.coarse_rms_px if coarse else self.max_rms_px
+        fix = self._fit(observations, sigma_px, guess, None)
+        good = fix is not None and fix.rms_px <= limit and fix.n_points >= self.min_points
+        if support is not None and not good:
+            on = self._fit(observations, sigma_px, guess, support[0])
+            if on is not None and on.rms_px <= limit:
+                h, a = support[1]
+                covariance = on.covariance + np.diag([0.0, 0.0, h**2, a**2, a**2, 0.0])
+                fix = replace(on, covariance=covariance)
+        return fix if fix is not None and fix.rms_px <= limit else None
+
+    def _fit(self, observations: list[Observation], sigma_px: float,
+             guess: np.ndarray | None, support: np.ndarray | None) -> PoseFix | None:
+        """The robust PnP (on a ``support``, if given), once more with each camera's median
+        residual taken out where its RMS is above ``max_rms_px`` (module docstring)."""
         fix = estimate_pose_robust(observations, self.max_rms_px, sigma_px=sigma_px,
-                                   max_residual_px=self.max_residual_px)
-        if fix is not None and fix.rms_px > limit and self.camera_offsets:
+                                   max_residual_px=self.max_residual_px, guess=guess,
+                                   support=support)
+        if fix is not None and fix.rms_px > self.max_rms_px and self.camera_offsets:
             shifts = camera_shifts(observations, fix)
             moved = [replace(o, pixels=o.pixels - shifts.get(o.camera_index, 0.0))
                      for o in observations]
             fix = estimate_pose_robust(moved, self.max_rms_px, sigma_px=sigma_px,
-                                       max_residual_px=self.max_residual_px)
+                                       max_residual_px=self.max_residual_px, guess=guess,
+                                       support=support)
             fix = None if fix is None else replace(fix, offsets_px=shifts)
-        return fix if fix is not None and fix.rms_px <= limit else None
+        return fix
+
+    def enough(self, fix: PoseFix) -> bool:
+        """Whether ``fix`` has the points a fix needs: ``min_points``, or
+        ``min_points_on_support`` for one fitted on a support (three numbers, not six)."""
+        return fix.n_points >= (self.min_points_on_support if fix.on_support else self.min_points)
 
     def confirms(self, fix: PoseFix, looked: np.ndarray, used: np.ndarray) -> bool:
         """Whether a verifying fix (module docstring) stands: at least ``min_points`` points,
@@ -137,7 +176,7 @@ class PnPAcquisition:
         ``used`` (C,): per camera, the features looked for and those the fix kept."""
         looked, used = np.asarray(looked), np.asarray(used)
         support = np.divide(used, looked, out=np.zeros(len(used)), where=looked > 0)
-        return fix.n_points >= self.min_points and bool(np.any(support >= self.verify_support))
+        return self.enough(fix) and bool(np.any(support >= self.verify_support))
 
     def covariance(self, pose_covariance: np.ndarray) -> np.ndarray:
         """Initial 12x12 state covariance: ``pose_covariance`` (6x6, xyz + rpy) and the

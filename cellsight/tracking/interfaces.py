@@ -148,9 +148,17 @@ class Acquisition(Protocol):
         ...
 
     def fix(self, observations: list[Observation], sigma_px: float,
-            coarse: bool = False) -> PoseFix | None:
+            coarse: bool = False, guess: np.ndarray | None = None,
+            support: tuple[np.ndarray, tuple[float, float]] | None = None) -> PoseFix | None:
         """The pose to start from (ideal pixels with noise ``sigma_px`` px), or None;
-        ``coarse``: a first fix, which only has to bring the verification's windows near."""
+        ``coarse``: a first fix, which only has to bring the verification's windows near;
+        ``guess``: the ``T_base_part`` the windows were placed at, where it is already near;
+        ``support``: the part's ``T_base_part`` lying on a level support, and one sigma (m,
+        rad) of its height and of its roll and pitch there."""
+        ...
+
+    def enough(self, fix: PoseFix) -> bool:
+        """Whether ``fix`` has the points a fix needs."""
         ...
 
     def confirms(self, fix: PoseFix, looked: np.ndarray, used: np.ndarray) -> bool:

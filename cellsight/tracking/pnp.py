@@ -34,7 +34,8 @@ class PoseFix:
     index -> the image offset (2,) px taken out of its pixels first (an acquisition that
     estimates the cameras' offsets, :mod:`.acquisition`), else None; ``dropped``: the
     (camera index, feature id) of each point given but left out as wrong
-    (:func:`estimate_pose_robust`)."""
+    (:func:`estimate_pose_robust`); ``on_support``: fitted on a level support (``x``, ``y``
+    and the yaw alone, :data:`ON_SUPPORT`)."""
 
     T_base_part: np.ndarray
     covariance: np.ndarray
@@ -43,6 +44,7 @@ class PoseFix:
     n_cameras: int
     offsets_px: dict[int, np.ndarray] | None = None
     dropped: tuple[tuple[int, int], ...] = ()
+    on_support: bool = False
 
 
 def solve_pnp_camera(observation: Observation) -> np.ndarray | None:
@@ -92,6 +94,12 @@ def _residuals(observations: list[Observation], params: np.ndarray):
     return np.concatenate(res), np.concatenate(jac)
 
 
+ALL_FREE = (0, 1, 2, 3, 4, 5)
+ON_SUPPORT = (0, 1, 5)
+"""The pose parameters free for a part resting on a level support: ``x``, ``y`` and ``yaw``
+(``R = Rz(yaw) Ry(pitch) Rx(roll)``: a turn about the base z axis changes the yaw alone); its
+height, roll and pitch are the support's."""
+
 STEP_TOL = 1e-9
 """The refinement stops at a step shorter than this (m and rad of the pose): after it, the
 cost changes only by rounding, and the steps were rejected one by one until the damping ran
@@ -103,22 +111,30 @@ def refine_pose(
     T_init: np.ndarray,
     iterations: int = 30,
     sigma_px: float = 0.5,
+    free: tuple[int, ...] = ALL_FREE,
 ) -> PoseFix | None:
-    """Levenberg-Marquardt refinement of ``T_base_part`` over all observations' pixels.
+    """Levenberg-Marquardt refinement of ``T_base_part`` over all observations' pixels, in the
+    ``free`` pose parameters of ``[x, y, z, roll, pitch, yaw]`` (the others kept at
+    ``T_init``'s; :data:`ON_SUPPORT`: a part resting on a level support). The covariance of a
+    kept parameter is zero (the caller knows how well it is kept).
 
     Returns None when a point ends behind a camera or the normal equations are singular.
     """
     xyz, rpy = xyz_rpy_from_pose(T_init)
     params = np.concatenate([xyz, rpy])
+    idx = list(free)
     lam = 1e-3
     try:
         r, J = _residuals(observations, params)
+        J = J[:, idx]
         cost = r @ r
         for _ in range(iterations):
             A = J.T @ J
             step = np.linalg.solve(A + lam * np.diag(np.diag(A)), J.T @ r)
-            trial = params + step
+            trial = params.copy()
+            trial[idx] += step
             r_t, J_t = _residuals(observations, trial)
+            J_t = J_t[:, idx]
             cost_t = r_t @ r_t
             if np.isfinite(cost_t) and cost_t < cost:
                 params, r, J, cost = trial, r_t, J_t, cost_t
@@ -129,7 +145,8 @@ def refine_pose(
                     break
             if np.linalg.norm(step) < STEP_TOL:  # converged: what is left is rounding
                 break
-        cov = sigma_px**2 * np.linalg.inv(J.T @ J)
+        cov = np.zeros((POSE_DIM, POSE_DIM))
+        cov[np.ix_(idx, idx)] = sigma_px**2 * np.linalg.inv(J.T @ J)
     except np.linalg.LinAlgError:
         return None
     T = pose_from_xyz_rpy(params[:3], params[3:])
@@ -150,19 +167,38 @@ def refine_pose(
 
 
 def estimate_pose(
-    observations: list[Observation], min_points: int = 4, sigma_px: float = 0.5
+    observations: list[Observation], min_points: int = 4, sigma_px: float = 0.5,
+    guess: np.ndarray | None = None, support: np.ndarray | None = None,
 ) -> PoseFix | None:
-    """Fused multi-camera PnP (module docstring); None if no camera has ``min_points`` points."""
+    """Fused multi-camera PnP (module docstring); None if no camera has ``min_points`` points.
+    ``guess``: a ``T_base_part`` already near the part (a search's candidate) seeds the fusion
+    too, and alone where the cameras together have ``min_points`` points but none has.
+    ``support``: the ``T_base_part`` of the part lying on a level support; the fit is then of
+    ``x``, ``y`` and the yaw alone (:data:`ON_SUPPORT`), every seed moved onto the support
+    (:func:`onto_support`)."""
     used = [o for o in observations if len(o.feature_ids) > 0]
     seeds = [solve_pnp_camera(o) for o in used if len(o.feature_ids) >= max(min_points, 4)]
+    if guess is not None and sum(len(o.feature_ids) for o in used) >= max(min_points, 4):
+        seeds.append(np.asarray(guess, dtype=float))
+    free = ALL_FREE if support is None else ON_SUPPORT
     best: PoseFix | None = None
     for T0 in seeds:
         if T0 is None:
             continue
-        fix = refine_pose(used, T0, sigma_px=sigma_px)
+        if support is not None:
+            T0 = onto_support(T0, support)
+        fix = refine_pose(used, T0, sigma_px=sigma_px, free=free)
         if fix is not None and (best is None or fix.rms_px < best.rms_px):
             best = fix
-    return best
+    return best if best is None or support is None else replace(best, on_support=True)
+
+
+def onto_support(T_base_part: np.ndarray, support: np.ndarray) -> np.ndarray:
+    """``T_base_part`` moved onto a level support: its ``x``, ``y`` and yaw with the height,
+    roll and pitch of ``support`` (the part's ``T_base_part`` lying there)."""
+    xyz, rpy = xyz_rpy_from_pose(T_base_part)
+    s_xyz, s_rpy = xyz_rpy_from_pose(support)
+    return pose_from_xyz_rpy([xyz[0], xyz[1], s_xyz[2]], [s_rpy[0], s_rpy[1], rpy[2]])
 
 
 def estimate_pose_robust(
@@ -172,6 +208,8 @@ def estimate_pose_robust(
     sigma_px: float = 0.5,
     max_outliers: int = 3,
     max_residual_px: float = np.inf,
+    guess: np.ndarray | None = None,
+    support: np.ndarray | None = None,
 ) -> PoseFix | None:
     """:func:`estimate_pose`, dropping the worst-fitting point and solving again while the RMS
     reprojection error exceeds ``max_rms_px`` or the worst point lies more than
@@ -179,12 +217,15 @@ def estimate_pose_robust(
     than ``min_points + 2`` remain): one wrong corner (an occluder's, a background edge's) would
     otherwise spoil a still part's acquisition in every frame, and among many points a corner
     10 px off hides under a small RMS. Returns the last fix, whatever its RMS (the caller
-    checks), with the points it dropped (``PoseFix.dropped``)."""
+    checks), with the points it dropped (``PoseFix.dropped``). ``guess``, ``support``: as for
+    :func:`estimate_pose` (on a support, points are dropped while more than ``min_points``
+    remain: its fit has three parameters, not six)."""
     obs = [o for o in observations if len(o.feature_ids) > 0]
-    fix = estimate_pose(obs, min_points, sigma_px)
+    fix = estimate_pose(obs, min_points, sigma_px, guess, support)
     dropped: list[tuple[int, int]] = []
+    spare = 2 if support is None else 0
     for _ in range(max_outliers):
-        if fix is None or fix.n_points <= min_points + 2:
+        if fix is None or fix.n_points <= min_points + spare:
             break
         xyz, rpy = xyz_rpy_from_pose(fix.T_base_part)
         r, _ = _residuals(obs, np.concatenate([xyz, rpy]))
@@ -201,5 +242,5 @@ def estimate_pose_robust(
         obs[k] = replace(o, feature_ids=o.feature_ids[keep], points_model=o.points_model[keep],
                          pixels=o.pixels[keep])
         obs = [o for o in obs if len(o.feature_ids) > 0]
-        fix = estimate_pose(obs, min_points, sigma_px)
+        fix = estimate_pose(obs, min_points, sigma_px, guess, support)
     return None if fix is None else replace(fix, dropped=tuple(dropped))

@@ -466,17 +466,22 @@ class Tracker:
         _record_estimate(rec, track.ekf)
         return rec
 
-    def _fix(self, context: StepContext, size_px: float, coarse: bool = False) -> PoseFix | None:
+    def _fix(self, context: StepContext, size_px: float, coarse: bool = False,
+             guess: np.ndarray | None = None) -> PoseFix | None:
         """Windows of ``size_px`` (px) on every usable feature of the record's prediction, then
-        a fix (:mod:`.acquisition`; ``coarse``: a first one, to be verified), or None."""
+        a fix (:mod:`.acquisition`; ``coarse``: a first one, to be verified; ``guess``: the
+        pose of that prediction, to seed the fix where it is already near), or None."""
         context.rec.selected = self._usable(context, None)
 
         def covariance(c: int, idx: np.ndarray) -> np.ndarray:
             return np.zeros((len(idx), 2, 2))
 
         obs = self._measure(context, covariance, size_px)
+        lying = context.track.lying
+        support = None if lying is None else (lying, self.config.rest_std)
         with context.timer("ekf"):
-            return self.components.acquisition.fix(obs, self.config.sigma_px, coarse)
+            return self.components.acquisition.fix(obs, self.config.sigma_px, coarse, guess,
+                                                   support)
 
     def _verify(self, context: StepContext,
                 fix: PoseFix) -> tuple[StepContext, PoseFix] | None:
@@ -487,7 +492,8 @@ class Tracker:
         trial = _looked_at(context, fix.T_base_part, len(self.cameras))
         for c, shift in (fix.offsets_px or {}).items():  # where each camera shows the part
             trial.rec.pixels[c] += shift
-        again = self._fix(trial, self.components.acquisition.verify_window_px)
+        again = self._fix(trial, self.components.acquisition.verify_window_px,
+                          guess=fix.T_base_part)
         if again is None:
             return None
         rec = trial.rec
@@ -506,6 +512,7 @@ class Tracker:
         a nearly symmetric part's turned twin fits fewer of its features than the part), with
         the context of its record; None otherwise."""
         search, track, t = self.components.search, context.track, context.t
+        acquisition = self.components.acquisition
         detect = getattr(self.extractor, "detect", None)
         observed = [_observed(context.observed, self.cameras, c) for c in range(len(self.cameras))]
         if (search is None or detect is None or track.support is None
@@ -524,8 +531,11 @@ class Tracker:
         confirmed = []
         for candidate in candidates[:search.verify]:
             trial = _looked_at(context, candidate.T_base_part, len(self.cameras))
-            fix = self._fix(trial, self.components.acquisition.window_px, coarse=True)
-            if fix is not None and fix.n_points >= search.min_points:
+            fix = self._fix(trial, acquisition.window_px, coarse=True,
+                            guess=candidate.T_base_part)
+            enough = fix is not None and (acquisition.enough(fix) if fix.on_support
+                                          else fix.n_points >= search.min_points)
+            if enough:
                 verified = self._verify(trial, fix)
                 if verified is not None and _lies_on(track.lying, verified[1].T_base_part):
                     confirmed.append(verified)
