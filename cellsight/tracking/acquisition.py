@@ -138,24 +138,24 @@ class PnPAcquisition:
         the limit), ``x``, ``y`` and the yaw are, on the support, from at least
         ``min_points_on_support`` points, those sigmas kept for the other three."""
         limit = self.coarse_rms_px if coarse else self.max_rms_px
-        fix = self._fit(observations, sigma_px, guess, None)
+        fix = self._fit(observations, sigma_px, limit, guess, None)
         good = fix is not None and fix.rms_px <= limit and fix.n_points >= self.min_points
         if support is not None and not good:
-            on = self._fit(observations, sigma_px, guess, support[0])
+            on = self._fit(observations, sigma_px, limit, guess, support[0])
             if on is not None and on.rms_px <= limit:
                 h, a = support[1]
                 covariance = on.covariance + np.diag([0.0, 0.0, h**2, a**2, a**2, 0.0])
                 fix = replace(on, covariance=covariance)
         return fix if fix is not None and fix.rms_px <= limit else None
 
-    def _fit(self, observations: list[Observation], sigma_px: float,
+    def _fit(self, observations: list[Observation], sigma_px: float, limit: float,
              guess: np.ndarray | None, support: np.ndarray | None) -> PoseFix | None:
         """The robust PnP (on a ``support``, if given), once more with each camera's median
-        residual taken out where its RMS is above ``max_rms_px`` (module docstring)."""
+        residual taken out where its RMS is above ``limit`` px (module docstring)."""
         fix = estimate_pose_robust(observations, self.max_rms_px, sigma_px=sigma_px,
                                    max_residual_px=self.max_residual_px, guess=guess,
                                    support=support)
-        if fix is not None and fix.rms_px > self.max_rms_px and self.camera_offsets:
+        if fix is not None and fix.rms_px > limit and self.camera_offsets:
             shifts = camera_shifts(observations, fix)
             moved = [replace(o, pixels=o.pixels - shifts.get(o.camera_index, 0.0))
                      for o in observations]

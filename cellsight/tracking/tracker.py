@@ -447,10 +447,12 @@ class Tracker:
         verified = None if fix is None else self._verify(context, fix)
         if verified is not None and not _lies_on(track.lying, verified[1].T_base_part):
             verified = None  # off the support it lies on: a wrong pose the corners fit
-        if verified is None:
+        searched = verified is None
+        if searched:
             verified = self._search(context)
         if verified is not None:
-            verified = _best_twin(lambda fix: self._verify(context, fix), track.twins, verified)
+            verified = _best_twin(lambda fix: self._verify(context, fix, searched), track.twins,
+                                  verified)
         if verified is None:
             track.search_on(acquisition)
             return context.rec
@@ -467,10 +469,12 @@ class Tracker:
         return rec
 
     def _fix(self, context: StepContext, size_px: float, coarse: bool = False,
-             guess: np.ndarray | None = None) -> PoseFix | None:
+             guess: np.ndarray | None = None, on_support: bool = False) -> PoseFix | None:
         """Windows of ``size_px`` (px) on every usable feature of the record's prediction, then
         a fix (:mod:`.acquisition`; ``coarse``: a first one, to be verified; ``guess``: the
-        pose of that prediction, to seed the fix where it is already near), or None."""
+        pose of that prediction, to seed the fix where it is already near; ``on_support``: a
+        part lying on its support may be fitted there, the search's candidates and their
+        verification), or None."""
         context.rec.selected = self._usable(context, None)
 
         def covariance(c: int, idx: np.ndarray) -> np.ndarray:
@@ -478,22 +482,22 @@ class Tracker:
 
         obs = self._measure(context, covariance, size_px)
         lying = context.track.lying
-        support = None if lying is None else (lying, self.config.rest_std)
+        support = None if lying is None or not on_support else (lying, self.config.rest_std)
         with context.timer("ekf"):
             return self.components.acquisition.fix(obs, self.config.sigma_px, coarse, guess,
                                                    support)
 
-    def _verify(self, context: StepContext,
-                fix: PoseFix) -> tuple[StepContext, PoseFix] | None:
+    def _verify(self, context: StepContext, fix: PoseFix,
+                on_support: bool = False) -> tuple[StepContext, PoseFix] | None:
         """The fix checked against every feature it predicts (:mod:`.acquisition`): narrow
         windows where it predicts them (moved by the cameras' offsets it estimated, if any), and
-        a second fix from what they find; that fix with the context of its record, or None when
-        it does not confirm the first."""
+        a second fix from what they find (``on_support``: as for :meth:`_fix`); that fix with
+        the context of its record, or None when it does not confirm the first."""
         trial = _looked_at(context, fix.T_base_part, len(self.cameras))
         for c, shift in (fix.offsets_px or {}).items():  # where each camera shows the part
             trial.rec.pixels[c] += shift
         again = self._fix(trial, self.components.acquisition.verify_window_px,
-                          guess=fix.T_base_part)
+                          guess=fix.T_base_part if on_support else None, on_support=on_support)
         if again is None:
             return None
         rec = trial.rec
@@ -532,11 +536,11 @@ class Tracker:
         for candidate in candidates[:search.verify]:
             trial = _looked_at(context, candidate.T_base_part, len(self.cameras))
             fix = self._fix(trial, acquisition.window_px, coarse=True,
-                            guess=candidate.T_base_part)
+                            guess=candidate.T_base_part, on_support=True)
             enough = fix is not None and (acquisition.enough(fix) if fix.on_support
                                           else fix.n_points >= search.min_points)
             if enough:
-                verified = self._verify(trial, fix)
+                verified = self._verify(trial, fix, on_support=True)
                 if verified is not None and _lies_on(track.lying, verified[1].T_base_part):
                     confirmed.append(verified)
         return max(confirmed, key=lambda c: (c[1].n_points, -c[1].rms_px), default=None)
