@@ -45,10 +45,11 @@ A part lying on a level support (the kinematic prior says where: ``support``) ke
 height, roll and pitch there; where the six numbers cannot be fitted (fewer points than
 ``min_points``, or not within the limit), ``x``, ``y`` and the yaw are, from at least
 ``min_points_on_support`` points (:data:`~cellsight.tracking.pnp.ON_SUPPORT`), seeded by the
-pose the windows were placed at. A part put back at the image's edge with the arm before the
-other camera shows four points to one camera and one or two to the other: no camera's PnP,
-and five points for six numbers, one of them a neighbour's corner, fit anything; three
-numbers from five points drop the wrong one and hold.
+pose the windows were placed at (the tracker asks for it for the whole-image search's
+candidates and their verification, :mod:`.search`). A part put back at the image's edge
+with the arm before the other camera shows four points to one camera and one or two to the
+other: no camera's PnP, and five points for six numbers, one of them a neighbour's corner,
+fit anything; three numbers from five points drop the wrong one and hold.
 
 With ``camera_offsets`` (on by default), a fix whose RMS is too large is tried once more with
 each camera's median residual taken out of its pixels
