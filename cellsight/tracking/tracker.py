@@ -513,10 +513,9 @@ class Tracker:
         """The whole-image search, when it is due (:mod:`.search`): of its best candidates
         whose windows give a fix of at least ``min_points`` points (seeded by the candidate;
         a part lying on its support may be fitted there, from fewer: :mod:`.acquisition`)
-        that verification confirms,
-        the one whose verifying fix has the most points (the fewest pixels of RMS among equals;
-        a nearly symmetric part's turned twin fits fewer of its features than the part), with
-        the context of its record; None otherwise."""
+        that verification confirms, the one whose verifying fix has the most points (the
+        fewest pixels of RMS among equals; a nearly symmetric part's turned twin fits fewer of
+        its features than the part), with the context of its record; None otherwise."""
         search, track, t = self.components.search, context.track, context.t
         acquisition = self.components.acquisition
         detect = getattr(self.extractor, "detect", None)
