@@ -140,7 +140,7 @@ class PnPAcquisition:
         ``min_points_on_support`` points, those sigmas kept for the other three."""
         limit = self.coarse_rms_px if coarse else self.max_rms_px
         fix = self._fit(observations, sigma_px, limit, guess, None)
-        good = fix is not None and fix.rms_px <= limit and fix.n_points >= self.min_points
+        good = fix is not None and fix.rms_px <= limit and self.enough(fix)
         if support is not None and not good:
             on = self._fit(observations, sigma_px, limit, guess, support[0])
             if on is not None and on.rms_px <= limit:
