@@ -6,6 +6,7 @@ from __future__ import annotations
 import base64
 import csv
 import json
+import os
 import re
 from pathlib import Path
 
@@ -108,6 +109,36 @@ def test_video_round_trip(tmp_path):
     assert len(frames) == 10 and frames[-1].shape == (48, 64, 3)
     assert abs(float(frames[-1].mean()) - 180.0) < 6.0
     vw.close()  # a second close is harmless
+
+
+def test_video_starts_ffmpeg_without_fork_handlers(tmp_path):
+    """Starting ffmpeg runs no fork handlers: a real ``fork()`` runs the BLAS's, which waited
+    for another thread's matrix product while that product waited for it (a run hung so).
+    Python runs its own handlers wherever it forks for a ``preexec_fn``, as imageio-ffmpeg's
+    ``write_frames`` does."""
+    forks = []
+    os.register_at_fork(before=lambda: forks.append(1))
+    with VideoWriter(tmp_path / "clip.mp4", fps=10) as vw:
+        vw.add(np.zeros((48, 64, 3), np.uint8))
+    assert forks == [] and vw.frames == 1
+    writer = imageio_ffmpeg.write_frames(str(tmp_path / "theirs.mp4"), (64, 48))
+    writer.send(None)  # the check sees a fork where there is one
+    writer.close()
+    assert forks == [1]
+
+
+def test_video_that_ffmpeg_cannot_finish_raises_its_message(tmp_path):
+    """ffmpeg refusing the file (an ending that names no format it knows) is raised on close, with
+    the file and ffmpeg's own last lines (it cannot open the file), not printed on the terminal and lost."""
+    vw = VideoWriter(tmp_path / "clip.notavideo", fps=10)
+    with pytest.raises(OSError) as failed:
+        for _ in range(50):
+            vw.add(np.zeros((48, 64, 3), np.uint8))
+        vw.close()
+    assert failed.value.filename == str(tmp_path / "clip.notavideo")
+    assert "ffmpeg ended with exit code" in failed.value.strerror
+    assert "Error opening output file" in failed.value.strerror
+    vw.close()  # closing again after the failure is harmless
 
 
 # --------------------------------------------------------------------------- synthetic runs
