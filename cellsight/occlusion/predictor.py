@@ -222,7 +222,7 @@ class VisibilityPredictor(ABC):
             near = np.zeros(n, dtype=bool)
             occluder = np.full(n, -1, dtype=np.int32)
             if answer is not None:
-                label_answers(answer, self.surfaces.poly_owner, self._feature_owner,
+                label_answers(*answer, self.surfaces.poly_owner, self._feature_owner,
                               self._robot_owned, visible, occluder, near)
             start = 0
             for k, f in zip(self.part_objects, self.part_features, strict=True):
