@@ -215,3 +215,26 @@ def test_a_real_short_run_on_the_exact_world_raises_no_alarm(tmp_path):
     assert len(judged) > 60
     assert all((h.nis_dof >= 2 * HealthRule().min_measurements).all() for h in judged)
     assert all(not h.reasons and not h.nis_above.any() for h in judged)
+
+
+def test_a_held_part_off_its_holder_is_a_reason_with_hysteresis():
+    """The holder's figure is the frame's own (no window): off by more than the limit in
+    position or angle it is a reason naming both, held down to ``release`` of the limit,
+    cleared when the part is no longer held; the camera figures are not touched."""
+    rule = HealthRule(holder_limit=(0.006, 0.04), release=0.7)
+    monitor = HealthMonitor(rule, CAMS)
+    frame = _frame(visible=[[1] * 6] * 2, selected=[[1] * 6] * 2, found=[[1] * 6] * 2,
+                   rejected=[[0] * 6] * 2)
+    steps = [((0.004, 0.01), ()),  # within both limits
+             ((0.0087, 0.023), ("8.7 mm, 1.3 deg from the gripper's hold",)),
+             ((0.003, 0.045), ("3.0 mm, 2.6 deg from the gripper's hold",)),  # the angle alone
+             ((0.0045, 0.02), ("4.5 mm, 1.1 deg from the gripper's hold",)),  # 0.75: held
+             ((0.0040, 0.02), ()),  # 0.67 of the limit: released
+             ((0.0050, 0.02), ()),  # back above release, not above the limit: not again
+             ((0.0070, 0.0), ("7.0 mm, 0.0 deg from the gripper's hold",)),
+             (None, ())]  # let go: no figure
+    for k, (off, reasons) in enumerate(steps):
+        report = monitor.update(k / HZ, *frame, off_holder=off)
+        assert report.reasons == reasons, (k, off)
+    with pytest.raises(ValueError, match="holder_limit"):
+        HealthRule(holder_limit=(0.006, 0.0))

@@ -8,6 +8,8 @@ predictor is the test-only back-face predictor (render_helpers.BackfacePredictor
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -65,6 +67,7 @@ class Run:
         self.still_from: int | None = None  # from this frame on, the part rests where it is
         self.resting = False  # the part lies on its level support: the tracker is told so
         self.support_error_m = 0.0  # how much higher the tracker is told the support lies
+        self.world_cams = list(self.cams)  # the cameras that take the views (a test moves one)
 
     def step(self, k: int):
         t = k * VISION_PERIOD
@@ -73,7 +76,7 @@ class Run:
         pts = self.part.feature_points @ T[:3, :3].T + T[:3, 3]
         views = [
             SyntheticView(cam.project(pts), self.truth_vis.visibility(c, T).visible)
-            for c, cam in enumerate(self.cams)
+            for c, cam in enumerate(self.world_cams)
         ]
         holders = {self.part.name: T @ HOLD_ERROR} if self.held else None
         told = self.part.T_base_part.copy()
@@ -155,6 +158,36 @@ def test_a_held_part_follows_its_holder_where_one_camera_sees_it():
         assert all(run.frames[k].status == "tracking" for k in range(start, stop))
         rmse[held] = _rmse([run.errors(k)[0] for k in range(start, stop)])
     assert rmse[True] < 0.5 * rmse[False], rmse
+
+
+@pytest.mark.parametrize("knocked", [False, True])
+def test_a_held_part_pulled_off_its_holder_by_one_camera_is_degraded(knocked):
+    """Camera 1 blind, the held part seen by camera 2 alone. Where camera 2 stands 8 mm
+    from where the tracker believes it (its calibration, not the tracker's fault), the
+    estimate follows its view off the holder's pose while the filter's sigma stays small: no
+    figure of the images shows it, the distance from the gripper's hold does, and no frame
+    more than 6 mm off says ``tracking``. With the camera where it is believed, every frame
+    tracks (the holder 3.7 mm and 1.3 deg off the truth: within the hold's limits)."""
+    start, stop = int(1.0 / VISION_PERIOD), int(4.0 / VISION_PERIOD)
+    run = Run(seed=4, held=True)
+    if knocked:
+        cam = run.cams[1]
+        moved = cam.T_base_cam.copy()
+        moved[:3, 3] += 0.008 * cam.T_base_cam[:3, 0]  # along the image's u axis
+        run.world_cams[1] = dataclasses.replace(cam, T_base_cam=moved)
+    for k in range(stop):
+        run.predictor.blind = run.truth_vis.blind = {0} if k >= start else set()
+        run.step(k)
+    blind = range(start, stop)
+    statuses = [str(run.frames[k].status) for k in blind]
+    if not knocked:
+        assert set(statuses) == {"tracking"}
+        return
+    off = [run.errors(k)[0] for k in blind]
+    assert max(off) > 0.008
+    said = [run.frames[k].status_text for k in blind]
+    assert any("from the gripper's hold" in text for text in said)
+    assert all(s != "tracking" for s, e in zip(statuses, off, strict=True) if e > 0.006)
 
 
 def test_a_part_on_its_conveyor_keeps_its_height_where_one_camera_sees_it():

@@ -43,7 +43,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from cellsight.camera import Camera
-from cellsight.geometry.transforms import invert_pose, xyz_rpy_from_pose
+from cellsight.geometry.transforms import invert_pose, rotation_angle, xyz_rpy_from_pose
 from cellsight.tracking.acquisition import rates_covariance, twin_turns
 from cellsight.tracking.camera_check import CameraCheck, CheckFrame
 from cellsight.tracking.config import TrackerConfig, TrackerParts
@@ -400,7 +400,8 @@ class Tracker:
             track.coasted = report.n_accepted == 0
             _record_update(rec, report)
             rec.health = track.monitor.update(context.t, rec.visible, looked, rec.measured,
-                                              rec.rejected, rec.mahalanobis2, rec.unknown)
+                                              rec.rejected, rec.mahalanobis2, rec.unknown,
+                                              _off_holder(ekf.pose, track.holder))
             unknown = self.components.unknown
             if report.n_accepted >= unknown.min_accepted:
                 track.confirmed = context.t
@@ -653,6 +654,15 @@ def _hold(ekf: PoseEKF, holder: np.ndarray, std: tuple[float, float]) -> None:
     off = max(moved, turned) > HOLD_SIGMAS
     if wide or off:
         ekf.fuse_prior(holder, HELD, np.repeat(std, 3), forget=off)
+
+
+def _off_holder(T_base_part: np.ndarray, holder: np.ndarray | None) -> tuple[float, float] | None:
+    """The distance (m) and angle (rad) of a held part's estimate ``T_base_part`` from its
+    ``holder``'s pose (None: not held), for the health monitor."""
+    if holder is None:
+        return None
+    return (float(np.linalg.norm(T_base_part[:3, 3] - holder[:3, 3])),
+            rotation_angle(T_base_part[:3, :3].T @ holder[:3, :3]))
 
 
 def _best_twin(verify: Callable[[PoseFix], tuple[StepContext, PoseFix] | None],
