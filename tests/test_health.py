@@ -218,23 +218,24 @@ def test_a_real_short_run_on_the_exact_world_raises_no_alarm(tmp_path):
 
 
 def test_a_held_part_off_its_holder_is_a_reason_with_hysteresis():
-    """The holder's figure is the frame's own (no window): off by more than the limit in
-    position or angle it is a reason naming both, held down to ``release`` of the limit,
-    cleared when the part is no longer held; the camera figures are not touched."""
-    rule = HealthRule(holder_limit=(0.006, 0.04), release=0.7)
+    """The holder's figure is the frame's own (no window), given for a part one camera alone
+    measures: off by more than the limit it is a reason naming the distance and the camera,
+    held down to ``release`` of the limit, cleared when the figure is not given (two cameras,
+    or not held); the camera figures are not touched."""
+    rule = HealthRule(holder_limit=0.006, release=0.7)
     monitor = HealthMonitor(rule, CAMS)
     frame = _frame(visible=[[1] * 6] * 2, selected=[[1] * 6] * 2, found=[[1] * 6] * 2,
                    rejected=[[0] * 6] * 2)
-    steps = [((0.004, 0.01), ()),  # within both limits
-             ((0.0087, 0.023), ("8.7 mm, 1.3 deg from the gripper's hold",)),
-             ((0.003, 0.045), ("3.0 mm, 2.6 deg from the gripper's hold",)),  # the angle alone
-             ((0.0045, 0.02), ("4.5 mm, 1.1 deg from the gripper's hold",)),  # 0.75: held
-             ((0.0040, 0.02), ()),  # 0.67 of the limit: released
-             ((0.0050, 0.02), ()),  # back above release, not above the limit: not again
-             ((0.0070, 0.0), ("7.0 mm, 0.0 deg from the gripper's hold",)),
-             (None, ())]  # let go: no figure
+    steps = [((0.004, "cam2"), ()),  # within the limit
+             ((0.0087, "cam2"), ("8.7 mm from the gripper's hold, cam2 alone",)),
+             ((0.0045, "cam2"), ("4.5 mm from the gripper's hold, cam2 alone",)),  # 0.75: held
+             ((0.0040, "cam2"), ()),  # 0.67 of the limit: released
+             ((0.0050, "cam1"), ()),  # back above release, not above the limit: not again
+             ((0.0070, "cam1"), ("7.0 mm from the gripper's hold, cam1 alone",)),
+             (None, ()),  # both cameras (or let go): no figure
+             ((0.0050, "cam1"), ())]  # and no reason held over
     for k, (off, reasons) in enumerate(steps):
         report = monitor.update(k / HZ, *frame, off_holder=off)
         assert report.reasons == reasons, (k, off)
     with pytest.raises(ValueError, match="holder_limit"):
-        HealthRule(holder_limit=(0.006, 0.0))
+        HealthRule(holder_limit=0.0)

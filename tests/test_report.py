@@ -128,8 +128,9 @@ def test_video_starts_ffmpeg_without_fork_handlers(tmp_path):
 
 
 def test_video_that_ffmpeg_cannot_finish_raises_its_message(tmp_path):
-    """ffmpeg refusing the file (an ending that names no format it knows) is raised on close, with
-    the file and ffmpeg's own last lines (it cannot open the file), not printed on the terminal and lost."""
+    """ffmpeg refusing the file (an ending that names no format it knows) is raised on close,
+    with the file and ffmpeg's own last lines (it cannot open the file), not printed on the
+    terminal and lost."""
     vw = VideoWriter(tmp_path / "clip.notavideo", fps=10)
     with pytest.raises(OSError) as failed:
         for _ in range(50):

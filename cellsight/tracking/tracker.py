@@ -43,7 +43,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from cellsight.camera import Camera
-from cellsight.geometry.transforms import invert_pose, rotation_angle, xyz_rpy_from_pose
+from cellsight.geometry.transforms import invert_pose, xyz_rpy_from_pose
 from cellsight.tracking.acquisition import rates_covariance, twin_turns
 from cellsight.tracking.camera_check import CameraCheck, CheckFrame
 from cellsight.tracking.config import TrackerConfig, TrackerParts
@@ -401,7 +401,7 @@ class Tracker:
             _record_update(rec, report)
             rec.health = track.monitor.update(context.t, rec.visible, looked, rec.measured,
                                               rec.rejected, rec.mahalanobis2, rec.unknown,
-                                              _off_holder(ekf.pose, track.holder))
+                                              _off_holder(rec, track, self.cameras))
             unknown = self.components.unknown
             if report.n_accepted >= unknown.min_accepted:
                 track.confirmed = context.t
@@ -656,13 +656,16 @@ def _hold(ekf: PoseEKF, holder: np.ndarray, std: tuple[float, float]) -> None:
         ekf.fuse_prior(holder, HELD, np.repeat(std, 3), forget=off)
 
 
-def _off_holder(T_base_part: np.ndarray, holder: np.ndarray | None) -> tuple[float, float] | None:
-    """The distance (m) and angle (rad) of a held part's estimate ``T_base_part`` from its
-    ``holder``'s pose (None: not held), for the health monitor."""
-    if holder is None:
+def _off_holder(rec: PartFrame, track: _Track,
+                cameras: Sequence[Camera]) -> tuple[float, str] | None:
+    """For a held part whose accepted measurements this frame are one camera's: the
+    estimate's distance (m) from its holder's pose and that camera's name, for the health
+    monitor; None otherwise."""
+    accepted = (np.isfinite(rec.measured[..., 0]) & ~rec.rejected).any(axis=1)
+    if track.holder is None or accepted.sum() != 1:
         return None
-    return (float(np.linalg.norm(T_base_part[:3, 3] - holder[:3, 3])),
-            rotation_angle(T_base_part[:3, :3].T @ holder[:3, :3]))
+    distance = float(np.linalg.norm(track.ekf.pose[:3, 3] - track.holder[:3, 3]))
+    return distance, cameras[int(np.flatnonzero(accepted)[0])].name
 
 
 def _best_twin(verify: Callable[[PoseFix], tuple[StepContext, PoseFix] | None],
