@@ -107,9 +107,10 @@ class HealthRule:
 
     ``holder_limit`` (m): a held part's estimate this far from its holder's pose while one
     camera alone measures it disagrees with the arm (module docstring): twice the tracker's
-    ``hold_std``. On ``harsh`` (20 seeds, experiments 1-2) the arm's own error puts a held
-    part's estimate more than 6 mm from the hold in 374 frames measured by both cameras, 273
-    of them within 5 mm of the truth, and in 19 by one camera, none of them within 5 mm."""
+    ``hold_std``. On ``harsh`` with the prior (experiment 1, 20 seeds, and 2, 18 seeds) a
+    held part's estimate is more than 6 mm from the hold in 374 frames where both cameras
+    measure it, 273 of them within 5 mm of the truth (the arm's own error: its links, the
+    grasp's seat), and in 19 where one camera does, none of them within 5 mm."""
 
     window_s: float = 0.5
     band_probability: float = 0.99
