@@ -218,24 +218,34 @@ def test_a_real_short_run_on_the_exact_world_raises_no_alarm(tmp_path):
 
 
 def test_a_held_part_off_its_holder_is_a_reason_with_hysteresis():
-    """The holder's figure is the frame's own (no window), given for a part one camera alone
-    measures: off by more than the limit it is a reason naming the distance and the camera,
-    held down to ``release`` of the limit, cleared when the figure is not given (two cameras,
-    or not held); the camera figures are not touched."""
+    """The holder's figure is the frame's own (no window), judged where one camera alone has
+    accepted measurements: off by more than the limit it is a reason naming the distance and
+    that camera, held down to ``release`` of the limit, cleared when the part is not held or
+    both cameras measure it; the camera figures are not touched."""
     rule = HealthRule(holder_limit=0.006, release=0.7)
     monitor = HealthMonitor(rule, CAMS)
-    frame = _frame(visible=[[1] * 6] * 2, selected=[[1] * 6] * 2, found=[[1] * 6] * 2,
-                   rejected=[[0] * 6] * 2)
-    steps = [((0.004, "cam2"), ()),  # within the limit
-             ((0.0087, "cam2"), ("8.7 mm from the gripper's hold, cam2 alone",)),
-             ((0.0045, "cam2"), ("4.5 mm from the gripper's hold, cam2 alone",)),  # 0.75: held
-             ((0.0040, "cam2"), ()),  # 0.67 of the limit: released
-             ((0.0050, "cam1"), ()),  # back above release, not above the limit: not again
-             ((0.0070, "cam1"), ("7.0 mm from the gripper's hold, cam1 alone",)),
-             (None, ()),  # both cameras (or let go): no figure
-             ((0.0050, "cam1"), ())]  # and no reason held over
-    for k, (off, reasons) in enumerate(steps):
+
+    def seen_by(*cams: int, rejected_in: int | None = None) -> tuple:
+        found = [[1] * 6 if c in cams else [0] * 6 for c in range(2)]
+        rejected = [[1] * 6 if c == rejected_in else [0] * 6 for c in range(2)]
+        return _frame(visible=[[1] * 6] * 2, selected=[[1] * 6] * 2, found=found,
+                      rejected=rejected)
+
+    cam2, cam1, both = seen_by(1), seen_by(0), seen_by(0, 1)
+    cam1_rejected = seen_by(0, 1, rejected_in=1)  # cam2 finds its features, all gated out
+    steps = [(0.004, cam2, ()),  # within the limit
+             (0.0087, cam2, ("8.7 mm from the gripper's hold, cam2 alone",)),
+             (0.0045, cam2, ("4.5 mm from the gripper's hold, cam2 alone",)),  # 0.75: held
+             (0.0040, cam2, ()),  # 0.67 of the limit: released
+             (0.0050, cam1, ()),  # back above release, not above the limit: not again
+             (0.0070, cam1_rejected, ("7.0 mm from the gripper's hold, cam1 alone",)),
+             (0.0070, both, ()),  # both cameras: no figure
+             (0.0050, cam1, ()),  # and no reason held over
+             (None, cam1, ())]  # not held
+    plain = HealthMonitor(rule, CAMS)  # the same frames, not held: the camera figures
+    for k, (off, frame, reasons) in enumerate(steps):
         report = monitor.update(k / HZ, *frame, off_holder=off)
-        assert report.reasons == reasons, (k, off)
+        cameras = plain.update(k / HZ, *frame).reasons
+        assert report.reasons == cameras + reasons, (k, off)
     with pytest.raises(ValueError, match="holder_limit"):
         HealthRule(holder_limit=0.0)

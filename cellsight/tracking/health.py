@@ -164,20 +164,21 @@ class HealthMonitor:
     def update(self, t: float, visible: np.ndarray, selected: np.ndarray, measured: np.ndarray,
                rejected: np.ndarray, mahalanobis2: np.ndarray,
                unknown: np.ndarray | None = None,
-               off_holder: tuple[float, str] | None = None) -> TrackHealthReport:
+               off_holder: float | None = None) -> TrackHealthReport:
         """Add the frame at time ``t`` (s) and report over the window ending there. Per
         camera and feature (C, F): ``visible`` predicted visible, ``selected`` chosen,
         ``measured`` (C, F, 2) px (NaN where not found), ``rejected`` gated out,
         ``mahalanobis2`` the gate's distance of each measured feature, ``unknown`` under the
-        unknown-occluder map (None: none is); ``off_holder``: for a held part measured by one
-        camera alone, the estimate's distance (m) from its holder's pose and that camera's
-        name (None otherwise)."""
-        self._off_holder = None if off_holder is None else (float(off_holder[0]),
-                                                            str(off_holder[1]))
+        unknown-occluder map (None: none is); ``off_holder``: for a held part, the estimate's
+        distance (m) from its holder's pose (None: not held), judged where one camera alone has
+        accepted measurements this frame (module docstring)."""
         found = np.isfinite(np.asarray(measured, dtype=float)[..., 0])
         looked = np.asarray(selected, dtype=bool) & np.asarray(visible, dtype=bool)
         rejected = np.asarray(rejected, dtype=bool) & found
         accepted = found & ~rejected
+        alone = np.flatnonzero(accepted.any(axis=1))
+        self._off_holder = (float(off_holder), self.cameras[int(alone[0])]) if (
+            off_holder is not None and len(alone) == 1) else None
         d2 = np.where(accepted, np.nan_to_num(np.asarray(mahalanobis2, dtype=float)), 0.0)
         visible = np.asarray(visible, dtype=bool)
         covered = visible & (False if unknown is None else np.asarray(unknown, dtype=bool))

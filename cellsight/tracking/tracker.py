@@ -401,7 +401,7 @@ class Tracker:
             _record_update(rec, report)
             rec.health = track.monitor.update(context.t, rec.visible, looked, rec.measured,
                                               rec.rejected, rec.mahalanobis2, rec.unknown,
-                                              _off_holder(rec, track, self.cameras))
+                                              _off_holder(ekf, track.holder))
             unknown = self.components.unknown
             if report.n_accepted >= unknown.min_accepted:
                 track.confirmed = context.t
@@ -656,16 +656,10 @@ def _hold(ekf: PoseEKF, holder: np.ndarray, std: tuple[float, float]) -> None:
         ekf.fuse_prior(holder, HELD, np.repeat(std, 3), forget=off)
 
 
-def _off_holder(rec: PartFrame, track: _Track,
-                cameras: Sequence[Camera]) -> tuple[float, str] | None:
-    """For a held part whose accepted measurements this frame are one camera's: the
-    estimate's distance (m) from its holder's pose and that camera's name, for the health
-    monitor; None otherwise."""
-    accepted = (np.isfinite(rec.measured[..., 0]) & ~rec.rejected).any(axis=1)
-    if track.holder is None or accepted.sum() != 1:
-        return None
-    distance = float(np.linalg.norm(track.ekf.pose[:3, 3] - track.holder[:3, 3]))
-    return distance, cameras[int(np.flatnonzero(accepted)[0])].name
+def _off_holder(ekf: PoseEKF, holder: np.ndarray | None) -> float | None:
+    """A held part's estimate's distance (m) from its ``holder``'s pose, for the health
+    monitor; None when it is not held."""
+    return None if holder is None else float(np.linalg.norm(ekf.pose[:3, 3] - holder[:3, 3]))
 
 
 def _best_twin(verify: Callable[[PoseFix], tuple[StepContext, PoseFix] | None],
