@@ -8,7 +8,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from cellsight.experiments.metrics import evaluated_frames, frame_metrics
+from cellsight.experiments.metrics import (
+    evaluated_frames,
+    frame_metrics,
+    position_rmse_in_arm_frame_mm,
+)
 from cellsight.geometry.transforms import pose_from_xyz_rpy
 from cellsight.runfolder.framelog import FrameLog, FrameWriter, pose_fields, timing_fields
 from cellsight.tracking.timing import STAGES
@@ -71,6 +75,18 @@ def test_metrics_of_a_hand_made_log(log: FrameLog):
     assert m["pixels_grabbed_fraction"] == pytest.approx(0.2)
     assert m["extraction_error_px_median"] == pytest.approx(0.3)
     assert m["timing_ms"] == {s: pytest.approx(2.0) for s in STAGES}
+
+
+def test_the_position_error_in_an_arm_s_frame(log: FrameLog):
+    """The estimates are 1 and 2 mm along x off the truth (the evaluated frames with one). An
+    arm whose TCP truly stands 1 mm further along x than its model says sees the part 1 mm
+    short: against that, the estimates are 2 and 3 mm off; 1 mm the other way, 0 and 1 mm."""
+    along = position_rmse_in_arm_frame_mm(log, np.array([0.001, 0.0, 0.0]))
+    assert along == pytest.approx(np.sqrt((4 + 9) / 2))
+    back = position_rmse_in_arm_frame_mm(log, np.array([-0.001, 0.0, 0.0]))
+    assert back == pytest.approx(np.sqrt((0 + 1) / 2))
+    across = position_rmse_in_arm_frame_mm(log, np.array([0.0, 0.002, 0.0]))
+    assert across == pytest.approx(np.sqrt((1 + 4 + 4 + 4) / 2))
 
 
 def test_metrics_of_an_empty_log(tmp_path: Path):

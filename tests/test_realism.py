@@ -25,7 +25,7 @@ from cellsight.realism.profile import Profile, TimingKnobs
 from cellsight.world import World
 from cellsight.world.images import ImageEffects, Imager
 from cellsight.world.imperfections import IDEAL, Imperfections
-from cellsight.world.mjcf import GROUP_STATIC
+from cellsight.world.mjcf import GROUP_STATIC, tcp_site_name
 from cellsight.world.servo import JointServo, ServoParams
 
 
@@ -192,6 +192,21 @@ def test_a_support_built_higher_carries_the_part_up_with_it_in_the_world_only(ce
                         np.array([0.0, 0.0, -1.0]), groups, True, -1, np.zeros(1, np.int32))
     assert gap - 0.01 == pytest.approx(0.0, abs=1e-6)
     assert abs(lift["conveyor"]) > 1e-3  # the cell file's belt would be that far off
+
+
+def test_an_arm_s_tcp_error_is_where_mujoco_puts_the_world_s_tcp(cell):
+    """``WorldDraws.tcp_error``: where R7AX's TCP truly stands at HOME less where the cell
+    file's arm puts it, against MuJoCo's own TCP site in the world built from the draws
+    (``harsh``, seed 17: base, links, gripper and encoder offsets all drawn; 4.2 mm)."""
+    d = draw_world("harsh", cell, 17)
+    robot = cell.robot("R7AX")
+    world = World(d.cell, errors=d.errors, initial_joints={robot.name: robot.home})
+    q = world.true_joints()[robot.name]
+    np.testing.assert_allclose(q, robot.home - d.errors.encoder_offsets[robot.name], atol=1e-12)
+    site = world.scene.model.site(tcp_site_name(robot.name)).id
+    expected = world.scene.site_pose(site)[:3, 3] - robot.tcp_pose(robot.home)[:3, 3]
+    assert np.linalg.norm(expected) > 3e-3
+    np.testing.assert_allclose(d.tcp_error(robot, robot.home), expected, atol=1e-7)
 
 
 def test_unknown_forearm_hides_features_the_predictor_thinks_visible(cell, tmp_path):

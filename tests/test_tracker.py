@@ -39,7 +39,7 @@ from cellsight.tracking import (
 from cellsight.tracking.loss import LossRule
 from cellsight.tracking.selection import SelectionConfig
 from cellsight.tracking.timing import STAGES
-from cellsight.tracking.tracker import LYING_TOL, _lies_on
+from cellsight.tracking.tracker import LYING_TOL, UNREGISTERED, _lies_on
 
 HOLD_ERROR = pose_from_xyz_rpy([0.003, -0.002, 0.001], [0.0, 0.01, -0.02])  # the hold's error
 
@@ -190,6 +190,39 @@ def test_a_held_part_pulled_off_its_holder_by_one_camera_is_degraded(knocked):
     said = [run.frames[k].status_text for k in blind]
     assert any("from the gripper's hold, cam2 alone" in text for text in said)
     assert all(s != "tracking" for s, e in zip(statuses, off, strict=True) if e > 0.010)
+
+
+@pytest.mark.parametrize("awaiting", [False, True])
+def test_cameras_not_registered_yet_keep_a_track_degraded(awaiting):
+    """Both cameras stand 8 mm from where the cell file puts them, the same way (an error
+    they share: no figure of the images shows it, the estimate is 8 mm off with a sigma of a
+    millimetre or less). Awaiting the registration, no tracked frame says ``tracking`` and each
+    gives the reason; once the cameras are registered (:meth:`Tracker.recalibrate` with where
+    they stand), the estimate comes back within 2 mm and says ``tracking``. Not awaiting it,
+    the same 8 mm off say ``tracking``: the confident wrong pose the reason is for."""
+    registered_at, stop = int(1.0 / VISION_PERIOD), int(3.0 / VISION_PERIOD)
+    run = Run(seed=6, config=TrackerConfig(awaiting_registration=awaiting))
+    shift = np.array([0.008, 0.0, 0.0])
+    for c, cam in enumerate(run.cams):
+        moved = cam.T_base_cam.copy()
+        moved[:3, 3] += shift
+        run.world_cams[c] = dataclasses.replace(cam, T_base_cam=moved)
+    for k in range(stop):
+        if awaiting and k == registered_at:
+            for c, cam in enumerate(run.world_cams):
+                run.tracker.recalibrate(c, cam)
+        run.step(k)
+    before = [k for k in range(registered_at) if run.frames[k].status not in ("acquired",)]
+    assert min(run.errors(k)[0] for k in before[5:]) > 0.006
+    statuses = {str(run.frames[k].status) for k in before}
+    if not awaiting:
+        assert statuses == {"tracking"}
+        return
+    assert statuses == {"degraded"}
+    assert all(run.frames[k].status_text.endswith(UNREGISTERED) for k in before)
+    after = range(registered_at + int(1.0 / VISION_PERIOD), stop)
+    assert {str(run.frames[k].status) for k in after} == {"tracking"}
+    assert max(run.errors(k)[0] for k in after) < 0.002
 
 
 def test_a_part_on_its_conveyor_keeps_its_height_where_one_camera_sees_it():

@@ -130,6 +130,18 @@ def _estimation(log: FrameLog) -> dict:
     }
 
 
+def position_rmse_in_arm_frame_mm(log: FrameLog, arm_error_m: np.ndarray) -> float | None:
+    """``position_rmse_mm`` against the true positions as an arm's model sees them: each less
+    ``arm_error_m`` (3,) m, where the arm's TCP truly stands less where its model puts it
+    (``arm_home_error_mm`` of ``metrics.json``). Cameras registered to that arm take its error
+    in, and so does every estimate made with them: this is the error no image of the cell
+    shows (None: no evaluated frame with an estimate)."""
+    truth, est = log.poses("true"), log.poses("est")
+    mask = evaluated_frames(log)
+    gap = est[mask, :3] - (truth[mask, :3] - np.asarray(arm_error_m, dtype=float))
+    return _scaled(_rmse(np.linalg.norm(gap, axis=1)), 1e3)
+
+
 def _visibility(log: FrameLog) -> dict:
     """Predicted against true visibility labels (module docstring), over the frames that have
     a truth (a recording may have none: then None)."""

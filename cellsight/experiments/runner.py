@@ -59,7 +59,7 @@ from cellsight.experiments.baseline import PnPBaseline
 from cellsight.experiments.exposure import Exposures
 from cellsight.experiments.keyframes import KeyFrames, draw_frame
 from cellsight.experiments.latency import Deliveries, Estimate
-from cellsight.experiments.metrics import frame_metrics
+from cellsight.experiments.metrics import frame_metrics, position_rmse_in_arm_frame_mm
 from cellsight.experiments.monitors import (
     GraspMonitor,
     KidnapMonitor,
@@ -77,9 +77,11 @@ from cellsight.geometry.transforms import invert_pose, transform_points
 from cellsight.model.cell import Cell
 from cellsight.model.landing import Landing
 from cellsight.model.loader import load_cell
+from cellsight.model.robot import Robot
 from cellsight.occlusion.predictor import OBJECT_BVH, STRUCTURES
 from cellsight.rates import VISION_HZ
 from cellsight.realism import FrameClock, Profile, draw_world
+from cellsight.realism.draws import WorldDraws
 from cellsight.recording.recorder import Recorder
 from cellsight.report.run_report import write_report
 from cellsight.runfolder import (
@@ -237,12 +239,14 @@ class ExperimentRun:
                                    self.part.name, config.full_frames or config.record is not None)
         self.ideal = (IdealExtractor(config.ideal_sigma_px, config.seed)
                       if config.sensor == "ideal" else None)
+        register = config.kinematic_prior and config.sensor == "rendered"
         self.tracker = build_tracker(cell, occlusion_prediction=config.occlusion_prediction,
                                      unknown_occluders=config.unknown_occluders,
                                      structure=config.structure, extractor=self.ideal,
-                                     camera_offsets_px=config.camera_offsets_px)
+                                     camera_offsets_px=config.camera_offsets_px,
+                                     awaiting_registration=register)
         self.registration = (RegistrationRule().registration(cell, self.robot.name)
-                             if config.kinematic_prior and config.sensor == "rendered" else None)
+                             if register else None)
         self._part_at: np.ndarray | None = None  # the part's last estimated position (m)
         tool = self.robot.tool  # GraspTask names a robot without one
         self.task = GraspTask(self.robot, self.part, grasp_opening=None if tool is None else
@@ -548,6 +552,7 @@ class ExperimentRun:
                                 for c, t in self.tracker.camera_check.dropped.items()},
             "knock": self._knock(),
             "registration": self._registration(),
+            **_arm_error(self.draws, self.robot, frames, self.registration is not None),
             "grasp_success": bool(self.grasp.held_at_manipulate),
             "grasp_position_error_mm": self.grasp.error_mm,
             "final_phase": str(self.task.phase),
@@ -570,6 +575,19 @@ class ExperimentRun:
         log.info("metrics: %s", json.dumps({k: v for k, v in metrics.items()
                                             if not isinstance(v, list | dict)}))
         return metrics
+
+
+def _arm_error(draws: WorldDraws, robot: Robot, frames: FrameLog, registered: bool) -> dict:
+    """For a run whose cameras are registered to ``robot`` (``registered``), the world's truth
+    of that arm's own error at HOME (``arm_home_error_mm``: its TCP there less where its model
+    puts it, mm, base frame) and the position RMSE against the part's true positions moved by
+    it (``position_rmse_arm_mm``: :func:`~.metrics.position_rmse_in_arm_frame_mm`); both None
+    otherwise."""
+    if not registered or robot.home is None:
+        return {"arm_home_error_mm": None, "position_rmse_arm_mm": None}
+    error = draws.tcp_error(robot, robot.home)
+    return {"arm_home_error_mm": np.round(error * 1e3, 3).tolist(),
+            "position_rmse_arm_mm": position_rmse_in_arm_frame_mm(frames, error)}
 
 
 def _close_all(writes: RunWrites, closers: list) -> None:

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cellsight.model import Cell
+from cellsight.model import Cell, Robot
 from cellsight.rates import CONTROL_HZ, VISION_HZ
 from cellsight.realism.perturb import (
     CameraError,
@@ -61,6 +61,16 @@ class WorldDraws:
     scenario: ScenarioShift
     trigger_skew_s: np.ndarray
     record: dict
+
+    def tcp_error(self, robot: Robot, q: np.ndarray) -> np.ndarray:
+        """Where ``robot``'s TCP truly stands when its encoders read ``q`` (rad, m) less where
+        its model (the cell file's ``robot``) puts it there: the world's as-built arm (base,
+        links, tool) at the joints the encoders' offsets leave it at (m, base frame; the
+        world's truth, which no sensor of the cell measures)."""
+        built = self.cell.robot(robot.name)
+        q = np.asarray(q, dtype=float)
+        true_q = q - self.errors.encoder_offsets.get(robot.name, np.zeros_like(q))
+        return built.tcp_pose(true_q)[:3, 3] - robot.tcp_pose(q)[:3, 3]
 
 
 class _Knobs:

@@ -121,14 +121,16 @@ class _Session:
         self.cell, self.calibration = checked_cell(cell, recording, self.topics.camera_info,
                                                    options.calibration_from_bag)
         self.signals: Signals = read_signals(recording, self.cell, topic_map, self.topics.truth)
-        self.tracker = build_tracker(self.cell, occlusion_prediction=options.occlusion_prediction,
-                                     unknown_occluders=options.unknown_occluders)
-        self.baseline = PnPBaseline.of(self.tracker, self.part.feature_points)
-        self.truth_views = VisibilityPredictor(self.cell)
         robot = next((r for r in self.cell.robots if r.tool is not None), self.cell.robots[0])
         self.robot = robot
+        register = options.register_cameras and robot.tool is not None
+        self.tracker = build_tracker(self.cell, occlusion_prediction=options.occlusion_prediction,
+                                     unknown_occluders=options.unknown_occluders,
+                                     awaiting_registration=register)
+        self.baseline = PnPBaseline.of(self.tracker, self.part.feature_points)
+        self.truth_views = VisibilityPredictor(self.cell)
         self.registration = (RegistrationRule().registration(self.cell, robot.name)
-                             if options.register_cameras and robot.tool is not None else None)
+                             if register else None)
         self._estimate: np.ndarray | None = None  # the part's last estimated pose
         self.prior = _prior(self.cell, robot, self.part) if options.kinematic_prior else None
         self.rows = FrameRows(robot, len(self.cell.cameras), pixel_errors=True)

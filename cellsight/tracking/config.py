@@ -93,7 +93,12 @@ class TrackerConfig:
     height and flatness as the cell file knows them); ``support_speed``: how fast (m/s across
     the support, rad/s about its normal) a support moves a part lying on it at most (a
     conveyor's belt), with the kinematic prior: the rates a lying part's filter starts with
-    (one sigma) and the bound its rates are held to (:func:`~.tracker._keep_support_speed`).
+    (one sigma) and the bound its rates are held to (:func:`~.tracker._keep_support_speed`);
+    ``awaiting_registration``: the cameras are to be registered to an arm
+    (:mod:`.registration`): until the first :meth:`Tracker.recalibrate`, a tracked part is
+    ``degraded`` with the reason :data:`~.tracker.UNREGISTERED` (the calibration's error the
+    cameras share is in the estimate and not in its covariance: in ``harsh`` cells the first
+    fix is up to 11 mm off with a sigma of 0.4 mm).
     """
 
     sigma_px: float = 0.5
@@ -107,3 +112,4 @@ class TrackerConfig:
     hold_std: tuple[float, float] = (0.003, 0.02)
     rest_std: tuple[float, float] = (0.002, 0.01)
     support_speed: tuple[float, float] = (0.1, 0.1)
+    awaiting_registration: bool = False

@@ -22,11 +22,13 @@ protocol of :mod:`.interfaces` with its default in its own module):
    what the sensors took (:mod:`.extraction`), the gate (:mod:`.gate`) screens the innovations
    and the EKF updates with the accepted ones (:mod:`.measurement`, :mod:`.ekf`); the track's
    health monitor (:mod:`.health`) takes the frame's outcome, and a tracked part whose figures
-   pass its limits is degraded; the unknown-occluder map (:mod:`.unknown`, shared by the
-   parts; off by default) learns from the features not found, or rejected where their camera
-   accepted none, and no feature it covers is selected or used for acquisition; the camera
-   check (:mod:`.camera_check`, shared) drops a camera whose innovations are consistently
-   biased while another's are not, and re-estimates its pose.
+   pass its limits is degraded (so is every tracked part while the cameras await their
+   registration to an arm: ``TrackerConfig.awaiting_registration``); the unknown-occluder
+   map (:mod:`.unknown`, shared by the parts; off by default) learns from the features not
+   found, or rejected where their camera accepted none, and no feature it covers is selected
+   or used for acquisition; the camera check (:mod:`.camera_check`, shared) drops a camera
+   whose innovations are consistently biased while another's are not, and re-estimates its
+   pose.
 
 Within a step, each part's work carries one :class:`StepContext`. Measured pixels are as in the
 image (distorted); the camera undistorts them before the update. Stage times: :mod:`.timing`;
@@ -74,6 +76,7 @@ from cellsight.visibility import CameraVisibility, Views, VisibilitySource
 TWIN_VERTICAL = np.cos(np.radians(10.0))  # a twin's turn axis this close to the vertical
 HOLD_SIGMAS = 3.0  # a held part's estimate this many holder sigmas off has left the grasp
 LYING_TOL = (0.015, 0.15)  # m, rad: a fix this far from its support's height and tilt is wrong
+UNREGISTERED = "cameras not registered yet"  # the reason while awaiting the registration
 Crowd = list[tuple[np.ndarray, dict[str, tuple[int, np.ndarray]]]]
 """Per camera: (M, 2) predicted pixels of every visible feature of every part (what the windows
 must avoid), and each part's (first row, its visible feature indices) in them."""
@@ -188,6 +191,7 @@ class Tracker:
                         for c in self.cameras]
         self.unknown = self.components.unknown.maps(self.cameras)
         self.camera_check = self.components.cameras.check(self.cameras)
+        self._registered = not self.config.awaiting_registration
         guesses = dict(initial_poses or {})
         names = [c.name for c in self.cameras]
         self.tracks = {
@@ -316,8 +320,10 @@ class Tracker:
         """Take ``camera`` for camera ``index`` from now on (its calibration refined, e.g. by
         :mod:`.registration`): in the measurement model, the windows, the search and the camera
         check, and in the visibility source where it can (its ``recalibrate(index, camera)``:
-        the BSP predictors and the projection baseline have one)."""
+        the BSP predictors and the projection baseline have one). The cameras then count as
+        registered (``TrackerConfig.awaiting_registration``)."""
         self.cameras[index] = camera
+        self._registered = True
         self.camera_check.cameras[index] = camera
         self._models[index] = self.components.measurement(camera, self.config.sigma_px)
         move = getattr(self.predictor, "recalibrate", None)
@@ -402,6 +408,8 @@ class Tracker:
             rec.health = track.monitor.update(context.t, rec.visible, looked, rec.measured,
                                               rec.rejected, rec.mahalanobis2, rec.unknown,
                                               _off_holder(ekf, track.holder))
+            if not self._registered:
+                rec.health = replace(rec.health, reasons=(*rec.health.reasons, UNREGISTERED))
             unknown = self.components.unknown
             if report.n_accepted >= unknown.min_accepted:
                 track.confirmed = context.t
