@@ -395,17 +395,17 @@ class Tracker:
 
         obs = self._measure(context, covariance)
         looked = rec.selected & _cameras_grabbed(context.observed, self.cameras)[:, None]
-        loss = self.components.loss
+        check, loss = self.camera_check, self.components.loss
+        counted = looked & _in_filter(check, len(self.cameras))[:, None]
         with timer("ekf"):
             gate = self.components.gate
             if track.coasted:
-                support = loss.resume_support(int(looked.sum()))
+                support = loss.resume_support(int(counted.sum()))
                 gate = SupportedGate(gate, max(self.config.resume_support, support))
-            check = self.camera_check
             report = ekf.update([o for o in obs if check.usable(o.camera_index)], gate)
             track.coasted = report.n_accepted == 0
             _record_update(rec, report)
-            rec.health = track.monitor.update(context.t, rec.visible, looked, rec.measured,
+            rec.health = track.monitor.update(context.t, rec.visible, counted, rec.measured,
                                               rec.rejected, rec.mahalanobis2, rec.unknown,
                                               _off_holder(ekf, track.holder))
             if not self._registered:
@@ -414,9 +414,9 @@ class Tracker:
             if report.n_accepted >= unknown.min_accepted:
                 track.confirmed = context.t
             if context.t - track.confirmed <= unknown.trust_s:
-                _learn_unknown(self.unknown, context.t, rec, looked)
+                _learn_unknown(self.unknown, context.t, rec, counted)
         in_view = any(cam.in_image(rec.pixels[c]).any() for c, cam in enumerate(self.cameras))
-        in_vain = loss.in_vain(int(looked.sum()), report.n_accepted, in_view)
+        in_vain = loss.in_vain(int(counted.sum()), report.n_accepted, in_view)
         if in_vain is not None:
             track.unseen_since = min(track.unseen_since, context.t) if in_vain else np.inf
         if report.n_accepted:
@@ -483,13 +483,15 @@ class Tracker:
         a fix (:mod:`.acquisition`; ``coarse``: a first one, to be verified; ``guess``: the
         pose of that prediction, to seed the fix where it is already near; ``on_support``: a
         part lying on its support may be fitted there, the search's candidates and their
-        verification), or None."""
+        verification), or None. A camera the camera check holds out of the filter (dropped
+        as knocked, or awaiting its second look) is held out of the fix too."""
         context.rec.selected = self._usable(context, None)
 
         def covariance(c: int, idx: np.ndarray) -> np.ndarray:
             return np.zeros((len(idx), 2, 2))
 
-        obs = self._measure(context, covariance, size_px)
+        usable = self.camera_check.usable
+        obs = [o for o in self._measure(context, covariance, size_px) if usable(o.camera_index)]
         lying = context.track.lying
         support = None if lying is None or not on_support else (lying, self.config.rest_std)
         with context.timer("ekf"):
@@ -524,11 +526,13 @@ class Tracker:
         a part lying on its support may be fitted there, from fewer: :mod:`.acquisition`)
         that verification confirms, the one whose verifying fix has the most points (the
         fewest pixels of RMS among equals; a nearly symmetric part's turned twin fits fewer of
-        its features than the part), with the context of its record; None otherwise."""
+        its features than the part), with the context of its record; None otherwise. A camera
+        held out of the filter (:meth:`_fix`) is not searched."""
         search, track, t = self.components.search, context.track, context.t
         acquisition = self.components.acquisition
         detect = getattr(self.extractor, "detect", None)
-        observed = [_observed(context.observed, self.cameras, c) for c in range(len(self.cameras))]
+        observed = [_observed(context.observed, self.cameras, c)
+                    if self.camera_check.usable(c) else None for c in range(len(self.cameras))]
         if (search is None or detect is None or track.support is None
                 or t - track.searched < search.every_s - 1e-9
                 or all(o is None for o in observed)):
@@ -738,6 +742,14 @@ def _observed(observed: Any, cameras: Sequence[Camera], c: int) -> Any:
     if isinstance(observed, Mapping):
         return observed.get(cameras[c].name)
     return observed[c] if c < len(observed) else None
+
+
+def _in_filter(check: CameraCheck, n_cameras: int) -> np.ndarray:
+    """(C,) bool: the cameras whose measurements the filter takes (:meth:`CameraCheck.usable`):
+    only their features count as looked for in the health figures, the first update's support,
+    the unknown-occluder map and the loss rule (a dropped camera's features, not found where
+    the estimate predicts them, would keep a track coasting that the other camera holds)."""
+    return np.array([check.usable(c) for c in range(n_cameras)], dtype=bool)
 
 
 def _check_cameras(check: CameraCheck, extractor: Extractor, cameras: Sequence[Camera],
