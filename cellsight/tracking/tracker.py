@@ -396,13 +396,14 @@ class Tracker:
         obs = self._measure(context, covariance)
         looked = rec.selected & _cameras_grabbed(context.observed, self.cameras)[:, None]
         check, loss = self.camera_check, self.components.loss
-        counted = looked & _in_filter(check, len(self.cameras))[:, None]
+        in_filter = _in_filter(check, len(self.cameras))
+        counted = looked & in_filter[:, None]
         with timer("ekf"):
             gate = self.components.gate
             if track.coasted:
                 support = loss.resume_support(int(counted.sum()))
                 gate = SupportedGate(gate, max(self.config.resume_support, support))
-            report = ekf.update([o for o in obs if check.usable(o.camera_index)], gate)
+            report = ekf.update([o for o in obs if in_filter[o.camera_index]], gate)
             track.coasted = report.n_accepted == 0
             _record_update(rec, report)
             rec.health = track.monitor.update(context.t, rec.visible, counted, rec.measured,
