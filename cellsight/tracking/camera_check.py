@@ -12,7 +12,10 @@ fewer than half of the features it looked for while another camera found at leas
 of its own, the corners of its whole image (the sensor's ``detect``; at most every
 ``window_s``) are matched to its predicted pixels: the image offset (within ``max_offset_px``)
 that brings the most predicted pixels within ``match_px`` of a corner, if it brings at least
-``min_matched`` of them and ``matched_share`` of the predicted-visible ones, and a second
+``min_matched`` of them and ``matched_share`` of the predicted-visible ones (counted, too,
+after the image similarity fitted to the corners near that offset, turned at most
+``max_turn_deg`` and scaled at most ``max_scale``: a knock turns the camera, and the image of
+the part moves by more than ``match_px`` apart across it), and a second
 look ``confirm_s`` later finds it again (within twice ``match_px``), is a displacement of the
 camera, not an occluder (an occluder hides some features, it does not move them all alike: the
 knocked camera of the tests matched 12-14 of 14, while clutter beside a gripper hiding part of
@@ -52,6 +55,7 @@ from collections import deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 
 from cellsight.camera import Camera
@@ -71,7 +75,9 @@ class CameraCheckRule:
     min_points: int = 15
     max_offset_px: float = 150.0
     match_px: float = 2.5
-    min_matched: int = 10
+    max_turn_deg: float = 3.0
+    max_scale: float = 0.03
+    min_matched: int = 8
     matched_share: float = 0.75
     confirm_s: float = 0.25
     recalibrate_points: int = 60
@@ -181,6 +187,7 @@ class CameraCheck:
             return
         offset, matched = _best_offset(visible, corners, self.rule.max_offset_px,
                                        self.rule.match_px)
+        matched = max(matched, _matched_turned(visible, corners, offset, self.rule))
         if matched < max(self.rule.min_matched, self.rule.matched_share * len(visible)) or \
                 np.linalg.norm(offset) <= self.rule.bias_px:
             return
@@ -278,6 +285,33 @@ def _slide(window: deque, t: float, rows: list, span: float) -> None:
     window.extend(rows)
     while window and window[0][0] < t - span - 1e-9:
         window.popleft()
+
+
+def _matched_turned(pixels: np.ndarray, corners: np.ndarray, offset: np.ndarray,
+                    rule: CameraCheckRule) -> int:
+    """How many ``pixels`` (n, 2) come within ``match_px`` of a corner (m, 2) once moved by the
+    image similarity (within ``max_turn_deg`` and ``max_scale`` of the offset's) fitted to the
+    corners within twice ``match_px`` of the pixels moved by ``offset`` (2,); 0 where fewer than
+    three are. A knock turns the camera too: across the part its image moves by more than
+    ``match_px`` apart from the offset (1 deg: 10 of 14 within 2.5 px of one offset, 12 with the
+    turn)."""
+    moved = pixels + offset
+    d = np.linalg.norm(moved[:, None] - corners[None], axis=2)
+    nearest = np.argmin(d, axis=1)
+    near = d[np.arange(len(moved)), nearest] <= 2 * rule.match_px
+    if near.sum() < 3:
+        return 0
+    fit, _ = cv2.estimateAffinePartial2D(pixels[near], corners[nearest[near]],
+                                         method=cv2.RANSAC, ransacReprojThreshold=rule.match_px)
+    if fit is None:
+        return 0
+    scale = float(np.hypot(fit[0, 0], fit[1, 0]))
+    turn = float(np.degrees(np.arctan2(fit[1, 0], fit[0, 0])))
+    if abs(turn) > rule.max_turn_deg or abs(scale - 1.0) > rule.max_scale:
+        return 0
+    turned = pixels @ fit[:, :2].T + fit[:, 2]
+    return int(np.sum(np.min(np.linalg.norm(turned[:, None] - corners[None], axis=2), axis=1)
+                      <= rule.match_px))
 
 
 def _best_offset(pixels: np.ndarray, corners: np.ndarray, max_px: float,

@@ -236,13 +236,15 @@ class PoseEKF:
             P[STATE_DIM:, STATE_DIM:] += model.walk(dt)
         self._x, self._P, self.t = x, P, float(t)
 
-    def fuse_prior(self, T_base_part: np.ndarray, rows: np.ndarray, std: np.ndarray,
-                   forget: bool = False, rates: np.ndarray | None = None) -> None:
+    def fuse_prior(self, T_base_part: np.ndarray, rows: np.ndarray, std: np.ndarray | None,
+                   forget: bool = False, rates: np.ndarray | None = None,
+                   covariance: np.ndarray | None = None) -> None:
         """Fuse the pseudo-measurement (module docstring) that the states ``rows`` (indices
         into the 12 of the pose and its rates; :data:`RESTING`, :data:`HELD`, :data:`STILL`) are
         those of the part at ``T_base_part`` (4x4) moving at ``rates`` ((6,) m/s and rad/s,
         the state's order; None: zero), each with its own one sigma ``std`` (m, rad, m/s,
-        rad/s per row). A linear update (Joseph form); angle
+        rad/s per row), or with the (len(rows), len(rows)) ``covariance`` instead (for a
+        prior along some directions only). A linear update (Joseph form); angle
         innovations are taken the short way round, roll and yaw wrapped. ``forget``: the
         estimate of those states is no longer trusted: their covariance is made wide
         (``FORGOTTEN``) and uncorrelated first, so that they come out at the prior's values and
@@ -253,18 +255,18 @@ class PoseEKF:
         nu = np.concatenate([xyz, rpy, moving])[rows] - self._x[rows]
         angles = (rows >= 3) & (rows < POSE_DIM)
         nu[angles] = _wrapped(nu[angles])
-        r = np.asarray(std, dtype=float) ** 2
+        R = np.diag(np.asarray(std, dtype=float) ** 2) if covariance is None else covariance
         P = self._P
         if forget:
             P = P.copy()
             P[rows, :] = 0.0
             P[:, rows] = 0.0
             P[rows, rows] = FORGOTTEN
-        S = P[np.ix_(rows, rows)] + np.diag(r)
+        S = P[np.ix_(rows, rows)] + R
         K = np.linalg.solve(S, P[rows]).T  # P H^T S^-1
         IKH = np.eye(len(self._x))
         IKH[:, rows] -= K
-        P_new = IKH @ P @ IKH.T + (K * r) @ K.T
+        P_new = IKH @ P @ IKH.T + K @ R @ K.T
         x = self._x + K @ nu
         x[[3, 5]] = _wrapped(x[[3, 5]])  # roll and yaw
         self._x, self._P = x, 0.5 * (P_new + P_new.T)

@@ -75,6 +75,7 @@ from cellsight.visibility import CameraVisibility, Views, VisibilitySource
 
 TWIN_VERTICAL = np.cos(np.radians(10.0))  # a twin's turn axis this close to the vertical
 HOLD_SIGMAS = 3.0  # a held part's estimate this many holder sigmas off has left the grasp
+ACROSS_SIGHT = 1.0  # m: the sigma across a lone camera's sight line of the hold along it
 LYING_TOL = (0.015, 0.15)  # m, rad: a fix this far from its support's height and tilt is wrong
 UNREGISTERED = "cameras not registered yet"  # the reason while awaiting the registration
 Crowd = list[tuple[np.ndarray, dict[str, tuple[int, np.ndarray]]]]
@@ -405,6 +406,9 @@ class Tracker:
                 gate = SupportedGate(gate, max(self.config.resume_support, support))
             report = ekf.update([o for o in obs if in_filter[o.camera_index]], gate)
             track.coasted = report.n_accepted == 0
+            if track.holder is not None:
+                _hold_along_sight(ekf, track.holder, self.cameras, report,
+                                  self.config.hold_std[0])
             _record_update(rec, report)
             rec.health = track.monitor.update(context.t, rec.visible, counted, rec.measured,
                                               rec.rejected, rec.mahalanobis2, rec.unknown,
@@ -667,6 +671,24 @@ def _hold(ekf: PoseEKF, holder: np.ndarray, std: tuple[float, float]) -> None:
     off = max(moved, turned) > HOLD_SIGMAS
     if wide or off:
         ekf.fuse_prior(holder, HELD, np.repeat(std, 3), forget=off)
+
+
+def _hold_along_sight(ekf: PoseEKF, holder: np.ndarray, cameras: Sequence[Camera],
+                      report: UpdateReport, std: float) -> None:
+    """A held part that one camera alone updated (``report``): fuse its ``holder``'s position
+    along that camera's line of sight to it, with one sigma ``std`` (m; ``ACROSS_SIGHT``
+    across it: no prior there). One camera measures the part across its sight line well and
+    along it hardly at all: there the estimate drifted while carried (5-8 mm over 10 s with
+    a knocked camera dropped, the gripper exact), and the holder, fused only once the estimate
+    was ``HOLD_SIGMAS`` off (:func:`_hold`), let it. Along that line the holder is all there
+    is to know, so it is fused every such frame; across it the camera rules."""
+    seen = np.unique(report.camera_index[report.accepted])
+    if len(seen) != 1:
+        return
+    sight = ekf.state[:3] - cameras[int(seen[0])].center
+    along = np.outer(sight, sight) / float(sight @ sight)
+    covariance = std**2 * along + ACROSS_SIGHT**2 * (np.eye(3) - along)
+    ekf.fuse_prior(holder, HELD[:3], None, covariance=covariance)
 
 
 def _off_holder(ekf: PoseEKF, holder: np.ndarray | None) -> float | None:
