@@ -46,9 +46,9 @@ OLD_HEADER = (
 )
 HEADER = OLD_HEADER.replace(
     '"err_px_c1",', '"err_px_c1","nis_c1","notfound_c1","rejfrac_c1","unknown_c1",'
-    '"windows_c1","corners_c1",').replace(
+    '"windows_c1","corners_c1","held_out_c1",').replace(
     '"err_px_c2",', '"err_px_c2","nis_c2","notfound_c2","rejfrac_c2","unknown_c2",'
-    '"windows_c2","corners_c2",'
+    '"windows_c2","corners_c2","held_out_c2",'
 ) + ',"t_grab_ms"'
 F = 16
 
@@ -79,7 +79,7 @@ def test_the_format_is_that_of_the_runs_already_written(tmp_path: Path):
     assert header == HEADER and columns(2) == [h.strip('"') for h in HEADER.split(",")]
     flags = '"0' + "1" * (F - 1) + '"'
     labels = '"self' + ";" * (F - 1) + '"'
-    camera = f'{flags},"","","","","",{labels},"",0.07347276475694445,"","","","","","","",'
+    camera = f'{flags},"","","","","",{labels},"",0.07347276475694445,"","","","","","","","",'
     assert line == ('0.078,"waiting","start","tracking",0.55,0.0,0.62,0.0,0.0,0.35,'
                     + '"",' * 12 + "0.5398199451773269,-0.15,0.8,0.09,0,1,"
                     + camera * 2 + ",".join(["1.2346"] * len(STAGES)))

@@ -33,6 +33,12 @@ FRAMES = [
 
 @pytest.fixture
 def log(tmp_path: Path) -> FrameLog:
+    return _hand_made_log(tmp_path)
+
+
+def _hand_made_log(tmp_path: Path, held_out: int | None = None) -> FrameLog:
+    """The log of ``FRAMES``; ``held_out``: the frame whose camera the camera check held out
+    of the filter."""
     T_true = pose_from_xyz_rpy([0.5, 0.1, 0.6], [0.0, 0.0, 0.3])
     with FrameWriter(tmp_path / "frames.csv", 1) as writer:
         for k, (phase, est, pnp, occ, vis_pred, vis_true, meas, rej, wrong, grab, px) in \
@@ -40,7 +46,8 @@ def log(tmp_path: Path) -> FrameLog:
             row = {"t": k * PERIOD, "phase": phase, **pose_fields("true", T_true),
                    "vis_pred_c1": vis_pred, "vis_true_c1": vis_true, "occ_true_c1": occ,
                    "meas_c1": meas, "rej_c1": rej, "wrong_c1": wrong, "grab_c1": grab,
-                   "err_px_c1": px, **timing_fields(dict.fromkeys(STAGES, k * 1e-3))}
+                   "err_px_c1": px, "held_out_c1": int(k == held_out),
+                   **timing_fields(dict.fromkeys(STAGES, k * 1e-3))}
             for prefix, mm in (("est", est), ("pnp", pnp)):
                 if mm is not None:
                     T = T_true.copy()
@@ -75,6 +82,21 @@ def test_metrics_of_a_hand_made_log(log: FrameLog):
     assert m["pixels_grabbed_fraction"] == pytest.approx(0.2)
     assert m["extraction_error_px_median"] == pytest.approx(0.3)
     assert m["timing_ms"] == {s: pytest.approx(2.0) for s in STAGES}
+
+
+def test_a_camera_held_out_of_the_filter_accepts_no_wrong_corner(tmp_path: Path):
+    """The wrong corner the gate let through in frame 3 counts as accepted; with the camera
+    held out of the filter in that frame (a knocked camera, dropped and still measured) it
+    went into nothing: not accepted, and its span says ``unused``."""
+    from cellsight.runfolder.wrong_corners import wrong_corner_spans
+
+    for held_out, accepted in ((None, 1), (3, 0)):
+        folder = tmp_path / str(held_out)
+        folder.mkdir()
+        m = frame_metrics(_hand_made_log(folder, held_out))
+        assert (m["measurements"], m["wrong_measurements"], m["wrong_accepted"]) == (6, 2, accepted)
+        spans = {s.feature: s for s in wrong_corner_spans(folder)}
+        assert (spans["#2"].accepted, spans["#2"].unused) == (accepted, 1 - accepted)
 
 
 def test_the_position_error_in_an_arm_s_frame(log: FrameLog):

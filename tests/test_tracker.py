@@ -383,8 +383,9 @@ def test_a_dropped_camera_is_held_out_of_the_fixes_and_the_counts():
     never takes camera 2's measurements; nor do the fixes, and its features (not found where
     the estimate predicts them) do not count as looked for: camera 1 alone holds the part
     within 1.5 mm, and after a 2.6 s blackout (lost) re-acquires it, within 1.5 mm 0.5 s
-    later. (With camera 2's corners in the fixes and its features counted, the track coasted
-    from the first second on, ran 0.2 m away, and was never found again.)"""
+    later; every frame's record says camera 2 was held out. (With camera 2's corners in the
+    fixes and its features counted, the track coasted from the first second on, ran 0.2 m
+    away, and was never found again.)"""
     run = Run(seed=3, sway=0.0)
     run.resting = True
     cam = run.cams[1]
@@ -402,6 +403,7 @@ def test_a_dropped_camera_is_held_out_of_the_fixes_and_the_counts():
     assert max(run.errors(k)[0] for k in held) < 1.5e-3
     assert "lost" in {run.frames[k].status for k in range(start, stop)}
     assert "acquired" in {run.frames[k].status for k in range(stop, stop + settle)}
+    assert all(rec.held_out.tolist() == [False, True] for rec in run.frames)  # the record says so
 
 
 def test_wrong_corners_are_gated_out_and_recorded():

@@ -33,7 +33,8 @@ Measurements, over all frames: ``measurements`` (features measured), ``rejected_
 (of those, rejected by the EKF's gate), ``wrong_measurements`` (measured more than
 :data:`~cellsight.runfolder.framelog.WRONG_PX` from the true projection: another image point,
 such as an occluder's corner), ``wrong_accepted`` (wrong, not rejected, and used: frames of a
-part being acquired, ``waiting`` or ``lost``, used nothing: no fix came of them).
+part being acquired, ``waiting`` or ``lost``, used nothing: no fix came of them, nor did a
+camera the camera check held out of the filter, ``held_out_c{c}``).
 ``pixels_grabbed_fraction``: mean over frames and cameras of the fraction of pixels grabbed.
 ``extraction_error_px_median``: median over frames and cameras of each frame's median extraction
 error (px); None when no frame has one (ideal sensor). ``timing_ms``: median per stage (ms)
@@ -189,8 +190,8 @@ def _measurements(log: FrameLog) -> dict:
         "measurements": int(meas.sum()),
         "rejected_measurements": int(rej.sum()),
         "wrong_measurements": int(wrong.sum()) if _truth_rows(log).any() else None,
-        "wrong_accepted": (int(np.sum((wrong & ~rej)[log.used()])) if _truth_rows(log).any()
-                           else None),
+        "wrong_accepted": (int(np.sum((wrong & ~rej)[log.used_by_camera()]))
+                           if _truth_rows(log).any() else None),
         "pixels_grabbed_fraction": float(np.mean(grabbed)) if grabbed.size else None,
         "extraction_error_px_median": float(np.median(px)) if px.size else None,
     }

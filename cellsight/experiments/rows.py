@@ -121,6 +121,7 @@ class FrameRows:
             "grab": 0.0 if plan is None else plan.fraction,
             "windows": "" if plan is None else encode_windows(plan.features, plan.boxes),
             "corners": encode_corners(rec.measured[c]),
+            "held_out": int(c < len(rec.held_out) and rec.held_out[c]),
             **_health_fields(rec.health, c),
         }
         if truth is not None:

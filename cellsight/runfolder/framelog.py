@@ -37,7 +37,9 @@ c = 1..C, F features; an empty field is a missing value):
   (:mod:`cellsight.tracking.health`; empty while it is not tracked or not judged):
   ``nis_c{c}`` the normalised innovation squared per degree of freedom, ``notfound_c{c}`` the
   fraction of selected, predicted-visible features not found, ``rejfrac_c{c}`` the fraction
-  of measured features the gate rejected;
+  of measured features the gate rejected; ``held_out_c{c}``: 1 where the camera check held
+  the camera out of the filter (:mod:`cellsight.tracking.camera_check`: dropped, or between
+  its two looks), its measurements used for nothing (empty in runs logged before it);
 - ``t_{stage}_ms`` for each stage of :data:`cellsight.tracking.timing.STAGES` (occlusion,
   selection, windowing, extraction, ekf = prediction + update, total; then grab, the cameras'
   reading of the windows, in no other stage): the tracker's stage times (ms).
@@ -70,7 +72,8 @@ POSE = ("x", "y", "z", "roll", "pitch", "yaw")
 POSE_PREFIXES = ("true", "est", "pnp")
 GRIPPER = ("gripper_x", "gripper_y", "gripper_z", "jaw_opening", "jaws_closed", "grasped")
 PER_CAMERA = ("vis_pred", "vis_true", "sel", "meas", "rej", "wrong", "occ_pred", "occ_true",
-              "grab", "err_px", "nis", "notfound", "rejfrac", "unknown", "windows", "corners")
+              "grab", "err_px", "nis", "notfound", "rejfrac", "unknown", "windows", "corners",
+              "held_out")
 WRONG_PX = 3.0  # a measurement this far (px) from the true projection is another image point
 LABEL_SEPARATOR = ";"
 
@@ -297,6 +300,14 @@ class FrameLog:
         """(N,) bool: rows whose measurements went into an estimate (the status is neither
         ``waiting`` nor ``lost``: an acquisition that gave no fix used nothing)."""
         return ~np.isin(np.array(self.text("status"), dtype=str), ("waiting", "lost"))
+
+    def used_by_camera(self) -> np.ndarray:
+        """(N, C) bool: per camera, rows whose measurements went into an estimate
+        (:meth:`used`, and the camera not ``held_out``)."""
+        held_out = np.zeros((self.n, self.n_cameras), dtype=bool)
+        for c in range(self.n_cameras):
+            held_out[:, c] = self.floats(camera_column("held_out", c + 1)) == 1
+        return self.used()[:, None] & ~held_out
 
     def bits(self, name: str, n_features: int | None = None) -> np.ndarray:
         """A 0/1 column as (N, F) bool; missing rows are all False. ``n_features`` defaults to

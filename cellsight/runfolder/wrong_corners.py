@@ -1,8 +1,9 @@
 """Where a run's wrong corners come from: every corner measured more than ``WRONG_PX`` (3 px)
 from its feature's true projection (``wrong_c{c}`` of ``frames.csv``), grouped by camera and
 feature into spans of frames, each with what the gate did (accepted, rejected; a frame of an
-acquisition that gave no fix, ``waiting`` or ``lost``, used none of its corners: ``unused``,
-as the run's ``wrong_accepted`` counts) and what the simulator and the tracker said of the
+acquisition that gave no fix, ``waiting`` or ``lost``, used none of its corners, nor did a
+camera held out of the filter, ``held_out_c{c}``: ``unused``, as the run's ``wrong_accepted``
+counts) and what the simulator and the tracker said of the
 feature then.
 
 A span is a run of frames of one camera and feature with a wrong corner, frames less than
@@ -56,7 +57,7 @@ def wrong_corner_spans(run_dir: str | Path, cameras: list[str] | None = None,
     ``cameras`` and ``features`` name them (default ``cam<c>``, 1-based, and ``#<j>``, the
     0-based index of the log's flags)."""
     log = FrameLog.read(Path(run_dir) / "frames.csv")
-    t, phases, used = log.floats("t"), log.text("phase"), log.used()
+    t, phases, used_by = log.floats("t"), log.text("phase"), log.used_by_camera()
     F = log.n_features
     spans: list[WrongSpan] = []
     for c in range(1, log.n_cameras + 1):
@@ -65,6 +66,7 @@ def wrong_corner_spans(run_dir: str | Path, cameras: list[str] | None = None,
         truth = log.labels(camera_column("occ_true", c), F)
         predicted = log.labels(camera_column("occ_pred", c), F)
         camera = cameras[c - 1] if cameras else f"cam{c}"
+        used = used_by[:, c - 1]
         for f in np.flatnonzero(wrong.any(axis=0)):
             for rows in _runs(np.flatnonzero(wrong[:, f])):
                 spans.append(WrongSpan(

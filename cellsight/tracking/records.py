@@ -29,7 +29,10 @@ class PartFrame:
     ``innovation`` (px), ``mahalanobis2`` and ``rejected`` (gated out); ``state``/``covariance``/
     ``T_base_part`` after the update (None while waiting); ``predicted_state`` before it;
     ``health``: the health monitor's report (:mod:`.health`; None where the part was not
-    tracked this frame), whose reasons :attr:`status_text` gives for a degraded track.
+    tracked this frame), whose reasons :attr:`status_text` gives for a degraded track;
+    ``held_out`` (C,): the cameras the camera check held out of the filter this frame
+    (dropped, or between its two looks; :mod:`.camera_check`): their features are measured,
+    and used for nothing.
     """
 
     name: str
@@ -51,6 +54,7 @@ class PartFrame:
     T_base_part: np.ndarray | None
     views: list[CameraVisibility] = field(default_factory=list)
     health: TrackHealthReport | None = None
+    held_out: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
 
     @classmethod
     def empty(cls, name: str, status: TrackStatus, n_cameras: int, n_features: int,
@@ -77,6 +81,7 @@ class PartFrame:
             state=None if state is None else state.copy(),
             covariance=None if covariance is None else covariance.copy(),
             T_base_part=T_base_part,
+            held_out=np.zeros(C, dtype=bool),
         )
 
     def set_views(self, views: list[CameraVisibility]) -> None:

@@ -312,7 +312,9 @@ class Tracker:
                 rec = records[name] = self._record(name, track, part_views)
                 if part_views is not None:
                     context = StepContext(t, observed, crowd, timer, track, rec, look, lags)
+                    held_out = ~_in_filter(self.camera_check, len(self.cameras))
                     records[name] = (self._acquire if track.acquiring else self._track)(context)
+                    records[name].held_out = held_out
         masks = [self.unknown.mask(c, t) for c in range(len(self.cameras))]
         return TrackerFrame(float(t), records, timer.seconds, _grabbed(records, len(self.cameras)),
                             masks)
