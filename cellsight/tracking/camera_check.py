@@ -290,11 +290,11 @@ def _slide(window: deque, t: float, rows: list, span: float) -> None:
 def _matched_turned(pixels: np.ndarray, corners: np.ndarray, offset: np.ndarray,
                     rule: CameraCheckRule) -> int:
     """How many ``pixels`` (n, 2) come within ``match_px`` of a corner (m, 2) once moved by the
-    image similarity (within ``max_turn_deg`` and ``max_scale`` of the offset's) fitted to the
-    corners within twice ``match_px`` of the pixels moved by ``offset`` (2,); 0 where fewer than
-    three are. A knock turns the camera too: across the part its image moves by more than
-    ``match_px`` apart from the offset (1 deg: 10 of 14 within 2.5 px of one offset, 12 with the
-    turn)."""
+    image similarity fitted to the corners within twice ``match_px`` of the pixels moved by
+    ``offset`` (2,), if it turns them at most ``max_turn_deg`` and scales them at most
+    ``max_scale``; else, or where fewer than three corners are that near, 0. A knock turns the
+    camera too: across the part its image moves by more than ``match_px`` apart from the
+    offset (1 deg: 10 of 14 within 2.5 px of one offset, 12 with the turn)."""
     moved = pixels + offset
     d = np.linalg.norm(moved[:, None] - corners[None], axis=2)
     nearest = np.argmin(d, axis=1)
