@@ -270,28 +270,28 @@ class Tracker:
         """Process one vision frame at time ``t`` (s): the paper's Fig. 5 (module docstring).
 
         ``observed``: what the sensors took, one entry per camera (sequence in camera order, or
-        mapping by camera name; None for a camera that gave nothing, or for the whole frame),
-        each passed to the extractor: an image for the corner extractor, or whatever the
-        extractor measures; ``joints``: robot name -> joint vector (m, rad) and ``openings``:
-        robot name -> jaw opening (m), for the visibility source; ``holders`` (the kinematic
-        prior, optional): part name -> ``T_base_part`` where what holds the part rigidly this
-        frame puts it (a gripper closed on it: its TCP from the joint measurements times the
-        grasp's ``T_tcp_part``); a part held at this frame and the last one is predicted by
-        the holder's motion (:meth:`PoseEKF.predict_carried`) instead of its motion model, a
-        held part's estimate is kept with the holder's pose (:func:`_hold`,
-        ``TrackerConfig.hold_std``) and is never lost, a held part never tracked starts there
-        (``TrackerConfig.held_std``), one let go comes to rest (its rates zeroed: it no longer
-        moves with the holder, and stays still), and one let go while not tracked is looked
-        for where it was let go; ``stamps`` (optional): each camera's exposure time (s, at
-        most ``t``; a sequence in camera order or a mapping by camera name, None for ``t``),
-        for cameras not triggered together: the filter is predicted to ``t`` and each camera
-        measures the pose of its own exposure
+        mapping by camera name; None for a camera that gave nothing, or for the whole frame), each
+        passed to the extractor: an image for the corner extractor, or whatever the extractor
+        measures; ``joints``: robot name -> joint vector (m, rad) and ``openings``: robot name ->
+        jaw opening (m), for the visibility source; ``holders`` (the kinematic prior, optional):
+        part name -> ``T_base_part`` where what holds the part rigidly this frame puts it (a
+        gripper closed on it: its TCP from the joint measurements times the grasp's
+        ``T_tcp_part``); a part held at this frame and the last one is predicted by the holder's
+        motion (:meth:`PoseEKF.predict_carried`) instead of its motion model, a held part's
+        estimate is kept with the holder's pose (:func:`_hold`, ``TrackerConfig.hold_std``; along a
+        lone camera's sight line, :func:`_hold_along_sight`) and is never lost, a held part never
+        tracked starts there (``TrackerConfig.held_std``), one let go comes to rest (its rates
+        zeroed: it no longer moves with the holder, and stays still), and one let go while not
+        tracked is looked for where it was let go; ``stamps`` (optional): each camera's exposure
+        time (s, at most ``t``; a sequence in camera order or a mapping by camera name, None for
+        ``t``), for cameras not triggered together: the filter is predicted to ``t`` and each
+        camera measures the pose of its own exposure
         (:class:`~cellsight.tracking.measurement.Observation` ``lag_s``); ``supports`` (the
         kinematic prior, optional): part name -> ``T_base_part`` of the part lying on the level
-        support it rests on this frame (a conveyor's belt, a table): a tracked part not held
-        keeps that height, roll and pitch (:meth:`PoseEKF.fuse_prior`,
-        ``TrackerConfig.rest_std``), and a lost one is searched for on that support's plane
-        (an acquisition off it is refused, ``LYING_TOL``).
+        support it rests on this frame (a conveyor's belt, a table): a tracked part not held keeps
+        that height, roll and pitch (:meth:`PoseEKF.fuse_prior`, ``TrackerConfig.rest_std``), and a
+        lost one is searched for on that support's plane (an acquisition off it is refused,
+        ``LYING_TOL``).
         """
         lags = _lags(stamps, self.cameras, t)
         timer = StageTimer()
@@ -312,9 +312,8 @@ class Tracker:
                 rec = records[name] = self._record(name, track, part_views)
                 if part_views is not None:
                     context = StepContext(t, observed, crowd, timer, track, rec, look, lags)
-                    held_out = ~_in_filter(self.camera_check, len(self.cameras))
-                    records[name] = (self._acquire if track.acquiring else self._track)(context)
-                    records[name].held_out = held_out
+                    part_step = self._acquire if track.acquiring else self._track
+                    records[name] = _with_held_out(self.camera_check, part_step, context)
         masks = [self.unknown.mask(c, t) for c in range(len(self.cameras))]
         return TrackerFrame(float(t), records, timer.seconds, _grabbed(records, len(self.cameras)),
                             masks)
@@ -775,6 +774,16 @@ def _in_filter(check: CameraCheck, n_cameras: int) -> np.ndarray:
     the unknown-occluder map and the loss rule (a dropped camera's features, not found where
     the estimate predicts them, would keep a track coasting that the other camera holds)."""
     return np.array([check.usable(c) for c in range(n_cameras)], dtype=bool)
+
+
+def _with_held_out(check: CameraCheck, step: Callable[[StepContext], PartFrame],
+                   context: StepContext) -> PartFrame:
+    """``step(context)``'s record, with the cameras the camera check held out of the filter as
+    the step began (``PartFrame.held_out``; the check moves on at the step's end)."""
+    held_out = ~_in_filter(check, len(check.cameras))
+    rec = step(context)
+    rec.held_out = held_out
+    return rec
 
 
 def _check_cameras(check: CameraCheck, extractor: Extractor, cameras: Sequence[Camera],
