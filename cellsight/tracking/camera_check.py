@@ -220,10 +220,8 @@ class CameraCheck:
                    out: np.ndarray) -> int:
         """Write into ``out`` (F, 2) the corners within ``match_px`` of the visible ``pixels``
         moved by camera ``c``'s offset; how many there are."""
-        moved = pixels + self._offsets[c]
-        d = np.linalg.norm(moved[:, None] - corners[None], axis=2)
-        nearest = np.argmin(d, axis=1)
-        ok = visible & (d[np.arange(len(moved)), nearest] <= self.rule.match_px)
+        nearest, distance = _nearest_corner(pixels + self._offsets[c], corners)
+        ok = visible & (distance <= self.rule.match_px)
         out[:] = np.nan
         out[ok] = corners[nearest[ok]]
         return int(ok.sum())
@@ -295,10 +293,8 @@ def _matched_turned(pixels: np.ndarray, corners: np.ndarray, offset: np.ndarray,
     ``max_scale``; else, or where fewer than three corners are that near, 0. A knock turns the
     camera too: across the part its image moves by more than ``match_px`` apart from the
     offset (1 deg: 10 of 14 within 2.5 px of one offset, 12 with the turn)."""
-    moved = pixels + offset
-    d = np.linalg.norm(moved[:, None] - corners[None], axis=2)
-    nearest = np.argmin(d, axis=1)
-    near = d[np.arange(len(moved)), nearest] <= 2 * rule.match_px
+    nearest, distance = _nearest_corner(pixels + offset, corners)
+    near = distance <= 2 * rule.match_px
     if near.sum() < 3:
         return 0
     fit, _ = cv2.estimateAffinePartial2D(pixels[near], corners[nearest[near]],
@@ -309,9 +305,16 @@ def _matched_turned(pixels: np.ndarray, corners: np.ndarray, offset: np.ndarray,
     turn = float(np.degrees(np.arctan2(fit[1, 0], fit[0, 0])))
     if abs(turn) > rule.max_turn_deg or abs(scale - 1.0) > rule.max_scale:
         return 0
-    turned = pixels @ fit[:, :2].T + fit[:, 2]
-    return int(np.sum(np.min(np.linalg.norm(turned[:, None] - corners[None], axis=2), axis=1)
+    return int(np.sum(_nearest_corner(pixels @ fit[:, :2].T + fit[:, 2], corners)[1]
                       <= rule.match_px))
+
+
+def _nearest_corner(points: np.ndarray, corners: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """For each of ``points`` (n, 2): the index of its nearest corner (m, 2), and how far it
+    is (px)."""
+    d = np.linalg.norm(points[:, None] - corners[None], axis=2)
+    nearest = np.argmin(d, axis=1)
+    return nearest, d[np.arange(len(points)), nearest]
 
 
 def _best_offset(pixels: np.ndarray, corners: np.ndarray, max_px: float,

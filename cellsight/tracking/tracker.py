@@ -398,7 +398,7 @@ class Tracker:
         obs = self._measure(context, covariance)
         looked = rec.selected & _cameras_grabbed(context.observed, self.cameras)[:, None]
         check, loss = self.camera_check, self.components.loss
-        in_filter = _in_filter(check, len(self.cameras))
+        in_filter = _in_filter(check)
         counted = looked & in_filter[:, None]
         with timer("ekf"):
             gate = self.components.gate
@@ -768,19 +768,19 @@ def _observed(observed: Any, cameras: Sequence[Camera], c: int) -> Any:
     return observed[c] if c < len(observed) else None
 
 
-def _in_filter(check: CameraCheck, n_cameras: int) -> np.ndarray:
+def _in_filter(check: CameraCheck) -> np.ndarray:
     """(C,) bool: the cameras whose measurements the filter takes (:meth:`CameraCheck.usable`):
     only their features count as looked for in the health figures, the first update's support,
     the unknown-occluder map and the loss rule (a dropped camera's features, not found where
     the estimate predicts them, would keep a track coasting that the other camera holds)."""
-    return np.array([check.usable(c) for c in range(n_cameras)], dtype=bool)
+    return np.array([check.usable(c) for c in range(len(check.cameras))], dtype=bool)
 
 
 def _with_held_out(check: CameraCheck, step: Callable[[StepContext], PartFrame],
                    context: StepContext) -> PartFrame:
     """``step(context)``'s record, with the cameras the camera check held out of the filter as
     the step began (``PartFrame.held_out``; the check moves on at the step's end)."""
-    held_out = ~_in_filter(check, len(check.cameras))
+    held_out = ~_in_filter(check)
     rec = step(context)
     rec.held_out = held_out
     return rec
