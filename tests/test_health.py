@@ -56,6 +56,15 @@ def test_the_band_holds_the_chi_square_sums_drawn_with_numpy():
         assert np.mean(sums > high) == pytest.approx((1 - p) / 2, abs=0.002)
 
 
+def test_the_band_is_scipy_s_chi_square_quantiles_to_the_bit():
+    from scipy.stats import chi2
+
+    for p in (0.9, 0.99, 0.999):
+        tail = (1 - p) / 2
+        for dof in range(1, 3001):
+            assert nis_band(dof, p) == (chi2.ppf(tail, dof), chi2.isf(tail, dof)), (dof, p)
+
+
 def test_a_consistent_filter_stays_in_the_band_and_scaled_innovations_are_flagged():
     rule = HealthRule(window_s=1.0, band_probability=0.99)
     reports = _feed_windows(rule, 300, features=5, scale=1.0)

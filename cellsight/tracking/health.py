@@ -45,7 +45,7 @@ from dataclasses import dataclass
 from functools import lru_cache
 
 import numpy as np
-from scipy.stats import chi2
+from scipy import special
 
 # rows of a frame's counts
 _NIS, _ACCEPTED, _SELECTED, _MISSING, _MEASURED, _REJECTED, _VISIBLE, _UNKNOWN = range(8)
@@ -55,9 +55,10 @@ _TIME_TOLERANCE_S = 1e-9  # a frame exactly ``window_s`` old has left the window
 @lru_cache(maxsize=4096)
 def nis_band(dof: int, probability: float) -> tuple[float, float]:
     """Two-sided chi-square band ``(low, high)`` holding a sum of ``dof`` degrees of freedom
-    with ``probability`` ((1 - probability) / 2 below, as much above)."""
+    with ``probability`` ((1 - probability) / 2 below, as much above): the special functions
+    SciPy's ``chi2.ppf`` and ``chi2.isf`` call, without their 0.1 ms of checks a call."""
     tail = (1.0 - probability) / 2.0
-    return float(chi2.ppf(tail, dof)), float(chi2.isf(tail, dof))
+    return float(2.0 * special.gammaincinv(dof / 2.0, tail)), float(special.chdtri(dof, tail))
 
 
 @dataclass(frozen=True, eq=False)
