@@ -380,7 +380,7 @@ def test_a_knocked_camera_half_hidden_at_its_first_look_is_dropped_at_the_second
     features at the knock's offset (8 of 12 there: no share is asked of a first look); for
     the next 0.35 s only 7 of them are predicted visible (too few to judge by: those frames
     are not looks, and the offset found waits); then all 12 are seen again at the same
-    offset: dropped at that frame, 0.35 s after the first look (a first look asked for 75 %
+    offset: dropped at that frame, 0.38 s after the first look (a first look asked for 75 %
     found it only a second later, and the frames of 7 spent the second look)."""
     from cellsight.tracking.camera_check import CameraCheckRule, CheckFrame
 
