@@ -4,7 +4,7 @@ STAMP   := .venv/.installed
 DEV     := .venv/.installed-dev
 export MUJOCO_GL ?= egl
 
-.PHONY: venv dev test demo experiments recordings bench fuzz lint clean
+.PHONY: venv dev test demo experiments results docs recordings bench fuzz lint clean
 
 # `venv`: what cellsight needs to run; `dev`: plus the test tools and the benchmark peers.
 venv: $(STAMP)
@@ -21,7 +21,7 @@ $(DEV): $(STAMP)
 	touch $(DEV)
 
 lint: dev
-	.venv/bin/ruff check cellsight tests bench scripts
+	.venv/bin/ruff check cellsight tests bench scripts examples docs/gen
 
 # The suite runs on every core (at most 4; each test module stays on one worker, so its
 # fixtures are built once).
@@ -33,34 +33,22 @@ test: dev lint
 demo: venv
 	.venv/bin/cellsight run 3 --realism lab --out out/experiment3 --overwrite
 
-# The README's tables, resumable (`cellsight sweep`; out/<table>/summary.*): experiments 1-3,
-# rendered, 20 seeds, occlusion prediction on and off paired on the same seeds, in the `lab`
-# world and in the `harsh` world; `lab` without its cameras' errors, 20 seeds; camera offsets
-# estimated in `harsh` and with `harsh`'s cameras alone, and in `exact` and `lab`, paired with
-# the plain tracker; the paper's per-frame BSP against the per-object hierarchies, experiment 3,
-# 20 seeds (the later --experiments wins); the fault table: each knob group of
-# `harsh` alone, 5 seeds, prediction on and off; the kinematic prior (the held part, the part
-# on its support, the cameras registered to the gripper) in `harsh`, 20 seeds, paired with the
-# plain tracker.
-SEEDS20 := 0 1 2 3 4 5 6 7 8 9 10 11 12 13 14 15 16 17 18 19
-SWEEP   := .venv/bin/cellsight sweep --experiments 1 2 3 --sensors rendered --jobs 2
+# The results pages' sweeps (docs/results/sweeps.yaml: experiments 1-3, rendered, 20 seeds, in
+# the `lab` and `harsh` worlds, and the comparisons), resumable: out/<name>/summary.*.
+# `make results` then copies the finished ones into docs/results/data/ with the command and the
+# version that made them, and writes the README's headline table.
 experiments: venv
-	$(SWEEP) --out out/lab --realism lab --variants pred nopred --seeds $(SEEDS20)
-	$(SWEEP) --out out/harsh --realism harsh --variants pred nopred --seeds $(SEEDS20)
-	$(SWEEP) --out out/lab-nocam --realism lab/robots+servo+geometry+images+timing+scenario \
-		--variants pred --seeds $(SEEDS20)
-	$(SWEEP) --out out/offsets --realism harsh/cameras harsh --variants offsets pred \
-		--seeds 0 1 2 3 4
-	$(SWEEP) --out out/offsets-lab --realism exact lab --variants offsets pred --seeds 0 1
-	$(SWEEP) --out out/lab-offsets --realism lab --variants offsets pred --seeds $(SEEDS20)
-	$(SWEEP) --out out/structures --realism lab --structure object-bvh frame-bsp \
-		--experiments 3 --seeds $(SEEDS20)
-	$(SWEEP) --out out/faults --seeds 0 1 2 3 4 --variants pred nopred \
-		--realism harsh/cameras harsh/robots harsh/servo harsh/geometry harsh/unmodelled \
-		harsh/images harsh/timing harsh/scenario
-	$(SWEEP) --out out/harsh-hold --realism harsh --variants prior pred --seeds $(SEEDS20)
+	$(PY) scripts/publish_results.py run
 
-# The README's recording table: experiment 3 in the lab world recorded lossless and as JPEG,
+results: venv
+	$(PY) scripts/publish_results.py publish
+
+# The documentation site (MkDocs; build/site/index.html), warnings as errors; the tutorials in
+# examples/ run as it builds. (The two variables silence banners of MkDocs' plugins.)
+docs: dev
+	NO_MKDOCS_2_WARNING=1 DISABLE_MKDOCS_2_WARNING=true .venv/bin/mkdocs build --strict --quiet
+
+# The recording round trip (docs/recording_roundtrip.png): experiment 3 in the lab world recorded lossless and as JPEG,
 # each tracked back with `cellsight track`, against the run (docs/recording_roundtrip.png).
 REC := .venv/bin/cellsight run 3 --realism lab --seed 0 --quiet --overwrite
 recordings: venv
@@ -81,4 +69,4 @@ bench: dev
 	$(PY) bench/run_all.py
 
 clean:
-	rm -rf .venv out .pytest_cache .ruff_cache
+	rm -rf .venv out build docs/tutorials .pytest_cache .ruff_cache

@@ -1,5 +1,5 @@
-"""A custom part plugged into the tracker: the README's own selector ("Plug in your own
-selector"), its code block run as it stands, on the built-in cell's world images."""
+"""A custom part plugged into the tracker: the selector of docs/guides/your-cameras.md ("Plug
+in your own selector"), its code block run as it stands, on the built-in cell's world images."""
 
 from __future__ import annotations
 
@@ -12,21 +12,21 @@ from cellsight.rates import VISION_HZ
 from cellsight.tracking import OptimalSelector, Selection, TrackerParts
 from cellsight.world import World
 
-README = Path(__file__).resolve().parent.parent / "README.md"
+PAGE = Path(__file__).resolve().parent.parent / "docs/guides/your-cameras.md"
 
 
-def _readme_block(heading: str) -> str:
-    """The first ``python`` code block after the README's ``heading``."""
-    text = README.read_text()
-    start = text.index(heading)
+def _page_block(marker: str) -> str:
+    """The first ``python`` code block after ``marker`` in docs/guides/your-cameras.md."""
+    text = PAGE.read_text()
+    start = text.index(marker)
     match = re.compile(r"```python\n(.*?)```", re.DOTALL).search(text, start)
-    assert match is not None, f"no python block after {heading!r} in README.md"
+    assert match is not None, f"no python block after {marker!r} in {PAGE}"
     return match.group(1)
 
 
 def test_the_readme_selector_chooses_what_is_windowed_and_measured() -> None:
     namespace: dict = {}
-    exec(_readme_block("### Plug in your own selector"), namespace)
+    exec(_page_block("<!-- test: tests/test_custom_parts.py -->"), namespace)
     tracker, chooser = namespace["tracker"], namespace["FarthestPerCamera"](4)
     cell = namespace["cell"]
     part = cell.workpieces[0]

@@ -1,4 +1,4 @@
-"""The README's frame-by-frame example ("Your own cameras"), run as it is written: rendered
+"""The frame-by-frame example of docs/guides/your-cameras.md, run as it is written: rendered
 frames of the built-in cell saved as image files, read back by OpenCV's ``VideoCapture`` and
 fed to the tracker with the joints measured at each frame; the estimate against the
 simulator's truth."""
@@ -15,13 +15,14 @@ from cellsight import load_cell
 from cellsight.rates import VISION_HZ
 from cellsight.world import World
 
-README = Path(__file__).resolve().parent.parent / "README.md"
+PAGE = Path(__file__).resolve().parent.parent / "docs/guides/your-cameras.md"
 FRAMES = 30
 
 
 def _example() -> str:
-    text = README.read_text()
-    start = text.index("Your own cameras, frame by frame")
+    """The ``python`` block right after the page's marker naming this test."""
+    text = PAGE.read_text()
+    start = text.index("<!-- test: tests/test_feed_your_cameras.py -->")
     return re.search(r"```python\n(.*?)```", text[start:], flags=re.DOTALL).group(1)
 
 
@@ -41,7 +42,7 @@ def test_the_readme_example_tracks_frames_read_from_files(tmp_path, monkeypatch,
     source = iter(joints)
     code = _example().replace('load_cell("my_cell.yaml")', "load_cell()")
     scope = {"read_joints": lambda: next(source)}
-    exec(compile(code, str(README), "exec"), scope)
+    exec(compile(code, str(PAGE), "exec"), scope)
     lines = capsys.readouterr().out.strip().splitlines()
     assert len(lines) == FRAMES and lines[-1].split()[2] == "tracking:"
     part = scope["part"]

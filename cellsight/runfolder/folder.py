@@ -13,8 +13,22 @@ from pathlib import Path
 from cellsight.errors import CellsightError
 from cellsight.runfolder.writes import TEMP_SUFFIX
 
-RUN_FILES = frozenset({"frames.csv", "metrics.json", "run.log", "report.html", "keyframes.json",
-                       "views.mp4", "run_cell.yaml"})
+RUN_FILE_DOCS = {
+    "frames.csv": "one row per vision frame: poses, visibility, selection, measurements, "
+                  "health, stage times (:mod:`.framelog`)",
+    "metrics.json": "the run's facts and figures (:mod:`.metrics`); written last, so a folder "
+                    "without it is not a finished run",
+    "run.log": "the run's log, written as it goes",
+    "report.html": "the report: figures, camera views, the video, the wrong corners",
+    "keyframes.json": "the key frames: their times and what each shows",
+    "views.mp4": "the cameras' views as a video",
+    "run_cell.yaml": "the run's cell, kept so that the run replays without the original file "
+                     "(:mod:`.cell_copy`)",
+    "keyframes/*.png": "camera images at the key frames, features and windows drawn",
+    "fig_*.png": "the report's figures",
+}
+"""Every file a run writes into its folder, and what it holds."""
+RUN_FILES = frozenset(name for name in RUN_FILE_DOCS if "*" not in name)
 """The files a run writes into its folder, besides ``keyframes/*.png`` and ``fig_*.png``."""
 
 

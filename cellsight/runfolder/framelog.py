@@ -1,48 +1,8 @@
 """``frames.csv``, the per-frame log of an experiment run: its columns, its writer and reader.
 
-One row per vision frame, written and flushed as the run goes. Columns (C cameras numbered
-c = 1..C, F features; an empty field is a missing value):
-
-- ``t`` (s), ``phase`` and ``stage`` of the grasping task, ``status`` of the tracker
-  (:class:`~cellsight.tracking.status.TrackStatus`; a degraded track with its reasons,
-  ``degraded: 75% not found in cam1``, :attr:`~cellsight.tracking.records.PartFrame.status_text`;
-  runs logged before the health monitor say ``predicting`` for ``coasting``);
-- ``true_x, true_y, true_z, true_roll, true_pitch, true_yaw``: the part's true pose (m, rad,
-  base frame, roll-pitch-yaw as in :func:`~cellsight.geometry.transforms.xyz_rpy_from_pose`);
-  ``est_*`` the EKF's estimate after this frame's update (empty while the part is not acquired
-  yet or lost); ``pnp_*`` the per-frame multi-camera PnP baseline on the same measurements (a
-  frame with too few holds the last fix, for at most the tracker's ``lost_after_s``);
-- ``gripper_x, gripper_y, gripper_z`` (m): the grasping robot's true TCP; ``jaw_opening`` (m);
-  ``jaws_closed`` (jaws closed on the part, 0/1); ``grasped`` (part held, 0/1);
-- ``q_{robot}_{j}`` (rad or m, j = 1..n): every robot's true joint values, enough to replay
-  the cell (``cellsight view``, ``cellsight export``); absent in runs logged before them;
-- per camera: ``vis_pred_c{c}`` (predicted visible at the tracker's predicted pose, and not
-  under an unknown occluder),
-  ``vis_true_c{c}`` (visible by the simulator's ray casts at the true pose), ``sel_c{c}``
-  (selected: a window was planned), ``meas_c{c}`` (a feature was measured in it), ``rej_c{c}``
-  (measured, rejected by the EKF's gate), ``wrong_c{c}`` (measured more than :data:`WRONG_PX`
-  from the feature's true projection): strings of F characters ``0``/``1`` in feature order
-  (:func:`encode_bits`); ``occ_pred_c{c}``, ``occ_true_c{c}``: F labels joined by ``;`` (empty
-  when visible, ``self``, ``behind``, ``outside`` or the hiding object's label, as
-  :attr:`cellsight.visibility.CameraVisibility.reason`; in ``occ_pred``, ``unknown`` for a
-  feature the tracker's unknown-occluder map covers, :mod:`cellsight.tracking.unknown`);
-  ``unknown_c{c}``: that map's occluded cells after the frame (:func:`encode_grid`; empty when
-  none, and in runs logged before it); ``windows_c{c}``: the windows planned, each
-  ``j u0 v0 u1 v1`` (feature index from 0, half-open pixel box), joined by ``;``
-  (:func:`encode_windows`); ``corners_c{c}``: the corners measured, each ``j u v`` (px, as in
-  the image, to 0.001 px), joined by ``;`` (:func:`encode_corners`; both empty when none, and
-  in runs logged before them); ``grab_c{c}``: fraction of the
-  image's pixels grabbed; ``err_px_c{c}``: median distance (px) of this frame's measurements
-  from the true projections (rendered sensor); the track's health over its sliding window
-  (:mod:`cellsight.tracking.health`; empty while it is not tracked or not judged):
-  ``nis_c{c}`` the normalised innovation squared per degree of freedom, ``notfound_c{c}`` the
-  fraction of selected, predicted-visible features not found, ``rejfrac_c{c}`` the fraction
-  of measured features the gate rejected; ``held_out_c{c}``: 1 where the camera check held
-  the camera out of the filter (:mod:`cellsight.tracking.camera_check`: dropped, or between
-  its two looks), its measurements used for nothing (empty in runs logged before it);
-- ``t_{stage}_ms`` for each stage of :data:`cellsight.tracking.timing.STAGES` (occlusion,
-  selection, windowing, extraction, ekf = prediction + update, total; then grab, the cameras'
-  reading of the windows, in no other stage): the tracker's stage times (ms).
+One row per vision frame, written and flushed as the run goes: its columns, their units and
+meanings are :data:`COLUMN_DOCS` (C cameras numbered c = 1..C, F features; an empty field is a
+missing value).
 
 Strings are quoted (``csv.QUOTE_NONNUMERIC``); read the 0/1 columns as strings (pandas:
 ``dtype=str``) or their leading zeros are lost. :class:`FrameWriter` writes the file,
@@ -74,6 +34,61 @@ GRIPPER = ("gripper_x", "gripper_y", "gripper_z", "jaw_opening", "jaws_closed", 
 PER_CAMERA = ("vis_pred", "vis_true", "sel", "meas", "rej", "wrong", "occ_pred", "occ_true",
               "grab", "err_px", "nis", "notfound", "rejfrac", "unknown", "windows", "corners",
               "held_out")
+COLUMN_DOCS: dict[str, tuple[str, str]] = {
+    "t": ("s", "the frame's time since the start of the run"),
+    "phase": ("-", "the grasping task's phase: waiting, approach, grasp, manipulate, release, "
+              "done or failed"),
+    "stage": ("-", "the task's stage within its phase"),
+    "status": ("-", "the tracker's status (TrackStatus): waiting, acquired, tracking, degraded "
+               "with its reasons ('degraded: 75% not found in cam1'), coasting, lost"),
+    "true_{x,y,z,roll,pitch,yaw}": ("m, rad", "the part's true pose in the base frame, "
+                                    "roll-pitch-yaw as xyz_rpy_from_pose"),
+    "est_{x,y,z,roll,pitch,yaw}": ("m, rad", "the EKF's estimate after this frame's update; "
+                                   "empty while the part is not acquired yet, or lost"),
+    "pnp_{x,y,z,roll,pitch,yaw}": ("m, rad", "the per-frame multi-camera PnP baseline on the "
+                                   "same measurements (a frame with too few holds the last fix, "
+                                   "for at most the tracker's lost_after_s)"),
+    "gripper_{x,y,z}": ("m", "the grasping robot's true TCP in the base frame"),
+    "jaw_opening": ("m", "the grasping robot's jaw opening"),
+    "jaws_closed": ("0/1", "the jaws are closed on the part"),
+    "grasped": ("0/1", "the part is held"),
+    "q_{robot}_{j}": ("rad, m", "every robot's true joint j (1-based): enough to replay the "
+                      "cell (cellsight view, cellsight export)"),
+    "vis_pred_c{c}": ("F bits", "predicted visible at the tracker's predicted pose, and not "
+                      "under an unknown occluder"),
+    "vis_true_c{c}": ("F bits", "visible by the simulator's ray casts at the true pose"),
+    "sel_c{c}": ("F bits", "selected: a window was planned"),
+    "meas_c{c}": ("F bits", "a feature was measured in its window"),
+    "rej_c{c}": ("F bits", "measured, and rejected by the EKF's gate"),
+    "wrong_c{c}": ("F bits", "measured more than WRONG_PX (3 px) from the feature's true "
+                   "projection"),
+    "occ_pred_c{c}": ("F labels", "why each feature is predicted hidden, joined by ';': empty "
+                      "when visible, self, behind, outside, the hiding object's label, or "
+                      "unknown (under the tracker's unknown-occluder map)"),
+    "occ_true_c{c}": ("F labels", "the same, by the simulator's ray casts at the true pose"),
+    "grab_c{c}": ("fraction", "share of the image's pixels grabbed"),
+    "err_px_c{c}": ("px", "median distance of this frame's measurements from the true "
+                    "projections (rendered sensor)"),
+    "nis_c{c}": ("-", "the track's normalised innovation squared per degree of freedom over "
+                 "its sliding window; empty while the part is not tracked or judged"),
+    "notfound_c{c}": ("fraction", "share of selected, predicted-visible features not found, "
+                      "over the health window"),
+    "rejfrac_c{c}": ("fraction", "share of measured features the gate rejected, over the "
+                     "health window"),
+    "unknown_c{c}": ("grid", "the unknown-occluder map's occluded cells after the frame "
+                     "(encode_grid: '<rows>x<columns>@<pitch_px>:<hex>'); empty when none"),
+    "windows_c{c}": ("px", "the windows planned, each 'j u0 v0 u1 v1' (feature index from 0, "
+                     "half-open pixel box), joined by ';'"),
+    "corners_c{c}": ("px", "the corners measured, each 'j u v' (to 0.001 px), joined by ';'"),
+    "held_out_c{c}": ("0/1", "the camera check held the camera out of the filter (dropped, or "
+                      "between its two looks): its measurements used for nothing"),
+    "t_{stage}_ms": ("ms", "the tracker's time in each stage of STAGES: occlusion, selection, "
+                     "windowing, extraction, ekf (prediction + update), total; then grab, the "
+                     "cameras' reading of the windows, in no other stage"),
+}
+"""Every column family of ``frames.csv``: name pattern -> (unit, meaning). ``F bits``: a string
+of F characters ``0``/``1`` in feature order (:func:`encode_bits`); ``F labels``: F labels
+joined by ``;`` (:func:`encode_labels`)."""
 WRONG_PX = 3.0  # a measurement this far (px) from the true projection is another image point
 LABEL_SEPARATOR = ";"
 
