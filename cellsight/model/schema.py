@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import math
 import re
-from typing import Annotated, Literal
+from typing import Annotated, Any, Literal
 
 import numpy as np
 from pydantic import (
@@ -65,6 +65,14 @@ Vec3 = Annotated[list[Finite], Field(min_length=3, max_length=3)]
 Positive = Annotated[Number, Field(gt=0, allow_inf_nan=False)]
 Count = Annotated[int, Field(strict=True)]  # an integer: 2.0, "2" and true are refused
 Flag = Annotated[bool, Field(strict=True)]  # true or false: 1 and "yes" are refused
+JOINT_UNIT = "rad (m for a prismatic joint)"  # the unit of a joint value
+
+
+def about(default: Any, description: str, unit: str, **kw: Any) -> Any:
+    """A field's default with its meaning and unit (``json_schema_extra={"unit": ...}``), for
+    the reference pages generated from the models; ``kw``: more :func:`pydantic.Field`
+    arguments (constraints given in the annotation stay there)."""
+    return Field(default, description=description, json_schema_extra={"unit": unit}, **kw)
 
 
 class _Strict(BaseModel):
@@ -76,8 +84,10 @@ class _Strict(BaseModel):
 class PoseSpec(_Strict):
     """A pose: position (m) and roll-pitch-yaw (rad), R = Rz(yaw) Ry(pitch) Rx(roll)."""
 
-    xyz: Vec3 = [0.0, 0.0, 0.0]
-    rpy: Vec3 = [0.0, 0.0, 0.0]
+    xyz: Vec3 = about([0.0, 0.0, 0.0], "Position of the frame's origin in its parent frame (the "
+                      "frame named where the pose is used); default: the parent's origin.", "m")
+    rpy: Vec3 = about([0.0, 0.0, 0.0], "Roll, pitch and yaw of the frame's axes in its parent "
+                      "frame, R = Rz(yaw) Ry(pitch) Rx(roll); default: the parent's axes.", "rad")
 
     def matrix(self) -> np.ndarray:
         """The 4x4 homogeneous transform."""
@@ -87,46 +97,73 @@ class PoseSpec(_Strict):
 class BoxSpec(_Strict):
     """An axis-aligned box: its size (m) and centre."""
 
-    size: Annotated[list[Positive], Field(min_length=3, max_length=3)]
-    center: Vec3 = [0.0, 0.0, 0.0]
+    size: Annotated[list[Positive], Field(min_length=3, max_length=3)] = about(
+        ..., "The box's edge lengths along the x, y and z axes of the solid's frame, each > 0.",
+        "m")
+    center: Vec3 = about([0.0, 0.0, 0.0], "The box's centre in the solid's frame; default: the "
+                         "frame's origin.", "m")
 
 
 class PrismSpec(_Strict):
     """A right prism: an x, y polygon in the plane z = ``z0`` extruded by ``height`` along +z."""
 
-    polygon: Annotated[list[Vec2], Field(min_length=3)]
-    height: Positive
-    z0: Finite = 0.0
+    polygon: Annotated[list[Vec2], Field(min_length=3)] = about(
+        ..., "The x, y vertices of the simple base polygon in the solid's frame (at least 3, "
+        "either orientation); the prism's vertices are these at z0, then these at z0 + height.",
+        "m")
+    height: Positive = about(..., "The extrusion's length along +z of the solid's frame, > 0.",
+                             "m")
+    z0: Finite = about(0.0, "The z of the base polygon's plane in the solid's frame; default 0.",
+                       "m")
 
 
 class SegmentSpec(_Strict):
     """A box along the segment ``start``-``end`` (a link), ``width`` x ``height`` across."""
 
-    start: Vec3
-    end: Vec3
-    width: Positive
-    height: Positive | None = None
+    start: Vec3 = about(..., "One end of the segment (a link's axis) in the solid's frame.", "m")
+    end: Vec3 = about(..., "The other end of the segment in the solid's frame; the box reaches "
+                      "half the width beyond each end, so that consecutive links overlap.", "m")
+    width: Positive = about(..., "The box's size across the segment (> 0); half of it is its "
+                            "reach past each end.", "m")
+    height: Positive | None = about(None, "The box's other size across the segment (> 0); "
+                                    "default: the width (a square section).", "m")
 
 
 class MeshSpec(_Strict):
     """A mesh file (STL/OBJ, relative to the cell file), scaled by ``scale``."""
 
-    file: str
-    scale: Positive = 1.0
+    file: str = about(..., "The mesh file (STL, OBJ or COLLADA .dae), relative to the cell "
+                      "file's folder; its coordinates are in the solid's frame.", "-")
+    scale: Positive = about(1.0, "Metres per unit of the file's coordinates, on all three axes "
+                            "(0.001 for a file in mm); default 1: the file is in metres.", "m")
 
 
 class SolidSpec(_Strict):
     """Exactly one of box / prism / segment / mesh / (vertices + faces)."""
 
-    box: BoxSpec | None = None
-    prism: PrismSpec | None = None
-    segment: SegmentSpec | None = None
-    mesh: MeshSpec | None = None
-    vertices: list[Vec3] | None = None
-    faces: list[Annotated[list[Annotated[Count, Field(ge=0)]], Field(min_length=3)]] | None = None
-    closed: Flag = True
-    pose: PoseSpec | None = None
-    features: list[str] | None = None
+    box: BoxSpec | None = about(None, "An axis-aligned box (one of box, prism, segment, mesh, "
+                                "vertices + faces).", "-")
+    prism: PrismSpec | None = about(None, "A right prism (one of box, prism, segment, mesh, "
+                                    "vertices + faces).", "-")
+    segment: SegmentSpec | None = about(None, "A box along a segment, for a link (one of box, "
+                                        "prism, segment, mesh, vertices + faces).", "-")
+    mesh: MeshSpec | None = about(None, "A mesh file (one of box, prism, segment, mesh, "
+                                  "vertices + faces).", "-")
+    vertices: list[Vec3] | None = about(None, "An inline solid's vertices, x, y, z in the "
+                                        "solid's frame (with faces).", "m")
+    faces: list[Annotated[list[Annotated[Count, Field(ge=0)]], Field(min_length=3)]] | None = (
+        about(None, "An inline solid's faces (with vertices): each at least 3 vertex indices, "
+              "counting from 0, counter-clockwise seen from outside.", "-"))
+    closed: Flag = about(True, "For vertices + faces only: the faces close a solid (checked: "
+                         "each edge shared by two faces, wound outward); false: open surfaces. "
+                         "Boxes, prisms and segments are closed, a mesh as its file is.", "-")
+    pose: PoseSpec | None = about(None, "The solid's frame in its parent's frame (the link, "
+                                  "tool, workpiece or static object it belongs to); default: "
+                                  "the parent's frame.", "-")
+    features: list[str] | None = about(None, "Names of the solid's feature points, one per "
+                                       "vertex in the built solid's vertex order (a prism: "
+                                       "the base polygon's, then the top's); default: f1, f2, "
+                                       "...", "-")
 
     @model_validator(mode="after")
     def _one_kind(self) -> SolidSpec:
@@ -144,13 +181,21 @@ class SolidSpec(_Strict):
 class LinkSpec(_Strict):
     """A DH link (standard convention) and the solids fixed to its frame."""
 
-    a: Finite = 0.0
-    alpha: Finite = 0.0
-    d: Finite = 0.0
-    theta: Finite = 0.0
-    kind: Literal["revolute", "prismatic"] = "revolute"
-    qlim: Annotated[list[Finite], Field(min_length=2, max_length=2)] = [-math.pi, math.pi]
-    solids: list[SolidSpec] = []
+    a: Finite = about(0.0, "DH link length: along x_i, from z_(i-1) to z_i "
+                      "(A_i = Rz(theta) Tz(d) Tx(a) Rx(alpha)).", "m")
+    alpha: Finite = about(0.0, "DH link twist: about x_i, from z_(i-1) to z_i.", "rad")
+    d: Finite = about(0.0, "DH link offset along z_(i-1); a prismatic joint's value adds to it.",
+                      "m")
+    theta: Finite = about(0.0, "DH joint angle about z_(i-1) at joint value 0; a revolute "
+                          "joint's value adds to it.", "rad")
+    kind: Literal["revolute", "prismatic"] = about(
+        "revolute", "The joint: revolute (turns about z_(i-1)) or prismatic (slides along it).",
+        "-")
+    qlim: Annotated[list[Finite], Field(min_length=2, max_length=2)] = about(
+        [-math.pi, math.pi], "The joint's limits [lo, hi], lo < hi; default [-pi, pi] (also for "
+        "a prismatic joint, then in m).", JOINT_UNIT)
+    solids: list[SolidSpec] = about([], "The solids fixed to this link's frame (DH frame i), "
+                                    "in that frame; default none.", "-")
 
     @model_validator(mode="after")
     def _limits(self) -> LinkSpec:
@@ -163,11 +208,19 @@ class GripperSpec(_Strict):
     """A parallel gripper: its mount on the flange, palm solids, one jaw's solid, the largest
     opening (m) and the tool centre point in the tool frame."""
 
-    mount: PoseSpec = PoseSpec()
-    palm: Annotated[list[SolidSpec], Field(min_length=1)]
-    jaw: SolidSpec
-    max_opening: Positive
-    tcp: Vec3 = [0.0, 0.0, 0.0]
+    mount: PoseSpec = about(PoseSpec(), "The tool frame in the flange frame (the DH chain's "
+                            "last frame, or the URDF's flange link); tool z is the approach "
+                            "direction, the jaws close along tool y; default: the flange "
+                            "frame.", "-")
+    palm: Annotated[list[SolidSpec], Field(min_length=1)] = about(
+        ..., "The palm's solids in the tool frame, at least one.", "-")
+    jaw: SolidSpec = about(..., "One jaw's solid in its own frame: gripping face on the plane "
+                           "y = 0, body at y > 0; the jaws sit at y = +-opening/2 in the tool "
+                           "frame, the second turned half a turn about z.", "-")
+    max_opening: Positive = about(..., "The jaws' largest opening (the distance between their "
+                                  "gripping faces), also the open command.", "m")
+    tcp: Vec3 = about([0.0, 0.0, 0.0], "The tool centre point in the tool frame (same axes); "
+                      "default: the tool frame's origin.", "m")
 
 
 URDF_UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001, "inch": 0.0254, "tenth-inch": 0.00254}
@@ -181,10 +234,17 @@ class UrdfSpec(_Strict):
     unit in metres, a number or a name of :data:`URDF_UNITS` (``inch``: every joint origin,
     prismatic limit and geometry times 0.0254)."""
 
-    file: Annotated[str, Field(min_length=1)]
-    geometry: Literal["collision", "visual"] = "collision"
-    flange: Annotated[str, Field(min_length=1)] | None = None
-    scale: Positive | Literal["m", "cm", "mm", "inch", "tenth-inch"] = 1.0
+    file: Annotated[str, Field(min_length=1)] = about(
+        ..., "The URDF file: relative to the cell file's folder, file://PATH, or "
+        "package://NAME/PATH (the cell's packages map, else an installed package).", "-")
+    geometry: Literal["collision", "visual"] = about(
+        "collision", "Which of the URDF's elements become the robot's solids.", "-")
+    flange: Annotated[str, Field(min_length=1)] | None = about(
+        None, "The URDF link the tool mounts on, fixed to the last actuated link; default: "
+        "tool0 when it is so fixed, else that last link.", "-")
+    scale: Positive | Literal["m", "cm", "mm", "inch", "tenth-inch"] = about(
+        1.0, "Metres per length unit of the file, or the unit's name: joint origins, prismatic "
+        "limits and geometry are multiplied by it; default 1 (metres).", "m")
 
     @property
     def metres(self) -> float:
@@ -196,14 +256,25 @@ class UrdfSpec(_Strict):
 class RobotSpec(_Strict):
     """A robot: a DH table (``links``, with ``base_solids``) or a URDF (``urdf``)."""
 
-    name: Annotated[str, Field(min_length=1)]
-    base: PoseSpec = PoseSpec()
-    base_solids: list[SolidSpec] = []
-    links: Annotated[list[LinkSpec], Field(min_length=1)] | None = None
-    urdf: UrdfSpec | None = None
-    tool: GripperSpec | None = None
-    home: list[Finite]
-    final: list[Finite] | None = None
+    name: Annotated[str, Field(min_length=1)] = about(
+        ..., "The robot's name, unique among robots, workpieces and static objects; its solids "
+        "are labelled NAME.link2, NAME.gripper, ...", "-")
+    base: PoseSpec = about(PoseSpec(), "The robot's frame 0 (its base) in the cell's base "
+                           "frame; default: the cell's base frame.", "-")
+    base_solids: list[SolidSpec] = about([], "Solids fixed to the robot's frame 0, in that frame "
+                                         "(DH robots only); default none.", "-")
+    links: Annotated[list[LinkSpec], Field(min_length=1)] | None = about(
+        None, "The DH table, one link per joint from the base (give links or urdf).", "-")
+    urdf: UrdfSpec | None = about(None, "The URDF the robot is read from (give links or urdf).",
+                                  "-")
+    tool: GripperSpec | None = about(None, "The parallel gripper on the flange; default none "
+                                     "(a robot without one does not grasp).", "-")
+    home: list[Finite] = about(..., "HOME, one value per joint within its limits: where the "
+                               "robot starts, stays when idle, and carries the part back to.",
+                               JOINT_UNIT)
+    final: list[Finite] | None = about(None, "FINAL, one value per joint within its limits: "
+                                       "where the grasping robot puts the part down; default "
+                                       "none (then the robot does not grasp).", JOINT_UNIT)
 
     @model_validator(mode="after")
     def _one_model(self) -> RobotSpec:
@@ -219,26 +290,36 @@ class RobotSpec(_Strict):
 class WorkpieceSpec(_Strict):
     """A workpiece: its solid, its pose and, optionally, where the gripper holds it."""
 
-    name: Annotated[str, Field(min_length=1)]
-    solid: SolidSpec
-    pose: PoseSpec = PoseSpec()
-    grasp: PoseSpec | None = None  # tool centre point in the part frame when held
+    name: Annotated[str, Field(min_length=1)] = about(
+        ..., "The workpiece's name, unique among robots, workpieces and static objects.", "-")
+    solid: SolidSpec = about(..., "The part's solid in the part frame; its vertices are the "
+                             "feature points the cameras track.", "-")
+    pose: PoseSpec = about(PoseSpec(), "The part frame's nominal (start) pose in the cell's base "
+                           "frame; default: the base frame.", "-")
+    grasp: PoseSpec | None = about(None, "The tool centre point's pose in the part frame when the "
+                                   "gripper holds it; default: at the part's bounding-box centre, "
+                                   "tool z along the part's -z, tool y along its y.", "-")
 
 
 class StaticSpec(_Strict):
     """A static object: its pose and its solids."""
 
-    name: Annotated[str, Field(min_length=1)]
-    pose: PoseSpec = PoseSpec()
-    solids: Annotated[list[SolidSpec], Field(min_length=1)]
+    name: Annotated[str, Field(min_length=1)] = about(
+        ..., "The object's name, unique among robots, workpieces and static objects.", "-")
+    pose: PoseSpec = about(PoseSpec(), "The object's frame in the cell's base frame; default: "
+                           "the base frame.", "-")
+    solids: Annotated[list[SolidSpec], Field(min_length=1)] = about(
+        ..., "The object's solids in its frame, at least one.", "-")
 
 
 class LookAtSpec(_Strict):
     """A camera pose from its eye point, the point it looks at and the up direction."""
 
-    eye: Vec3
-    target: Vec3
-    up: Vec3 = [0.0, 0.0, 1.0]
+    eye: Vec3 = about(..., "The camera's optical centre in the cell's base frame.", "m")
+    target: Vec3 = about(..., "The point on the optical axis it looks at, in the cell's base "
+                         "frame.", "m")
+    up: Vec3 = about([0.0, 0.0, 1.0], "The base-frame direction that appears upward in the "
+                     "image (its length does not matter); default +z.", "-")
 
 
 def _file_entry(value: object) -> object:
@@ -254,8 +335,11 @@ class CalibrationFileSpec(_Strict):
     """A camera's intrinsics file (relative to the cell file): OpenCV FileStorage YAML/XML or
     ROS camera_info YAML (:mod:`cellsight.model.calibration`), the format guessed if not given."""
 
-    file: Annotated[str, Field(min_length=1)]
-    format: Literal["opencv", "ros"] | None = None
+    file: Annotated[str, Field(min_length=1)] = about(
+        ..., "The intrinsics file, relative to the cell file's folder.", "-")
+    format: Literal["opencv", "ros"] | None = about(
+        None, "opencv (FileStorage YAML/XML) or ros (camera_info YAML, or an echoed CameraInfo "
+        "message); default: guessed from the file.", "-")
 
 
 class HandEyeSpec(_Strict):
@@ -264,9 +348,15 @@ class HandEyeSpec(_Strict):
     is in ``robot``'s base frame when given (composed with the robot's ``base``), else in the
     cell's base frame."""
 
-    file: Annotated[str, Field(min_length=1)]
-    format: Literal["opencv", "easy_handeye"] | None = None
-    robot: Annotated[str, Field(min_length=1)] | None = None
+    file: Annotated[str, Field(min_length=1)] = about(
+        ..., "The eye-to-hand calibration file (the camera's optical frame in a base frame), "
+        "relative to the cell file's folder.", "-")
+    format: Literal["opencv", "easy_handeye"] | None = about(
+        None, "opencv (FileStorage with R_base_camera, t_base_camera) or easy_handeye (its "
+        "YAML); default: guessed from the file.", "-")
+    robot: Annotated[str, Field(min_length=1)] | None = about(
+        None, "The robot whose base frame the pose is in (composed with that robot's base); "
+        "default: the cell's base frame.", "-")
 
 
 CalibrationFile = Annotated[CalibrationFileSpec, BeforeValidator(_file_entry)]
@@ -279,20 +369,37 @@ class CameraSpec(_Strict):
     size and the focal length in pixels (fx, fy) or as a lens (mm) with the pixel pitch (mm);
     the pose as xyz/rpy of T_base_cam (``pose``), ``look_at`` or a ``hand_eye`` file."""
 
-    name: Annotated[str, AfterValidator(_safe_name)]
-    calibration: CalibrationFile | None = None
-    width: Annotated[Count, Field(gt=0)] | None = None
-    height: Annotated[Count, Field(gt=0)] | None = None
-    fx: Positive | None = None
-    fy: Positive | None = None
-    lens_mm: Positive | None = None
-    pixel_mm: Positive | None = None
-    cx: Finite | None = None
-    cy: Finite | None = None
-    dist: Annotated[list[Finite], Field(min_length=4, max_length=5)] | None = None
-    pose: PoseSpec | None = None
-    look_at: LookAtSpec | None = None
-    hand_eye: HandEyeFile | None = None
+    name: Annotated[str, AfterValidator(_safe_name)] = about(
+        ..., "The camera's name, unique in the cell and part of output file names: at most 64 "
+        "letters, digits, '_', '-', '.', not starting with '.'.", "-")
+    calibration: CalibrationFile | None = about(
+        None, "An intrinsics file (FILE or {file, format}) giving the image size, K and "
+        "distortion; then none of width ... dist.", "-")
+    width: Annotated[Count, Field(gt=0)] | None = about(
+        None, "The image's width; needed without a calibration file.", "px")
+    height: Annotated[Count, Field(gt=0)] | None = about(
+        None, "The image's height; needed without a calibration file.", "px")
+    fx: Positive | None = about(None, "The focal length along x in pixels (give fx, or lens_mm "
+                                "with pixel_mm, or a calibration file).", "px")
+    fy: Positive | None = about(None, "The focal length along y in pixels; default: fx.", "px")
+    lens_mm: Positive | None = about(None, "The lens's focal length, with pixel_mm: fx = fy = "
+                                     "lens_mm / pixel_mm.", "mm")
+    pixel_mm: Positive | None = about(None, "The pixel pitch (square pixels), with lens_mm.",
+                                      "mm")
+    cx: Finite | None = about(None, "The principal point's x; default (width - 1) / 2, the "
+                              "image centre (pixel centres at integers).", "px")
+    cy: Finite | None = about(None, "The principal point's y; default (height - 1) / 2.", "px")
+    dist: Annotated[list[Finite], Field(min_length=4, max_length=5)] | None = about(
+        None, "OpenCV's distortion coefficients k1, k2, p1, p2[, k3]; default none.", "-")
+    pose: PoseSpec | None = about(
+        None, "T_base_cam: the camera's optical frame (x right, y down, z forward) in the cell's "
+        "base frame (give one of pose, look_at, hand_eye).", "-")
+    look_at: LookAtSpec | None = about(
+        None, "The pose from an eye point, a target and an up direction (give one of pose, "
+        "look_at, hand_eye).", "-")
+    hand_eye: HandEyeFile | None = about(
+        None, "The pose from an eye-to-hand calibration file, FILE or {file, format, robot} "
+        "(give one of pose, look_at, hand_eye).", "-")
 
     @model_validator(mode="after")
     def _complete(self) -> CameraSpec:
@@ -318,9 +425,15 @@ class CameraSpec(_Strict):
 class ConveyorSpec(_Strict):
     """The conveyor's path of the part in experiments 2 and 3: x, y points (m), speed (m/s)."""
 
-    points: Annotated[list[Vec2], Field(min_length=2)]
-    speed: Positive
-    t_start: Annotated[Number, Field(ge=0, allow_inf_nan=False)] = 0.0
+    points: Annotated[list[Vec2], Field(min_length=2)] = about(
+        ..., "The path of the part frame's origin, x, y in the cell's base frame (at least 2, "
+        "each at least 1e-6 m from the last); the part keeps its nominal height and "
+        "orientation.", "m")
+    speed: Positive = about(..., "The part's speed along the path, until the last point or "
+                            "until it is grasped.", "m/s")
+    t_start: Annotated[Number, Field(ge=0, allow_inf_nan=False)] = about(
+        0.0, "When the part starts moving (>= 0, from the run's start); it waits at the first "
+        "point until then.", "s")
 
     @field_validator("points")
     @classmethod
@@ -335,33 +448,48 @@ class ConveyorSpec(_Strict):
 class WaypointSpec(_Strict):
     """A timed joint waypoint: time (s) and joint vector."""
 
-    t: Positive
-    q: Annotated[list[Finite], Field(min_length=1)]
+    t: Positive = about(..., "When the robot reaches q, from the run's start (> 0, after the "
+                        "previous waypoint's).", "s")
+    q: Annotated[list[Finite], Field(min_length=1)] = about(
+        ..., "The joint vector to reach at t, one value per joint within its limits (a smooth "
+        "quintic step from the previous waypoint, or from HOME).", JOINT_UNIT)
 
 
 class CrossingSpec(_Strict):
     """Experiment 3: a robot's own timed joint waypoints (absolute times, s)."""
 
-    robot: Annotated[str, Field(min_length=1)]
-    waypoints: Annotated[list[WaypointSpec], Field(min_length=1)]
+    robot: Annotated[str, Field(min_length=1)] = about(
+        ..., "The crossing robot, another than the grasping one; it starts at its HOME.", "-")
+    waypoints: Annotated[list[WaypointSpec], Field(min_length=1)] = about(
+        ..., "Its timed joint waypoints, times increasing; it holds the last one.", "-")
 
 
 class ExperimentsSpec(_Strict):
     """The experiments' setup: the grasping robot and workpiece, conveyor, crossing robot."""
 
-    robot: str | None = None
-    workpiece: str | None = None
-    conveyor: ConveyorSpec | None = None
-    crossing: CrossingSpec | None = None
+    robot: str | None = about(None, "The grasping robot (it needs a tool and a final); "
+                              "default: the first robot with both.", "-")
+    workpiece: str | None = about(None, "The part to grasp; default: the cell's first "
+                                  "workpiece.", "-")
+    conveyor: ConveyorSpec | None = about(None, "The conveyor moving the part in experiments 2 "
+                                          "and 3 (needed for them).", "-")
+    crossing: CrossingSpec | None = about(None, "The robot crossing the cameras' views in "
+                                          "experiment 3 (needed for it).", "-")
 
 
 class CellSpec(_Strict):
     """A whole cell file."""
 
-    name: str = "cell"
-    packages: dict[Annotated[str, Field(min_length=1)], str] = {}
-    robots: list[RobotSpec] = []
-    workpieces: list[WorkpieceSpec] = []
-    static: list[StaticSpec] = []
-    cameras: Annotated[list[CameraSpec], Field(min_length=1)]
-    experiments: ExperimentsSpec | None = None
+    name: str = about("cell", "The cell's name, in messages and reports.", "-")
+    packages: dict[Annotated[str, Field(min_length=1)], str] = about(
+        {}, "URDF packages: NAME -> the folder package://NAME/ stands for, relative to the cell "
+        "file's folder or python://MODULE/sub/path in an installed Python package.", "-")
+    robots: list[RobotSpec] = about([], "The robots; default none.", "-")
+    workpieces: list[WorkpieceSpec] = about([], "The workpieces (the cell needs at least "
+                                            "one).", "-")
+    static: list[StaticSpec] = about([], "The static objects (tables, conveyors, stands); "
+                                     "default none.", "-")
+    cameras: Annotated[list[CameraSpec], Field(min_length=1)] = about(
+        ..., "The fixed cameras, at least one.", "-")
+    experiments: ExperimentsSpec | None = about(None, "The set-up of the paper's experiments; "
+                                                "default none.", "-")

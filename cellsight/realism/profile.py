@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Annotated, Literal
+from typing import Annotated, Any, Literal
 
 import numpy as np
 from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, ValidationError, model_validator
@@ -43,16 +43,28 @@ class _Strict(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
 
 
+DRAWN = "knob's unit"  # the unit of a distribution's numbers: the knob's own
+
+
+def about(default: Any, description: str, unit: str, **kw: Any) -> Any:
+    """A knob's default with its meaning and unit (``json_schema_extra={"unit": ...}``), for
+    the reference pages generated from the models; ``kw``: more :func:`pydantic.Field`
+    arguments (constraints given in the annotation stay there)."""
+    return Field(default, description=description, json_schema_extra={"unit": unit}, **kw)
+
+
 class Distribution(_Strict):
     """How a knob is drawn: ``fixed`` (``value``), ``normal`` (``mean``, ``sigma`` >= 0) or
     ``uniform`` (``low`` <= ``high``)."""
 
-    dist: Literal["fixed", "normal", "uniform"]
-    value: Finite = 0.0
-    mean: Finite = 0.0
-    sigma: NonNegative = 0.0
-    low: Finite = 0.0
-    high: Finite = 0.0
+    dist: Literal["fixed", "normal", "uniform"] = about(
+        ..., "How the knob is drawn, once per run from its seed (each element of a vector knob "
+        "on its own): fixed (value), normal (mean, sigma) or uniform (low, high).", "-")
+    value: Finite = about(0.0, "A fixed knob's value.", DRAWN)
+    mean: Finite = about(0.0, "A normal knob's mean; default 0.", DRAWN)
+    sigma: NonNegative = about(0.0, "A normal knob's standard deviation, >= 0.", DRAWN)
+    low: Finite = about(0.0, "A uniform knob's lower bound (<= high).", DRAWN)
+    high: Finite = about(0.0, "A uniform knob's upper bound.", DRAWN)
 
     @model_validator(mode="after")
     def _ordered(self) -> Distribution:
@@ -99,11 +111,19 @@ class CameraKnobs(_Strict):
     fitted there is most accurate there); focal length (%, fx and fy together); principal point
     (px, per axis); radial distortion k1 added to the camera's own."""
 
-    position_mm: Knob = ZERO
-    rotation_deg: Knob = ZERO
-    focal_percent: Knob = ZERO
-    principal_point_px: Knob = ZERO
-    distortion_k1: Knob = ZERO
+    position_mm: Knob = about(ZERO, "The world camera's position error at the work area (the "
+                              "part's start), along each axis of the camera frame; drawn per "
+                              "camera.", "mm")
+    rotation_deg: Knob = about(ZERO, "The world camera's rotation error, a rotation vector in the "
+                               "camera's axes turning it about the work area; drawn per camera.",
+                               "deg")
+    focal_percent: Knob = about(ZERO, "The world camera's focal length error, fx and fy "
+                                "together (the pose absorbs it at the work area); drawn per "
+                                "camera.", "%")
+    principal_point_px: Knob = about(ZERO, "The world camera's principal point error, per image "
+                                     "axis (x, y); drawn per camera.", "px")
+    distortion_k1: Knob = about(ZERO, "Radial distortion k1 added to the camera's own in the "
+                                "world; drawn per camera.", "-")
 
 
 class RobotKnobs(_Strict):
@@ -112,15 +132,26 @@ class RobotKnobs(_Strict):
     axis) and rotation (deg, per axis); the measurement noise's standard deviation (rad, m) and
     the encoders' resolution (deg, mm; 0: none)."""
 
-    encoder_offset_deg: Knob = ZERO
-    encoder_offset_mm: Knob = ZERO
-    link_length_mm: Knob = ZERO
-    base_position_mm: Knob = ZERO
-    base_rotation_deg: Knob = ZERO
-    joint_noise_rad: NonNegative = 1e-4
-    joint_noise_m: NonNegative = 1e-4
-    encoder_resolution_deg: NonNegative = 0.0
-    encoder_resolution_mm: NonNegative = 0.0
+    encoder_offset_deg: Knob = about(ZERO, "A revolute joint's encoder zero offset (it reads "
+                                     "the true angle plus this); drawn per robot and joint.",
+                                     "deg")
+    encoder_offset_mm: Knob = about(ZERO, "A prismatic joint's encoder zero offset; drawn per "
+                                    "robot and joint.", "mm")
+    link_length_mm: Knob = about(ZERO, "Per joint, the errors of the DH a and d (a third value "
+                                 "unused) or of the URDF joint origin's x, y, z; drawn per "
+                                 "robot.", "mm")
+    base_position_mm: Knob = about(ZERO, "The robot base's position error along each axis of its "
+                                   "frame 0; drawn per robot.", "mm")
+    base_rotation_deg: Knob = about(ZERO, "The robot base's rotation error, a rotation vector in "
+                                    "its frame 0; drawn per robot.", "deg")
+    joint_noise_rad: NonNegative = about(1e-4, "The standard deviation of the Gaussian noise on "
+                                         "each revolute joint's reading.", "rad")
+    joint_noise_m: NonNegative = about(1e-4, "The standard deviation of the Gaussian noise on "
+                                       "each prismatic joint's reading.", "m")
+    encoder_resolution_deg: NonNegative = about(0.0, "Revolute encoders' resolution: readings "
+                                                "rounded to multiples of it; 0: none.", "deg")
+    encoder_resolution_mm: NonNegative = about(0.0, "Prismatic encoders' resolution: readings "
+                                               "rounded to multiples of it; 0: none.", "mm")
 
 
 class ServoKnobs(_Strict):
@@ -132,12 +163,25 @@ class ServoKnobs(_Strict):
     the drives feed the set-point's velocity forward (``velocity_feedforward``: a ramp is then
     followed without the steady lag ``2 damping / (2 pi bandwidth)`` times its speed)."""
 
-    bandwidth_hz: NonNegative = 0.0
-    damping: Annotated[float, BeforeValidator(_no_bool), Field(gt=0, allow_inf_nan=False)] = 1.0
-    max_velocity_deg_s: Annotated[float, Field(gt=0)] = math.inf
-    max_acceleration_deg_s2: Annotated[float, Field(gt=0)] = math.inf
-    actuators: Literal["analytic", "mujoco"] = "analytic"
-    velocity_feedforward: Annotated[bool, Field(strict=True)] = False
+    bandwidth_hz: NonNegative = about(0.0, "Every joint's position-loop bandwidth (natural "
+                                      "frequency wn = 2 pi bandwidth); 0: ideal, each joint at "
+                                      "its set-point every control period.", "Hz")
+    damping: Annotated[float, BeforeValidator(_no_bool), Field(gt=0, allow_inf_nan=False)] = (
+        about(1.0, "The position loop's damping ratio zeta, > 0 (1: critically damped).", "-"))
+    max_velocity_deg_s: Annotated[float, Field(gt=0)] = about(
+        math.inf, "Every joint's speed limit (inf: none); converted as deg to rad for every "
+        "joint, so a prismatic joint's limit is this times pi/180 in m/s.", "deg/s")
+    max_acceleration_deg_s2: Annotated[float, Field(gt=0)] = about(
+        math.inf, "Every joint's acceleration limit (inf: none; with mujoco, a torque limit), "
+        "converted as deg to rad for every joint (a prismatic joint: times pi/180, m/s^2).",
+        "deg/s^2")
+    actuators: Literal["analytic", "mujoco"] = about(
+        "analytic", "What moves the joints: analytic (the servo's own loop, kinematic world) or "
+        "mujoco (MuJoCo's position actuators on rotor inertia, contacts pushing back; needs a "
+        "bandwidth).", "-")
+    velocity_feedforward: Annotated[bool, Field(strict=True)] = about(
+        False, "The drives feed the set-point's velocity forward: a ramp is followed without "
+        "the steady lag 2 damping / (2 pi bandwidth) times its speed.", "-")
 
     @model_validator(mode="after")
     def _actuated(self) -> ServoKnobs:
@@ -153,12 +197,20 @@ class GeometryKnobs(_Strict):
     static object's height error (mm along the base z axis, drawn per object: a table or a
     conveyor as built; a part resting on one at the start rises or sinks with it)."""
 
-    part_size_mm: Knob = ZERO
-    gripper_size_mm: Knob = ZERO
-    grasp_seat_mm: Knob = ZERO
-    grasp_seat_deg: Knob = ZERO
-    slip_mm_s: Knob = ZERO
-    support_height_mm: Knob = ZERO
+    part_size_mm: Knob = about(ZERO, "Change of the part's extents along the x, y, z axes of "
+                               "its frame (scaled about its origin); drawn per workpiece.", "mm")
+    gripper_size_mm: Knob = about(ZERO, "Change of the jaw's extents along its own axes, the "
+                                  "palm and jaws scaled by the same factors; drawn per robot "
+                                  "with a tool.", "mm")
+    grasp_seat_mm: Knob = about(ZERO, "Where the part settles in the jaws when they clamp: a "
+                                "shift along each TCP axis; drawn once per run.", "mm")
+    grasp_seat_deg: Knob = about(ZERO, "How the part settles in the jaws when they clamp: a "
+                                 "rotation vector about the TCP axes; drawn once per run.", "deg")
+    slip_mm_s: Knob = about(ZERO, "The speed at which a held part slides along the tool's "
+                            "approach axis (+z); its absolute value, drawn once per run.", "mm/s")
+    support_height_mm: Knob = about(ZERO, "Each static object's height error along the base z "
+                                    "axis, drawn per object; a part resting on one at its start "
+                                    "rises or sinks with it.", "mm")
 
 
 class UnmodelledKnobs(_Strict):
@@ -167,12 +219,22 @@ class UnmodelledKnobs(_Strict):
     the part (probability per run, when it arrives and how long it stays, s; across which
     camera: ``forearm_camera``, its index in the cell file, -1: drawn)."""
 
-    box_probability: Probability = 0.0
-    box_size_mm: Knob = Distribution(dist="uniform", low=40.0, high=120.0)
-    forearm_probability: Probability = 0.0
-    forearm_start_s: Knob = Distribution(dist="uniform", low=5.0, high=40.0)
-    forearm_duration_s: Knob = Distribution(dist="uniform", low=1.0, high=4.0)
-    forearm_camera: Annotated[int, Field(strict=True, ge=-1)] = -1
+    box_probability: Probability = about(0.0, "Probability per run of a box left 15-30 cm from "
+                                         "the part's start towards a camera drawn at random "
+                                         "(0 to 1).", "-")
+    box_size_mm: Knob = about(Distribution(dist="uniform", low=40.0, high=120.0),
+                              "The box's size along each of its axes.", "mm")
+    forearm_probability: Probability = about(0.0, "Probability per run of an operator's forearm "
+                                             "(a 40 x 8 x 8 cm bar) across a camera's line of "
+                                             "sight to the part (0 to 1).", "-")
+    forearm_start_s: Knob = about(Distribution(dist="uniform", low=5.0, high=40.0),
+                                  "When the forearm is in place (it slides in over the 0.5 s "
+                                  "before), from the run's start.", "s")
+    forearm_duration_s: Knob = about(Distribution(dist="uniform", low=1.0, high=4.0),
+                                     "How long the forearm stays before it slides out.", "s")
+    forearm_camera: Annotated[int, Field(strict=True, ge=-1)] = about(
+        -1, "Whose view the forearm crosses: the camera's index in the cell file; -1: drawn.",
+        "-")
 
 
 class FaultKnobs(_Strict):
@@ -186,17 +248,34 @@ class FaultKnobs(_Strict):
     ``knock_shift_mm`` along a drawn direction and turns by ``knock_rotation_deg`` about a drawn
     axis of its own frame, for the rest of the run."""
 
-    kidnap_probability: Probability = 0.0
-    kidnap_time_s: Knob = Distribution(dist="uniform", low=3.0, high=6.0)
-    kidnap_blind_s: Annotated[float, Field(gt=0, allow_inf_nan=False)] = 1.0
-    kidnap_distance_mm: Knob = Distribution(dist="uniform", low=100.0, high=300.0)
-    kidnap_direction_deg: Knob = Distribution(dist="uniform", low=0.0, high=360.0)
-    kidnap_turn_deg: Knob = Distribution(dist="uniform", low=-45.0, high=45.0)
-    knock_probability: Probability = 0.0
-    knock_camera: Annotated[int, Field(strict=True, ge=-1)] = -1
-    knock_time_s: Knob = Distribution(dist="uniform", low=15.0, high=30.0)
-    knock_shift_mm: Knob = Distribution(dist="fixed", value=20.0)
-    knock_rotation_deg: Knob = Distribution(dist="fixed", value=1.0)
+    kidnap_probability: Probability = about(0.0, "Probability per run that the part is "
+                                            "kidnapped (0 to 1).", "-")
+    kidnap_time_s: Knob = about(Distribution(dist="uniform", low=3.0, high=6.0),
+                                "When every camera goes blind, from the run's start.", "s")
+    kidnap_blind_s: Annotated[float, Field(gt=0, allow_inf_nan=False)] = about(
+        1.0, "How long no camera delivers a frame (> 0); the part is moved halfway through.",
+        "s")
+    kidnap_distance_mm: Knob = about(Distribution(dist="uniform", low=100.0, high=300.0),
+                                     "How far the part is moved in the base x-y plane (unless a "
+                                     "gripper holds it).", "mm")
+    kidnap_direction_deg: Knob = about(Distribution(dist="uniform", low=0.0, high=360.0),
+                                       "Where to, about the base z axis from +x; turned on by "
+                                       "30 deg steps until a camera sees the part there.", "deg")
+    kidnap_turn_deg: Knob = about(Distribution(dist="uniform", low=-45.0, high=45.0),
+                                  "How far the part is turned about the vertical through its "
+                                  "origin.", "deg")
+    knock_probability: Probability = about(0.0, "Probability per run that a camera is knocked "
+                                           "(0 to 1).", "-")
+    knock_camera: Annotated[int, Field(strict=True, ge=-1)] = about(
+        -1, "Which camera is knocked: its index in the cell file; -1: drawn.", "-")
+    knock_time_s: Knob = about(Distribution(dist="uniform", low=15.0, high=30.0),
+                               "When the camera is knocked, from the run's start; it stays so.",
+                               "s")
+    knock_shift_mm: Knob = about(Distribution(dist="fixed", value=20.0),
+                                 "How far the camera moves, along a random direction.", "mm")
+    knock_rotation_deg: Knob = about(Distribution(dist="fixed", value=1.0),
+                                     "How far the camera turns, about a random axis of its own "
+                                     "frame.", "deg")
 
 
 class ImageKnobs(_Strict):
@@ -206,15 +285,24 @@ class ImageKnobs(_Strict):
     none), exposure time (ms: motion blur of what moves while the shutter is open; 0: none)
     and interlaced fields (the even rows exposed 20 ms before the odd ones)."""
 
-    read_noise_dn: NonNegative = 0.0
-    shot_dn_per_e: NonNegative = 0.0
-    gain_drift_percent: NonNegative = 0.0
-    gain_period_s: Annotated[float, Field(gt=0, allow_inf_nan=False)] = 30.0
-    defocus_px: NonNegative = 0.0
-    vignetting: Annotated[float, Field(ge=0, lt=1)] = 0.0
-    jpeg_quality: Annotated[int, Field(strict=True, ge=0, le=100)] = 0
-    exposure_ms: NonNegative = 0.0
-    interlaced: Annotated[bool, Field(strict=True)] = False
+    read_noise_dn: NonNegative = about(0.0, "The standard deviation of the sensor's Gaussian read "
+                                       "noise, in grey levels (0-255).", "DN")
+    shot_dn_per_e: NonNegative = about(0.0, "Conversion gain for shot noise: grey level I gets "
+                                       "noise of variance I times this.", "DN/e-")
+    gain_drift_percent: NonNegative = about(0.0, "Amplitude of the slow sinusoidal drift of the "
+                                            "lighting and gain (its phase drawn per run).", "%")
+    gain_period_s: Annotated[float, Field(gt=0, allow_inf_nan=False)] = about(
+        30.0, "The gain drift's period, > 0.", "s")
+    defocus_px: NonNegative = about(0.0, "Defocus: the standard deviation of a Gaussian blur.",
+                                    "px")
+    vignetting: Annotated[float, Field(ge=0, lt=1)] = about(
+        0.0, "Fraction of brightness lost in the image's corners (1 - v (r / r_corner)^2).", "-")
+    jpeg_quality: Annotated[int, Field(strict=True, ge=0, le=100)] = about(
+        0, "JPEG compression quality of the link, 1-100; 0: none.", "-")
+    exposure_ms: NonNegative = about(0.0, "Exposure time: what moves is smeared over it (motion "
+                                     "blur); 0: none.", "ms")
+    interlaced: Annotated[bool, Field(strict=True)] = about(
+        False, "Interlaced fields: the even rows exposed 20 ms before the odd ones.", "-")
 
 
 class TimingKnobs(_Strict):
@@ -223,10 +311,15 @@ class TimingKnobs(_Strict):
     absolute value, at most a vision period less a control step: that camera exposes this long
     before the frame's time, as unsynchronised cameras do)."""
 
-    latency_ms: NonNegative = 0.0
-    latency_jitter_ms: NonNegative = 0.0
-    drop_percent: Annotated[float, BeforeValidator(_no_bool), Field(ge=0, le=100)] = 0.0
-    trigger_skew_ms: Knob = ZERO
+    latency_ms: NonNegative = about(0.0, "The delay from a frame's exposure until its estimate "
+                                    "reaches the planner.", "ms")
+    latency_jitter_ms: NonNegative = about(0.0, "The standard deviation of each frame's Gaussian "
+                                           "latency jitter (the latency stays >= 0).", "ms")
+    drop_percent: Annotated[float, BeforeValidator(_no_bool), Field(ge=0, le=100)] = about(
+        0.0, "Share of frames whose images never arrive.", "%")
+    trigger_skew_ms: Knob = about(ZERO, "How long before the frame's time a camera exposes: "
+                                  "the absolute value, at most a vision period less a control "
+                                  "step; drawn per camera.", "ms")
 
 
 class ScenarioKnobs(_Strict):
@@ -235,30 +328,43 @@ class ScenarioKnobs(_Strict):
     experiment 3, the crossing robot's timing (s, all waypoints together) and poses (deg, per
     joint, all waypoints together)."""
 
-    part_position_mm: Knob = ZERO
-    part_yaw_deg: Knob = ZERO
-    conveyor_speed_percent: Knob = ZERO
-    conveyor_direction_deg: Knob = ZERO
-    crossing_time_s: Knob = ZERO
-    crossing_joint_deg: Knob = ZERO
+    part_position_mm: Knob = about(ZERO, "Shift of the part's start in the base x-y plane (x, "
+                                   "y), the conveyor's path moved with it; drawn per "
+                                   "workpiece.", "mm")
+    part_yaw_deg: Knob = about(ZERO, "Turn of the part's start about the base z axis through "
+                               "its origin; drawn per workpiece.", "deg")
+    conveyor_speed_percent: Knob = about(ZERO, "Change of the conveyor's speed, in % of the "
+                                         "cell file's.", "%")
+    conveyor_direction_deg: Knob = about(ZERO, "Turn of the conveyor's path about its first "
+                                         "point.", "deg")
+    crossing_time_s: Knob = about(ZERO, "Shift of all the crossing robot's waypoint times "
+                                  "together (experiment 3).", "s")
+    crossing_joint_deg: Knob = about(ZERO, "Shift of each of the crossing robot's joints, at "
+                                     "all waypoints together (experiment 3).", "deg")
 
 
 class Profile(_Strict):
     """One realism profile (module docstring). ``name`` and ``file`` say where it came from."""
 
-    name: str = "exact"
-    file: str = "<built-in>"
-    description: str = ""
-    sources: list[str] = Field(default_factory=list)
-    cameras: CameraKnobs = CameraKnobs()
-    robots: RobotKnobs = RobotKnobs()
-    servo: ServoKnobs = ServoKnobs()
-    geometry: GeometryKnobs = GeometryKnobs()
-    unmodelled: UnmodelledKnobs = UnmodelledKnobs()
-    faults: FaultKnobs = FaultKnobs()
-    images: ImageKnobs = ImageKnobs()
-    timing: TimingKnobs = TimingKnobs()
-    scenario: ScenarioKnobs = ScenarioKnobs()
+    name: str = about("exact", "The profile's name: its name in the file (else the file's "
+                      "stem), PROFILE-GROUP for groups of a built-in one.", "-")
+    file: str = about("<built-in>", "The file it was read from (set on loading).", "-")
+    description: str = about("", "What the profile stands for, in words.", "-")
+    sources: list[str] = Field(default_factory=list, description="Where its figures come from: "
+                               "references, or our own judgement.",
+                               json_schema_extra={"unit": "-"})
+    cameras: CameraKnobs = about(CameraKnobs(), "The cameras' calibration errors.", "-")
+    robots: RobotKnobs = about(RobotKnobs(), "The robots' encoders, links and bases.", "-")
+    servo: ServoKnobs = about(ServoKnobs(), "The joints' position servo.", "-")
+    geometry: GeometryKnobs = about(GeometryKnobs(), "Sizes, the grasp's seat and slip, the "
+                                    "static objects' heights.", "-")
+    unmodelled: UnmodelledKnobs = about(UnmodelledKnobs(), "Bodies the cell file does not "
+                                        "know.", "-")
+    faults: FaultKnobs = about(FaultKnobs(), "The part kidnapped, a camera knocked.", "-")
+    images: ImageKnobs = about(ImageKnobs(), "What the camera does to the image.", "-")
+    timing: TimingKnobs = about(TimingKnobs(), "Latency, dropped frames, trigger skew.", "-")
+    scenario: ScenarioKnobs = about(ScenarioKnobs(), "What the seed changes in the experiment "
+                                    "itself.", "-")
 
 
 GROUPS = ("cameras", "robots", "servo", "geometry", "unmodelled", "faults", "images", "timing",

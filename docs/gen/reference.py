@@ -109,13 +109,15 @@ def models_of(root: type[BaseModel]) -> list[type[BaseModel]]:
 
 def _type_name(annotation: object) -> str:
     """A field's type as a reader would write it: ``list[float]``, ``PoseSpec | None``."""
+    if annotation is type(None):
+        return "None"
     if isinstance(annotation, type) and not typing.get_args(annotation):
         return annotation.__name__
     origin, args = typing.get_origin(annotation), typing.get_args(annotation)
     if origin is typing.Annotated:
         return _type_name(args[0])
     if origin in (typing.Union, types.UnionType):
-        return " | ".join(_type_name(a) for a in args)
+        return " \\| ".join(_type_name(a) for a in args)
     if origin is typing.Literal:
         return " \\| ".join(repr(a) for a in args)
     if origin is not None:
