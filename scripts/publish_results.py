@@ -63,11 +63,13 @@ def _git(*args: str) -> str:
                           check=True).stdout.strip()
 
 
-def publish(names: list[str]) -> int:
+def publish(names: list[str], ran_at: str | None = None) -> int:
+    """Copy the sweeps' summaries into the docs; ``ran_at``: the commit the sweeps ran at,
+    when the code has been committed to since they started (default: HEAD)."""
     from cellsight import __version__
 
-    commit = _git("rev-parse", "HEAD")
-    if _git("status", "--porcelain", "--", "cellsight"):
+    commit = _git("rev-parse", ran_at or "HEAD")
+    if ran_at is None and _git("status", "--porcelain", "--", "cellsight"):
         print("publish_results.py: cellsight/ has uncommitted changes; the tables will name "
               "the last commit, which is not the code that ran", file=sys.stderr)
     for name, sweep in chosen(names).items():
@@ -140,14 +142,16 @@ def main() -> int:
     run_parser = sub.add_parser("run", help="run the sweeps (resumable)")
     run_parser.add_argument("names", nargs="*")
     run_parser.add_argument("--jobs", type=int, default=2)
-    sub.add_parser("publish", help="copy finished sweeps' summaries into the docs").add_argument(
-        "names", nargs="*")
+    publish_parser = sub.add_parser("publish", help="copy finished sweeps' summaries into the docs")
+    publish_parser.add_argument("names", nargs="*")
+    publish_parser.add_argument("--ran-at", metavar="COMMIT",
+                                help="the commit the sweeps ran at (default HEAD)")
     sub.add_parser("readme", help="write the README's commands and headline tables")
     args = parser.parse_args()
     if args.what == "run":
         return run(args.names, args.jobs)
     if args.what == "publish":
-        return publish(args.names)
+        return publish(args.names, args.ran_at)
     return readme()
 
 

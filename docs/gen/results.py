@@ -87,15 +87,21 @@ def _groups(rows: list[dict[str, str]]) -> dict[tuple[str, ...], list[dict[str, 
 
 def summary_table(rows: list[dict[str, str]], figures=FIGURES) -> str:
     """One line per group of runs (cell, realism, experiment, sensor, variant, structure):
-    runs, failed runs, grasps, then each figure's spread over the seeds."""
+    runs, failed runs, grasps, then each figure's spread over the seeds. A grouping column
+    that is the same on every line is said once above the table instead."""
     present = [f for f in figures if any(_number(r.get(f[0])) is not None for r in rows)]
-    head = ["cell", "realism", "exp.", "sensor", "variant", "structure", "runs (failed)",
-            "grasps"] + [h for _, h, _ in present]
-    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
-    for key, runs in _groups(rows).items():
+    groups = _groups(rows)
+    varying = [i for i, _ in enumerate(GROUP) if len({key[i] for key in groups}) > 1]
+    same = [f"{GROUP[i]} `{next(iter(groups))[i]}`" for i in range(len(GROUP))
+            if i not in varying]
+    head = [GROUP[i] for i in varying] + ["runs (failed)", "grasps"] + [h for _, h, _ in present]
+    lines = [f"All runs: {', '.join(same)}.", ""] if same else []
+    lines += ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for key, runs in groups.items():
         done = [r for r in runs if r.get("status") == "done"]
         grasps = sum(r.get("grasp_success") == "True" for r in done)
-        cells = [*key, f"{len(runs)} ({len(runs) - len(done)})", f"{grasps}/{len(done)}"]
+        cells = [key[i] for i in varying] + [f"{len(runs)} ({len(runs) - len(done)})",
+                                             f"{grasps}/{len(done)}"]
         cells += [_spread((_number(r.get(col)) for r in done), d) for col, _, d in present]
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
@@ -103,7 +109,7 @@ def summary_table(rows: list[dict[str, str]], figures=FIGURES) -> str:
 
 def phase_table(rows: list[dict[str, str]]) -> str:
     """Position RMSE (mm) per working phase, per group: mean ± sd over the seeds."""
-    head = ["realism", "exp.", "variant"] + [f"{p} mm" for p in PHASES]
+    head = ["realism", "experiment", "variant"] + [f"{p} mm" for p in PHASES]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for key, runs in _groups(rows).items():
         done = [r for r in runs if r.get("status") == "done"]
@@ -175,15 +181,23 @@ def index_page(root: Path, found: list[Table]) -> str:
 
 def headline(found: list[Table]) -> str:
     """The headline table (README and the results' front page): the default tracker's
-    whole-task figures, experiment 3 in each published world."""
+    whole-task figures, experiment 3, one line per published world."""
     rows = [r for t in found if t.meta.get("headline") for r in t.rows
             if r.get("experiment") == "3"]
     if not rows:
         return "No published sweep is marked as a headline yet.\n"
-    pick = tuple(f for f in FIGURES if f[0] in (
-        "position_rmse_arm_mm", "position_rmse_mm", "max_position_error_mm",
-        "orientation_rmse_deg", "visibility_accuracy"))
-    return summary_table(rows, pick)
+    pick = [f for f in FIGURES if f[0] in (
+        "position_rmse_mm", "max_position_error_mm", "orientation_rmse_deg",
+        "visibility_accuracy", "confident_wrong_frames")]
+    head = ["world", "runs", "grasps"] + [h for _, h, _ in pick]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for key, runs in _groups(rows).items():
+        done = [r for r in runs if r.get("status") == "done"]
+        grasps = sum(r.get("grasp_success") == "True" for r in done)
+        cells = [f"`{key[1]}`", str(len(runs)), f"{grasps}/{len(done)}"]
+        cells += [_spread((_number(r.get(col)) for r in done), d) for col, _, d in pick]
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
 
 
 def pages(root: Path) -> dict[str, str]:
