@@ -124,9 +124,11 @@ def _print(robot: str, rows: list[dict], unreached: list[dict], cameras: list[st
     from rich.console import Console
     from rich.table import Table
 
-    table = Table(title=f"{robot}: {len(rows)} branch(es) reach the pose (joints: deg, "
+    seeded = any("seed" in r["branch"] for r in rows)  # no branch flags: named by their start
+    what = "solution(s) found from these starts" if seeded else "branch(es)"
+    table = Table(title=f"{robot}: {len(rows)} {what} reach the pose (joints: deg, "
                         f"prismatic m)")
-    for col in ("branch", "joints", "tightest limit", "sigma min", *cameras):
+    for col in ("start" if seeded else "branch", "joints", "tightest limit", "sigma min", *cameras):
         table.add_column(col)
     for r in rows:
         cams = [f"{v['visible']} visible, {v['inside']} inside, margin {v['margin_px']:g} px"

@@ -139,7 +139,7 @@ def _seeds(robot: Robot, n: int) -> list[tuple[str, np.ndarray]]:
     out = [("HOME", robot.home), ("middle", qlim.mean(axis=1))]
     out.append(("FINAL", robot.final if robot.final is not None else qlim.mean(axis=1)))
     rng = np.random.default_rng(0)
-    out += [(f"seed {k}", rng.uniform(qlim[:, 0], qlim[:, 1])) for k in range(n)]
+    out += [(f"random {k}", rng.uniform(qlim[:, 0], qlim[:, 1])) for k in range(n)]
     return out
 
 

@@ -23,8 +23,7 @@ ZOOM = 4
 def wrong_corner_crops(run_dir: Path, spans: list[WrongSpan], shown: int = 4,
                        metrics: dict | None = None) -> list[Path]:
     """``fig_wrong_corner_<i>.png`` in ``run_dir`` for the first ``shown`` spans with an accepted
-    corner (features named ``#j``, as :func:`~cellsight.runfolder.wrong_corners.
-    wrong_corner_spans` names them by default); their paths. ``metrics``: the run's, when its
+    corner; their paths. ``metrics``: the run's, when its
     metrics.json is not written yet."""
     worst = [s for s in spans if s.accepted][:shown]
     if not worst:
@@ -37,8 +36,7 @@ def wrong_corner_crops(run_dir: Path, spans: list[WrongSpan], shown: int = 4,
     try:
         for i, span in enumerate(worst):
             k = int(np.argmin(np.abs(run.t - span.t_start)))
-            c = [cam.name for cam in run.cell.cameras].index(span.camera)
-            f = int(span.feature.lstrip("#"))  # the log's 0-based index (the spans' default)
+            c, f = span.camera_index, span.feature_index
             openings = {} if run.robot is None or not np.isfinite(run.opening[k]) else {
                 run.robot: float(run.opening[k])}
             world.show_state({r: q[k] for r, q in run.joints.items()},

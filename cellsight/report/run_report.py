@@ -29,11 +29,13 @@ from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 from matplotlib.patches import Patch
 
+from cellsight.errors import CellsightError
 from cellsight.geometry.transforms import pose_errors
 from cellsight.rates import VISION_HZ
 from cellsight.report.corner_crops import wrong_corner_crops
 from cellsight.runfolder.framelog import FrameLog, camera_column, timing_column
 from cellsight.runfolder.metrics import read_metrics
+from cellsight.runfolder.replay import run_cell
 from cellsight.runfolder.writes import write_figure, write_file
 from cellsight.runfolder.wrong_corners import wrong_corner_spans
 from cellsight.tracking.timing import STAGES
@@ -357,7 +359,13 @@ def plot_timing(run: Run, path: Path) -> Path:
     if np.isfinite(total).any():
         right.axhline(np.nanmedian(total), color="C3", ls="--", lw=1,
                       label=f"median {np.nanmedian(total):.3g} ms")
-    right.set(xlabel="t [s]", ylabel="total per frame [ms]", title="total")
+    title = "total"
+    if np.isfinite(total).sum() > 10:  # a run's first frames can take seconds (kernels load)
+        top = 1.5 * np.nanpercentile(total, 99)
+        right.set_ylim(0, top)
+        if (above := int(np.sum(total > top))) > 0:
+            title += f" ({above} frame{'s' * (above > 1)} above {top:.3g} ms, off the scale)"
+    right.set(xlabel="t [s]", ylabel="total per frame [ms]", title=title)
     right.legend(loc="upper right", fontsize=8)
     right.grid(alpha=0.3)
     _phase_legend(fig, run)
@@ -511,11 +519,22 @@ def _video_html(run_dir: Path) -> str:
             f'type="video/mp4"></video>{link}')
 
 
+def _names(run_dir: Path, metrics: dict) -> tuple[list[str] | None, list[str] | None]:
+    """The run's camera and feature names, from the cell it kept (as ``cellsight diagnose``
+    names them); None, None when that cell cannot be read (then ``cam<c>`` and ``#<j>``)."""
+    try:
+        cell = run_cell(metrics, run_dir)
+        part = cell.workpiece(metrics["workpiece"])
+    except (CellsightError, OSError, ValueError, KeyError):
+        return None, None
+    return [c.name for c in cell.cameras], list(part.feature_names)
+
+
 def _wrong_corners_html(run_dir: Path, metrics: dict, shown: int = 12) -> str:
     """The run's wrong corners by camera, feature and span of time, most accepted first
     (:mod:`cellsight.runfolder.wrong_corners`; ``cellsight diagnose`` prints them all)."""
     try:
-        spans = wrong_corner_spans(run_dir)
+        spans = wrong_corner_spans(run_dir, *_names(run_dir, metrics))
     except (OSError, ValueError, KeyError):
         return ""
     if not spans:
@@ -537,8 +556,7 @@ def _wrong_corners_html(run_dir: Path, metrics: dict, shown: int = 12) -> str:
     pictures = "".join(f'<figure><img src="{p.name}" alt="{p.stem}"><figcaption>{p.stem}'
                        "</figcaption></figure>" for p in crops)
     return (f"<h2>Wrong corners</h2><p>Corners measured more than 3 px from the true "
-            f"projection, by camera (<code>camN</code>: the N-th) and feature (<code>#j</code>: "
-            f"its 0-based index), "
+            f"projection, by camera and feature (as <code>cellsight diagnose</code> names them), "
             f"most accepted first{more}. Pictures: the worst accepted spans' first frames, "
             f"re-rendered, around the feature's true projection (green cross).</p>"
             f"<table><tr>{head}</tr>{body}</table>{pictures}")

@@ -33,7 +33,9 @@ class WrongSpan:
     """Wrong corners of one camera and feature over ``t_start``..``t_end`` (s): ``frames``
     with one, ``accepted`` by the gate (and used), ``rejected`` by it, ``unused`` (frames that
     used nothing); the ``phase`` (the first);
-    ``truth`` and ``predicted``: the most frequent labels (module docstring)."""
+    ``truth`` and ``predicted``: the most frequent labels (module docstring); ``camera_index``
+    and ``feature_index``: the camera's and the feature's 0-based index in the log, whatever
+    their names."""
 
     camera: str
     feature: str
@@ -46,6 +48,8 @@ class WrongSpan:
     phase: str
     truth: str
     predicted: str
+    camera_index: int
+    feature_index: int
 
     def as_dict(self) -> dict:
         return asdict(self)
@@ -74,7 +78,7 @@ def wrong_corner_spans(run_dir: str | Path, cameras: list[str] | None = None,
                     float(t[rows[-1]]), len(rows), int((~rejected[rows, f] & used[rows]).sum()),
                     int(rejected[rows, f].sum()), int((~rejected[rows, f] & ~used[rows]).sum()),
                     phases[rows[0]],
-                    _most(truth[rows, f]), _most(predicted[rows, f])))
+                    _most(truth[rows, f]), _most(predicted[rows, f]), c - 1, int(f)))
     return sorted(spans, key=lambda s: (-s.accepted, -s.frames, s.t_start))
 
 
