@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import math
 import re
-from typing import Annotated, Any, Literal
+from typing import Annotated, Literal
 
 import numpy as np
 from pydantic import (
@@ -37,6 +37,7 @@ from pydantic import (
     model_validator,
 )
 
+from cellsight.fields import about
 from cellsight.geometry.transforms import pose_from_xyz_rpy
 
 MIN_CONVEYOR_STEP_M = 1e-6  # m: the shortest leg of a conveyor path
@@ -67,12 +68,6 @@ Count = Annotated[int, Field(strict=True)]  # an integer: 2.0, "2" and true are 
 Flag = Annotated[bool, Field(strict=True)]  # true or false: 1 and "yes" are refused
 JOINT_UNIT = "rad (m for a prismatic joint)"  # the unit of a joint value
 
-
-def about(default: Any, description: str, unit: str, **kw: Any) -> Any:
-    """A field's default with its meaning and unit (``json_schema_extra={"unit": ...}``), for
-    the reference pages generated from the models; ``kw``: more :func:`pydantic.Field`
-    arguments (constraints given in the annotation stay there)."""
-    return Field(default, description=description, json_schema_extra={"unit": unit}, **kw)
 
 
 class _Strict(BaseModel):

@@ -12,12 +12,13 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Annotated, Any, Literal
+from typing import Annotated, Literal
 
 import numpy as np
 from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, ValidationError, model_validator
 
 from cellsight.errors import CellFileError
+from cellsight.fields import about
 from cellsight.model.yaml_input import load_yaml, read_cell_text
 
 BUILTIN_FILE = Path(__file__).resolve().parent.parent / "data" / "realism.yaml"
@@ -45,12 +46,6 @@ class _Strict(BaseModel):
 
 DRAWN = "knob's unit"  # the unit of a distribution's numbers: the knob's own
 
-
-def about(default: Any, description: str, unit: str, **kw: Any) -> Any:
-    """A knob's default with its meaning and unit (``json_schema_extra={"unit": ...}``), for
-    the reference pages generated from the models; ``kw``: more :func:`pydantic.Field`
-    arguments (constraints given in the annotation stay there)."""
-    return Field(default, description=description, json_schema_extra={"unit": unit}, **kw)
 
 
 class Distribution(_Strict):

@@ -16,9 +16,10 @@ import json
 from pathlib import Path
 from typing import Any
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import BaseModel, ConfigDict, ValidationError
 
 from cellsight.errors import CellsightError, short_repr
+from cellsight.fields import about
 from cellsight.runfolder.writes import write_file
 
 METRICS_VERSION = 1
@@ -31,11 +32,6 @@ class RunDataError(CellsightError, ValueError):
 
 Number = float | None  # JSON numbers (an int reads as a float); None where nothing was measured
 
-
-def about(default: Any, description: str, unit: str) -> Any:
-    """A field's default (None: not measured, or not written) with its meaning and unit
-    (``json_schema_extra={"unit": ...}``), for the reference pages generated from the model."""
-    return Field(default, description=description, json_schema_extra={"unit": unit})
 
 
 class RunMetrics(BaseModel):
