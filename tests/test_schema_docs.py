@@ -5,8 +5,7 @@ pages can be generated from the models alone; and documenting them changed no be
 from __future__ import annotations
 
 import math
-import typing
-from collections.abc import Iterator
+import sys
 from pathlib import Path
 
 import pytest
@@ -52,6 +51,9 @@ from cellsight.realism.profile import (
 )
 from cellsight.runfolder.metrics import RunMetrics
 
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "docs" / "gen"))
+from reference import models_of  # noqa: E402  the reference pages' walk over the models
+
 DATA = Path(__file__).resolve().parent.parent / "cellsight" / "data"
 CELL_FILES = sorted(p for p in DATA.glob("*.yaml")
                     if isinstance(d := yaml.safe_load(p.read_text()), dict) and "cameras" in d)
@@ -64,30 +66,8 @@ SUFFIX_UNITS = (("_dn_per_e", "DN/e-"), ("_deg_s2", "deg/s^2"), ("_deg_s", "deg/
                 ("_s", "s"), ("_m", "m"))
 
 
-def _models_in(annotation: object) -> Iterator[type[BaseModel]]:
-    """The models an annotation holds: itself, or inside lists, unions, Annotated, dicts."""
-    if isinstance(annotation, type) and issubclass(annotation, BaseModel):
-        yield annotation
-        return
-    for arg in typing.get_args(annotation):
-        yield from _models_in(arg)
-
-
-def _reachable(root: type[BaseModel]) -> list[type[BaseModel]]:
-    """``root`` and every model its fields reach, depth first."""
-    seen: list[type[BaseModel]] = []
-    todo = [root]
-    while todo:
-        model = todo.pop()
-        if model not in seen:
-            seen.append(model)
-            for field in model.model_fields.values():
-                todo.extend(_models_in(field.annotation))
-    return seen
-
-
 def _fields() -> list[tuple[type[BaseModel], str]]:
-    return [(model, name) for root in ROOTS for model in _reachable(root)
+    return [(model, name) for root in ROOTS for model in models_of(root)
             for name in model.model_fields]
 
 
@@ -103,9 +83,9 @@ def test_the_walk_reaches_every_model_of_the_three_schemas():
             CellSpec}
     profile = {Profile, Distribution, CameraKnobs, RobotKnobs, ServoKnobs, GeometryKnobs,
                UnmodelledKnobs, FaultKnobs, ImageKnobs, TimingKnobs, ScenarioKnobs}
-    assert set(_reachable(CellSpec)) == cell
-    assert set(_reachable(Profile)) == profile
-    assert _reachable(RunMetrics) == [RunMetrics]
+    assert set(models_of(CellSpec)) == cell
+    assert set(models_of(Profile)) == profile
+    assert models_of(RunMetrics) == [RunMetrics]
 
 
 @pytest.mark.parametrize(("model", "name"), _fields(),
@@ -135,7 +115,7 @@ def test_units(model: type[BaseModel], name: str, unit: str):
 
 
 @pytest.mark.parametrize(("model", "name"), [
-    (m, n) for root in (Profile, RunMetrics) for m in _reachable(root) for n in m.model_fields
+    (m, n) for root in (Profile, RunMetrics) for m in models_of(root) for n in m.model_fields
     if any(n.endswith(s) for s, _ in SUFFIX_UNITS)], ids=lambda x: getattr(x, "__name__", x))
 def test_a_unit_in_the_name_is_the_fields_unit(model: type[BaseModel], name: str):
     """Knobs and figures carry their unit in their name (``_mm``, ``_percent``, ...)."""
