@@ -8,6 +8,7 @@ import pytest
 from test_ekf import GATE, TARGET, _cameras, _observe, _prism, _state
 
 from cellsight.runfolder.framelog import FrameLog
+from cellsight.trackers import CAMERA_OFFSETS_PRIOR_PX, TrackerChoice
 from cellsight.tracking import ConstantVelocity, PoseEKF
 from cellsight.tracking.measurement import Observation
 from cellsight.tracking.offsets import CameraOffsets, with_offset
@@ -103,8 +104,17 @@ def test_offset_jacobian_and_prior():
             CameraOffsets(*bad)
 
 
+def _plain(offsets_px: float) -> TrackerChoice:
+    """The plain tracker, with the experimental camera offsets (their prior, 5 px) or
+    without (0)."""
+    assert offsets_px in (0.0, CAMERA_OFFSETS_PRIOR_PX)
+    return TrackerChoice("plain", experimental=frozenset({"camera-offsets"}) if offsets_px
+                         else frozenset())
+
+
 def test_a_run_in_a_cell_of_disagreeing_cameras_holds_the_part_only_with_offsets(tmp_path):
-    """The main path, `cellsight run --camera-offsets`: harsh's cameras alone, seed 1 (cam1's
+    """The main path, `cellsight run --tracker plain --experimental camera-offsets`: harsh's
+    cameras alone, seed 1 (cam1's
     image 6 px off, cam2's 9 px the other way), ideal sensor. Trusting the calibration, the
     part is acquired (the acquisition takes each camera's median residual out) but the filter
     cannot fuse the two views: it drifts to about 59 mm and, from its second tracked frame on
@@ -116,7 +126,7 @@ def test_a_run_in_a_cell_of_disagreeing_cameras_holds_the_part_only_with_offsets
 
     runs = {px: run_experiment(RunConfig(1, tmp_path / f"o{px}", seed=1, sensor="ideal",
                                          realism="harsh/cameras", duration=1.5,
-                                         camera_offsets_px=px, progress=False, video_every=0))
+                                         tracker=_plain(px), progress=False, video_every=0))
             for px in (0.0, 5.0)}
     statuses = FrameLog.read(tmp_path / "o0.0" / "frames.csv").text("status")[2:]
     assert "tracking" not in statuses  # degraded or coasting: the monitor says so
@@ -159,7 +169,7 @@ def test_the_common_shift_stays_in_the_pose_and_does_not_drift(tmp_path):
 
     out = tmp_path / "run"
     run_experiment(RunConfig(1, out, seed=0, sensor="ideal", realism="harsh/cameras",
-                             duration=12.0, camera_offsets_px=8.0, progress=False,
+                             duration=12.0, tracker=_plain(5.0), progress=False,
                              video_every=0))
     early, late = _error_mm(out, 1.0, 3.0), _error_mm(out, 9.0, 12.0)
     assert len(early) > 40 and len(late) > 60
@@ -176,7 +186,7 @@ def test_windows_are_centred_where_the_offsets_put_the_features(tmp_path):
 
     out = tmp_path / "run"
     run_experiment(RunConfig(1, out, seed=1, realism="harsh/cameras", duration=6.0,
-                             camera_offsets_px=8.0, progress=False, video_every=0))
+                             tracker=_plain(5.0), progress=False, video_every=0))
     log = FrameLog.read(out / "frames.csv")
     late = log.floats("t") >= 3.0
     for cam in ("c1", "c2"):

@@ -51,12 +51,19 @@ def test_a_json_file_that_is_not_utf8_is_named(tmp_path: Path, capsys) -> None:
     assert f"--joints: {bad}: not UTF-8 text" in capsys.readouterr().err
 
 
+@pytest.mark.parametrize(("option", "value"), [("--tracker", "fancy"), ("--experimental", "warp")])
+def test_an_unknown_tracker_option_is_refused_with_the_choices(option, value, tmp_path: Path,
+                                                                capsys) -> None:
+    with pytest.raises(SystemExit) as stop:
+        main(["run", "1", "--out", str(tmp_path / "run"), option, value])
+    assert stop.value.code == 2 and not (tmp_path / "run").exists()
+    assert f"argument {option}: invalid choice: '{value}'" in capsys.readouterr().err
+
+
 @pytest.mark.parametrize(("option", "value", "message"), [
     ("--duration", "inf", "--duration: expected a positive, finite number of seconds, got inf"),
     ("--duration", "nan", "--duration: expected a positive, finite number of seconds, got nan"),
     ("--seed", "-1", "--seed: expected a whole number >= 0, got -1"),
-    ("--camera-offsets", "-2", "--camera-offsets: expected a finite number of px >= 0, got -2.0"),
-    ("--camera-offsets", "nan", "--camera-offsets: expected a finite number of px >= 0, got nan"),
 ])
 def test_bad_run_options_are_refused_before_any_output(option, value, message, tmp_path: Path,
                                                        capsys) -> None:

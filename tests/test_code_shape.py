@@ -16,7 +16,7 @@ MAX_CLASS_METHODS = 15  # a class stays below it: one at the cap has no room to 
 # Lowest first: a module may import from its own layer and the ones before it, never after.
 LAYERS = [
     {"errors", "fields", "rates", "threads", "geometry"},
-    {"camera", "_camera_kernel", "kinematics", "visibility"},
+    {"camera", "_camera_kernel", "kinematics", "visibility", "trackers"},
     {"model"},
     {"occlusion", "tracking", "control"},
     {"world", "framelog", "runfolder", "realism"},

@@ -29,14 +29,16 @@ from cellsight.recording.reader import RecordingError
 from cellsight.recording.track import TrackOptions, track_recording
 from cellsight.runfolder import FrameLog
 from cellsight.runfolder.framelog import decode_corners, decode_windows
+from cellsight.trackers import DEFAULT_TRACKER, TrackerChoice
 
 DURATION = 3.0
 
 
-def _run(folder: Path, jpeg: int | None = None, prior: bool = False) -> tuple[Path, Path]:
+def _run(folder: Path, jpeg: int | None = None,
+         tracker: TrackerChoice = DEFAULT_TRACKER) -> tuple[Path, Path]:
     record = folder / "rec.mcap"
     run_experiment(RunConfig(3, folder / "run", duration=DURATION, progress=False,
-                             record=record, record_jpeg=jpeg, kinematic_prior=prior))
+                             record=record, record_jpeg=jpeg, tracker=tracker))
     return folder / "run", record
 
 
@@ -82,23 +84,25 @@ def test_tracking_the_recording_gives_the_runs_estimates(recorded, tmp_path):
     assert ran.text("meas_c1") == tracked.text("meas_c1")
     metrics = json.loads((tmp_path / "track" / "metrics.json").read_text())
     assert metrics["frames_tracked"] == ran.n and metrics["gaps"] == []
+    # the default tracker, from the recording alone: the cameras registered at HOME, the part
+    # on the cell file's support (the gripper holds nothing in these 3 s)
+    assert metrics["tracker"] == "kinematic" and metrics["kinematic_prior"]
+    assert metrics["registration"]["cam1"]["where"] == "home"
     assert (tmp_path / "track" / "report.html").is_file()
 
 
-def test_a_run_with_the_kinematic_prior_tracks_back_with_it(tmp_path):
-    """The prior from the recording alone (the cameras registered at HOME, the part on the cell
-    file's support: the gripper holds nothing in these 3 s) gives the run's estimates; the
-    plain track does not."""
-    run, record = _run(tmp_path, prior=True)
+def test_a_run_of_the_plain_tracker_tracks_back_with_it(tmp_path):
+    """The plain tracker's run and its recording tracked with the plain tracker agree; the
+    default tracker's track of the same recording does not."""
+    plain = TrackerChoice("plain")
+    run, record = _run(tmp_path, tracker=plain)
     ran = _estimates(FrameLog.read(run / "frames.csv"))
-    tracked = _estimates(_track(record, tmp_path / "prior", register_cameras=True,
-                                kinematic_prior=True))
+    tracked = _estimates(_track(record, tmp_path / "plain", tracker=plain))
     assert np.array_equal(np.isnan(ran), np.isnan(tracked))
     assert np.nanmax(np.abs(ran - tracked)) < 1e-9
-    metrics = json.loads((tmp_path / "prior" / "metrics.json").read_text())
-    assert metrics["kinematic_prior"] and metrics["registration"]["cam1"]["where"] == "home"
-    plain = _estimates(_track(record, tmp_path / "plain"))
-    assert np.nanmax(np.abs(ran - plain)) > 1e-6
+    assert json.loads((tmp_path / "plain" / "metrics.json").read_text())["tracker"] == "plain"
+    default = _estimates(_track(record, tmp_path / "default"))
+    assert np.nanmax(np.abs(ran - default)) > 1e-6
 
 
 def test_a_jpeg_recording_tracks_within_a_tenth_of_a_millimetre(tmp_path):

@@ -11,6 +11,7 @@ from hypothesis import strategies as st
 
 from cellsight import load_cell
 from cellsight.occlusion.predictor import VisibilityPredictor
+from cellsight.trackers import TrackerChoice
 from cellsight.tracking import Tracker
 from cellsight.tracking.camera_fit import corrected
 from cellsight.tracking.registration import RegistrationRule, vote_peaks
@@ -63,7 +64,7 @@ def test_the_tracker_and_its_predictor_take_a_recalibrated_camera():
 
 
 def test_a_rendered_run_registers_each_camera_to_the_gripper_as_the_true_camera_is(tmp_path):
-    """The main path (`cellsight run --kinematic-prior`): harsh's cameras alone (seed 1: cam1's
+    """The main path (`cellsight run`, the default tracker): harsh's cameras alone (seed 1: cam1's
     image about 6 px off, cam2's 9 px the other way), the arm exact. While the gripper stands
     at HOME, each camera's offset is found within 0.35 px of the true camera's at the
     gripper's corners (the simulator's camera against the cell file's), the registered camera
@@ -72,7 +73,7 @@ def test_a_rendered_run_registers_each_camera_to_the_gripper_as_the_true_camera_
     from cellsight.experiments.runner import ExperimentRun, RunConfig
 
     run = ExperimentRun(RunConfig(1, tmp_path / "r", seed=1, realism="harsh/cameras",
-                                  duration=2.5, kinematic_prior=True, progress=False,
+                                  duration=2.5, progress=False,
                                   video_every=0))
     metrics = run.run()
     cell, true = run.cell, run.world.truth.cell
@@ -109,7 +110,7 @@ def test_each_camera_is_registered_again_by_the_part(tmp_path):
     from cellsight.experiments.runner import ExperimentRun, RunConfig
 
     run = ExperimentRun(RunConfig(1, tmp_path / "r", seed=11, realism="harsh/cameras",
-                                  duration=9.0, kinematic_prior=True, progress=False,
+                                  duration=9.0, progress=False,
                                   video_every=0))
     metrics = run.run()
     far = 0
@@ -133,27 +134,28 @@ def test_each_camera_is_registered_again_by_the_part(tmp_path):
 
 
 def test_a_recording_registers_each_camera_as_its_run_did(tmp_path):
-    """``cellsight track --register-cameras`` on the recording of a ``harsh/cameras`` run
-    (seed 1, the arm exact; ``cellsight run --kinematic-prior --record``): the recorded whole
-    images, joints and jaw openings give each camera the offset the run found; without the
-    option nothing is registered."""
+    """``cellsight track`` (the default tracker) on the recording of a ``harsh/cameras`` run
+    (seed 1, the arm exact; ``cellsight run --record``): the recorded whole images, joints and
+    jaw openings give each camera the offset the run found; the plain tracker registers
+    nothing."""
     from cellsight.experiments.runner import ExperimentRun, RunConfig
     from cellsight.recording.track import TrackOptions, track_recording
 
     recording = tmp_path / "rec.mcap"
     run = ExperimentRun(RunConfig(1, tmp_path / "run", seed=1, realism="harsh/cameras",
-                                  duration=2.5, kinematic_prior=True, progress=False,
+                                  duration=2.5, progress=False,
                                   video_every=0, record=recording))
     metrics = run.run()
     tracked = track_recording(None, recording, tmp_path / "tracked",
-                              TrackOptions(progress=False, register_cameras=True)).metrics
+                              TrackOptions(progress=False)).metrics
     for cam in run.cell.cameras:
         ran, got = metrics["registration"][cam.name], tracked["registration"][cam.name]
         assert ran["where"] == got["where"] == "home"
         assert np.linalg.norm(ran["offset_px"]) > 4.0  # a camera well off
         np.testing.assert_allclose(got["offset_px"], ran["offset_px"], atol=0.01)
         assert got["corners"] >= RegistrationRule().min_corners
-    plain = track_recording(None, recording, tmp_path / "plain", TrackOptions(progress=False))
+    plain = track_recording(None, recording, tmp_path / "plain",
+                            TrackOptions(progress=False, tracker=TrackerChoice("plain")))
     assert plain.metrics["registration"] is None
 
 

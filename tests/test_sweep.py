@@ -32,13 +32,13 @@ def _crash(x: int) -> int:
 
 
 def test_grid_is_the_product_with_comparisons_on_the_first_seeds():
-    specs = sweep_grid(["dual-arm", "ur-cell"], [1, 3], ["ideal"], ["pred", "nopred"],
+    specs = sweep_grid(["dual-arm", "ur-cell"], [1, 3], ["ideal"], ["kinematic", "nopred"],
                        [0, 1, 2], variant_seeds=1)
     assert len(specs) == 2 * 2 * (3 + 1)
     assert {s.seed for s in specs if s.variant == "nopred"} == {0}
     assert len({s.folder for s in specs}) == len(specs)
-    assert str(RunSpec("cells/my_cell.yaml", 3, "ideal", "pred", 2).folder) == \
-        "my_cell/e3_ideal_pred_s2"
+    assert str(RunSpec("cells/my_cell.yaml", 3, "ideal", "kinematic", 2).folder) == \
+        "my_cell/e3_ideal_kinematic_s2"
 
 
 @pytest.mark.parametrize("kwargs, needle", [
@@ -47,7 +47,7 @@ def test_grid_is_the_product_with_comparisons_on_the_first_seeds():
     ({"variant_seeds": 0}, "--variant-seeds")])
 def test_grid_refuses_bad_values(kwargs, needle):
     args = {"cells": ["dual-arm"], "experiments": [1], "sensors": ["ideal"],
-            "variants": ["pred"], "seeds": [0]} | kwargs
+            "variants": ["kinematic"], "seeds": [0]} | kwargs
     with pytest.raises(CellsightError, match=needle):
         sweep_grid(**args)
 
@@ -78,7 +78,7 @@ def test_a_crashing_job_is_recorded_and_the_others_still_run():
 @pytest.fixture(scope="module")
 def local_sweep(tmp_path_factory):
     out = tmp_path_factory.mktemp("sweep")
-    specs = sweep_grid(["dual-arm"], [1, 3], ["ideal"], ["pred"], [0], duration=DURATION)
+    specs = sweep_grid(["dual-arm"], [1, 3], ["ideal"], ["kinematic"], [0], duration=DURATION)
     return out, specs, run_sweep(specs, out, jobs=2, progress=False)
 
 
@@ -135,7 +135,7 @@ def test_a_run_on_a_cell_file_changed_since_is_run_again(tmp_path):
 
     cell = tmp_path / "my_cell.yaml"
     cell.write_text(cell_path("dual-arm").read_text())
-    specs = sweep_grid([str(cell)], [1], ["ideal"], ["pred"], [0], duration=0.2)
+    specs = sweep_grid([str(cell)], [1], ["ideal"], ["kinematic"], [0], duration=0.2)
     run_sweep(specs, tmp_path / "out", jobs=1, progress=False)
     assert run_sweep(specs, tmp_path / "out", jobs=1, progress=False)[0].get("reused")
     cell.write_text(cell.read_text() + "\n# moved a camera\n")
@@ -152,28 +152,31 @@ def test_groups_over_seeds_and_paired_comparison_against_numpy():
     rng = np.random.default_rng(5)
     on, off = rng.uniform(0.5, 1.5, 8), rng.uniform(0.8, 2.0, 8)
     specs, results = [], []
-    for variant, values in (("pred", on), ("nopred", off)):
+    for variant, values in (("kinematic", on), ("nopred", off)):
         for seed, v in enumerate(values):
             specs.append(RunSpec("dual-arm", 3, "rendered", variant, seed, realism="lab"))
             results.append({"experiment": 3, "position_rmse_mm": v, "grasp_success": seed != 2,
+                            "position_rmse_arm_mm": v / 2,
                             "max_position_error_mm": 3 * v, "visibility_accuracy": 1 - v / 100,
                             "collision_count": 1 if seed == 4 else 0,
                             "fewest_visible": {"approach": [9, 1], "manipulate": [seed % 2, 5]}})
-    specs.append(RunSpec("dual-arm", 3, "rendered", "pred", 9, realism="lab"))
+    specs.append(RunSpec("dual-arm", 3, "rendered", "kinematic", 9, realism="lab"))
     results.append({"error": "RuntimeError: boom"})
     rows = {r[5]: r for r in group_rows(specs, results)}
     mean, half = mean_ci(on)
     t = stats.t.ppf(0.975, 7) * on.std(ddof=1) / np.sqrt(8)
     assert half == pytest.approx(t) and mean == pytest.approx(on.mean())
-    pred = rows["pred"]
-    assert pred[6] == "8 (+1 failed)" and pred[7] == "7/8"
-    assert pred[8] == f"{on.mean():.2f} ± {t:.2f}"
-    assert pred[9] == f"{np.percentile(on, 95):.2f}" and pred[10] == f"{on.max():.2f}"
-    assert pred[16] == f"{(1 - on / 100).min():.4f}" and pred[20] == "1"
-    assert pred[21] == "4/8"  # camera 1 left with nothing in Manipulate on the even seeds
-    (paired,) = paired_rows(specs, results)
-    assert paired[6] == f"{int(np.sum(off > on))}/8"
-    assert paired[7] == f"{(off - on).mean():.2f} ± {mean_ci(off - on)[1]:.2f}"
+    row = rows["kinematic"]
+    assert row[6] == "8 (+1 failed)" and row[7] == "7/8"
+    assert row[8] == f"{on.mean() / 2:.2f} ± {t / 2:.2f}" and row[9] == f"{on.max() / 2:.2f}"
+    assert row[10] == f"{on.mean():.2f} ± {t:.2f}"
+    assert row[11] == f"{np.percentile(on, 95):.2f}" and row[12] == f"{on.max():.2f}"
+    assert row[18] == f"{(1 - on / 100).min():.4f}" and row[22] == "1"
+    assert row[23] == "4/8"  # camera 1 left with nothing in Manipulate on the even seeds
+    (paired,) = paired_rows(specs, results)  # the default against the others, arm frame
+    assert paired[5] == "kinematic vs nopred" and paired[6] == f"{int(np.sum(off > on))}/8"
+    gain = (off - on) / 2
+    assert paired[7] == f"{gain.mean():.2f} ± {mean_ci(gain)[1]:.2f}"
 
 
 def test_health_rows_count_confident_wrong_frames_and_wrong_corners():
@@ -185,7 +188,7 @@ def test_health_rows_count_confident_wrong_frames_and_wrong_corners():
     wrong = [0, 3, 0, 12, 1]
     accepted, measured = rng.integers(0, 50, 5), rng.integers(500, 2000, 5)
     worst = rng.uniform(1, 30, 5)
-    specs = [RunSpec("dual-arm", 1, "rendered", "pred", s, realism="harsh") for s in range(5)]
+    specs = [RunSpec("dual-arm", 1, "rendered", "kinematic", s, realism="harsh") for s in range(5)]
     results = [{"experiment": 1, "confident_wrong_frames": w, "max_error_tracking_mm": e,
                 "wrong_accepted": int(a), "measurements": int(n), "degraded_s": float(s),
                 "cameras_dropped": {"cam2": 3.0} if s == 4 else {}}
@@ -199,22 +202,27 @@ def test_health_rows_count_confident_wrong_frames_and_wrong_corners():
 
 
 def test_realism_and_structure_name_their_folders_and_bad_profiles_stop_the_grid(tmp_path):
-    spec = RunSpec("dual-arm", 3, "rendered", "pred", 4, realism="lab", structure="frame-bsp")
-    assert str(spec.folder) == "dual-arm/e3_rendered_pred_lab_frame-bsp_s4"
-    assert str(RunSpec("dual-arm", 3, "ideal", "pred", 4).folder) == "dual-arm/e3_ideal_pred_s4"
+    spec = RunSpec("dual-arm", 3, "rendered", "kinematic", 4, realism="lab", structure="frame-bsp")
+    assert str(spec.folder) == "dual-arm/e3_rendered_kinematic_lab_frame-bsp_s4"
+    assert str(RunSpec("dual-arm", 3, "ideal", "plain", 4).folder) == "dual-arm/e3_ideal_plain_s4"
     bad = tmp_path / "bad.yaml"
     bad.write_text("timing: {latency_ms: -3}\n")
     with pytest.raises(CellsightError, match="timing.latency_ms"):
-        sweep_grid(["dual-arm"], [1], ["ideal"], ["pred"], [0], realisms=[str(bad)])
+        sweep_grid(["dual-arm"], [1], ["ideal"], ["kinematic"], [0], realisms=[str(bad)])
 
 
 def test_each_variant_sets_the_runs_options(tmp_path):
-    config = {v: RunSpec("dual-arm", 3, "rendered", v, 0).config(tmp_path)
-              for v in ("pred", "nopred", "prior", "offsets")}
-    assert config["pred"].occlusion_prediction and config["pred"].camera_offsets_px == 0.0
-    assert not config["nopred"].occlusion_prediction and config["prior"].kinematic_prior
-    assert config["offsets"].camera_offsets_px == 5.0 and config["offsets"].occlusion_prediction
-    assert config["offsets"].out == tmp_path / "dual-arm/e3_rendered_offsets_s0"
+    from cellsight.trackers import DEFAULT_TRACKER
+
+    tracker = {v: RunSpec("dual-arm", 3, "rendered", v, 0).config(tmp_path).tracker
+               for v in ("kinematic", "plain", "nopred", "offsets", "unknown")}
+    assert tracker["kinematic"] == DEFAULT_TRACKER and tracker["kinematic"].kinematic
+    assert not tracker["plain"].kinematic and tracker["plain"].occlusion_prediction
+    assert not tracker["nopred"].occlusion_prediction and tracker["nopred"].kinematic
+    assert tracker["offsets"].camera_offsets_px == 5.0 and tracker["offsets"].kinematic
+    assert tracker["unknown"].unknown_occluders and not tracker["kinematic"].unknown_occluders
+    config = RunSpec("dual-arm", 3, "rendered", "offsets", 0).config(tmp_path)
+    assert config.out == tmp_path / "dual-arm/e3_rendered_offsets_s0"
     from cellsight.sweep.grid import VARIANTS
     from cellsight.sweep.summary import VARIANT_NAMES
 

@@ -11,7 +11,10 @@ import numpy as np
 import pytest
 
 from cellsight.runfolder.framelog import decode_grid, encode_grid
+from cellsight.trackers import TrackerChoice
 from cellsight.tracking import Grid, UnknownOccluderRule
+
+UNKNOWN = frozenset({"unknown-occluders"})
 
 HZ = 26.0
 CAMS = [SimpleNamespace(width=768, height=576), SimpleNamespace(width=640, height=480)]
@@ -138,7 +141,7 @@ def test_the_map_covers_what_the_forearm_hides_in_the_simulators_truth(tmp_path)
     run = tmp_path / "run"
     metrics = run_experiment(RunConfig(1, run, sensor="ideal", realism=f"{profile}:early-forearm",
                                        duration=4.5, progress=False, video_every=0,
-                                       unknown_occluders=True))
+                                       tracker=TrackerChoice(experimental=UNKNOWN)))
     log = FrameLog.read(run / "frames.csv")
     t = log.floats("t")
     hidden = np.stack([_labels(log, "occ_true", c) == "unknown.forearm" for c in (1, 2)])
@@ -162,8 +165,8 @@ def test_the_map_covers_what_the_forearm_hides_in_the_simulators_truth(tmp_path)
 
 
 def test_the_map_is_off_by_default_and_the_run_is_todays(tmp_path):
-    """Without ``unknown_occluders`` the same world runs the tracker as before: nothing is
-    labelled ``unknown`` and no map is logged."""
+    """Without the experimental ``unknown-occluders`` the same world runs the tracker as
+    before: nothing is labelled ``unknown`` and no map is logged."""
     from cellsight.experiments import RunConfig, run_experiment
     from cellsight.runfolder.framelog import FrameLog, camera_column
 

@@ -3,8 +3,8 @@
 from __future__ import annotations
 
 SUMMARY_KEYS = (
-    "experiment", "seed", "realism", "structure", "sensor", "occlusion_prediction",
-    "kinematic_prior", "frames",
+    "experiment", "seed", "realism", "structure", "sensor", "tracker",
+    "occlusion_prediction", "kinematic_prior", "frames",
     "grasp_success", "grasp_position_error_mm", "in_view_fraction", "lost_in_view_s",
     "position_rmse_mm", "orientation_rmse_deg", "max_position_error_mm", "pnp_position_rmse_mm",
     "pnp_orientation_rmse_deg", "visibility_accuracy", "visibility_accuracy_all",

@@ -13,6 +13,7 @@ from pathlib import Path
 
 from cellsight.commands.metric_rows import metric_rows
 from cellsight.commands.text import CELL_HELP, debug, one_line
+from cellsight.commands.tracker_args import add_tracker_arguments, tracker_choice
 from cellsight.errors import CellsightError
 from cellsight.visibility import OBJECT_BVH, STRUCTURES
 
@@ -28,20 +29,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     run.add_argument("--sensor", choices=("rendered", "ideal"), default="rendered",
                      help="rendered: MuJoCo images + corner extraction (default); ideal: true "
                           "projections + Gaussian pixel noise")
-    run.add_argument("--no-occlusion-prediction", action="store_true",
-                     help="windows on every model point inside the image (no BSP)")
-    run.add_argument("--kinematic-prior", action="store_true",
-                     help="once the jaws hold the part, predict it by the gripper's measured "
-                          "motion; before and after, keep it at its support's height, roll and "
-                          "pitch (off by default: the paper tracks from images alone)")
-    run.add_argument("--unknown-occluders", action="store_true",
-                     help="learn where objects the cell file does not know hide the part, and "
-                          "select no feature there (off by default: on the rendered harsh "
-                          "world it also masks corners lost to image noise)")
-    run.add_argument("--camera-offsets", type=float, default=0.0, metavar="PX",
-                     help="estimate each camera's calibration error as an image offset, with "
-                          "this prior (px per axis, e.g. 2 for a good hand-eye calibration; "
-                          "default 0: trust the calibration)")
+    add_tracker_arguments(run)
     run.add_argument("--realism", default="exact", metavar="PROFILE",
                      help="how the simulated world departs from the cell file: exact (default: "
                           "it is the cell file), lab, harsh, one knob group alone (harsh/cameras), "
@@ -83,9 +71,6 @@ def _check_run_args(args: argparse.Namespace) -> Path:
                              f"{args.duration}")
     if args.seed < 0:
         raise CellsightError(f"--seed: expected a whole number >= 0, got {args.seed}")
-    if not (args.camera_offsets >= 0 and math.isfinite(args.camera_offsets)):
-        raise CellsightError(f"--camera-offsets: expected a finite number of px >= 0, got "
-                             f"{args.camera_offsets}")
     out = Path(args.out or f"out/experiment{args.experiment}")
     check_out_folder(out, args.overwrite, "--out", "--overwrite")
     if args.record_jpeg is not None and args.record is None:
@@ -137,9 +122,8 @@ def cmd_run(args: argparse.Namespace) -> int:
     out = _check_run_args(args)
     config = RunConfig(
         experiment=args.experiment, out=out, cell=args.cell, seed=args.seed,
-        sensor=args.sensor, occlusion_prediction=not args.no_occlusion_prediction,
-        kinematic_prior=args.kinematic_prior, unknown_occluders=args.unknown_occluders,
-        camera_offsets_px=args.camera_offsets, duration=args.duration, progress=not args.quiet,
+        sensor=args.sensor, tracker=tracker_choice(args), duration=args.duration,
+        progress=not args.quiet,
         full_frames=args.full_frames,
         overwrite=args.overwrite, realism=args.realism, structure=args.structure,
         record=None if args.record is None else Path(args.record), record_jpeg=args.record_jpeg,

@@ -10,6 +10,7 @@ from pathlib import Path
 
 from cellsight.commands.metric_rows import metric_rows
 from cellsight.commands.text import CELL_HELP
+from cellsight.commands.tracker_args import add_tracker_arguments, tracker_choice
 from cellsight.errors import CellsightError
 
 
@@ -43,20 +44,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                        help="stream the tracking to Foxglove as it happens, at the recording's "
                             "own pace: a Foxglove WebSocket server (default 127.0.0.1:8765)")
     track.add_argument("--part", help="the workpiece logged in frames.csv (default: the first)")
-    track.add_argument("--no-occlusion-prediction", action="store_true",
-                       help="every feature in the image counts as visible")
-    track.add_argument("--unknown-occluders", action="store_true",
-                       help="learn where objects the cell file does not know hide the part")
-    track.add_argument("--register-cameras", action="store_true",
-                       help="register each camera to the gripper from the recorded images, "
-                            "joints and jaw openings, at HOME and again by the part (as "
-                            "'cellsight run --kinematic-prior' does); metrics.json says the "
-                            "offsets")
-    track.add_argument("--kinematic-prior", action="store_true",
-                       help="register the cameras (as --register-cameras) and keep the part "
-                            "where the gripper holds it while the recorded jaws stand at its "
-                            "grasp's opening, else on what it lies on (as 'cellsight run "
-                            "--kinematic-prior' does)")
+    add_tracker_arguments(track)
     track.add_argument("--quiet", action="store_true", help="no progress bar")
     track.add_argument("--overwrite", action="store_true",
                        help="clear --out first if it holds an earlier run, and replace --mcap")
@@ -81,11 +69,8 @@ def cmd_track(args: argparse.Namespace) -> int:
 
     options = TrackOptions(topics=args.topics, tolerance_s=args.sync_tolerance,
                            calibration_from_bag=args.calibration_from_bag, part=args.part,
-                           occlusion_prediction=not args.no_occlusion_prediction,
-                           unknown_occluders=args.unknown_occluders, overwrite=args.overwrite,
-                           progress=not args.quiet, live=args.live,
-                           register_cameras=args.register_cameras or args.kinematic_prior,
-                           kinematic_prior=args.kinematic_prior)
+                           tracker=tracker_choice(args), overwrite=args.overwrite,
+                           progress=not args.quiet, live=args.live)
     if args.mcap is not None:
         _check_not_the_recording(Path(args.mcap), Path(args.recording))
         check_output(args.mcap, args.overwrite, Path(args.out))

@@ -97,11 +97,12 @@ from cellsight.runfolder import (
     write_metrics,
 )
 from cellsight.runfolder.writes import log_to, stop_logging_to
+from cellsight.trackers import DEFAULT_TRACKER, TrackerChoice
 from cellsight.tracking.grabbing import grabbed
 from cellsight.tracking.prior import KinematicPrior
 from cellsight.tracking.records import PartFrame
 from cellsight.tracking.registration import RegistrationRule
-from cellsight.tracking.setup import build_tracker
+from cellsight.tracking.setup import build_tracker, tracker_facts
 from cellsight.world import World
 from cellsight.world.grasp import grasp_opening
 
@@ -116,18 +117,16 @@ class RunConfig:
     ``tail_s``), at most ``max_duration``. ``ideal_sigma_px``: pixel noise of the ideal
     sensor, per coordinate (0.2 px: the rendered sensor's corners lie a median 0.245 px from
     the true projection on the built-in cell, i.e. 0.21 px per coordinate).
-    ``kinematic_prior``: while the jaws are closed on the part, the tracker predicts it by the
-    gripper's motion measured from the joints, and starts it where the gripper holds it (the
+    ``tracker``: the tracker (:class:`~cellsight.tracking.setup.TrackerChoice`). The
+    ``kinematic`` one (the default): while the jaws are closed on the part, it predicts it by
+    the gripper's motion measured from the joints, and starts it where the gripper holds it (the
     grasp the task chose) when it is not tracked (``holders`` of :meth:`Tracker.step`); until
     the jaws first close on it, the part keeps the height, roll and pitch of the cell file's
     pose of it, lying on its conveyor or table (``supports``), and once they let it go, those
-    of where it falls to from the gripper, onto the cell file's static objects.
-    ``unknown_occluders``: the tracker learns where objects the cell file does not know hide
-    the part (:mod:`cellsight.tracking.unknown`), and a coasting track resumes only on three
-    features passing the gate together. ``camera_offsets_px``: the prior (px) of each camera's
-    calibration error, estimated by the tracker as an image offset (0: trust the calibration;
-    :mod:`cellsight.tracking.offsets`). ``video_every``: a frame of ``views.mp4`` every so many
-    vision frames. ``full_frames``: the rendered cameras render every frame whole, instead of
+    of where it falls to from the gripper, onto the cell file's static objects; with the
+    rendered sensor, the cameras are registered to the gripper at HOME and by the part
+    (:mod:`cellsight.tracking.registration`). ``video_every``: a frame of ``views.mp4`` every so
+    many vision frames. ``full_frames``: the rendered cameras render every frame whole, instead of
     only the region the tracker reads (:mod:`cellsight.world.shots`; the same pixels, see
     :mod:`cellsight.world.render`). ``overwrite``: clear ``out`` first when it holds an earlier run
     (:func:`check_out_folder`; else a non-empty ``out`` is refused). ``record``: an MCAP file
@@ -142,10 +141,7 @@ class RunConfig:
     cell: Path | None = None
     seed: int = 0
     sensor: Sensor = "rendered"
-    occlusion_prediction: bool = True
-    kinematic_prior: bool = False
-    unknown_occluders: bool = False
-    camera_offsets_px: float = 0.0
+    tracker: TrackerChoice = DEFAULT_TRACKER
     duration: float | None = None
     max_duration: float = 80.0
     tail_s: float = 1.0
@@ -232,19 +228,16 @@ class ExperimentRun:
         self.deliveries = Deliveries()
         self.frames_dropped = 0
         self.prior = (KinematicPrior(sc.workpiece, Landing(cell.static))
-                      if config.kinematic_prior else None)  # :meth:`_priors`
+                      if config.tracker.kinematic else None)  # :meth:`_priors`
         kidnap = self.draws.errors.kidnap
         self.kidnap = None if kidnap is None else KidnapMonitor(kidnap)
         self.exposures = Exposures(self.world, self.draws.trigger_skew_s, config.sensor == "ideal",
                                    self.part.name, config.full_frames or config.record is not None)
         self.ideal = (IdealExtractor(config.ideal_sigma_px, config.seed)
                       if config.sensor == "ideal" else None)
-        register = config.kinematic_prior and config.sensor == "rendered"
-        self.tracker = build_tracker(cell, occlusion_prediction=config.occlusion_prediction,
-                                     unknown_occluders=config.unknown_occluders,
-                                     structure=config.structure, extractor=self.ideal,
-                                     camera_offsets_px=config.camera_offsets_px,
-                                     awaiting_registration=register)
+        register = config.tracker.kinematic and config.sensor == "rendered"
+        self.tracker = build_tracker(cell, config.tracker, structure=config.structure,
+                                     extractor=self.ideal, awaiting_registration=register)
         self.registration = (RegistrationRule().registration(cell, self.robot.name)
                              if register else None)
         self._part_at: np.ndarray | None = None  # the part's last estimated position (m)
@@ -310,13 +303,9 @@ class ExperimentRun:
 
     def _run_logged(self) -> None:
         cfg = self.config
-        log.info("experiment %d (%s) on %s; seed %d; sensor %s; occlusion prediction %s%s",
+        log.info("experiment %d (%s) on %s; seed %d; sensor %s; %s",
                  cfg.experiment, self.scenario.description, self.cell.source, cfg.seed,
-                 cfg.sensor, "on" if cfg.occlusion_prediction else "off",
-                 ("; kinematic prior on" if cfg.kinematic_prior else "")
-                 + ("; unknown occluders learned" if cfg.unknown_occluders else "")
-                 + (f"; camera offsets estimated (prior {cfg.camera_offsets_px:g} px)"
-                    if cfg.camera_offsets_px else ""))
+                 cfg.sensor, cfg.tracker.describe())
         writer = FrameWriter(self.out / "frames.csv", len(self.cell.cameras),
                              {r.name: r.n_joints for r in self.cell.robots})
         recorder = None
@@ -534,10 +523,7 @@ class ExperimentRun:
             "cell_files": self.cell_files,
             "seed": cfg.seed,
             "sensor": cfg.sensor,
-            "occlusion_prediction": cfg.occlusion_prediction,
-            "kinematic_prior": cfg.kinematic_prior,
-            "unknown_occluders": cfg.unknown_occluders,
-            "camera_offsets_px": cfg.camera_offsets_px,
+            **tracker_facts(cfg.tracker),
             "structure": cfg.structure,
             "realism": self.draws.profile.name,
             "realism_file": self.draws.profile.file,

@@ -60,9 +60,10 @@ from cellsight.runfolder import (
     write_metrics,
 )
 from cellsight.runfolder.writes import log_to, stop_logging_to
+from cellsight.trackers import TrackerChoice
 from cellsight.tracking.prior import KinematicPrior, RecordedGrasp
 from cellsight.tracking.registration import RegistrationRule
-from cellsight.tracking.setup import build_tracker
+from cellsight.tracking.setup import build_tracker, tracker_facts
 from cellsight.world.grasp import grasp_opening
 
 log = logging.getLogger(__name__)
@@ -77,26 +78,22 @@ class TrackOptions:
     """How to track: ``topics`` a topic map file (None: the conventions); ``tolerance_s``:
     images of several cameras within it form one frame; ``calibration_from_bag``: the
     recording's CameraInfo replaces the cell's intrinsics; ``part``: the workpiece logged
-    (default the cell's first); the tracker's options as in ``cellsight run``; ``live``:
-    ``[HOST:]PORT`` to stream the tracking to Foxglove (:mod:`cellsight.export.live`);
-    ``register_cameras``: each camera registered to the gripper from the recorded images,
-    joints and jaw openings, at HOME and by the part (:mod:`cellsight.tracking.registration`,
-    as ``cellsight run --kinematic-prior`` does); ``kinematic_prior``: the part kept where the
-    gripper holds it while the recorded jaws stand at its grasp's opening, else on what it lies
-    on (:mod:`cellsight.tracking.prior`; the cameras are registered only with
-    ``register_cameras``)."""
+    (default the cell's first); ``tracker``: the tracker, as in ``cellsight run``
+    (:class:`~cellsight.tracking.setup.TrackerChoice`): the ``kinematic`` one registers each
+    camera to the gripper from the recorded images, joints and jaw openings, at HOME and by the
+    part (:mod:`cellsight.tracking.registration`), and keeps the part where the gripper holds
+    it while the recorded jaws stand at its grasp's opening, else on what it lies on
+    (:mod:`cellsight.tracking.prior`); ``live``: ``[HOST:]PORT`` to stream the tracking to
+    Foxglove (:mod:`cellsight.export.live`)."""
 
     topics: str | Path | None = None
     tolerance_s: float = 0.019
     calibration_from_bag: bool = False
     part: str | None = None
-    occlusion_prediction: bool = True
-    unknown_occluders: bool = False
+    tracker: TrackerChoice = field(default_factory=TrackerChoice)
     overwrite: bool = False
     progress: bool = True
     live: str | None = None
-    register_cameras: bool = False
-    kinematic_prior: bool = False
 
 
 @dataclass
@@ -123,16 +120,14 @@ class _Session:
         self.signals: Signals = read_signals(recording, self.cell, topic_map, self.topics.truth)
         robot = next((r for r in self.cell.robots if r.tool is not None), self.cell.robots[0])
         self.robot = robot
-        register = options.register_cameras and robot.tool is not None
-        self.tracker = build_tracker(self.cell, occlusion_prediction=options.occlusion_prediction,
-                                     unknown_occluders=options.unknown_occluders,
-                                     awaiting_registration=register)
+        register = options.tracker.kinematic and robot.tool is not None
+        self.tracker = build_tracker(self.cell, options.tracker, awaiting_registration=register)
         self.baseline = PnPBaseline.of(self.tracker, self.part.feature_points)
         self.truth_views = VisibilityPredictor(self.cell)
         self.registration = (RegistrationRule().registration(self.cell, robot.name)
                              if register else None)
         self._estimate: np.ndarray | None = None  # the part's last estimated pose
-        self.prior = _prior(self.cell, robot, self.part) if options.kinematic_prior else None
+        self.prior = _prior(self.cell, robot, self.part) if options.tracker.kinematic else None
         self.rows = FrameRows(robot, len(self.cell.cameras), pixel_errors=True)
         start = recording.span_ns[0]
         self.origin_ns = start - start % 1_000_000_000  # the whole second of the first message
@@ -150,7 +145,7 @@ class _Session:
             if robot.tool is not None and robot.name not in self.signals.openings:
                 log.warning("%s: no jaw opening in the recording; the predictor takes the "
                             "gripper's jaws open%s", robot.name,
-                            "; --register-cameras registers no camera without it"
+                            "; the kinematic tracker registers no camera without it"
                             if self.registration is not None and robot is self.robot else "")
         span = (self.recording.span_ns[1] - self.origin_ns) / 1e9
         with _progress(self.options.progress) as bar:
@@ -230,8 +225,8 @@ def _prior(cell: Cell, robot: Robot, part: Workpiece) -> tuple[RecordedGrasp,
     T_part_tcp = grasp_pose_in_part(part)
     opening = None if robot.tool is None else grasp_opening(part.solid, robot.tool, T_part_tcp)
     if opening is None:
-        log.warning("--kinematic-prior: %s's jaws close on no material of %s at its grasp; "
-                    "no prior", robot.name, part.name)
+        log.warning("the kinematic tracker: %s's jaws close on no material of %s at its grasp; "
+                    "no kinematic prior", robot.name, part.name)
         return None
     grasp = RecordedGrasp(robot, part, T_part_tcp, opening, TaskTolerances().opening)
     return grasp, KinematicPrior(part, Landing(cell.static))
@@ -328,8 +323,7 @@ def _metrics(session: _Session, cell_files: dict, wall_s: float,
     cell = session.cell
     metrics = {"description": f"tracked from recording {session.recording.path.name}",
                "cell": cell.source, "cell_sha256": cell_digest(cell), "cell_files": cell_files,
-               "sensor": "recorded", "occlusion_prediction": session.options.occlusion_prediction,
-               "unknown_occluders": session.options.unknown_occluders,
+               "sensor": "recorded", **tracker_facts(session.options.tracker),
                **session.facts(), **frame_metrics(frames), "wall_s": round(wall_s, 2),
                "interrupted": isinstance(error, KeyboardInterrupt) or bool(session.stop.name),
                **({"signal": session.stop.name} if session.stop.name else {}),

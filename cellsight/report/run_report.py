@@ -580,7 +580,8 @@ def _header_html(run: Run) -> str:
     source = (f"tracked from recording {m['recording']}" if m.get("recording") else
               f"experiment {m.get('experiment', '?')} · seed {m.get('seed', '?')}")
     sub = (f"{source} · sensor {m.get('sensor', '?')} · occlusion prediction {occ_text} · "
-           + ("kinematic prior on · " if m.get("kinematic_prior") else "")
+           + (f"{m['tracker']} tracker · " if m.get("tracker")
+              else "kinematic prior on · " if m.get("kinematic_prior") else "")
            + f"{run.frames.n} frames")
     out = f"<h1>cellsight run report</h1><p class=sub>{html.escape(sub)}</p>"
     if m.get("error"):

@@ -60,6 +60,10 @@ class RunMetrics(BaseModel):
     sensor: str | None = about(
         None, "What the tracker saw: rendered (images), ideal (true projections plus pixel noise) "
         "or recorded.", "-")
+    tracker: str | None = about(
+        None, "The tracker: kinematic (the images, the kinematic prior and the cameras' "
+        "registration to the gripper) or plain (the paper's, from the images alone); none: a run "
+        "from before the choice, read by kinematic_prior.", "-")
     occlusion_prediction: bool | None = about(
         None, "Whether the tracker predicted occlusions (false: the projection-only "
         "baseline).", "-")
@@ -68,10 +72,10 @@ class RunMetrics(BaseModel):
         "gripper).", "-")
     unknown_occluders: bool | None = about(
         None, "Whether the tracker learned where bodies the cell file does not know hide the "
-        "part.", "-")
+        "part (experimental).", "-")
     camera_offsets_px: float | None = about(
         None, "The prior of each camera's calibration error, estimated as an image offset (0: the "
-        "calibration trusted).", "px")
+        "calibration trusted; experimental).", "px")
     structure: str | None = about(
         None, "The occlusion predictor's structure: object-bvh or frame-bsp.", "-")
     realism: str | None = about(None, "The realism profile's name.", "-")

@@ -34,8 +34,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="built-in cell names or cell files (default dual-arm)")
     p.add_argument("--experiments", type=int, nargs="+", default=[1, 2, 3])
     p.add_argument("--sensors", nargs="+", default=list(SENSORS), help="rendered and/or ideal")
-    p.add_argument("--variants", nargs="+", default=["pred"],
-                   help="tracker options: " + ", ".join(VARIANTS) + " (default pred)")
+    p.add_argument("--variants", nargs="+", default=["kinematic"],
+                   help="trackers: " + ", ".join(VARIANTS) + " (default kinematic: the default "
+                        "tracker; plain: the paper's; the others: the default with one change)")
     p.add_argument("--realism", nargs="+", default=["exact"], metavar="PROFILE",
                    help="the world's realism profiles: exact, lab, harsh, one knob group "
                         "alone (harsh/cameras), or YAML files (FILE or FILE:NAME; default exact)")

@@ -20,22 +20,23 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from cellsight.errors import CellsightError
+from cellsight.trackers import DEFAULT_TRACKER, TrackerChoice
 from cellsight.visibility import OBJECT_BVH, STRUCTURES
 
 if TYPE_CHECKING:
     from cellsight.experiments import RunConfig
 
-VARIANTS: dict[str, dict[str, bool | float]] = {
-    "pred": {"occlusion_prediction": True, "kinematic_prior": False},
-    "nopred": {"occlusion_prediction": False, "kinematic_prior": False},
-    "prior": {"occlusion_prediction": True, "kinematic_prior": True},
-    "offsets": {"occlusion_prediction": True, "kinematic_prior": False,
-                "camera_offsets_px": 5.0},
+VARIANTS: dict[str, TrackerChoice] = {
+    "kinematic": DEFAULT_TRACKER,
+    "plain": TrackerChoice("plain"),
+    "nopred": TrackerChoice(occlusion_prediction=False),
+    "offsets": TrackerChoice(experimental=frozenset({"camera-offsets"})),
+    "unknown": TrackerChoice(experimental=frozenset({"unknown-occluders"})),
 }
-"""Variant name -> the run's options: ``pred`` the paper's tracker (occlusion prediction on),
-``nopred`` windows on every model point in the image, ``prior`` with the gripper's kinematic
-prior while it holds the part, ``offsets`` estimating each camera's calibration error as an
-image offset with a 5 px prior (``run --camera-offsets 5``)."""
+"""Variant name -> the run's tracker (:class:`~cellsight.trackers.TrackerChoice`): ``kinematic``
+the default, ``plain`` the paper's tracker from the images alone, and the default with one
+change: ``nopred`` windows on every model point in the image, ``offsets`` and ``unknown`` the
+experimental camera offsets and unknown-occluder map."""
 
 SENSORS = ("rendered", "ideal")
 
@@ -72,7 +73,7 @@ class RunSpec:
         return RunConfig(self.experiment, Path(out) / self.folder, cell=self.cell,
                          seed=self.seed, sensor=self.sensor, duration=self.duration,
                          progress=False, overwrite=True, realism=self.realism,
-                         structure=self.structure, **VARIANTS[self.variant])
+                         structure=self.structure, tracker=VARIANTS[self.variant])
 
 
 def sweep_grid(cells: Sequence[str], experiments: Sequence[int], sensors: Sequence[str],

@@ -36,8 +36,10 @@ COLUMNS = (
     ("grasp_position_error_mm", "grasp err. mm", "{:.2f}"),
 )
 """The whole-task columns of ``summary.md``: metric key, header, format."""
-VARIANT_NAMES = {"pred": "on", "nopred": "**off**", "prior": "on + kinematic prior",
-                 "offsets": "on + camera offsets"}
+VARIANT_NAMES = {"kinematic": "kinematic", "plain": "plain (the paper's)",
+                 "nopred": "kinematic, **no prediction**",
+                 "offsets": "kinematic + experimental camera offsets",
+                 "unknown": "kinematic + experimental unknown occluders"}
 RUN_KEYS = ("cell", "experiment", "sensor", "variant", "seed")
 
 

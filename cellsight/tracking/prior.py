@@ -14,7 +14,7 @@ What the tracker's :meth:`~cellsight.tracking.tracker.Tracker.step` takes as ``h
 :class:`KinematicPrior` keeps that state for a caller that knows, frame by frame, whether the
 part is held and where (the simulated run: the task's grasp and the jaws' check).
 :class:`RecordedGrasp` decides both from a recording's joints and jaw openings alone (``cellsight
-track --kinematic-prior``): the part is held while the jaws stand at the opening its grasp
+track``, the default tracker): the part is held while the jaws stand at the opening its grasp
 closes them to, within a tolerance, and it is held at the one of the grasp and its half-turn
 twin about the TCP's approach axis whose orientation is nearer the TCP's when they close (the
 choice the task's planner makes, :func:`~cellsight.control.planner.nearer_grasp`).
