@@ -101,8 +101,9 @@ for place in places:
 # the mean shifts follow them. The calibration is fitted at the start, but its error is
 # not confined there: at FINAL, the printed shifts are of the same size. A tracker that keeps
 # the cell file's cameras sees each corner a few pixels from where it predicts it, which is
-# what its windows, its gate and (optionally) its camera-offset estimates
-# (`TrackerConfig.camera_offsets_px`) have to absorb.
+# what its windows, its gate, the default tracker's registration of the cameras to the
+# gripper and (experimental, `--experimental camera-offsets`, which sets
+# `TrackerConfig.camera_offsets_px`) its camera-offset estimates have to absorb.
 
 fig, ax = plt.subplots(figsize=(9, 4.5))
 rng = np.random.default_rng(0)
