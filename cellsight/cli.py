@@ -17,6 +17,7 @@ import sys
 
 from cellsight import threads
 from cellsight.commands import (
+    calibrate,
     cameras,
     cells,
     check,
@@ -39,7 +40,7 @@ from cellsight.view import command as view_command
 
 COMMANDS = (show, visibility, run, cells, compare, sweep_command, realism_command,
             placement_command, export_command, view_command, cameras, ik, check, diagnose,
-            design_crossing, track)
+            design_crossing, track, calibrate)
 """Every sub-command's module, in ``--help`` order."""
 
 

@@ -21,7 +21,7 @@ LAYERS = [
     {"occlusion", "tracking", "control"},
     {"world", "framelog", "runfolder", "realism"},
     {"report"},
-    {"experiments", "sweep", "view", "export", "placement", "recording"},
+    {"experiments", "sweep", "view", "export", "placement", "recording", "calibration"},
     {"cli", "commands", "__init__", "__main__", "data"},
 ]
 

@@ -30,6 +30,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                      help="rendered: MuJoCo images + corner extraction (default); ideal: true "
                           "projections + Gaussian pixel noise")
     add_tracker_arguments(run)
+    run.add_argument("--calibration", metavar="DIR",
+                     help="a cellsight calibrate folder: the tracker and the task use its "
+                          "cameras and robot bases (the simulated world stays the seed's)")
     run.add_argument("--realism", default="exact", metavar="PROFILE",
                      help="how the simulated world departs from the cell file: exact (default: "
                           "it is the cell file), lab, harsh, one knob group alone (harsh/cameras), "
@@ -127,7 +130,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         full_frames=args.full_frames,
         overwrite=args.overwrite, realism=args.realism, structure=args.structure,
         record=None if args.record is None else Path(args.record), record_jpeg=args.record_jpeg,
-        live=args.live,
+        live=args.live, calibration=None if args.calibration is None else Path(args.calibration),
     )
     try:
         metrics = run_experiment(config)

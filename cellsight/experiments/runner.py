@@ -52,6 +52,7 @@ from typing import Literal
 import numpy as np
 from rich.progress import BarColumn, Progress, TextColumn
 
+from cellsight.calibration.folder import calibrated_cell
 from cellsight.control import GraspTask, Phase, grasp_pose_in_part
 from cellsight.control.task import grasp_miss
 from cellsight.errors import CellsightError
@@ -134,7 +135,10 @@ class RunConfig:
     rendered sensor only), its images JPEG of quality ``record_jpeg`` (None: lossless); a
     recorded run renders whole frames, so that the tracker reads the very pixels recorded.
     ``live``: ``[HOST:]PORT`` of a Foxglove WebSocket server streaming the run as it happens
-    (:mod:`cellsight.export.live`)."""
+    (:mod:`cellsight.export.live`). ``calibration``: a folder of ``cellsight calibrate`` whose
+    cameras and robot bases the tracker and the task use instead of the cell file's
+    (:mod:`cellsight.calibration.folder`); the world is still the one the seed draws from the
+    cell file."""
 
     experiment: int
     out: Path
@@ -155,6 +159,7 @@ class RunConfig:
     record: Path | None = None
     record_jpeg: int | None = None
     live: str | None = None
+    calibration: Path | None = None
 
     def __post_init__(self) -> None:
         check_jpeg(self.record_jpeg, "--record-jpeg")
@@ -216,7 +221,9 @@ class ExperimentRun:
             check_output(config.record, config.overwrite, self.out, "--record")
         self.stop = StopSignals()
         self.cell: Cell = load_cell(config.cell)
-        self.draws = draw_world(config.realism, self.cell, config.seed)
+        self.draws = draw_world(config.realism, self.cell, config.seed)  # of the cell file
+        if config.calibration is not None:  # the model side: what the calibration found
+            self.cell = calibrated_cell(self.cell, config.calibration)
         self.scenario: Scenario = scenario(self.cell, config.experiment, self.draws.scenario)
         sc, cell = self.scenario, self.cell
         self.robot, self.part = sc.robot, sc.workpiece
@@ -520,6 +527,7 @@ class ExperimentRun:
             "description": self.scenario.description,
             "cell": self.cell.source,
             "cell_sha256": cell_digest(self.cell),
+            "calibration_folder": None if cfg.calibration is None else str(cfg.calibration),
             "cell_files": self.cell_files,
             "seed": cfg.seed,
             "sensor": cfg.sensor,

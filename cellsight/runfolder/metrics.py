@@ -60,6 +60,9 @@ class RunMetrics(BaseModel):
     sensor: str | None = about(
         None, "What the tracker saw: rendered (images), ideal (true projections plus pixel noise) "
         "or recorded.", "-")
+    calibration_folder: str | None = about(
+        None, "The cellsight calibrate folder the tracker and the task took the cameras and "
+        "robot bases from (none: the cell file's).", "-")
     tracker: str | None = about(
         None, "The tracker: kinematic (the images, the kinematic prior and the cameras' "
         "registration to the gripper) or plain (the paper's, from the images alone); none: a run "

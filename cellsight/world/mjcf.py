@@ -14,7 +14,10 @@ Every cell object becomes a mesh geom named like the object (``R7AX.link3``, ``p
 - static object ``S``: a fixed body ``S`` at ``T_base_obj``;
 - an intruder the cell file does not know (:mod:`cellsight.world.intruders`): a mocap body and
   geom named like it (``unknown.box``);
-- a floor plane ``floor`` at z = 0, lights, and one fixed camera per cell camera.
+- a floor plane ``floor`` at z = 0, lights, and one fixed camera per cell camera;
+- a printed plate on a robot's flange (a calibration board, :mod:`cellsight.world.board_plate`):
+  a textured mesh geom ``R.board`` on body ``R/n``, its texture ``R.board.png`` an asset to
+  give MuJoCo (:func:`~cellsight.world.board_plate.plate_files`).
 
 Geom groups: 0 static objects, intruders and floor, 1 robots, 2 workpieces. The jointed bodies
 get a nominal inertia (1 kg). Every geom may collide (``contype`` and ``conaffinity`` 1).
@@ -34,7 +37,7 @@ poses are written with full float64 precision (MuJoCo stores mesh vertices as fl
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from itertools import combinations
 from xml.sax.saxutils import quoteattr
 
@@ -47,6 +50,7 @@ from cellsight.model import Cell, CellObject
 from cellsight.model.cell import ObjectFrame
 from cellsight.model.robot import Robot
 from cellsight.rates import CONTROL_HZ
+from cellsight.world.board_plate import Plate, plate_assets, plate_geom
 from cellsight.world.intruders import Intruder
 from cellsight.world.servo import ARMATURE_KG, ARMATURE_KG_M2, ServoParams, actuator_gains
 
@@ -295,9 +299,10 @@ def excluded_pairs(cell: Cell, mounts: Iterable[tuple[str, str]] = ()) -> list[t
 
 def cell_mjcf(cell: Cell, render_size: tuple[int, int] | None = None,
               intruders: tuple[Intruder, ...] = (), servo: ServoParams | None = None,
-              exclude: Sequence[tuple[str, str]] = ()) -> str:
+              exclude: Sequence[tuple[str, str]] = (),
+              plates: Mapping[str, Plate] | None = None) -> str:
     """MJCF text of the cell and the ``intruders`` it does not know (see the module docstring
-    for names and frames).
+    for names and frames); ``plates``: robot name -> the plate on its flange.
 
     ``render_size`` = (width, height) of the rendered images (default: each camera's own).
     ``servo``: the joints' servo; with ``servo.mujoco`` the model is MuJoCo's dynamics, its
@@ -306,6 +311,10 @@ def cell_mjcf(cell: Cell, render_size: tuple[int, int] | None = None,
     dynamic = servo is not None and servo.mujoco
     geoms, assets = _geoms_and_assets(cell)
     assets += [_mesh_asset(i.name, i.solid) for i in intruders]
+    for robot, plate in (plates or {}).items():
+        flange = body_name(robot, cell.robot(robot).n_joints)
+        geoms.setdefault(flange, []).append(plate_geom(robot, GROUP_ROBOT))
+        assets += plate_assets(robot, plate)
     world = _world_bodies(cell, geoms, dynamic) + [_intruder_body(i) for i in intruders]
     actuators, contacts = _dynamics(cell, servo, exclude)
     sizes = [render_size or (c.width, c.height) for c in cell.cameras] or [(640, 480)]

@@ -43,6 +43,7 @@ import numpy as np
 from cellsight.model import Cell
 from cellsight.rates import CONTROL_HZ, VISION_HZ
 from cellsight.visibility import Views
+from cellsight.world.board_plate import Plate, plate_files
 from cellsight.world.contacts import ContactMonitor, mount_bodies
 from cellsight.world.exposure_time import ExposureHistory
 from cellsight.world.faults import Faults
@@ -187,21 +188,25 @@ class RobotJoints:
 
 
 def _model(cell: Cell, render_size: tuple[int, int] | None, errors: Imperfections,
-           initial_joints: Mapping[str, np.ndarray]) -> mujoco.MjModel:
+           initial_joints: Mapping[str, np.ndarray],
+           plates: Mapping[str, Plate]) -> mujoco.MjModel:
     """The world's MuJoCo model (:func:`~cellsight.world.mjcf.cell_mjcf`): kinematic (the
     pairs of :func:`~cellsight.world.mjcf.excluded_pairs` left out of its collisions), or with
     MuJoCo's actuators when the servo asks for them, its contacts pushing back except between
     :func:`~cellsight.world.mjcf.excluded_pairs` (the mounts found in the kinematic model,
-    the robots at their initial joints: :func:`~cellsight.world.contacts.mount_bodies`)."""
+    the robots at their initial joints: :func:`~cellsight.world.contacts.mount_bodies`);
+    ``plates`` on the robots' flanges."""
+    files = plate_files(plates)
     kinematic = mujoco.MjModel.from_xml_string(
-        cell_mjcf(cell, render_size, errors.intruders, exclude=excluded_pairs(cell)))
+        cell_mjcf(cell, render_size, errors.intruders, exclude=excluded_pairs(cell),
+                  plates=plates), files)
     if not errors.servo.mujoco:
         return kinematic
     scene = Scene(kinematic, mujoco.MjData(kinematic))
     RobotJoints(scene, cell, initial_joints, {}, replace(errors, servo=ServoParams()), 0.0)
     exclude = excluded_pairs(cell, mount_bodies(scene, cell))
     return mujoco.MjModel.from_xml_string(
-        cell_mjcf(cell, render_size, errors.intruders, errors.servo, exclude))
+        cell_mjcf(cell, render_size, errors.intruders, errors.servo, exclude, plates), files)
 
 
 def _jaw_addresses(model: mujoco.MjModel, cell: Cell) -> tuple[np.ndarray, np.ndarray]:
@@ -240,7 +245,8 @@ class World:
     grasp (default: the cell file's ``grasp``, else
     :func:`~cellsight.world.grasp.default_grasp_pose`). ``grasp_tolerance``:
     largest TCP position (m) and rotation (rad) error for a grasp to engage. ``jaw_speed``: rate
-    of change of the jaw opening (m/s).
+    of change of the jaw opening (m/s). ``plates``: robot name -> a printed plate on its
+    flange (a calibration board: :mod:`~cellsight.world.board_plate`; a robot without a tool).
 
     Its parts are attributes: ``scene``, ``robots``, ``parts``, ``grippers``, ``intruders``,
     ``faults``,
@@ -263,10 +269,11 @@ class World:
         grasp_poses: Mapping[str, np.ndarray] | None = None,
         grasp_tolerance: tuple[float, float] = (0.01, math.radians(10.0)),
         jaw_speed: float = 0.2,
+        plates: Mapping[str, Plate] | None = None,
     ) -> None:
         self.cell, self.errors = cell, errors
         self._rng = np.random.default_rng(seed)
-        model = _model(cell, render_size, errors, initial_joints or {})
+        model = _model(cell, render_size, errors, initial_joints or {}, plates or {})
         self.scene = Scene(model, mujoco.MjData(model))
         self._jaws = _jaw_addresses(model, cell) if errors.servo.mujoco else None
         self.robots = RobotJoints(self.scene, cell, initial_joints or {}, tasks or {}, errors,

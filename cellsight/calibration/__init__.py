@@ -1,0 +1,1 @@
+"""Cell calibration: a ChArUco board on a robot flange, the cell's cameras and robot bases."""

@@ -1,0 +1,723 @@
+"""The robot poses of a cell calibration (``cellsight calibrate``): where a robot holds the
+ChArUco board bolted to its flange, in place of its gripper, for the cell's fixed cameras to
+photograph it.
+
+Frames and units: the board is given in the robot's flange frame (frame n of its chain,
+``robot.chain.fkine(q)[-1]``): its corners (m), the normal out of its printed face and its
+plate's outline (m). Poses ``T_base_*`` are in the cell's base frame; joints in the robot's
+encoder terms (rad, m for a prismatic joint); pixels as OpenCV's (distortion included).
+
+**Candidates**, board poses, from two sources:
+
+- designed, per camera: a Latin hypercube over the board centre's pixel, its distance from
+  the camera (:func:`depth_span`: ``DEPTH_SPAN`` times the work area's, the work area being
+  around the workpieces' start poses), the axis of the board's tilt away from facing the
+  camera (any direction in the board's plane) and its angle (``TILT_DEG``), and a turn about
+  its normal by any angle (:func:`designed_boards`);
+- reached (:class:`ReachMap`): random joint vectors, by forward kinematics alone, whose board
+  centre is in a camera's view, each clear of collisions, its board turned by the least
+  rotation onto the designed family for that camera (:func:`snapped_board`): the tilt it
+  has, clipped to ``TILT_DEG``, about the axis it has. A robot that can present the board to
+  a camera only in a few contorted ways (R6AX, behind whose base the built-in cell's cameras
+  stand) is found there, where designed poses would almost all fail.
+
+Tilts about axes in every direction and turns about the normal make the relative rotations
+between poses turn about axes in every direction (hand-eye is observable). Each candidate is
+first checked for every camera by projection alone (:func:`view_cameras`): every corner in
+front of the camera and at least ``MARGIN_PX`` inside its image
+(:func:`cellsight.camera.border_distance`), the face turned toward the camera (within
+``MAX_VIEW_DEG`` of the line of sight) and neighbouring corners at least ``MIN_SQUARE_PX``
+apart. The IK is the cost, so the candidate tried next is the one worth most
+(:meth:`_Planner.search`): the square of the number of cameras that see it still short of
+poses (a pose two cameras see ties them together), times its prior chance (:func:`_chance`:
+how far its IK seed leaves the board from it), over one plus its likeness to the candidates
+tried so far (the search leaves regions where tries failed, and spreads the poses). The reach
+map grows, by batches, while no candidate is worth ``WORTH_MIN``.
+
+**Checks** of a candidate, cheapest first, until every camera has ``per_camera`` poses:
+
+- reachable: the cell's own IK (:func:`cellsight.control.ik.solve_ik`) on the robot without
+  its tool, whose TCP is then its flange, from the candidate's seed, mid-range and the start
+  (HOME unless given); a solution at least ``LIMIT_MARGIN`` (rad or m) inside every joint
+  limit; of several, the one nearest the start first;
+- free of collisions (:class:`Collider`): MuJoCo's distances (``mj_geomDistance``, pair by
+  pair: MuJoCo's own collision pass skips a workpiece, a mocap body, against static objects)
+  on the cell's own MuJoCo model (:func:`cellsight.world.mjcf.cell_mjcf`) with the board's
+  plate as a workpiece: at least ``CLEARANCE_M`` between the robot's links and the plate and
+  the static objects, the workpieces at their start, the other robots at HOME; no overlap
+  with the robot's own links (``SELF_CLEARANCE_M``), but for a link and its neighbour, the
+  pairs that touch at HOME (mounts, as for the world's contact monitor:
+  :func:`cellsight.world.contacts.mount_pairs`) and the plate and the flange link it is
+  bolted on;
+- seen: the occlusion predictor (:class:`cellsight.occlusion.predictor.VisibilityPredictor`)
+  with the board as a workpiece whose features are its corners: no corner hidden from a
+  camera by the robot's links, the board itself, the other robots or the cell's objects. The
+  flange link is left out of the occluders: it is behind the board (the board is bolted on
+  the flange, where the gripper was; a flange link's solid may reach a few centimetres past
+  the flange, into where the gripper was, cf. :data:`cellsight.experiments.cellcheck.MOUNT_M`,
+  as the built-in cell's does), so it cannot hide the face from a camera the face is turned
+  toward;
+- moved to: the route leaves from the start; a new pose goes where it lengthens it least
+  (joint space, Euclidean, rad and m alike: cheapest insertion), among the ``INSERT_PLACES``
+  best places where the straight joint-space moves to it and from it, sampled every
+  ``MOVE_STEP`` (rad or m, in every joint), are free of collisions (the same check).
+
+**Refusal.** A camera that cannot see the board around the work area, or that has fewer than
+``min_poses`` poses at the end, and a start where the board is not clear, are a
+:class:`~cellsight.errors.CellsightError` naming the robot, the camera or the solids, why poses
+were dropped and what to do.
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+from collections import Counter
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING
+
+import numpy as np
+from numpy.typing import ArrayLike
+from scipy.spatial import cKDTree
+from scipy.spatial.transform import Rotation
+
+from cellsight.camera import Camera, border_distance
+from cellsight.control.ik import IKError, solve_ik
+from cellsight.errors import CellsightError
+from cellsight.geometry.polyhedron import Polyhedron, prism
+from cellsight.geometry.transforms import invert_pose, make_pose
+from cellsight.model.cell import Cell, Workpiece
+from cellsight.model.robot import Robot
+from cellsight.occlusion.predictor import VisibilityPredictor
+from cellsight.world.contacts import mount_pairs
+from cellsight.world.mjcf import body_name, cell_mjcf, joint_name
+from cellsight.world.scene import Scene
+
+if TYPE_CHECKING:
+    import mujoco
+
+BOARD = "calibration_board"
+"""The board's name as a workpiece of the planning cells (MuJoCo body, predictor labels)."""
+MIN_POSES = 6  # poses per camera below which the plan is refused
+MARGIN_PX = 20.0  # px: every corner at least this far inside the image
+MAX_VIEW_DEG = 60.0  # deg: largest angle between the board's normal and the line of sight
+MIN_SQUARE_PX = 15.0  # px: smallest image distance between neighbouring corners
+TILT_DEG = (15.0, 40.0)  # deg: the board's tilt away from facing the camera
+DEPTH_SPAN = (0.4, 1.15)  # board distance from a camera, as a fraction of the work area's
+MIN_DEPTH_M = 0.3  # m: the board never nearer a camera
+DESIGNED = 40  # designed candidates per camera
+REACH_BATCH, REACH_BATCHES = 10000, 4  # random joint vectors per batch of the reach map, most
+REACH_M = 0.15  # m: the reach map's neighbourhood of a wrist point
+MAX_TRIES = 60  # candidates tried per camera at most (R6AX, the hardest, needs about 30)
+WORTH_MIN = 0.3  # a candidate's worth below which a new batch of the reach map comes first
+SEED_M, SEED_RAD = 0.1, 0.5  # m, rad: the scales of a seed's distance in :func:`_chance`
+LIKE_M, LIKE_NORMAL = 0.1, 0.4  # m, unit-normal difference: the scales of :func:`_likeness`
+LIMIT_MARGIN = 0.05  # rad or m: least distance to every joint limit
+CLEARANCE_M = 0.01  # m: least distance from the robot and the board to everything else
+SELF_CLEARANCE_M = 0.0  # m: ... to the robot's own links (the kinematics are exact; the board
+# bolted on a bent wrist may come within a millimetre of the forearm, as R6AX's at HOME)
+MOVE_STEP = 0.02  # rad or m: largest joint change between samples of a move
+INSERT_PLACES = 4  # places in the route tried for a new pose, those that lengthen it least
+PLATE_M = 0.005  # m: the plate's thickness behind the outline, for collisions and occlusion
+FAR = make_pose(None, (0.0, 0.0, 1e3))  # the board's nominal pose, out of everything's way
+_LAST_CHECKS = ("collision", "occluded", "move")  # after IK, in order
+
+
+@dataclass(frozen=True)
+class Plan:
+    """The poses of one robot's calibration, in the order to visit them from the start.
+
+    ``joints`` (P, n): the joint vectors (encoder terms, rad or m); ``T_base_flange``
+    (P, 4, 4): the flange pose each gives by the cell's kinematics (base frame, m);
+    ``cameras``: per pose, the names of the cameras that see the whole board; ``dropped``:
+    how many candidate poses each check dropped (module docstring: ``out of view``,
+    ``unreachable``, ``joint limits``, ``collision`` (with the reach map's samples in view that
+    are not clear), ``occluded``, ``move``).
+    """
+
+    robot: str
+    joints: np.ndarray
+    T_base_flange: np.ndarray
+    cameras: tuple[tuple[str, ...], ...]
+    dropped: dict[str, int]
+
+    def per_camera(self) -> dict[str, int]:
+        """Camera name -> the number of poses it sees (cameras that see none left out)."""
+        return dict(Counter(name for names in self.cameras for name in names))
+
+
+@dataclass(frozen=True)
+class Board:
+    """The board in the flange frame: ``corners`` (N, 3) m, unit ``normal`` (3,) out of the
+    printed face, ``outline`` (k, 3) m of its plate's face. Derived: ``T_flange_board`` (the
+    board frame: origin at the corners' centroid, z the normal, x their longest spread),
+    ``neighbour`` (N,): each corner's nearest corner, ``radius`` (m): the farthest corner from
+    the centroid."""
+
+    corners: np.ndarray
+    normal: np.ndarray
+    outline: np.ndarray
+    T_flange_board: np.ndarray
+    neighbour: np.ndarray
+    radius: float
+
+    @classmethod
+    def from_flange(cls, points_flange: ArrayLike, normal_flange: ArrayLike,
+                    outline_flange: ArrayLike) -> Board:
+        """The board from its corners, normal and outline in the flange frame (checked)."""
+        corners = _points("points_flange", points_flange, 4)
+        outline = _points("outline_flange", outline_flange, 3)
+        normal = np.asarray(normal_flange, dtype=float).reshape(-1)
+        if normal.shape != (3,) or not np.isfinite(normal).all() or not normal.any():
+            raise CellsightError(f"calibration board: normal_flange must be a non-zero finite "
+                                 f"3-vector, got {normal.tolist()}")
+        normal = normal / np.linalg.norm(normal)
+        centre = corners.mean(axis=0)
+        spread = (corners - centre) - np.outer((corners - centre) @ normal, normal)
+        x = np.linalg.svd(spread, full_matrices=False)[2][0]
+        R = np.column_stack([x, np.cross(normal, x), normal])
+        gaps = np.linalg.norm(corners[:, None] - corners[None], axis=2)
+        np.fill_diagonal(gaps, np.inf)
+        return cls(corners, normal, outline, make_pose(R, centre), np.argmin(gaps, axis=1),
+                   float(np.linalg.norm(corners - centre, axis=1).max()))
+
+    def plate(self, with_corners: bool) -> Polyhedron:
+        """The plate (flange frame): the outline extruded ``PLATE_M`` back from the face;
+        ``with_corners``: its features are the corners (else every plate vertex)."""
+        T = self.T_flange_board
+        local = (self.outline - T[:3, 3]) @ T[:3, :3]
+        face = float(local[:, 2].mean())
+        solid = prism(BOARD, local[:, :2], PLATE_M, face - PLATE_M).transformed(T)
+        if not with_corners:
+            return solid
+        k = len(solid.vertices)
+        return Polyhedron(BOARD, np.vstack([solid.vertices, self.corners]), solid.faces,
+                          feature_vertices=tuple(range(k, k + len(self.corners))))
+
+
+def _points(name: str, value: ArrayLike, least: int) -> np.ndarray:
+    """``value`` as a finite (N >= least, 3) array, or a :class:`CellsightError`."""
+    points = np.asarray(value, dtype=float)
+    if points.ndim != 2 or points.shape[1] != 3 or len(points) < least or \
+            not np.isfinite(points).all():
+        raise CellsightError(f"calibration board: {name} must be a finite (N >= {least}, 3) "
+                             f"array (m, flange frame), got shape {points.shape}")
+    return points
+
+
+def view_cameras(cameras: list[Camera], board: Board, T_base_flange: np.ndarray) -> list[int]:
+    """Indices of the cameras that see the whole board at ``T_base_flange`` by projection
+    alone (occlusions aside): every corner in front and ``MARGIN_PX`` inside the image, the
+    face within ``MAX_VIEW_DEG`` of the line of sight from the board's centre, neighbouring
+    corners at least ``MIN_SQUARE_PX`` apart in the image."""
+    R, p = T_base_flange[:3, :3], T_base_flange[:3, 3]
+    corners = board.corners @ R.T + p
+    centre = T_base_flange @ board.T_flange_board[:, 3]
+    normal = R @ board.normal
+    cos_max = math.cos(math.radians(MAX_VIEW_DEG))
+    out = []
+    for k, cam in enumerate(cameras):
+        sight = cam.center - centre[:3]
+        if normal @ sight < cos_max * np.linalg.norm(sight):
+            continue
+        if (cam.depth(corners) <= 0).any():
+            continue
+        px = cam.project(corners)
+        if border_distance(cam, px).min() < MARGIN_PX:
+            continue
+        if np.linalg.norm(px - px[board.neighbour], axis=1).min() >= MIN_SQUARE_PX:
+            out.append(k)
+    return out
+
+
+def planning_cells(cell: Cell, robot: Robot, board: Board) -> tuple[Cell, Cell]:
+    """The cell for collisions: ``robot`` without its tool, the plate a workpiece (``BOARD``,
+    at ``FAR``); and the cell for occlusion: the same with the plate's features at the corners
+    and the flange link's solids left out (module docstring)."""
+    bare = replace(robot, tool=None)
+    links = bare.solid_links
+    flangeless = replace(bare, link_solids=bare.link_solids[:-1] + ((),),
+                         solid_links=None if links is None else links[:-1] + ((),))
+
+    def cell_with(presenter: Robot, plate: Polyhedron) -> Cell:
+        robots = [presenter if r.name == robot.name else r for r in cell.robots]
+        return Cell(f"{cell.name} (calibration)", robots,
+                    [*cell.workpieces, Workpiece(BOARD, plate, FAR)], cell.static,
+                    cell.cameras, cell.source)
+
+    return cell_with(bare, board.plate(False)), cell_with(flangeless, board.plate(True))
+
+
+class Collider:
+    """Whether a robot's pose, with the board on its flange, keeps ``clearance`` (m) from
+    everything else and does not overlap its own links where it may not (module docstring),
+    by MuJoCo's ``mj_geomDistance`` on the model of ``cell`` (the collision cell of
+    :func:`planning_cells`): the other robots at HOME with their jaws open, the workpieces at
+    their start poses."""
+
+    def __init__(self, cell: Cell, robot: str, clearance: float = CLEARANCE_M) -> None:
+        import mujoco  # after cellsight.world, which chooses MuJoCo's OpenGL back-end
+
+        model = mujoco.MjModel.from_xml_string(cell_mjcf(cell))
+        self.scene = Scene(model, mujoco.MjData(model))
+        self._qadr = _qpos_addresses(model, cell.robot(robot))
+        self._mocap = int(model.body(BOARD).mocapid[0])
+        _place_home(self.scene, cell)
+        self.pairs, own = self._pairs(cell, robot)
+        self._limit = np.where(own, SELF_CLEARANCE_M, clearance)  # per pair, m
+        self._plane = (model.geom_rbound[self.pairs] == 0).any(axis=1)  # a plane: unbounded
+
+    def _pairs(self, cell: Cell, robot: str) -> tuple[np.ndarray, np.ndarray]:
+        """(K, 2) geom pairs to check: each of the robot's moving geoms and the plate with every
+        other geom, less a body and its parent, the plate and the flange link, and the mounts
+        (:func:`~cellsight.world.contacts.mount_pairs`: the robots at HOME, the board far);
+        and (K,) whether both are the robot's or the plate's."""
+        model = self.scene.model
+        n = cell.robot(robot).n_joints
+        body, parent = model.geom_bodyid, model.body_parentid
+        board, flange = model.body(BOARD).id, model.body(body_name(robot, n)).id
+        own = {model.body(body_name(robot, i)).id for i in range(n + 1)}
+        moving = [g for g in range(model.ngeom) if body[g] == board or (
+            body[g] in own and model.body_weldid[body[g]] != 0)]
+        skip = mount_pairs(self.scene, cell)
+        pairs = set()
+        for g in moving:
+            for h in range(model.ngeom):
+                a, b = int(body[g]), int(body[h])
+                pair = (min(g, h), max(g, h))
+                if a == b or parent[a] == b or parent[b] == a or {a, b} == {board, flange} \
+                        or pair in skip:
+                    continue
+                pairs.add(pair)
+        pairs = np.array(sorted(pairs), dtype=int).reshape(-1, 2)
+        return pairs, np.isin(body[pairs], [*own, board]).all(axis=1)
+
+    def hit(self, q: np.ndarray, T_base_flange: np.ndarray) -> tuple[str, str] | None:
+        """The names of the first two solids nearer than their clearance with the robot at
+        ``q`` and the board's flange frame at ``T_base_flange``; None when all are clear."""
+        import mujoco  # after cellsight.world, which chooses MuJoCo's OpenGL back-end
+
+        scene = self.scene
+        scene.set_qpos(self._qadr, q)
+        scene.set_mocap(self._mocap, T_base_flange)
+        scene.sync()
+        model, data = scene.model, scene.data
+        a, b = self.pairs[:, 0], self.pairs[:, 1]
+        gap = (np.linalg.norm(data.geom_xpos[a] - data.geom_xpos[b], axis=1)
+               - model.geom_rbound[a] - model.geom_rbound[b])
+        near = np.flatnonzero((gap < self._limit) | self._plane)
+        for (g, h), limit in zip(self.pairs[near], self._limit[near], strict=True):
+            if mujoco.mj_geomDistance(model, data, int(g), int(h), limit, None) < limit:
+                return model.geom(int(g)).name, model.geom(int(h)).name
+        return None
+
+
+def _qpos_addresses(model: mujoco.MjModel, robot: Robot) -> np.ndarray:
+    """The ``qpos`` addresses of the robot's joints 1..n."""
+    return model.jnt_qposadr[[model.joint(joint_name(robot.name, i)).id
+                              for i in range(1, robot.n_joints + 1)]]
+
+
+def _place_home(scene: Scene, cell: Cell) -> None:
+    """Every robot at HOME, every gripper open (the world's defaults)."""
+    model = scene.model
+    for robot in cell.robots:
+        scene.set_qpos(_qpos_addresses(model, robot), robot.home)
+        if robot.tool is not None:
+            for jaw in ("jaw1", "jaw2"):
+                adr = model.jnt_qposadr[model.joint(body_name(robot.name, jaw)).id]
+                scene.set_qpos([adr], robot.tool.max_opening / 2)
+    scene.sync()
+
+
+def work_centre(cell: Cell) -> np.ndarray:
+    """The work area's centre (base frame, m): the mean of the workpieces' start positions;
+    a :class:`CellsightError` for a cell without workpieces."""
+    if not cell.workpieces:
+        raise CellsightError(f"cell {cell.name}: no workpiece to centre the calibration poses "
+                             f"on; add the workpiece the cameras watch to the cell file")
+    return np.mean([p.T_base_part[:3, 3] for p in cell.workpieces], axis=0)
+
+
+def depth_span(cam: Camera, board: Board, centre: np.ndarray) -> tuple[float, float]:
+    """The board centre's distances from ``cam`` (m, along its axis) for the candidates:
+    ``DEPTH_SPAN`` times the work area ``centre``'s (base frame, m), no nearer than
+    ``MIN_DEPTH_M`` nor than where the board, facing the camera, fits in its image with the
+    margin; ``near > far`` when none."""
+    depth = float(cam.depth(centre[None])[0])
+    room = 0.5 * min(cam.width, cam.height) - MARGIN_PX  # px from the image's centre
+    if room <= 0:
+        return math.inf, 0.0
+    fits = board.radius * cam.focal_px / room
+    return max(DEPTH_SPAN[0] * depth, fits, MIN_DEPTH_M), DEPTH_SPAN[1] * depth
+
+
+def _latin(rng: np.random.Generator, count: int, dims: int) -> np.ndarray:
+    """(count, dims) in [0, 1): a Latin hypercube (each column one point in each of ``count``
+    equal strata, the strata shuffled per column)."""
+    strata = np.column_stack([rng.permutation(count) for _ in range(dims)])
+    return (strata + rng.random((count, dims))) / count
+
+
+def designed_boards(cam: Camera, board: Board, span: tuple[float, float],
+                    rng: np.random.Generator, count: int = DESIGNED) -> list[np.ndarray]:
+    """``count`` board poses ``T_base_board`` for ``cam`` (module docstring: a Latin
+    hypercube over the pixel, the distance in ``span`` (m), the tilt's axis and angle)."""
+    near, far = span
+    u = _latin(rng, count, 5)
+    d = near + u[:, 0] * (far - near)
+    size = np.array([cam.width, cam.height], dtype=float)
+    half = (MARGIN_PX + board.radius * cam.focal_px / d)[:, None]
+    pixels = half + u[:, 1:3] * (size - 2 * half)
+    rays = np.column_stack([pixels, np.ones(count)]) @ np.linalg.inv(cam.K).T
+    points = (rays * d[:, None]) @ cam.T_base_cam[:3, :3].T + cam.center
+    tilts = np.radians(TILT_DEG[0] + u[:, 4] * (TILT_DEG[1] - TILT_DEG[0]))
+    out = []
+    for p, a, tilt, turn in zip(points, u[:, 3], tilts, rng.uniform(-math.pi, math.pi, count),
+                                strict=True):
+        z = cam.center - p
+        z /= np.linalg.norm(z)
+        x = cam.T_base_cam[:3, 0] - (cam.T_base_cam[:3, 0] @ z) * z
+        x /= np.linalg.norm(x)
+        y = np.cross(z, x)
+        axis = math.cos(2 * math.pi * a) * x + math.sin(2 * math.pi * a) * y
+        R = (Rotation.from_rotvec(tilt * axis) * Rotation.from_matrix(np.column_stack([x, y, z]))
+             * Rotation.from_euler("z", turn)).as_matrix()
+        out.append(make_pose(R, p))
+    return out
+
+
+def snapped_board(cam: Camera, T_base_board: np.ndarray) -> tuple[np.ndarray, float]:
+    """The board pose of the design family for ``cam`` nearest ``T_base_board`` (same centre;
+    its normal tilted from facing the camera by the given pose's tilt clipped to
+    ``TILT_DEG``, about the same axis; turned by the least rotation), and the angle (rad)
+    between the two."""
+    centre, normal = T_base_board[:3, 3], T_base_board[:3, 2]
+    facing = cam.center - centre
+    facing /= np.linalg.norm(facing)
+    axis = np.cross(facing, normal)
+    if np.linalg.norm(axis) < 1e-9:  # facing the camera (or away from it): any tilt axis
+        axis = T_base_board[:3, 0]
+    axis /= np.linalg.norm(axis)
+    tilt = math.acos(float(np.clip(facing @ normal, -1.0, 1.0)))
+    goal = Rotation.from_rotvec(np.clip(tilt, *np.radians(TILT_DEG)) * axis).apply(facing)
+    turn = np.cross(normal, goal)
+    sine = float(np.linalg.norm(turn))
+    angle = math.atan2(sine, float(normal @ goal))
+    if sine > 1e-12:  # else no turn, or a half turn about no axis in particular: left as is
+        turn *= angle / sine
+    R = Rotation.from_rotvec(turn if sine > 1e-12 else np.zeros(3)).as_matrix()
+    return make_pose(R @ T_base_board[:3, :3], centre), angle
+
+
+def _chance(shift_m: float, turn_rad: float) -> float:
+    """The prior chance that a board pose passes the checks when its IK seed puts the board
+    ``shift_m`` (m) and ``turn_rad`` (rad) away: ``exp(-(shift / SEED_M)^2 / 2 -
+    (turn / SEED_RAD)^2 / 2)``."""
+    return math.exp(-0.5 * (shift_m / SEED_M) ** 2 - 0.5 * (turn_rad / SEED_RAD) ** 2)
+
+
+class ReachMap:
+    """Random joint vectors of ``robot``, uniform inside its limits less ``LIMIT_MARGIN``, and
+    where they put the board (forward kinematics only, ``T_base_board``): IK seeds, and board
+    poses the robot reaches (:meth:`grow` adds a batch). A pose's seed is, of the samples
+    whose wrist point is within ``REACH_M`` of the pose's (the nearest when none is), the one
+    whose board normal is nearest. The wrist point is fixed to the flange where frame n-1's
+    origin is at HOME: on a spherical wrist, the centre its three axes meet at, which the arm
+    alone places, so that the samples near it are the arm's ways of getting there."""
+
+    def __init__(self, robot: Robot, board: Board, rng: np.random.Generator) -> None:
+        self.robot, self.rng = robot, rng
+        frames = robot.chain.fkine(robot.home)
+        self.T_board_flange = invert_pose(board.T_flange_board)
+        self.wrist = self.T_board_flange @ invert_pose(frames[-1]) @ frames[-2][:, 3]
+        self.q = np.zeros((0, robot.n_joints))
+        self.boards = np.zeros((0, 4, 4))
+        self._tree = cKDTree(np.zeros((0, 3)))
+
+    def grow(self, count: int = REACH_BATCH) -> range:
+        """Add ``count`` samples; the indices of the new ones."""
+        qlim = self.robot.chain.qlim
+        q = self.rng.uniform(qlim[:, 0] + LIMIT_MARGIN, qlim[:, 1] - LIMIT_MARGIN,
+                             (count, self.robot.n_joints))
+        flanges = np.array([self.robot.link_poses(x)[-1] for x in q])
+        start = len(self.q)
+        self.q = np.vstack([self.q, q])
+        self.boards = np.concatenate([self.boards, flanges @ invert_pose(self.T_board_flange)])
+        self._tree = cKDTree((self.boards @ self.wrist)[:, :3])
+        return range(start, len(self.q))
+
+    def seed(self, T_base_board: np.ndarray) -> tuple[np.ndarray, float]:
+        """The seed for a board pose (class docstring) and its :func:`_chance`."""
+        wrist = (T_base_board @ self.wrist)[:3]
+        near = np.asarray(self._tree.query_ball_point(wrist, REACH_M), dtype=int)
+        if not near.size:
+            near = np.atleast_1d(self._tree.query(wrist)[1])
+        cosines = self.boards[near, :3, 2] @ T_base_board[:3, 2]
+        k = near[np.argmax(cosines)]
+        shift = float(np.linalg.norm((self.boards[k] @ self.wrist)[:3] - wrist))
+        return self.q[k], _chance(shift, math.acos(float(np.clip(cosines.max(), -1, 1))))
+
+    def in_view(self, cam: Camera, board: Board, span: tuple[float, float],
+                samples: range) -> np.ndarray:
+        """Indices of ``samples`` whose board centre is in ``cam``'s image with room for the
+        board and the margin, at a distance in ``span`` (m)."""
+        centres = self.boards[samples.start:samples.stop, :3, 3]
+        depth = cam.depth(centres)
+        room = MARGIN_PX + board.radius * cam.focal_px / np.maximum(depth, 1e-9)
+        inside = border_distance(cam, cam.project(centres)) >= room
+        return np.flatnonzero(inside & (depth >= span[0]) & (depth <= span[1])) + samples.start
+
+
+@dataclass(frozen=True)
+class _Candidate:
+    """A candidate pose: the flange's ``T_base_flange``, the IK ``seed``, the ``prior``
+    chance of passing, the cameras that see the board by projection, and its ``key`` for
+    :func:`_likeness` (board centre over ``LIKE_M``, normal over ``LIKE_NORMAL``)."""
+
+    T_base_flange: np.ndarray
+    seed: np.ndarray
+    prior: float
+    cameras: tuple[int, ...]
+    key: np.ndarray
+
+
+def _likeness(keys: np.ndarray, tried: np.ndarray) -> np.ndarray:
+    """(P,): for candidates' keys (P, 6), the sum over tried ones' (T, 6) of how alike they
+    are, ``exp(-|dkey|^2 / 2)`` (1 for itself)."""
+    if not len(tried):
+        return np.zeros(len(keys))
+    gaps = ((keys[:, None, :] - tried[None, :, :]) ** 2).sum(axis=2)
+    return np.exp(-0.5 * gaps).sum(axis=1)
+
+
+@dataclass(frozen=True)
+class _Pose:
+    """An accepted pose: joints, flange pose, indices of the cameras that see the board."""
+
+    q: np.ndarray
+    T_base_flange: np.ndarray
+    cameras: tuple[int, ...]
+
+
+class _Planner:
+    """The checks of the module docstring for one robot presenting one board."""
+
+    def __init__(self, cell: Cell, robot: Robot, board: Board, rng: np.random.Generator,
+                 spans: list[tuple[float, float]], start: np.ndarray) -> None:
+        """``spans``: each camera's :func:`depth_span`; ``start``: the joints the route
+        starts from."""
+        self.cell, self.board, self.rng, self.spans = cell, board, rng, spans
+        self.start = start
+        self.robot = replace(robot, tool=None)  # its TCP is its flange
+        collision_cell, view_cell = planning_cells(cell, robot, board)
+        self.collider = Collider(collision_cell, robot.name)
+        self.predictor = VisibilityPredictor(view_cell, near_px=0.0)
+        self.reach = ReachMap(self.robot, board, rng)
+
+    def candidates(self, samples: range, designed: bool) -> tuple[list[_Candidate], Counter]:
+        """The candidates from the reach map's ``samples`` that keep clear of everything
+        (:func:`snapped_board`) and, when ``designed``, :func:`designed_boards`' for every
+        camera, each with the cameras that see it by projection (:func:`view_cameras`); and
+        those dropped (a sample not clear: ``collision``; seen by none: ``out of view``)."""
+        boards: list[tuple[np.ndarray, np.ndarray, float]] = []
+        dropped: Counter = Counter()
+        for cam, span in zip(self.cell.cameras, self.spans, strict=True):
+            if designed:
+                boards += [(T, *self.reach.seed(T))
+                           for T in designed_boards(cam, self.board, span, self.rng)]
+            for k in self.reach.in_view(cam, self.board, span, samples):
+                q, T_base_board = self.reach.q[k], self.reach.boards[k]
+                if self.collider.hit(q, T_base_board @ self.reach.T_board_flange) is not None:
+                    dropped["collision"] += 1
+                    continue
+                T, turn = snapped_board(cam, T_base_board)
+                boards.append((T, q, _chance(0.0, turn)))
+        out = []
+        for T_base_board, seed, prior in boards:
+            T = T_base_board @ self.reach.T_board_flange
+            cameras = tuple(view_cameras(self.cell.cameras, self.board, T))
+            if cameras:
+                key = np.hstack([T_base_board[:3, 3] / LIKE_M, T_base_board[:3, 2] / LIKE_NORMAL])
+                out.append(_Candidate(T, seed, prior, cameras, key))
+        dropped["out of view"] += len(boards) - len(out)
+        return out, dropped
+
+    def search(self, per_camera: int) -> tuple[list[_Pose], Counter]:
+        """The route of poses from the start until every camera has ``per_camera`` (or the
+        candidates run out, ``REACH_BATCHES`` batches of the reach map spent, or ``MAX_TRIES``
+        per camera are tried), and the candidates dropped, by reason. The next candidate
+        tried is the one worth most: the square of the number of its cameras still short of
+        poses (a pose two cameras see ties them together), times its prior chance, over one
+        plus its likeness to those tried so far (:func:`_likeness`: the search leaves a
+        region where tries failed, and spreads the poses it keeps); while none is worth
+        ``WORTH_MIN``, the reach map first grows a batch."""
+        candidates, dropped = self.candidates(self.reach.grow(), designed=True)
+        batches, route, tried = 1, [], []
+        count = np.zeros(len(self.cell.cameras), dtype=int)
+        while not (count >= per_camera).all():
+            short = np.array([sum(count[k] < per_camera for k in c.cameras)
+                              for c in candidates])
+            keys = np.array([c.key for c in candidates]).reshape(-1, 6)
+            prior = np.array([c.prior for c in candidates])
+            worth = short ** 2 * prior / (1 + _likeness(keys, np.array(tried).reshape(-1, 6)))
+            if worth.max(initial=0.0) < WORTH_MIN and batches < REACH_BATCHES:
+                batches += 1
+                more, dropped_more = self.candidates(self.reach.grow(), designed=False)
+                candidates += more
+                dropped += dropped_more
+                continue
+            if not worth.any() or len(tried) >= MAX_TRIES * len(self.cell.cameras):
+                break
+            best = candidates.pop(int(np.argmax(worth)))
+            tried.append(best.key)
+            reason = self.try_pose(best, route)
+            if reason is not None:
+                dropped[reason] += 1
+            count = np.bincount([k for p in route for k in p.cameras],
+                                minlength=len(self.cell.cameras))
+        return route, +dropped
+
+    def try_pose(self, candidate: _Candidate, route: list[_Pose]) -> str | None:
+        """Insert into ``route`` the candidate's pose, with those of its cameras that see the
+        whole board, from the first IK solution (nearest the start first) that passes every check
+        (:meth:`insert` for the moves); None when one did, else the last check that any
+        solution failed (module docstring)."""
+        T = candidate.T_base_flange
+        qs = self.solve(T, candidate.seed)
+        if isinstance(qs, str):
+            return qs
+        failed = 0  # index into _LAST_CHECKS
+        for q in qs:
+            if self.collider.hit(q, T) is not None:
+                continue
+            views = self.predictor.predict({self.robot.name: q}, {BOARD: T})[BOARD]
+            seen = tuple(k for k in candidate.cameras if views[k].visible.all())
+            if seen and self.insert(route, _Pose(q, T, seen)):
+                return None
+            failed = max(failed, 2 if seen else 1)
+        return _LAST_CHECKS[failed]
+
+    def solve(self, T_base_flange: np.ndarray, seed: np.ndarray) -> list[np.ndarray] | str:
+        """The IK solutions for the flange at ``T_base_flange`` at least ``LIMIT_MARGIN``
+        inside every limit, nearest the start first (:func:`~cellsight.control.ik.solve_ik`
+        from ``seed``, mid-range and the start: the robot's HOME and FINAL are its first
+        seeds); else why none."""
+        seeded = replace(self.robot, home=seed, final=self.start)
+        try:
+            solutions = solve_ik(seeded, T_base_flange, seeds=0).solutions
+        except IKError:
+            return "unreachable"
+        qs = sorted((s.q for s in solutions if s.limit_margin.min() >= LIMIT_MARGIN),
+                    key=lambda q: float(np.linalg.norm(q - self.start)))
+        return qs or "joint limits"
+
+    def insert(self, route: list[_Pose], pose: _Pose) -> bool:
+        """Put ``pose`` into ``route`` (which leaves from the start) at the first, of the
+        ``INSERT_PLACES`` places that lengthen it least (joint space, Euclidean), whose moves
+        to it and from it are free (:meth:`move_is_free`); whether it was put."""
+        stops = [self.start] + [p.q for p in route]
+
+        def added(i: int) -> float:
+            to = float(np.linalg.norm(pose.q - stops[i]))
+            if i + 1 == len(stops):
+                return to
+            return to + float(np.linalg.norm(stops[i + 1] - pose.q)
+                              - np.linalg.norm(stops[i + 1] - stops[i]))
+
+        for i in sorted(range(len(stops)), key=added)[:INSERT_PLACES]:
+            if self.move_is_free(stops[i], pose.q) and (
+                    i + 1 == len(stops) or self.move_is_free(pose.q, stops[i + 1])):
+                route.insert(i, pose)
+                return True
+        return False
+
+    def move_is_free(self, q0: np.ndarray, q1: np.ndarray) -> bool:
+        """Whether the straight joint-space move from ``q0`` to ``q1``, sampled every
+        ``MOVE_STEP`` in every joint, keeps the clearance everywhere (its end included); the
+        samples coarse to fine (every 8th, the 4th between them, every other 2nd, the rest),
+        so that a collision is found early."""
+        steps = max(1, math.ceil(float(np.abs(q1 - q0).max()) / MOVE_STEP))
+        s = np.linspace(0.0, 1.0, steps + 1)[1:]
+        for fraction in np.concatenate([s[::8], s[4::8], s[2::4], s[1::2]]):
+            q = q0 + fraction * (q1 - q0)
+            if self.collider.hit(q, self.robot.link_poses(q)[-1]) is not None:
+                return False
+        return True
+
+
+def plan_poses(cell: Cell, robot: str, points_flange: ArrayLike, normal_flange: ArrayLike,
+               outline_flange: ArrayLike, *, per_camera: int = 8, min_poses: int = MIN_POSES,
+               seed: int = 0, cameras: Sequence[str] | None = None,
+               start: ArrayLike | None = None) -> Plan:
+    """The poses in which ``robot`` presents the board (corners ``points_flange`` (N, 3) m,
+    face normal ``normal_flange`` (3,), plate outline ``outline_flange`` (k, 3) m, all in its
+    flange frame) to the cell's cameras (or to those named in ``cameras``), until each has
+    ``per_camera``, in visiting order from ``start`` (joints, rad or m; default HOME), where
+    the board is mounted (module docstring); ``seed`` draws the candidates. A
+    :class:`CellsightError` when a camera gets fewer than ``min_poses``, or the board is not
+    clear at the start."""
+    try:
+        presenter = cell.robot(robot)
+        if cameras is not None:
+            cell = copy.copy(cell)
+            cell.cameras = [cell.camera(name) for name in dict.fromkeys(cameras)]
+    except KeyError as error:
+        raise CellsightError(str(error.args[0])) from None
+    if not cell.cameras or not 1 <= min_poses <= per_camera:
+        raise CellsightError(f"calibration plan for robot {robot}: needs a camera and 1 <= "
+                             f"min_poses <= per_camera, got {len(cell.cameras)} camera(s), "
+                             f"min_poses={min_poses}, per_camera={per_camera}")
+    start = presenter.chain.check_q(presenter.home if start is None else start,
+                                    check_limits=True)
+    board = Board.from_flange(points_flange, normal_flange, outline_flange)
+    spans = _spans_or_refuse(cell, robot, board)
+    planner = _Planner(cell, presenter, board, np.random.default_rng(seed), spans, start)
+    clash = planner.collider.hit(start, presenter.link_poses(start)[-1])
+    if clash is not None:
+        raise CellsightError(
+            f"calibration plan for robot {robot}: at the start {np.round(start, 3).tolist()} "
+            f"with the board on its flange, {clash[0]} and {clash[1]} are too near (they "
+            f"overlap, or are within {CLEARANCE_M * 1e3:g} mm); start from joints where the "
+            f"board is clear (start=...)")
+    poses, dropped = planner.search(per_camera)
+    names = [cam.name for cam in cell.cameras]
+    plan = Plan(robot, np.array([p.q for p in poses]).reshape(-1, presenter.n_joints),
+                np.array([presenter.link_poses(p.q)[-1] for p in poses]).reshape(-1, 4, 4),
+                tuple(tuple(names[k] for k in p.cameras) for p in poses), dict(dropped))
+    _refuse_short(plan, cell, min_poses)
+    return plan
+
+
+def _spans_or_refuse(cell: Cell, robot: str, board: Board) -> list[tuple[float, float]]:
+    """Each camera's :func:`depth_span`, or a :class:`CellsightError` naming the cameras that
+    cannot see the board around the work area."""
+    centre = work_centre(cell)
+    spans = [depth_span(cam, board, centre) for cam in cell.cameras]
+    blind = [cam.name for cam, (near, far) in zip(cell.cameras, spans, strict=True)
+             if near > far]
+    if blind:
+        raise CellsightError(
+            f"calibration plan for robot {robot}: camera {' and '.join(blind)} cannot see the "
+            f"board around the work area at {np.round(centre, 2).tolist()} m (behind it, or "
+            f"too near for the whole board to fit in its image); aim it at the work area, or "
+            f"leave it out (cameras=...) and calibrate it with another robot")
+    return spans
+
+
+def _refuse_short(plan: Plan, cell: Cell, min_poses: int) -> None:
+    """A :class:`CellsightError` naming the robot and each camera with fewer than
+    ``min_poses`` poses, why poses were dropped, and what to do."""
+    counts = plan.per_camera()
+    short = [cam.name for cam in cell.cameras if counts.get(cam.name, 0) < min_poses]
+    if not short:
+        return
+    centre = np.round(work_centre(cell), 2).tolist()
+    why = ", ".join(f"{n} {reason}" for reason, n in sorted(plan.dropped.items())) or "none"
+    raise CellsightError(
+        f"calibration plan: robot {plan.robot} can present the board to camera "
+        f"{', '.join(f'{name} in {counts.get(name, 0)}' for name in short)} pose(s), fewer "
+        f"than the {min_poses} a calibration needs (candidate poses dropped: {why}); aim "
+        f"{' and '.join(short)} at the work area around {centre} m where {plan.robot} can "
+        f"reach, or leave it out (cameras=...) and calibrate it with another robot")
