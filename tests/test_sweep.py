@@ -174,7 +174,8 @@ def test_groups_over_seeds_and_paired_comparison_against_numpy():
     assert row[18] == f"{(1 - on / 100).min():.4f}" and row[22] == "1"
     assert row[23] == "4/8"  # camera 1 left with nothing in Manipulate on the even seeds
     (paired,) = paired_rows(specs, results)  # the default against the others, arm frame
-    assert paired[5] == "kinematic vs nopred" and paired[6] == f"{int(np.sum(off > on))}/8"
+    assert paired[5] == "kinematic vs nopred (arm frame)"
+    assert paired[6] == f"{int(np.sum(off > on))}/8"
     gain = (off - on) / 2
     assert paired[7] == f"{gain.mean():.2f} ± {mean_ci(gain)[1]:.2f}"
 
