@@ -357,10 +357,12 @@ def test_cellsight_track_reads_an_export(ur_run, ur_rows, tmp_path) -> None:
     the tracked frames.csv has the run's times, joints, jaw openings and true poses (read
     from /joint_states and /part/true_pose) and tracks the part from the rendered images."""
     from cellsight.recording.track import TrackOptions, track_recording
+    from cellsight.trackers import TrackerChoice
 
     path = tmp_path / "as_recording.mcap"
     export_mcap(ur_run, path, jpeg=95, start_time=START, progress=False)
-    track_recording(UR_CELL, path, tmp_path / "tracked", TrackOptions(progress=False))
+    track_recording(UR_CELL, path, tmp_path / "tracked",  # the plain tracker: reading is tested
+                    TrackOptions(progress=False, tracker=TrackerChoice("plain")))
     with (tmp_path / "tracked" / "frames.csv").open(newline="") as f:
         tracked = list(csv.DictReader(f))
     columns = ["jaw_opening"] + [c for c in ur_rows[0] if c.startswith(("q_", "true_"))]

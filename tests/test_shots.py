@@ -118,11 +118,15 @@ def test_a_shot_is_the_state_it_was_taken_in():
 
 
 def test_a_run_on_windows_measures_what_a_run_on_whole_frames_measures(tmp_path: Path):
+    """The plain tracker: the kinematic one registers the cameras from whole images, which a
+    run on windows renders only for the registration."""
+    from cellsight.trackers import TrackerChoice
+
     runs = {}
     for full in (False, True):
         runs[full] = run_experiment(RunConfig(
             experiment=3, out=tmp_path / str(full), duration=1.5, full_frames=full,
-            progress=False, video_every=0))
+            progress=False, video_every=0, tracker=TrackerChoice("plain")))
     windows, whole = runs[False], runs[True]
     assert windows["measurements"] == whole["measurements"] > 250
     assert windows["wrong_accepted"] == whole["wrong_accepted"]

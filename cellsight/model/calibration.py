@@ -377,6 +377,8 @@ def opencv_storage(file: str, text: str) -> dict[str, object]:
     ``cv2.FileStorage`` from memory, as Python values."""
     if text.lstrip().startswith("<") and not text.lstrip().startswith("<?xml"):
         text = '<?xml version="1.0"?>\n' + text  # cv2 tells XML in memory by its declaration
+    elif not text.lstrip().startswith(("<", "%YAML", "{")):
+        text = "%YAML:1.0\n" + text  # OpenCV 4 reads YAML from memory only after this header
     try:
         fs = cv2.FileStorage(text, cv2.FILE_STORAGE_READ | cv2.FILE_STORAGE_MEMORY)
         root = fs.root()
