@@ -7,6 +7,7 @@ import cv2
 import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from scipy import stats
 
 from cellsight import load_cell
 from cellsight.tracking.camera_fit import corrected, refit_pose
@@ -47,7 +48,11 @@ def test_the_refitted_camera_sees_a_new_place_as_the_true_camera_does(camera, se
     gap = np.abs(fit.camera.project(new) - true.project(new)).max()
     assert gap < 0.5
     assert fit.inliers >= 0.95 * len(points)
-    assert fit.rms_px < 0.35
+    # the residuals of 0.2 px noise after fitting 6 numbers: chi-square with 2n - 6 degrees of
+    # freedom; the bound is exceeded by chance once in a million fits (0.35 px was exceeded by
+    # seed 9272's draw, 0.351 px, about once in 500)
+    n = fit.inliers
+    assert fit.rms_px < 0.2 * np.sqrt(stats.chi2.ppf(1 - 1e-6, 2 * n - 6) / n)
 
 
 def test_many_points_give_opencvs_pose_and_a_wrong_tenth_is_left_out():
