@@ -12,7 +12,6 @@ the cell file's cameras and bases. The world's truth only scores the result (:mo
 
 from __future__ import annotations
 
-import logging
 import time
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -21,7 +20,7 @@ import numpy as np
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn
 
 from cellsight.calibration.board import Board, board_world
-from cellsight.calibration.output import write_calibration
+from cellsight.calibration.output import is_calibration_output, write_calibration
 from cellsight.calibration.plan import Plan, plan_poses
 from cellsight.calibration.score import score
 from cellsight.calibration.shoot import photograph
@@ -32,9 +31,7 @@ from cellsight.geometry.transforms import invert_pose, transform_points
 from cellsight.model import Cell
 from cellsight.model.loader import load_cell
 from cellsight.realism import draw_world
-from cellsight.runfolder import check_out_folder
-
-log = logging.getLogger(__name__)
+from cellsight.runfolder import check_out_folder, make_out_folder
 
 
 @dataclass(frozen=True)
@@ -118,14 +115,12 @@ def calibrate_command(cell_arg: str | None, realism: str, seed: int, out: Path,
         raise CellsightError(f"--seed: expected a whole number >= 0, got {seed}")
     if per_camera < 6:
         raise CellsightError(f"--poses: expected at least 6 poses per camera, got {per_camera}")
-    stale = check_out_folder(out, overwrite, "--out", "--overwrite")
+    stale = check_out_folder(out, overwrite, "--out", "--overwrite", is_calibration_output)
     board = Board() if board_file is None else Board.from_yaml(board_file)
     started = time.perf_counter()
     result = calibrate_world(cell_arg, realism, seed, board, per_camera, joint_offsets,
                              progress)
-    for path in stale:
-        if path.is_file():
-            path.unlink()
+    make_out_folder(out, stale, "--out")
     facts = {"world": {"realism": realism, "seed": seed}, "errors": result.errors,
              "board": {"squares": list(board.squares), "square_m": board.square_m,
                        "marker_m": board.marker_m, "dictionary": board.dictionary},

@@ -39,6 +39,20 @@ from cellsight.model.yaml_input import load_yaml, read_cell_text, with_absolute_
 from cellsight.runfolder.digest import cell_digest  # noqa: E402
 from cellsight.runfolder.writes import staged, write_figure, write_file  # noqa: E402
 
+OUTPUTS = frozenset({"cameras", "cell.yaml", CALIBRATION_FILE, "residuals.png", "report.html"})
+"""The names :func:`write_calibration` writes into its folder."""
+
+
+def is_calibration_output(path: Path) -> bool:
+    """``path`` (in a calibration folder) is something :func:`write_calibration` writes: one of
+    :data:`OUTPUTS`, the ``cameras`` folder holding only files (no links)."""
+    if path.is_symlink() or path.name not in OUTPUTS:
+        return False
+    if path.is_dir():
+        return path.name == "cameras" and all(p.is_file() and not p.is_symlink()
+                                              for p in path.iterdir())
+    return path.is_file()
+
 
 def _rounded(value: object) -> object:
     if isinstance(value, np.ndarray):
@@ -89,9 +103,8 @@ def _cell_file(cell: Cell, reference: str, solution: Solution) -> str:
     raw = with_absolute_paths(load_yaml(read_cell_text(source), str(source)), source.parent)
     for entry in raw.get("cameras", []):
         name = entry["name"]
-        kept = {k: v for k, v in entry.items() if k in ("name", "near_px")}
         entry.clear()
-        entry.update(kept, calibration=f"cameras/{name}.yaml",
+        entry.update(name=name, calibration=f"cameras/{name}.yaml",
                      hand_eye={"file": f"cameras/{name}_hand_eye.yaml", "robot": reference})
     bases = {r.name: r.T_base_robot for r in cell.robots}
     for entry in raw.get("robots", []):
@@ -139,10 +152,9 @@ def _report(record: dict) -> str:
 
 def write_calibration(out: Path, cell: Cell, reference: str, solution: Solution,
                       views: list[View], facts: dict) -> dict:
-    """Write the folder (module docstring) into ``out`` (made if missing); returns the
+    """Write the folder (module docstring) into ``out`` (made by the caller); returns the
     record written as ``calibration.json``."""
     record = calibration_record(cell, reference, solution, views, facts)
-    out.mkdir(parents=True, exist_ok=True)
     with staged(out) as stage:
         (stage / "cameras").mkdir()
         for cam in solution.cameras:

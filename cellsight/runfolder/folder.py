@@ -7,7 +7,7 @@ from __future__ import annotations
 import errno
 import os
 import shutil
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 from cellsight.errors import CellsightError
@@ -98,11 +98,13 @@ def check_new_files(out: Path, names: Sequence[str], overwrite: bool, arg: str) 
 
 
 def check_out_folder(out: Path, overwrite: bool, arg: str = "RunConfig.out",
-                     flag: str = "overwrite=True") -> list[Path]:
+                     flag: str = "overwrite=True",
+                     is_output: Callable[[Path], bool] = is_run_output) -> list[Path]:
     """Check, touching nothing, that the folder ``out`` can take a new run: absent (then
     creatable: not under a file), empty, or, with ``overwrite``, holding only an earlier run's
-    outputs (:func:`is_run_output`), which are returned for the caller to clear. Otherwise a
-    :class:`RunFolderError` naming ``arg`` (the option), the folder and, to pass, ``flag``."""
+    outputs (``is_output``: by default :func:`is_run_output`; another command's own), which are
+    returned for the caller to clear. Otherwise a :class:`RunFolderError` naming ``arg`` (the
+    option), the folder and, to pass, ``flag``."""
     out = Path(out)
     shown = _shown(out)
     try:
@@ -110,7 +112,7 @@ def check_out_folder(out: Path, overwrite: bool, arg: str = "RunConfig.out",
         if entries and not overwrite:
             raise RunFolderError(f"{arg}: {shown} is not empty ({len(entries)} entries); pass "
                                  f"{flag} or choose another folder")
-        stranger = next((p for p in entries if not is_run_output(p)), None)
+        stranger = next((p for p in entries if not is_output(p)), None)
     except OSError as exc:
         raise RunFolderError(f"{arg}: {shown}: not a usable folder ({exc.strerror})") from exc
     if stranger is not None:
