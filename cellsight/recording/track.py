@@ -60,7 +60,7 @@ from cellsight.runfolder import (
     write_metrics,
 )
 from cellsight.runfolder.writes import log_to, stop_logging_to
-from cellsight.trackers import TrackerChoice
+from cellsight.trackers import DEFAULT_TRACKER, TrackerChoice
 from cellsight.tracking.prior import KinematicPrior, RecordedGrasp
 from cellsight.tracking.registration import RegistrationRule
 from cellsight.tracking.setup import build_tracker, tracker_facts
@@ -79,7 +79,7 @@ class TrackOptions:
     images of several cameras within it form one frame; ``calibration_from_bag``: the
     recording's CameraInfo replaces the cell's intrinsics; ``part``: the workpiece logged
     (default the cell's first); ``tracker``: the tracker, as in ``cellsight run``
-    (:class:`~cellsight.tracking.setup.TrackerChoice`): the ``kinematic`` one registers each
+    (:class:`~cellsight.trackers.TrackerChoice`): the ``kinematic`` one registers each
     camera to the gripper from the recorded images, joints and jaw openings, at HOME and by the
     part (:mod:`cellsight.tracking.registration`), and keeps the part where the gripper holds
     it while the recorded jaws stand at its grasp's opening, else on what it lies on
@@ -90,7 +90,7 @@ class TrackOptions:
     tolerance_s: float = 0.019
     calibration_from_bag: bool = False
     part: str | None = None
-    tracker: TrackerChoice = field(default_factory=TrackerChoice)
+    tracker: TrackerChoice = DEFAULT_TRACKER
     overwrite: bool = False
     progress: bool = True
     live: str | None = None

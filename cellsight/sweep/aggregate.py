@@ -11,12 +11,11 @@ visibility accuracy (mean and worst seed), time lost in view (worst), wrong corn
 blinded as designed (:func:`crossing_as_designed`). The default tracker's variant
 (``kinematic``) is compared with each other variant on the seeds both ran (:func:`paired_rows`):
 on how many its RMSE is lower (in the arm's frame where both have it, else the cell's), and
-the mean difference with its 95 % interval. The
-health table (:func:`health_rows`) asks of each group whether the
-tracker knew when it was wrong: runs with a frame more than 10 mm off while the status said
-``tracking`` (and those frames in all), the worst error while ``tracking``, wrong corners
-accepted as a percentage of the measurements (all runs together, and the worst run), time
-degraded and runs that dropped a camera.
+the mean difference with its 95 % interval. The health table (:func:`health_rows`) asks of
+each group whether the tracker knew when it was wrong: runs with a frame more than 10 mm off
+while the status said ``tracking`` (and those frames in all), the worst error while
+``tracking``, wrong corners accepted as a percentage of the measurements (all runs together,
+and the worst run), time degraded and runs that dropped a camera.
 """
 
 from __future__ import annotations
@@ -176,7 +175,7 @@ def paired_rows(specs: Sequence[RunSpec], results: Sequence[dict]) -> list[list[
         others = [(k, o) for k, o in groups.items() if k[:5] == key[:5] and k[5] != key[5]]
         for other_key, other in others:
             a, b, frame = _paired_values(g, other)
-            seeds = [s for s in a if s in b]
+            seeds = list(a)  # the seeds both ran, each with its figure
             diff = np.array([b[s] - a[s] for s in seeds])
             better = int(np.sum(diff > 0))
             mean, half = mean_ci(diff)
