@@ -216,7 +216,7 @@ def test_each_variant_sets_the_runs_options(tmp_path):
     from cellsight.trackers import DEFAULT_TRACKER
 
     tracker = {v: RunSpec("dual-arm", 3, "rendered", v, 0).config(tmp_path).tracker
-               for v in ("kinematic", "plain", "nopred", "offsets", "unknown")}
+               for v in ("kinematic", "plain", "nopred", "offsets", "unknown", "calibrated")}
     assert tracker["kinematic"] == DEFAULT_TRACKER and tracker["kinematic"].kinematic
     assert not tracker["plain"].kinematic and tracker["plain"].occlusion_prediction
     assert not tracker["nopred"].occlusion_prediction and tracker["nopred"].kinematic
@@ -224,10 +224,45 @@ def test_each_variant_sets_the_runs_options(tmp_path):
     assert tracker["unknown"].unknown_occluders and not tracker["kinematic"].unknown_occluders
     config = RunSpec("dual-arm", 3, "rendered", "offsets", 0).config(tmp_path)
     assert config.out == tmp_path / "dual-arm/e3_rendered_offsets_s0"
+    assert config.calibration is None
+    calibrated = RunSpec("dual-arm", 2, "rendered", "calibrated", 7, realism="lab")
+    assert calibrated.config(tmp_path).tracker == DEFAULT_TRACKER
+    assert calibrated.config(tmp_path).calibration == tmp_path / "dual-arm/calibration_lab_s7"
     from cellsight.sweep.grid import VARIANTS
     from cellsight.sweep.summary import VARIANT_NAMES
 
     assert set(VARIANT_NAMES) == set(VARIANTS)  # every variant has its summary name
+
+
+def test_calibration_rows_give_each_seeds_calibration_once_against_numpy():
+    """One calibration per seed, shared by its experiments' runs: counted once, its cameras'
+    and other bases' errors summarised over seeds and cameras."""
+    import numpy as np
+
+    from cellsight.sweep.aggregate import calibration_rows
+
+    rng = np.random.default_rng(3)
+    keys = ("position_at_work_mm", "rotation_deg", "focal_percent", "principal_point_px",
+            "image_at_work_px")
+    errors = {seed: {"cameras": {c: dict(zip(keys, rng.uniform(0, 3, 5), strict=True))
+                                 for c in ("cam1", "cam2")},
+                     "robots": {"R6AX": {"origin_mm": rng.uniform(0, 1),
+                                         "rotation_deg": rng.uniform(0, 0.1)}}}
+              for seed in range(4)}
+    specs = [RunSpec("dual-arm", e, "rendered", "calibrated", s, realism="lab")
+             for e in (1, 2) for s in range(4)]
+    results = [{"calibration_errors": errors[spec.seed]} for spec in specs]
+    specs.append(RunSpec("dual-arm", 1, "rendered", "kinematic", 0, realism="lab"))
+    results.append({"calibration_errors": None})
+    (row,) = calibration_rows(specs, results)
+    at_work = [e["cameras"][c]["position_at_work_mm"] for e in errors.values()
+               for c in ("cam1", "cam2")]
+    pp = [e["cameras"][c]["principal_point_px"] for e in errors.values() for c in ("cam1", "cam2")]
+    bases = [e["robots"]["R6AX"]["origin_mm"] for e in errors.values()]
+    assert row[:3] == ["dual-arm", "lab", "4"]
+    assert row[3:5] == [f"{np.mean(at_work):.2f}", f"{np.max(at_work):.2f}"]
+    assert row[9:11] == [f"{np.mean(pp):.2f}", f"{np.max(pp):.2f}"]
+    assert row[13:15] == [f"{np.mean(bases):.2f}", f"{np.max(bases):.2f}"]
 
 
 def test_the_summary_counts_a_flickering_contact_once():

@@ -13,6 +13,7 @@ the cell file's cameras and bases. The world's truth only scores the result (:mo
 from __future__ import annotations
 
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -20,6 +21,7 @@ import numpy as np
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn
 
 from cellsight.calibration.board import Board, board_world
+from cellsight.calibration.folder import read_calibration
 from cellsight.calibration.output import is_calibration_output, write_calibration
 from cellsight.calibration.plan import Plan, plan_poses
 from cellsight.calibration.score import score
@@ -31,7 +33,7 @@ from cellsight.geometry.transforms import invert_pose, transform_points
 from cellsight.model import Cell
 from cellsight.model.loader import load_cell
 from cellsight.realism import draw_world
-from cellsight.runfolder import check_out_folder, make_out_folder
+from cellsight.runfolder import cell_digest, check_out_folder, make_out_folder
 
 
 @dataclass(frozen=True)
@@ -107,6 +109,39 @@ def verdict(result: WorldCalibration) -> str:
             f"{s.rms_px:.3f} px ({per})")
 
 
+def write_world_calibration(out: Path, cell_arg: str | Path | None, realism: str, seed: int,
+                            board: Board, per_camera: int = 8, joint_offsets: bool = False,
+                            progress: bool = True,
+                            stale: Sequence[Path] = ()) -> WorldCalibration:
+    """Calibrate the seed's world (:func:`calibrate_world`) and write the folder ``out``
+    (:mod:`.output`); ``stale``: the earlier outputs there to clear
+    (:func:`~cellsight.runfolder.check_out_folder`), once the calibration is made."""
+    started = time.perf_counter()
+    result = calibrate_world(cell_arg, realism, seed, board, per_camera, joint_offsets,
+                             progress)
+    make_out_folder(out, list(stale), "--out")
+    facts = {"world": {"realism": realism, "seed": seed}, "errors": result.errors,
+             "board": {"squares": list(board.squares), "square_m": board.square_m,
+                       "marker_m": board.marker_m, "dictionary": board.dictionary},
+             "poses": {p.robot: len(p.joints) for p in result.plans},
+             "verdict": verdict(result), "wall_s": round(time.perf_counter() - started, 1)}
+    write_calibration(out, result.cell, result.reference, result.solution, result.views, facts)
+    return result
+
+
+def finished_calibration(folder: Path, cell_arg: str | Path | None, realism: str,
+                         seed: int) -> bool:
+    """Whether ``folder`` holds a calibration of this cell as it is now (by its SHA-256), made
+    in the world of ``realism`` and ``seed``: a sweep reuses it."""
+    try:
+        data = read_calibration(folder)
+        digest = cell_digest(load_cell(cell_arg))
+    except CellsightError:
+        return False
+    return (data.get("cell_sha256") == digest
+            and data.get("world") == {"realism": realism, "seed": seed})
+
+
 def calibrate_command(cell_arg: str | None, realism: str, seed: int, out: Path,
                       board_file: str | None, per_camera: int, joint_offsets: bool,
                       progress: bool, overwrite: bool) -> int:
@@ -117,17 +152,9 @@ def calibrate_command(cell_arg: str | None, realism: str, seed: int, out: Path,
         raise CellsightError(f"--poses: expected at least 6 poses per camera, got {per_camera}")
     stale = check_out_folder(out, overwrite, "--out", "--overwrite", is_calibration_output)
     board = Board() if board_file is None else Board.from_yaml(board_file)
-    started = time.perf_counter()
-    result = calibrate_world(cell_arg, realism, seed, board, per_camera, joint_offsets,
-                             progress)
-    make_out_folder(out, stale, "--out")
-    facts = {"world": {"realism": realism, "seed": seed}, "errors": result.errors,
-             "board": {"squares": list(board.squares), "square_m": board.square_m,
-                       "marker_m": board.marker_m, "dictionary": board.dictionary},
-             "poses": {p.robot: len(p.joints) for p in result.plans},
-             "verdict": verdict(result), "wall_s": round(time.perf_counter() - started, 1)}
-    write_calibration(out, result.cell, result.reference, result.solution, result.views, facts)
-    print(facts["verdict"])
+    result = write_world_calibration(out, cell_arg, realism, seed, board, per_camera,
+                                     joint_offsets, progress, stale)
+    print(verdict(result))
     for name, e in result.errors["cameras"].items():
         print(f"  {name}: {e['position_at_work_mm']:.3f} mm and {e['rotation_deg']:.4f} deg at "
               f"the work area, focal {e['focal_percent']:.3f} %, principal point "

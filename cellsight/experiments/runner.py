@@ -52,7 +52,7 @@ from typing import Literal
 import numpy as np
 from rich.progress import BarColumn, Progress, TextColumn
 
-from cellsight.calibration.folder import calibrated_cell
+from cellsight.calibration.folder import calibrated_cell, read_calibration
 from cellsight.control import GraspTask, Phase, grasp_pose_in_part
 from cellsight.control.task import grasp_miss
 from cellsight.errors import CellsightError
@@ -528,6 +528,8 @@ class ExperimentRun:
             "cell": self.cell.source,
             "cell_sha256": cell_digest(self.cell),
             "calibration_folder": None if cfg.calibration is None else str(cfg.calibration),
+            "calibration_errors": (None if cfg.calibration is None
+                                   else read_calibration(cfg.calibration).get("errors")),
             "cell_files": self.cell_files,
             "seed": cfg.seed,
             "sensor": cfg.sensor,

@@ -63,6 +63,10 @@ class RunMetrics(BaseModel):
     calibration_folder: str | None = about(
         None, "The cellsight calibrate folder the tracker and the task took the cameras and "
         "robot bases from (none: the cell file's).", "-")
+    calibration_errors: dict | None = about(
+        None, "That calibration's errors against the simulated world's truth, as its "
+        "calibration.json gives them: per camera and per other robot's base (mm, deg, %, px).",
+        "-")
     tracker: str | None = about(
         None, "The tracker: kinematic (the images, the kinematic prior and the cameras' "
         "registration to the gripper) or plain (the paper's, from the images alone); none: a run "

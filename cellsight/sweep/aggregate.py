@@ -11,11 +11,12 @@ visibility accuracy (mean and worst seed), time lost in view (worst), wrong corn
 blinded as designed (:func:`crossing_as_designed`). The default tracker's variant
 (``kinematic``) is compared with each other variant on the seeds both ran (:func:`paired_rows`):
 on how many its RMSE is lower (in the arm's frame where both have it, else the cell's), and
-the mean difference with its 95 % interval. The health table (:func:`health_rows`) asks of
-each group whether the tracker knew when it was wrong: runs with a frame more than 10 mm off
-while the status said ``tracking`` (and those frames in all), the worst error while
-``tracking``, wrong corners accepted as a percentage of the measurements (all runs together,
-and the worst run), time degraded and runs that dropped a camera.
+the mean difference with its 95 % interval (the ``calibrated`` variant against it: what the
+calibration brings, :func:`calibration_rows` its errors). The health table
+(:func:`health_rows`) asks of each group whether the tracker knew when it was wrong: runs with
+a frame more than 10 mm off while the status said ``tracking`` (and those frames in all), the
+worst error while ``tracking``, wrong corners accepted as a percentage of the measurements
+(all runs together, and the worst run), time degraded and runs that dropped a camera.
 """
 
 from __future__ import annotations
@@ -190,6 +191,41 @@ PAIRED_HEADER = ["cell", "exp.", "realism", "structure", "sensor", "comparison",
                  f"RMSE gain mm (other - {BASELINE}), mean ± 95% CI"]
 
 
+CALIBRATION_HEADER = ["cell", "realism", "calibrations", "camera at the work area mm, mean",
+                      "worst", "camera rotation deg, mean", "worst", "focal %, mean", "worst",
+                      "principal point px, mean", "worst", "image at the work area px, mean",
+                      "worst", "other robots' bases mm, mean", "worst",
+                      "other robots' bases deg, worst"]
+
+
+def calibration_rows(specs: Sequence[RunSpec], results: Sequence[dict]) -> list[list[str]]:
+    """Per cell and realism, the calibrations the ``calibrated`` runs took (one per seed):
+    each estimate's error against the world's truth (``calibration_errors`` of the runs'
+    metrics, :mod:`cellsight.calibration.score`), mean and worst over the seeds and the
+    cameras, or the other robots' bases."""
+    by_world: dict[tuple[str, str], dict[int, dict]] = {}
+    for spec, m in zip(specs, results, strict=True):
+        if m.get("calibration_errors") and not m.get("error"):
+            key = (spec.folder.parent.name, spec.realism)
+            by_world.setdefault(key, {})[spec.seed] = m["calibration_errors"]
+    rows = []
+    for (cell, realism), per_seed in by_world.items():
+        cameras = [e for errors in per_seed.values() for e in errors["cameras"].values()]
+        bases = [e for errors in per_seed.values() for e in errors["robots"].values()]
+
+        def both(items: list[dict], key: str, pattern: str = "{:.2f}") -> list[str]:
+            x = np.array([float(e[key]) for e in items])
+            return [_stat(x, "mean", pattern), _stat(x, "max", pattern)]
+
+        rows.append([cell, realism, str(len(per_seed)),
+                     *both(cameras, "position_at_work_mm"),
+                     *both(cameras, "rotation_deg", "{:.3f}"),
+                     *both(cameras, "focal_percent", "{:.3f}"),
+                     *both(cameras, "principal_point_px"), *both(cameras, "image_at_work_px"),
+                     *both(bases, "origin_mm"), both(bases, "rotation_deg", "{:.3f}")[1]])
+    return rows
+
+
 def _table(header: list[str], rows: list[list[str]]) -> list[str]:
     return ["| " + " | ".join(header) + " |", "|" + "---|" * len(header),
             *["| " + " | ".join(r) + " |" for r in rows]]
@@ -207,4 +243,9 @@ def aggregate_markdown(specs: Sequence[RunSpec], results: Sequence[dict]) -> str
         lines += ["", f"Paired on the same seeds (`{BASELINE}`, the default tracker, against "
                   "each other variant):", "",
                   *_table(PAIRED_HEADER, paired)]
+    calibrations = calibration_rows(specs, results)
+    if calibrations:
+        lines += ["", "The calibrations the `calibrated` runs took (`cellsight calibrate` in "
+                  "each run's own world, one per seed), against the world's truth:", "",
+                  *_table(CALIBRATION_HEADER, calibrations)]
     return "\n".join(lines) + "\n"

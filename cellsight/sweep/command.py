@@ -36,7 +36,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--sensors", nargs="+", default=list(SENSORS), help="rendered and/or ideal")
     p.add_argument("--variants", nargs="+", default=["kinematic"],
                    help="trackers: " + ", ".join(VARIANTS) + " (default kinematic: the default "
-                        "tracker; plain: the paper's; the others: the default with one change)")
+                        "tracker; plain: the paper's; calibrated: the default on the cell "
+                        "calibrated by cellsight calibrate in each seed's world; the others: the "
+                        "default with one change)")
     p.add_argument("--realism", nargs="+", default=["exact"], metavar="PROFILE",
                    help="the world's realism profiles: exact, lab, harsh, one knob group "
                         "alone (harsh/cameras), or YAML files (FILE or FILE:NAME; default exact)")

@@ -8,10 +8,17 @@ seed, written into its own folder ``<out>/<cell>/e<N>_<sensor>_<variant>[_<reali
 :func:`run_spec` reuses a folder whose ``metrics.json`` is complete (read back, neither
 interrupted nor failed, and run on the same cell file, by its SHA-256) and runs the others again
 (their folder cleared first).
+
+The ``calibrated`` variant's runs take the cell calibrated by ``cellsight calibrate`` in the
+run's own world (its cell, realism and seed) as the model side: one calibration per cell,
+realism and seed, shared by its experiments, made by the first run that needs it (the others
+wait on a lock) into ``<out>/<cell>/calibration[_<realism>]_s<seed>``, and reused while it is
+of the cell as it is now (:func:`~cellsight.calibration.command.finished_calibration`).
 """
 
 from __future__ import annotations
 
+import fcntl
 import itertools
 import math
 from collections.abc import Sequence
@@ -32,11 +39,14 @@ VARIANTS: dict[str, TrackerChoice] = {
     "nopred": TrackerChoice(occlusion_prediction=False),
     "offsets": TrackerChoice(experimental=frozenset({"camera-offsets"})),
     "unknown": TrackerChoice(experimental=frozenset({"unknown-occluders"})),
+    "calibrated": DEFAULT_TRACKER,
 }
 """Variant name -> the run's tracker (:class:`~cellsight.trackers.TrackerChoice`): ``kinematic``
 the default, ``plain`` the paper's tracker from the images alone, and the default with one
 change: ``nopred`` windows on every model point in the image, ``offsets`` and ``unknown`` the
-experimental camera offsets and unknown-occluder map."""
+experimental camera offsets and unknown-occluder map, ``calibrated`` the cell calibrated on the
+run's own seed (module docstring)."""
+CALIBRATED = "calibrated"
 
 SENSORS = ("rendered", "ideal")
 
@@ -56,24 +66,39 @@ class RunSpec:
     structure: str = OBJECT_BVH
 
     @property
+    def _realism_tag(self) -> str:
+        """``_<realism>`` in a folder's name (empty for ``exact``)."""
+        if self.realism == "exact":
+            return ""
+        return "_" + Path(self.realism.replace(":", "_").replace("/", "-")).stem
+
+    @property
     def folder(self) -> Path:
         """The run's folder under the sweep's output folder."""
         stem = Path(self.cell).stem if self.cell.endswith((".yaml", ".yml")) else self.cell
-        name = f"e{self.experiment}_{self.sensor}_{self.variant}"
-        if self.realism != "exact":
-            name += "_" + Path(self.realism.replace(":", "_").replace("/", "-")).stem
+        name = f"e{self.experiment}_{self.sensor}_{self.variant}{self._realism_tag}"
         if self.structure != OBJECT_BVH:
             name += "_" + self.structure
         return Path(stem) / f"{name}_s{self.seed}"
+
+    @property
+    def calibration_folder(self) -> Path | None:
+        """The folder of the calibration the run takes (``calibrated`` variant; module
+        docstring), under the sweep's output folder; None for the other variants."""
+        if self.variant != CALIBRATED:
+            return None
+        return self.folder.parent / f"calibration{self._realism_tag}_s{self.seed}"
 
     def config(self, out: Path) -> RunConfig:
         """The run's :class:`~cellsight.experiments.RunConfig`, writing into ``out/folder``."""
         from cellsight.experiments import RunConfig
 
+        calibration = self.calibration_folder
         return RunConfig(self.experiment, Path(out) / self.folder, cell=self.cell,
                          seed=self.seed, sensor=self.sensor, duration=self.duration,
                          progress=False, overwrite=True, realism=self.realism,
-                         structure=self.structure, tracker=VARIANTS[self.variant])
+                         structure=self.structure, tracker=VARIANTS[self.variant],
+                         calibration=None if calibration is None else Path(out) / calibration)
 
 
 def sweep_grid(cells: Sequence[str], experiments: Sequence[int], sensors: Sequence[str],
@@ -179,18 +204,43 @@ def run_spec(job: tuple[RunSpec, Path]) -> dict:
     worker process whose run a signal stopped, the jobs already queued to it are not run."""
     import multiprocessing
 
+    from cellsight.calibration.command import finished_calibration
     from cellsight.experiments import run_experiment
 
     if _STOPPED_BY:
         return {"error": f"not run: the worker was stopped by {_STOPPED_BY[0]}"}
     spec, out = job
     done = reusable_metrics(Path(out) / spec.folder, spec.cell)
+    if done is not None and spec.calibration_folder is not None and not finished_calibration(
+            Path(out) / spec.calibration_folder, spec.cell, spec.realism, spec.seed):
+        done = None  # its calibration is gone or stale: calibrate and run again
     if done is not None:
         return {**done, "reused": True}
     try:
+        if spec.calibration_folder is not None:
+            _calibrate(spec, Path(out))
         metrics = run_experiment(spec.config(out))
     except Exception as exc:  # recorded; the other runs go on
         return {"error": f"{type(exc).__name__}: {exc}"[:1000]}
     if metrics.get("signal") and multiprocessing.parent_process() is not None:
         _STOPPED_BY.append(str(metrics["signal"]))
     return metrics
+
+
+def _calibrate(spec: RunSpec, out: Path) -> None:
+    """Make the run's calibration unless it is made (module docstring): one process at a time
+    per folder (the lock file beside it)."""
+    from cellsight.calibration.board import Board
+    from cellsight.calibration.command import finished_calibration, write_world_calibration
+    from cellsight.calibration.output import is_calibration_output
+    from cellsight.runfolder import check_out_folder
+
+    folder = out / spec.calibration_folder
+    folder.parent.mkdir(parents=True, exist_ok=True)
+    with open(folder.with_name(folder.name + ".lock"), "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        if finished_calibration(folder, spec.cell, spec.realism, spec.seed):
+            return
+        stale = check_out_folder(folder, True, "calibration", "", is_calibration_output)
+        write_world_calibration(folder, spec.cell, spec.realism, spec.seed, Board(),
+                                progress=False, stale=stale)

@@ -39,7 +39,8 @@ COLUMNS = (
 VARIANT_NAMES = {"kinematic": "kinematic", "plain": "plain (the paper's)",
                  "nopred": "kinematic, **no prediction**",
                  "offsets": "kinematic + experimental camera offsets",
-                 "unknown": "kinematic + experimental unknown occluders"}
+                 "unknown": "kinematic + experimental unknown occluders",
+                 "calibrated": "kinematic, cell calibrated on the seed"}
 RUN_KEYS = ("cell", "experiment", "sensor", "variant", "seed")
 
 
