@@ -317,3 +317,34 @@ def test_write_report_partial_run(tmp_path):
     assert report_inputs(run_dir).cameras == ["cam1", "cam2"]
     assert (run_dir / "fig_visibility_cam2.png").exists()
     assert page.count("data:image/png;base64,") == 7
+
+
+def test_a_calibrated_runs_report_shows_its_calibration(tmp_path):
+    """A run made on a calibration (``--calibration``) shows its verdict, its residuals
+    picture and each estimate's error against the world's truth; one whose folder is gone
+    says so."""
+    import matplotlib.pyplot as plt
+
+    calibration = tmp_path / "cal"
+    calibration.mkdir()
+    (calibration / "calibration.json").write_text(json.dumps(
+        {"verdict": "calibrated 2 cameras from 34 views: reprojection RMS 0.297 px"}))
+    fig = plt.figure(figsize=(2, 1))
+    fig.savefig(calibration / "residuals.png")
+    plt.close(fig)
+    run_dir = tmp_path / "run"
+    run_dir.mkdir()
+    _write_frames(run_dir / "frames.csv", _frame_rows(10, np.random.default_rng(2)))
+    errors = {"cameras": {"cam1": {"position_at_work_mm": 2.3746, "principal_point_px": 2.838}},
+              "robots": {"R6AX": {"origin_mm": 0.6977}}}
+    metrics = {"experiment": 3, "seed": 0, "calibration_folder": str(calibration),
+               "calibration_errors": errors}
+    (run_dir / "metrics.json").write_text(json.dumps(metrics))
+    page = write_report(run_dir).read_text()
+    section = page[page.index("<h2>Calibration</h2>"):]
+    for text in ("reprojection RMS 0.297 px", "<td>cam1</td><td class=v>2.375</td>",
+                 "<td class=v>2.838</td>", "<td>R6AX</td>", "0.6977", 'alt="residuals"'):
+        assert text in section, text
+    assert "calibration_errors" not in page  # not flattened into the metrics table as well
+    (calibration / "calibration.json").unlink()
+    assert "not readable now" in write_report(run_dir).read_text()

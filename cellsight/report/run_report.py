@@ -434,11 +434,11 @@ def format_value(value) -> str:
 
 def metric_rows(metrics: dict) -> list[tuple[str, str]]:
     """``(key, formatted value with unit)`` for every scalar, list of scalars and dict of
-    scalars (flattened as ``key.sub``) in ``metrics.json``; ``phases`` and
-    ``phase_intervals`` have their own table."""
+    scalars (flattened as ``key.sub``) in ``metrics.json``; ``phases``, ``phase_intervals``
+    and ``calibration_errors`` have their own tables."""
     rows = []
     for key, value in metrics.items():
-        if key in ("phases", "phase_intervals"):
+        if key in ("phases", "phase_intervals", "calibration_errors"):
             continue
         items = value.items() if isinstance(value, dict) else [(None, value)]
         for sub, v in items:
@@ -562,6 +562,38 @@ def _wrong_corners_html(run_dir: Path, metrics: dict, shown: int = 12) -> str:
             f"<table><tr>{head}</tr>{body}</table>{pictures}")
 
 
+def _calibration_html(metrics: dict) -> str:
+    """The calibration the run took as its model (``--calibration``): its verdict, its
+    residuals per camera and view (its ``residuals.png``) and, made in the simulated world,
+    each estimate's error against the world's truth (mm, deg, %, px)."""
+    if not metrics.get("calibration_folder"):
+        return ""
+    folder = Path(str(metrics["calibration_folder"]))
+    try:
+        verdict = str(json.loads((folder / "calibration.json").read_text()).get("verdict", ""))
+    except (OSError, ValueError, AttributeError) as exc:
+        return (f"<h2>Calibration</h2><p>{html.escape(str(folder))}: not readable now "
+                f"({html.escape(str(exc))}).</p>")
+    out = (f"<h2>Calibration</h2><p>The cameras and robot bases of "
+           f"<code>{html.escape(str(folder))}</code>: {html.escape(verdict)}.</p>")
+    errors = metrics.get("calibration_errors") or {}
+    rows = [(name, e) for kind in ("cameras", "robots")
+            for name, e in (errors.get(kind) or {}).items()]
+    if rows:
+        keys = list(dict.fromkeys(k for _, e in rows for k in e))
+        head = "".join(f"<th>{html.escape(k)}</th>" for k in ["against the truth", *keys])
+        body = "".join(f"<tr><td>{html.escape(name)}</td>"
+                       + "".join(f"<td class=v>{format_value(e.get(k))}</td>" for k in keys)
+                       + "</tr>" for name, e in rows)
+        out += f"<table><tr>{head}</tr>{body}</table>"
+    picture = folder / "residuals.png"
+    if picture.is_file():
+        out += (f'<figure><img src="{_data_uri(picture, "image/png")}" alt="residuals">'
+                "<figcaption>The calibration's residuals per camera and view (px)"
+                "</figcaption></figure>")
+    return out
+
+
 def _log_html(run_dir: Path) -> str:
     """``run.log`` in a collapsed block."""
     path = run_dir / "run.log"
@@ -601,6 +633,7 @@ def write_report(run_dir: Path, metrics: dict | None = None) -> Path:
     :class:`~cellsight.runfolder.writes.WriteError` naming it."""
     run = report_inputs(Path(run_dir), metrics)
     body = "".join([_header_html(run), _metrics_html(run.metrics),
+                    _calibration_html(run.metrics),
                     _figures_html(write_figures(run)), _keyframes_html(run.dir),
                     _video_html(run.dir), _wrong_corners_html(run.dir, run.metrics),
                     _log_html(run.dir)])
