@@ -138,10 +138,10 @@ def _report(record: dict) -> str:
     rows = "".join(
         f"<tr><td>{html.escape(name)}</td><td>{c['views']}</td><td>{c['rms_px']:.3f}</td>"
         + "".join(f"<td>{v:.3f}</td>" for v in
-                  (record.get("errors", {}).get("cameras", {}).get(name) or {}).values())
+                  ((record.get("errors") or {}).get("cameras", {}).get(name) or {}).values())
         + "</tr>" for name, c in record["cameras"].items())
     head = "".join(f"<th>{html.escape(k)}</th>" for k in
-                   next(iter(record.get("errors", {}).get("cameras", {}).values()), {}))
+                   next(iter((record.get("errors") or {}).get("cameras", {}).values()), {}))
     return (f"<!doctype html><meta charset=utf-8><title>cellsight calibration</title>"
             f"<h1>Calibration of {html.escape(str(record['cell']))}</h1>"
             f"<p>{html.escape(record['verdict'])}</p>"

@@ -1,6 +1,6 @@
 """``cellsight calibrate``: the cell's cameras (intrinsics and poses) and robot bases, from a
 calibration board on the robots' flanges (:mod:`cellsight.calibration`), in the simulated world
-a seed draws or (later) from a recording of a real cell's calibration motion."""
+a seed draws or from a recording of a cell's calibration motion."""
 
 from __future__ import annotations
 
@@ -21,7 +21,12 @@ def register(sub: argparse._SubParsersAction) -> None:
                     "corners are detected, and one least-squares fit over all cameras, poses "
                     "and robots finishes OpenCV's first estimates. Writes the cameras as "
                     "OpenCV and ROS calibration files, a cell file that uses them, "
-                    "calibration.json and report.html.")
+                    "calibration.json and report.html. Given a RECORDING of a calibration "
+                    "motion (MCAP or rosbag2: images and joint states, as cellsight track reads "
+                    "them; --record makes one), calibrates from it instead.")
+    cal.add_argument("recording", nargs="?",
+                     help="an .mcap file or a rosbag2 folder of a calibration motion (default: "
+                          "the simulated world of --realism and --seed)")
     cal.add_argument("--cell", help=CELL_HELP)
     cal.add_argument("--realism", default="lab", metavar="PROFILE",
                      help="the simulated world to calibrate (as cellsight run --realism; "
@@ -39,6 +44,16 @@ def register(sub: argparse._SubParsersAction) -> None:
     cal.add_argument("--joint-offsets", action="store_true",
                      help="also estimate each robot's joint zero offsets, and report whether "
                           "they are identifiable")
+    cal.add_argument("--record", metavar="FILE",
+                     help="also record the simulated calibration motion as a real cell would "
+                          "(images, joint states) in an MCAP file, for cellsight calibrate FILE")
+    cal.add_argument("--record-jpeg", type=int, metavar="QUALITY",
+                     help="record the images as JPEG of this quality (1-100; default lossless)")
+    cal.add_argument("--topics", metavar="FILE",
+                     help="with a RECORDING: a YAML topic map, as cellsight track's")
+    cal.add_argument("--sync-tolerance", type=float, default=0.019, metavar="S",
+                     help="with a RECORDING: images of several cameras stamped within S seconds "
+                          "form one frame (default 0.019)")
     cal.add_argument("--quiet", action="store_true", help="no progress bar")
     cal.add_argument("--overwrite", action="store_true",
                      help="clear --out first if it holds an earlier calibration")
@@ -46,7 +61,12 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def cmd_calibrate(args: argparse.Namespace) -> int:
-    from cellsight.calibration.command import calibrate_command
+    from cellsight.calibration.command import CalibrateRequest, calibrate_command
+    from cellsight.errors import CellsightError
 
-    return calibrate_command(args.cell, args.realism, args.seed, Path(args.out), args.board,
-                             args.poses, args.joint_offsets, not args.quiet, args.overwrite)
+    if args.record_jpeg is not None and args.record is None:
+        raise CellsightError("--record-jpeg: needs --record FILE")
+    return calibrate_command(CalibrateRequest(
+        Path(args.out), args.cell, args.recording, args.realism, args.seed, args.board,
+        args.poses, args.joint_offsets, args.record, args.record_jpeg, args.topics,
+        args.sync_tolerance, not args.quiet, args.overwrite))

@@ -60,6 +60,11 @@ class Recording:
         """The reader's own (topic, log time, message) of ``topics``."""
         raise NotImplementedError
 
+    def metadata(self, name: str) -> dict[str, str]:
+        """The recording's metadata record ``name`` (MCAP's; empty when there is none, and for
+        a rosbag2 folder)."""
+        return {}
+
     def close(self) -> None:
         """Release the file."""
 
@@ -105,6 +110,13 @@ class McapRecording(Recording):
             schema = summary.schemas.get(channel.schema_id)
             self.topics[channel.topic] = Topic(channel.topic, schema.name if schema else "?",
                                                int(counts.get(cid, 0)))
+
+    def metadata(self, name: str) -> dict[str, str]:
+        try:
+            found = [dict(m.metadata) for m in self._reader.iter_metadata() if m.name == name]
+        except Exception:  # a damaged metadata section: the messages may still be read
+            return {}
+        return found[-1] if found else {}
 
     def _decoded(self, topics: Sequence[str]) -> Iterator[tuple[str, int, Any]]:
         for _, channel, message, decoded in self._reader.iter_decoded_messages(

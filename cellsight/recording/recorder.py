@@ -58,10 +58,11 @@ class Recorder:
 
     def frame(self, t: float, observed: Sequence | None, stamps: Sequence[float | None] | None,
               joints: Mapping[str, np.ndarray], openings: Mapping[str, float],
-              T_true: np.ndarray) -> None:
+              T_true: np.ndarray | None) -> None:
         """Record frame ``t`` (s): ``observed`` the cameras' exposures (images or shots; None
         for a camera, or the whole frame, that gave nothing), ``stamps`` their exposure times
-        (None: ``t``), the measured ``joints``, the jaw ``openings`` and the part's true pose."""
+        (None: ``t``), the measured ``joints``, the jaw ``openings`` and the part's true pose
+        (None: not recorded, as in a calibration motion)."""
         ns = ros.time_ns(t)
         if self.frames == 0:
             static = tf.static_transforms(self.cell, self.part)
@@ -77,8 +78,9 @@ class Recorder:
             self._image(c, image, ros.time_ns(stamp), ns)
             info = ros.camera_info(ros.time_ns(stamp), tf.optical_frame(cam.name), cam)
             self._write(names.camera_info_topic(cam.name), CAMERA_INFO, info, ns)
-        self._write(names.truth_topic(self.part), POSE, ros.pose_stamped(ns, tf.ROOT, T_true),
-                    ns)
+        if T_true is not None:
+            self._write(names.truth_topic(self.part), POSE,
+                        ros.pose_stamped(ns, tf.ROOT, T_true), ns)
         self.frames += 1
 
     def _image(self, c: int, observed: object, stamp_ns: int, ns: int) -> None:
@@ -92,12 +94,19 @@ class Recorder:
             self._write(names.compressed_topic(cam.name), COMPRESSED,
                         jpeg_image(stamp_ns, frame, image, self.jpeg), ns)
 
-    def close(self, complete: bool) -> None:
-        """Finish the file (its metadata says whether the run ended ``complete``) and give it
-        its name."""
+    def joints(self, t: float, joints: Mapping[str, np.ndarray],
+               openings: Mapping[str, float]) -> None:
+        """Record the encoders' ``joints`` (and jaw ``openings``) alone at ``t`` (s)."""
+        ns = ros.time_ns(t)
+        self._write(names.JOINT_STATES, JOINT_STATE,
+                    ros.joint_state(ns, *names.joint_positions(self.cell, joints, openings)), ns)
+
+    def close(self, complete: bool, facts: Mapping[str, str] | None = None) -> None:
+        """Finish the file (its metadata says whether the run ended ``complete``, and
+        ``facts``) and give it its name."""
         self._bag.close({
             "cell": str(self.cell.source), "part": self.part, "frames": str(self.frames),
             "images": "mono8" if self.jpeg is None else f"jpeg quality {self.jpeg}",
             "time": "stamps and log times: the run's time t (s) from the Unix epoch",
-            "complete": "true" if complete else "false"})
+            "complete": "true" if complete else "false", **(facts or {})})
         self._file.commit()
