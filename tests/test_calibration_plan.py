@@ -22,7 +22,6 @@ is no occlusion (the planner leaves that link out of the occluders, for the same
 from __future__ import annotations
 
 import math
-import time
 from dataclasses import replace
 
 import cv2
@@ -30,7 +29,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from cellsight.calibration.plan import plan_poses
+from cellsight.calibration.plan import SAME_POSE, plan_poses
 from cellsight.camera import Camera
 from cellsight.errors import CellsightError
 from cellsight.geometry.polyhedron import Polyhedron
@@ -79,10 +78,8 @@ def cell() -> Cell:
 
 @pytest.fixture(scope="module", params=["R7AX", "R6AX"])
 def planned(request, cell):
-    """(robot name, plan, planning time s)."""
-    start = time.perf_counter()
-    plan = plan_poses(cell, request.param, CORNERS, NORMAL, OUTLINE)
-    return request.param, plan, time.perf_counter() - start
+    """(robot name, plan)."""
+    return request.param, plan_poses(cell, request.param, CORNERS, NORMAL, OUTLINE)
 
 
 def _flange(cell: Cell, robot: str, q: np.ndarray) -> np.ndarray:
@@ -92,7 +89,7 @@ def _flange(cell: Cell, robot: str, q: np.ndarray) -> np.ndarray:
 
 
 def test_every_camera_gets_enough_poses_inside_the_limits(cell, planned):
-    robot, plan, seconds = planned
+    robot, plan = planned
     counts = plan.per_camera()
     assert {cam.name for cam in cell.cameras} <= set(counts), counts
     assert min(counts.values()) >= 6, counts
@@ -102,11 +99,13 @@ def test_every_camera_gets_enough_poses_inside_the_limits(cell, planned):
     assert np.all(plan.joints <= qlim[:, 1] - LIMIT_MARGIN + 1e-9)
     for q, T in zip(plan.joints, plan.T_base_flange, strict=True):
         np.testing.assert_allclose(T, _flange(cell, robot, q), atol=1e-9)
-    assert seconds < 30, f"{robot}: planned in {seconds:.1f} s"
+    apart = np.abs(plan.joints[:, None] - plan.joints[None]).max(axis=2)
+    np.fill_diagonal(apart, np.inf)
+    assert apart.min() > SAME_POSE  # no pose twice (two candidates' IK can meet)
 
 
 def test_the_intended_cameras_see_the_whole_board_by_opencv(cell, planned):
-    robot, plan, _ = planned
+    robot, plan = planned
     for q, names in zip(plan.joints, plan.cameras, strict=True):
         T = _flange(cell, robot, q)
         points = CORNERS @ T[:3, :3].T + T[:3, 3]
@@ -174,7 +173,7 @@ def test_the_oracles_see_a_board_in_the_table_or_in_a_gripper(cell):
 
 
 def test_poses_and_moves_are_free_of_collisions_and_the_board_is_not_hidden(cell, planned):
-    robot, plan, _ = planned
+    robot, plan = planned
     world = _world(cell, robot)
     flange_link = f"{robot}.{cell.robot(robot).link_groups()[-1][1]}"
     names = [cam.name for cam in cell.cameras]
@@ -201,7 +200,7 @@ def test_poses_and_moves_are_free_of_collisions_and_the_board_is_not_hidden(cell
 
 
 def test_relative_rotations_turn_about_axes_in_every_direction(cell, planned):
-    robot, plan, _ = planned
+    robot, plan = planned
     R = [_flange(cell, robot, q)[:3, :3] for q in plan.joints]
     turns = Rotation.from_matrix([a.T @ b for i, a in enumerate(R) for b in R[i + 1:]])
     vectors = turns.as_rotvec()

@@ -122,6 +122,7 @@ INSERT_PLACES = 4  # places in the route tried for a new pose, those that length
 PLATE_M = 0.005  # m: the plate's thickness behind the outline, for collisions and occlusion
 FAR = make_pose(None, (0.0, 0.0, 1e3))  # the board's nominal pose, out of everything's way
 _LAST_CHECKS = ("collision", "occluded", "move")  # after IK, in order
+SAME_POSE = 1e-3  # rad (m): joints no further apart than this in every joint are one pose
 
 
 @dataclass(frozen=True)
@@ -588,6 +589,9 @@ class _Planner:
         qs = self.solve(T, candidate.seed)
         if isinstance(qs, str):
             return qs
+        qs = [q for q in qs if all(np.abs(q - p.q).max() > SAME_POSE for p in route)]
+        if not qs:  # another candidate's IK came to the same joints
+            return "already planned"
         failed = 0  # index into _LAST_CHECKS
         for q in qs:
             if self.collider.hit(q, T) is not None:
