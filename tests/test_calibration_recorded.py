@@ -140,3 +140,21 @@ def test_a_recording_in_which_nothing_moves_is_refused(tmp_path):
     recorder.close(True)
     with open_recording(path) as rec, pytest.raises(CellsightError, match="no robot moved"):
         recorded_views(rec, cell, board, TopicMap(), 0.019)
+
+
+def test_a_board_that_is_not_the_one_in_the_images_is_named(recording):
+    path, _, cell = recording
+    other = Board(dictionary="DICT_4X4_50")
+    with open_recording(path) as rec, pytest.raises(
+            CellsightError, match=r"camera cam1 and cam2 found the board in none of the \d+ "
+                                  r"poses.*DICT_4X4_50\) may not be the one in the images "
+                                  r"\(--board FILE\)"):
+        recorded_views(rec, cell, other, TopicMap(), 0.019)
+
+
+def test_a_recording_of_another_cell_is_refused_naming_what_it_lacks(recording):
+    """The UR cell has a third camera and other robots: the recording has neither."""
+    path, _, _ = recording
+    with open_recording(path) as rec, pytest.raises(
+            CellsightError, match="no images of camera cam3 .*it holds: /cam1/camera_info"):
+        recorded_views(rec, load_cell("ur-cell"), Board(), TopicMap(), 0.019)

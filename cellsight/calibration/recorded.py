@@ -103,4 +103,22 @@ def recorded_views(recording: Recording, cell: Cell, board: Board, topic_map: To
             ids, pixels = board.detect(image)
             if len(ids) >= MIN_CORNERS:
                 motion.views.append(View(camera, holder, pose, joints[holder], ids, pixels))
+    _check_seen(recording, cell, board, motion)
     return motion
+
+
+def _check_seen(recording: Recording, cell: Cell, board: Board, motion: RecordedMotion) -> None:
+    """A :class:`RecordingError` naming each camera that found the board in none of the
+    poses, and the board it looked for."""
+    seen = {view.camera for view in motion.views}
+    blind = [c.name for k, c in enumerate(cell.cameras) if k not in seen]
+    if not blind:
+        return
+    poses = sum(motion.poses.values())
+    raise RecordingError(
+        f"recording {recording.path}: camera {' and '.join(blind)} found the board in none of "
+        f"the {poses} poses (frames where the robots stood still; {motion.moving} frames in "
+        f"motion left out): the board looked for ({board.squares[0]} x {board.squares[1]} "
+        f"squares of {board.square_m * 1e3:g} mm, markers {board.marker_m * 1e3:g} mm, "
+        f"{board.dictionary}) may not be the one in the images (--board FILE), or the "
+        f"camera never saw it")
