@@ -31,7 +31,8 @@ test: dev lint
 # The main job: the paper's third experiment on the built-in cell, in a world with a well
 # calibrated lab cell's errors (report in out/experiment3).
 demo: venv
-	.venv/bin/cellsight run 3 --realism lab --out out/experiment3 --overwrite
+	.venv/bin/cellsight calibrate --realism lab --seed 0 --out out/calibration --overwrite
+	.venv/bin/cellsight run 3 --realism lab --seed 0 --calibration out/calibration --out out/experiment3 --overwrite
 
 # The results pages' sweeps (docs/results/sweeps.yaml: experiments 1-3, rendered, 20 seeds, in
 # the `lab` and `harsh` worlds, and the comparisons), resumable: out/<name>/summary.*.
