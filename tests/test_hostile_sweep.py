@@ -168,7 +168,7 @@ def test_sigterm_ends_a_sweep_like_ctrl_c(jobs, tmp_path):
     assert lines == [f"cellsight: sweep interrupted by SIGTERM; finished runs in {out} are "
                      f"reused next time"]
     _wait_for(lambda: not any(_alive(p) for p in children), 5, "the sweep's children to end")
-    assert all(reusable_metrics(folder, "dual-arm") is not None for folder in done)
+    assert all(reusable_metrics(folder) is not None for folder in done)
     assert not (out / "summary.md").exists()
 
 

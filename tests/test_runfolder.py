@@ -10,6 +10,8 @@ from pathlib import Path
 import pytest
 
 from cellsight.cli import main
+from cellsight.experiments import RunConfig
+from cellsight.experiments.identity import run_identity
 from cellsight.model.loader import load_cell
 from cellsight.runfolder import (
     METRICS_VERSION,
@@ -83,13 +85,14 @@ def test_the_cell_digest_follows_the_calibration_files_a_cell_points_to(tmp_path
     assert len(intrinsics) == len(cell.cameras) == 2
     before = cell_digest(cell)
     (tmp_path / "run").mkdir()
-    write_metrics(tmp_path / "run", {**METRICS, "cell_sha256": before})
-    assert reusable_metrics(tmp_path / "run", str(cell_file)) is not None
+    config = RunConfig(1, tmp_path / "run", cell=cell_file, sensor="ideal")
+    write_metrics(tmp_path / "run", {**METRICS, "identity": run_identity(config)})
+    assert reusable_metrics(tmp_path / "run", run_identity(config)) is not None
 
     intrinsics[0].write_text(intrinsics[0].read_text() + "\n# re-calibrated\n")
     after = cell_digest(load_cell(cell_file))
     assert after != before and cell_file.read_bytes() == Path(cell.source).read_bytes()
-    assert reusable_metrics(tmp_path / "run", str(cell_file)) is None
+    assert reusable_metrics(tmp_path / "run", run_identity(config)) is None
 
 
 def test_the_cell_digest_of_a_urdf_cell_covers_the_urdf_and_its_meshes():

@@ -58,6 +58,7 @@ from cellsight.control.task import grasp_miss
 from cellsight.errors import CellsightError
 from cellsight.experiments.baseline import PnPBaseline
 from cellsight.experiments.exposure import Exposures
+from cellsight.experiments.identity import run_identity
 from cellsight.experiments.keyframes import KeyFrames, draw_frame
 from cellsight.experiments.latency import Deliveries, Estimate
 from cellsight.experiments.metrics import frame_metrics, position_rmse_in_arm_frame_mm
@@ -527,6 +528,7 @@ class ExperimentRun:
             "description": self.scenario.description,
             "cell": self.cell.source,
             "cell_sha256": cell_digest(self.cell),
+            "identity": run_identity(cfg),
             "calibration_folder": None if cfg.calibration is None else str(cfg.calibration),
             "calibration_errors": (None if cfg.calibration is None
                                    else read_calibration(cfg.calibration).get("errors")),

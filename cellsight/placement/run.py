@@ -20,6 +20,7 @@ from rich.console import Console
 from cellsight.control import Phase
 from cellsight.errors import CellsightError
 from cellsight.experiments import RunConfig, run_experiment
+from cellsight.experiments.identity import run_identity
 from cellsight.model.cell import Cell
 from cellsight.model.loader import cell_path, load_cell
 from cellsight.placement.candidates import shell_candidates
@@ -138,10 +139,10 @@ def load_task(args: argparse.Namespace):
     _template(cell, args.template)
     _make_out(args.out)
     folder = args.out / "task"
-    if reusable_metrics(folder, str(cell_path(args.cell))) is None:
-        raise_if_stopped(run_experiment(RunConfig(
-            int(args.task), folder, cell=args.cell, sensor="ideal", progress=not args.quiet,
-            overwrite=True)))
+    config = RunConfig(int(args.task), folder, cell=args.cell, sensor="ideal",
+                       progress=not args.quiet, overwrite=True)
+    if reusable_metrics(folder, run_identity(config)) is None:
+        raise_if_stopped(run_experiment(config))
     return load_run(folder, args.cell)
 
 

@@ -52,6 +52,11 @@ class RunMetrics(BaseModel):
     cell_sha256: str | None = about(
         None, "SHA-256 (hex) over the cell file and every file it points to; none when one cannot "
         "be read.", "-")
+    identity: dict | None = about(
+        None, "Every input that shapes the run (experiment, seed, sensor, tracker options, "
+        "structure, duration and limits, the cell's, the realism profile's and the "
+        "calibration's SHA-256, cellsight's version): a sweep reuses the run only when its own "
+        "run's identity is the same.", "-")
     cell_files: dict[str, str | None] | None = about(
         None, "SHA-256 of the run folder's copy of the cell file and of every file the cell "
         "points to (file -> digest; none: unreadable).", "-")

@@ -6,8 +6,10 @@ realism profile (``exact``, ``lab``, ``harsh`` or a file), the predictor's struc
 seed, written into its own folder ``<out>/<cell>/e<N>_<sensor>_<variant>[_<realism>]
 [_<structure>]_s<seed>`` (the realism when not ``exact``, the structure when not the default).
 :func:`run_spec` reuses a folder whose ``metrics.json`` is complete (read back, neither
-interrupted nor failed, and run on the same cell file, by its SHA-256) and runs the others again
-(their folder cleared first).
+interrupted nor failed) and of the very run asked for (its ``identity``: the cell's files, the
+realism profile's knobs and the calibration by their SHA-256, the duration, the tracker's
+options and the rest, :mod:`cellsight.experiments.identity`), and runs the others again (their
+folder cleared first).
 
 The ``calibrated`` variant's runs take the cell calibrated by ``cellsight calibrate`` in the
 run's own world (its cell, realism and seed) as the model side: one calibration per cell,
@@ -21,6 +23,7 @@ from __future__ import annotations
 import fcntl
 import itertools
 import math
+import re
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -51,6 +54,14 @@ CALIBRATED = "calibrated"
 SENSORS = ("rendered", "ideal")
 
 
+def safe_name(text: str) -> str:
+    """``text`` as one folder name that stays where it is put: every character but letters,
+    digits, ``_``, ``-``, ``.`` and ``+`` made ``_``, and a leading ``.`` or ``-`` too (no
+    ``..``, no hidden folder, no option-like name); ``_`` for an empty one."""
+    name = re.sub(r"[^A-Za-z0-9_.+-]", "_", text)
+    return re.sub(r"^[.-]", "_", name) or "_"
+
+
 @dataclass(frozen=True)
 class RunSpec:
     """One run of a sweep (module docstring); ``duration``: simulated seconds (None: until
@@ -70,12 +81,13 @@ class RunSpec:
         """``_<realism>`` in a folder's name (empty for ``exact``)."""
         if self.realism == "exact":
             return ""
-        return "_" + Path(self.realism.replace(":", "_").replace("/", "-")).stem
+        return "_" + safe_name(Path(self.realism.replace(":", "_").replace("/", "-")).stem)
 
     @property
     def folder(self) -> Path:
         """The run's folder under the sweep's output folder."""
         stem = Path(self.cell).stem if self.cell.endswith((".yaml", ".yml")) else self.cell
+        stem = safe_name(stem)
         name = f"e{self.experiment}_{self.sensor}_{self.variant}{self._realism_tag}"
         if self.structure != OBJECT_BVH:
             name += "_" + self.structure
@@ -176,22 +188,16 @@ def _check_one_folder_each(specs: list[RunSpec]) -> None:
                              f"{what}")
 
 
-def reusable_metrics(folder: Path, cell: str | None = None) -> dict | None:
+def reusable_metrics(folder: Path, identity: dict | None = None) -> dict | None:
     """The metrics of a finished run in ``folder`` (neither interrupted nor failed; with
-    ``cell``, a cell name or file, run on that cell as it is now: the cell file and every file
-    it points to unchanged), else None."""
-    from cellsight.model.loader import load_cell
-    from cellsight.runfolder import cell_digest, finished_metrics
+    ``identity``, that run's: every input that shapes it the same,
+    :func:`~cellsight.experiments.identity.run_identity`), else None."""
+    from cellsight.runfolder import finished_metrics
 
     metrics = finished_metrics(folder)
-    if metrics is None or cell is None:
+    if metrics is None or identity is None:
         return metrics
-
-    try:
-        digest = cell_digest(load_cell(cell))
-    except CellsightError:  # the cell no longer loads: nothing to reuse
-        return None
-    return metrics if metrics.get("cell_sha256") == digest else None
+    return metrics if metrics.get("identity") == identity else None
 
 
 _STOPPED_BY: list[str] = []
@@ -206,11 +212,16 @@ def run_spec(job: tuple[RunSpec, Path]) -> dict:
 
     from cellsight.calibration.command import finished_calibration
     from cellsight.experiments import run_experiment
+    from cellsight.experiments.identity import run_identity
 
     if _STOPPED_BY:
         return {"error": f"not run: the worker was stopped by {_STOPPED_BY[0]}"}
     spec, out = job
-    done = reusable_metrics(Path(out) / spec.folder, spec.cell)
+    try:
+        identity = run_identity(spec.config(out))
+    except CellsightError:  # the cell, the profile or the calibration no longer loads
+        identity = {"unreadable": True}
+    done = reusable_metrics(Path(out) / spec.folder, identity)
     if done is not None and spec.calibration_folder is not None and not finished_calibration(
             Path(out) / spec.calibration_folder, spec.cell, spec.realism, spec.seed):
         done = None  # its calibration is gone or stale: calibrate and run again
