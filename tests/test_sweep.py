@@ -244,11 +244,13 @@ def test_calibration_rows_give_each_seeds_calibration_once_against_numpy():
     rng = np.random.default_rng(3)
     keys = ("position_at_work_mm", "rotation_deg", "focal_percent", "principal_point_px",
             "image_at_work_px")
-    errors = {seed: {"cameras": {c: dict(zip(keys, rng.uniform(0, 3, 5), strict=True))
-                                 for c in ("cam1", "cam2")},
-                     "robots": {"R6AX": {"origin_mm": rng.uniform(0, 1),
-                                         "rotation_deg": rng.uniform(0, 0.1)}}}
-              for seed in range(4)}
+    def errors_of_one() -> dict:
+        return {"cameras": {c: dict(zip(keys, rng.uniform(0, 3, 5), strict=True))
+                            for c in ("cam1", "cam2")},
+                "robots": {"R6AX": {"origin_mm": rng.uniform(0, 1),
+                                    "rotation_deg": rng.uniform(0, 0.1)}}}
+
+    errors = {seed: {**errors_of_one(), "cell_file": errors_of_one()} for seed in range(4)}
     specs = [RunSpec("dual-arm", e, "rendered", "calibrated", s, realism="lab")
              for e in (1, 2) for s in range(4)]
     results = [{"calibration_errors": errors[spec.seed]} for spec in specs]
@@ -259,10 +261,15 @@ def test_calibration_rows_give_each_seeds_calibration_once_against_numpy():
                for c in ("cam1", "cam2")]
     pp = [e["cameras"][c]["principal_point_px"] for e in errors.values() for c in ("cam1", "cam2")]
     bases = [e["robots"]["R6AX"]["origin_mm"] for e in errors.values()]
+    image_before = [e["cell_file"]["cameras"][c]["image_at_work_px"] for e in errors.values()
+                    for c in ("cam1", "cam2")]
+    bases_before = [e["cell_file"]["robots"]["R6AX"]["origin_mm"] for e in errors.values()]
     assert row[:3] == ["dual-arm", "lab", "4"]
     assert row[3:5] == [f"{np.mean(at_work):.2f}", f"{np.max(at_work):.2f}"]
     assert row[9:11] == [f"{np.mean(pp):.2f}", f"{np.max(pp):.2f}"]
-    assert row[13:15] == [f"{np.mean(bases):.2f}", f"{np.max(bases):.2f}"]
+    assert row[13:15] == [f"{np.mean(image_before):.2f}", f"{np.max(image_before):.2f}"]
+    assert row[15:18] == [f"{np.mean(bases):.2f}", f"{np.max(bases):.2f}",
+                          f"{np.mean(bases_before):.2f}"]
 
 
 def test_the_summary_counts_a_flickering_contact_once():

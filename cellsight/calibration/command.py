@@ -83,11 +83,15 @@ def _solve(cell: Cell, views: list[View], board: Board, joint_offsets: bool) -> 
 
 def world_errors(cell: Cell, solution: Solution, world_cell: Cell) -> dict:
     """The solution's errors against ``world_cell`` (the simulated world's truth), at the work
-    area: the first workpiece's start (else the cameras' mean position)."""
+    area: the first workpiece's start (else the cameras' mean position); under ``cell_file``,
+    those of the cell file's own cameras and bases (where the calibration started), to
+    compare."""
     work = (cell.workpieces[0].T_base_part[:3, 3] if cell.workpieces
             else np.mean([c.T_base_cam[:3, 3] for c in cell.cameras], axis=0))
-    return score(solution.cameras, solution.T_ref_robot, world_cell, reference_robot(cell),
-                 work)
+    reference = reference_robot(cell)
+    start = solution.initial
+    return {**score(solution.cameras, solution.T_ref_robot, world_cell, reference, work),
+            "cell_file": score(start.cameras, start.T_ref_robot, world_cell, reference, work)}
 
 
 def calibrate_world(cell_arg: str | Path | None, realism: str, seed: int, board: Board,

@@ -194,15 +194,16 @@ PAIRED_HEADER = ["cell", "exp.", "realism", "structure", "sensor", "comparison",
 CALIBRATION_HEADER = ["cell", "realism", "calibrations", "camera at the work area mm, mean",
                       "worst", "camera rotation deg, mean", "worst", "focal %, mean", "worst",
                       "principal point px, mean", "worst", "image at the work area px, mean",
-                      "worst", "other robots' bases mm, mean", "worst",
-                      "other robots' bases deg, worst"]
+                      "worst", "the cell file's, mean", "worst", "other robots' bases mm, mean",
+                      "worst", "the cell file's, mean", "other robots' bases deg, worst"]
 
 
 def calibration_rows(specs: Sequence[RunSpec], results: Sequence[dict]) -> list[list[str]]:
     """Per cell and realism, the calibrations the ``calibrated`` runs took (one per seed):
     each estimate's error against the world's truth (``calibration_errors`` of the runs'
     metrics, :mod:`cellsight.calibration.score`), mean and worst over the seeds and the
-    cameras, or the other robots' bases."""
+    cameras, or the other robots' bases; beside the image and the bases, the cell file's own
+    (where the calibration started; "–" for calibrations made before they were kept)."""
     by_world: dict[tuple[str, str], dict[int, dict]] = {}
     for spec, m in zip(specs, results, strict=True):
         if m.get("calibration_errors") and not m.get("error"):
@@ -212,6 +213,9 @@ def calibration_rows(specs: Sequence[RunSpec], results: Sequence[dict]) -> list[
     for (cell, realism), per_seed in by_world.items():
         cameras = [e for errors in per_seed.values() for e in errors["cameras"].values()]
         bases = [e for errors in per_seed.values() for e in errors["robots"].values()]
+        before = [errors.get("cell_file", {}) for errors in per_seed.values()]
+        cameras_before = [e for b in before for e in b.get("cameras", {}).values()]
+        bases_before = [e for b in before for e in b.get("robots", {}).values()]
 
         def both(items: list[dict], key: str, pattern: str = "{:.2f}") -> list[str]:
             x = np.array([float(e[key]) for e in items])
@@ -222,7 +226,9 @@ def calibration_rows(specs: Sequence[RunSpec], results: Sequence[dict]) -> list[
                      *both(cameras, "rotation_deg", "{:.3f}"),
                      *both(cameras, "focal_percent", "{:.3f}"),
                      *both(cameras, "principal_point_px"), *both(cameras, "image_at_work_px"),
-                     *both(bases, "origin_mm"), both(bases, "rotation_deg", "{:.3f}")[1]])
+                     *both(cameras_before, "image_at_work_px"), *both(bases, "origin_mm"),
+                     both(bases_before, "origin_mm")[0],
+                     both(bases, "rotation_deg", "{:.3f}")[1]])
     return rows
 
 
