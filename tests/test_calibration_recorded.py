@@ -127,6 +127,10 @@ def test_the_recorded_motion_calibrates_the_cell(recording, monkeypatch):
         assert e["centre_mm"] < 0.5, name
     assert result.errors["robots"]["R6AX"]["origin_mm"] < 0.5
     assert result.source["world"] == {"realism": "exact", "seed": 0}
+    before = result.errors["cell_file"]  # the cell file's own, here the truth itself
+    assert all(e["image_at_work_px"] < 1e-9 and e["centre_mm"] < 1e-9
+               for e in before["cameras"].values())
+    assert before["robots"]["R6AX"]["origin_mm"] < 1e-9
 
 
 def test_a_recording_in_which_nothing_moves_is_refused(tmp_path):

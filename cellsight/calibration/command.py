@@ -67,12 +67,17 @@ def reference_robot(cell: Cell) -> str:
     return cell.experiments.robot or cell.robots[0].name
 
 
-def _start(cell: Cell, reference: str, board: Board) -> Start:
-    """The cell file's cameras and bases in the reference robot's frame, the nominal mount."""
+def _cell_file_start(cell: Cell, reference: str) -> tuple[list[Camera], dict[str, np.ndarray]]:
+    """The cell file's cameras and bases in the reference robot's frame."""
     T_ref_b = invert_pose(cell.robot(reference).T_base_robot)
     cameras = [Camera(c.K, c.width, c.height, T_ref_b @ c.T_base_cam, c.dist, c.name)
                for c in cell.cameras]
-    return Start(cameras, {r.name: T_ref_b @ r.T_base_robot for r in cell.robots},
+    return cameras, {r.name: T_ref_b @ r.T_base_robot for r in cell.robots}
+
+
+def _start(cell: Cell, reference: str, board: Board) -> Start:
+    """The cell file's cameras and bases in the reference robot's frame, the nominal mount."""
+    return Start(*_cell_file_start(cell, reference),
                  {r.name: board.T_flange_board for r in cell.robots})
 
 
@@ -89,9 +94,9 @@ def world_errors(cell: Cell, solution: Solution, world_cell: Cell) -> dict:
     work = (cell.workpieces[0].T_base_part[:3, 3] if cell.workpieces
             else np.mean([c.T_base_cam[:3, 3] for c in cell.cameras], axis=0))
     reference = reference_robot(cell)
-    start = solution.initial
+    cameras, bases = _cell_file_start(cell, reference)
     return {**score(solution.cameras, solution.T_ref_robot, world_cell, reference, work),
-            "cell_file": score(start.cameras, start.T_ref_robot, world_cell, reference, work)}
+            "cell_file": score(cameras, bases, world_cell, reference, work)}
 
 
 def calibrate_world(cell_arg: str | Path | None, realism: str, seed: int, board: Board,
