@@ -56,7 +56,7 @@ def _calibration_json(folder: Path, cell, reference: str, moved: np.ndarray,
 
     T_ref_b = invert_pose(cell.robot(reference).T_base_robot)
     data = {"schema": 1, "cell": cell.source, "cell_sha256": cell_digest(cell),
-            "reference_robot": reference, "world": world,
+            "reference_robot": reference, "world": world, "joint_offsets_estimated": True,
             "cameras": {c.name: {"width": c.width, "height": c.height, "K": c.K.tolist(),
                                  "dist": c.dist5.tolist(),
                                  "T_ref_cam": (moved @ T_ref_b @ c.T_base_cam).tolist()}
@@ -95,6 +95,11 @@ def test_a_calibration_moves_the_cells_cameras_and_bases_and_only_fits_its_cell(
     assert finished_calibration(tmp_path / "cal", "dual-arm", "lab", 3)
     assert not finished_calibration(tmp_path / "cal", "dual-arm", "lab", 4)
     assert not finished_calibration(tmp_path / "cal", "dual-arm", "harsh", 3)
+    data = json.loads((tmp_path / "cal" / "calibration.json").read_text())
+    (tmp_path / "cal" / "calibration.json").write_text(json.dumps(
+        {**data, "joint_offsets_estimated": False}))  # made with other settings than a sweep's
+    assert not finished_calibration(tmp_path / "cal", "dual-arm", "lab", 3)
+    (tmp_path / "cal" / "calibration.json").write_text(json.dumps(data))
     edited = tmp_path / "edited.yaml"
     edited.write_text(cell_path("dual-arm").read_text() + "\n# a camera moved\n")
     assert not finished_calibration(tmp_path / "cal", str(edited), "lab", 3)

@@ -50,7 +50,8 @@ class CellCalibration:
     """A calibration made: the cell file's ``cell``, the ``reference`` robot, the ``poses``
     each robot took, the ``views``, the ``solution``, its ``errors`` against a simulated
     world's truth (:func:`.score.score`; None without a world to score against) and where it
-    comes from (``source``: ``world`` and/or ``recording`` facts for calibration.json)."""
+    comes from (``source``: ``world`` and/or ``recording`` facts for calibration.json);
+    ``joint_offsets``: whether the robots' joint zero offsets were estimated."""
 
     cell: Cell
     reference: str
@@ -59,6 +60,7 @@ class CellCalibration:
     solution: Solution
     errors: dict | None
     source: dict
+    joint_offsets: bool
 
 
 def reference_robot(cell: Cell) -> str:
@@ -100,7 +102,7 @@ def world_errors(cell: Cell, solution: Solution, world_cell: Cell) -> dict:
 
 
 def calibrate_world(cell_arg: str | Path | None, realism: str, seed: int, board: Board,
-                    per_camera: int = 8, joint_offsets: bool = False,
+                    per_camera: int = 8, joint_offsets: bool = True,
                     progress: bool = True, log: MotionRecorder | None = None
                     ) -> CellCalibration:
     """The calibration of the seed's world (module docstring); ``log`` records the motion
@@ -131,12 +133,12 @@ def calibrate_world(cell_arg: str | Path | None, realism: str, seed: int, board:
     solution = _solve(cell, views, board, joint_offsets)
     return CellCalibration(cell, reference, {p.robot: len(p.joints) for p in plans}, views,
                            solution, world_errors(cell, solution, draws.cell),
-                           {"world": {"realism": realism, "seed": seed}})
+                           {"world": {"realism": realism, "seed": seed}}, joint_offsets)
 
 
 def calibrate_recorded(recording_path: str | Path, cell_arg: str | Path | None, board: Board,
                        topics: str | None = None, tolerance_s: float = 0.019,
-                       joint_offsets: bool = False) -> CellCalibration:
+                       joint_offsets: bool = True) -> CellCalibration:
     """The calibration of the motion in a recording (:mod:`.recorded`); scored against the
     simulated world a recording of ``cellsight calibrate --record`` names in its metadata."""
     cell = load_cell(cell_arg)
@@ -154,7 +156,7 @@ def calibrate_recorded(recording_path: str | Path, cell_arg: str | Path | None, 
         errors = world_errors(cell, solution,
                               draw_world(world["realism"], cell, world["seed"]).cell)
     return CellCalibration(cell, reference_robot(cell), motion.poses, motion.views, solution,
-                           errors, source)
+                           errors, source, joint_offsets)
 
 
 def verdict(result: CellCalibration) -> str:
@@ -174,12 +176,13 @@ def write_result(out: Path, result: CellCalibration, board: Board, stale: Sequen
     facts = {**result.source, "errors": result.errors,
              "board": {"squares": list(board.squares), "square_m": board.square_m,
                        "marker_m": board.marker_m, "dictionary": board.dictionary},
-             "poses": result.poses, "verdict": verdict(result), "wall_s": round(wall_s, 1)}
+             "poses": result.poses, "joint_offsets_estimated": result.joint_offsets,
+             "verdict": verdict(result), "wall_s": round(wall_s, 1)}
     write_calibration(out, result.cell, result.reference, result.solution, result.views, facts)
 
 
 def write_world_calibration(out: Path, cell_arg: str | Path | None, realism: str, seed: int,
-                            board: Board, per_camera: int = 8, joint_offsets: bool = False,
+                            board: Board, per_camera: int = 8, joint_offsets: bool = True,
                             progress: bool = True,
                             stale: Sequence[Path] = ()) -> CellCalibration:
     """Calibrate the seed's world (:func:`calibrate_world`) and write the folder ``out``;
@@ -195,13 +198,14 @@ def write_world_calibration(out: Path, cell_arg: str | Path | None, realism: str
 def finished_calibration(folder: Path, cell_arg: str | Path | None, realism: str,
                          seed: int) -> bool:
     """Whether ``folder`` holds a calibration of this cell as it is now (by its SHA-256), made
-    in the world of ``realism`` and ``seed``: a sweep reuses it."""
+    in the world of ``realism`` and ``seed`` with the defaults (the joint offsets estimated):
+    a sweep reuses it."""
     try:
         data = read_calibration(folder)
         digest = cell_digest(load_cell(cell_arg))
     except CellsightError:
         return False
-    return (data.get("cell_sha256") == digest
+    return (data.get("cell_sha256") == digest and data.get("joint_offsets_estimated") is True
             and data.get("world") == {"realism": realism, "seed": seed})
 
 
@@ -216,7 +220,7 @@ class CalibrateRequest:
     seed: int = 0
     board: str | None = None
     poses: int = 8
-    joint_offsets: bool = False
+    joint_offsets: bool = True
     record: str | None = None
     record_jpeg: int | None = None
     topics: str | None = None

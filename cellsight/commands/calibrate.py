@@ -41,9 +41,10 @@ def register(sub: argparse._SubParsersAction) -> None:
                           "flange's face")
     cal.add_argument("--poses", type=int, default=8, metavar="N",
                      help="poses planned per camera and robot (default 8, at least 6)")
-    cal.add_argument("--joint-offsets", action="store_true",
-                     help="also estimate each robot's joint zero offsets, and report whether "
-                          "they are identifiable")
+    cal.add_argument("--joint-offsets", action=argparse.BooleanOptionalAction, default=True,
+                     help="estimate each robot's joint zero offsets too, and report whether "
+                          "they are identifiable (default on: the encoders' offsets otherwise "
+                          "bend the board's poses into the cameras' estimates)")
     cal.add_argument("--record", metavar="FILE",
                      help="also record the simulated calibration motion as a real cell would "
                           "(images, joint states) in an MCAP file, for cellsight calibrate FILE")

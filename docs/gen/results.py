@@ -183,7 +183,8 @@ def headline(found: list[Table]) -> str:
     """The headline table (README and the results' front page): whole-task figures of
     experiment 3, one line per published world and tracker (the sweep's variant: ``pred`` in
     sweeps from before the kinematic tracker was the default was the plain tracker;
-    ``calibrated`` is the default on the cell calibrated in each seed's world)."""
+    ``calibrated`` is the default on the cell calibrated in each seed's world); a world and
+    tracker already shown by an earlier sweep (``order``) is not shown again."""
     rows = [r for t in found if t.meta.get("headline") for r in t.rows
             if r.get("experiment") == "3"]
     if not rows:
@@ -193,7 +194,11 @@ def headline(found: list[Table]) -> str:
         "visibility_accuracy", "confident_wrong_frames")]
     head = ["world", "tracker", "runs", "grasps"] + [h for _, h, _ in pick]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    shown: set[tuple[str, str]] = set()
     for key, runs in _groups(rows).items():
+        if (key[1], key[4]) in shown:  # a world and tracker another sweep showed first
+            continue
+        shown.add((key[1], key[4]))
         done = [r for r in runs if r.get("status") == "done"]
         grasps = sum(r.get("grasp_success") == "True" for r in done)
         variant = runs[0].get("variant", "")
