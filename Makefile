@@ -28,8 +28,9 @@ lint: dev
 test: dev lint
 	$(PY) -m pytest -n auto --maxprocesses 4 --dist loadscope
 
-# The main job: the paper's third experiment on the built-in cell, in a world with a well
-# calibrated lab cell's errors (report in out/experiment3).
+# The main job: the built-in cell calibrated by its own robots (out/calibration), then the
+# paper's third experiment on it, in a world with a lab cell's errors (report in
+# out/experiment3).
 demo: venv
 	.venv/bin/cellsight calibrate --realism lab --seed 0 --out out/calibration --overwrite
 	.venv/bin/cellsight run 3 --realism lab --seed 0 --calibration out/calibration --out out/experiment3 --overwrite
