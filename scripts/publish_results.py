@@ -118,8 +118,9 @@ def headline_block() -> str:
     found = pages.tables(ROOT)
     made = sorted({t.meta["made"] for t in found if t.meta.get("headline")})
     note = (f"Experiment 3 (the part on the conveyor, the other arm crossing the views), "
-            f"rendered images, mean ± sd (range) over 20 seeds, per tracker (kinematic: the "
-            f"default; plain: the paper's); "
+            f"rendered images, mean ± sd (range) over the seeds (one run each), per tracker "
+            f"(kinematic: the default; plain: the paper's; calibrated cell: the default on the "
+            f"cell calibrated by `cellsight calibrate` in each seed's world); "
             f"made by `make experiments` ({', '.join(made) or 'not yet'}). "
             "Every table is on the docs' Results pages (`make docs`).")
     return f"{BEGIN}\n{pages.headline(found)}\n{note}\n{END}"

@@ -156,6 +156,23 @@ def test_the_results_tables_are_the_summaries_spread_over_seeds(tmp_path) -> Non
     assert "Age unknown" in page  # no repository there: the page says it cannot tell
 
 
+def test_the_headline_shows_each_world_and_tracker_once_from_the_first_sweep() -> None:
+    """Two headline sweeps that both ran the default tracker in `lab` (one of 4 seeds, one of
+    2, beside a calibrated variant): the line is the first sweep's alone, not 6 runs merged."""
+    def rows(variants: dict[str, int]) -> list[dict[str, str]]:
+        return [{"cell": "dual-arm", "experiment": "3", "sensor": "rendered", "variant": v,
+                 "realism": "lab", "structure": "object-bvh", "seed": str(s), "status": "done",
+                 "grasp_success": "True", "position_rmse_mm": str(1.0 + s)}
+                for v, n in variants.items() for s in range(n)]
+    meta = {"headline": True}
+    found = [results.Table("a", REPO, rows({"kinematic": 4}), {**meta, "order": 1}),
+             results.Table("b", REPO, rows({"kinematic": 2, "calibrated": 2}),
+                           {**meta, "order": 2})]
+    lines = [x for x in results.headline(found).splitlines() if x.startswith("| `lab`")]
+    assert [x.split(" | ")[1:3] for x in lines] == [["kinematic", "4"],
+                                                    ["kinematic, calibrated cell", "2"]]
+
+
 def test_a_table_older_than_the_code_says_so() -> None:
     first = subprocess.run(["git", "rev-list", "--max-parents=0", "HEAD"], cwd=REPO,
                            capture_output=True, text=True)

@@ -185,20 +185,19 @@ def headline(found: list[Table]) -> str:
     sweeps from before the kinematic tracker was the default was the plain tracker;
     ``calibrated`` is the default on the cell calibrated in each seed's world); a world and
     tracker already shown by an earlier sweep (``order``) is not shown again."""
-    rows = [r for t in found if t.meta.get("headline") for r in t.rows
-            if r.get("experiment") == "3"]
-    if not rows:
+    groups: dict[tuple[str, ...], list[dict[str, str]]] = {}
+    for table in (t for t in found if t.meta.get("headline")):
+        mine = _groups([r for r in table.rows if r.get("experiment") == "3"])
+        shown = {(key[1], key[4]) for key in groups}
+        groups.update({key: runs for key, runs in mine.items() if (key[1], key[4]) not in shown})
+    if not groups:
         return "No published sweep is marked as a headline yet.\n"
     pick = [f for f in FIGURES if f[0] in (
         "position_rmse_arm_mm", "position_rmse_mm", "max_position_error_mm", "orientation_rmse_deg",
         "visibility_accuracy", "confident_wrong_frames")]
     head = ["world", "tracker", "runs", "grasps"] + [h for _, h, _ in pick]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
-    shown: set[tuple[str, str]] = set()
-    for key, runs in _groups(rows).items():
-        if (key[1], key[4]) in shown:  # a world and tracker another sweep showed first
-            continue
-        shown.add((key[1], key[4]))
+    for key, runs in groups.items():
         done = [r for r in runs if r.get("status") == "done"]
         grasps = sum(r.get("grasp_success") == "True" for r in done)
         variant = runs[0].get("variant", "")
