@@ -36,20 +36,21 @@ from cellsight.visibility import OBJECT_BVH, STRUCTURES
 if TYPE_CHECKING:
     from cellsight.experiments import RunConfig
 
+CALIBRATED = "calibrated"
+"""The variant whose runs take the cell calibrated on their own seed (module docstring)."""
 VARIANTS: dict[str, TrackerChoice] = {
     "kinematic": DEFAULT_TRACKER,
     "plain": TrackerChoice("plain"),
     "nopred": TrackerChoice(occlusion_prediction=False),
     "offsets": TrackerChoice(experimental=frozenset({"camera-offsets"})),
     "unknown": TrackerChoice(experimental=frozenset({"unknown-occluders"})),
-    "calibrated": DEFAULT_TRACKER,
+    CALIBRATED: DEFAULT_TRACKER,
 }
 """Variant name -> the run's tracker (:class:`~cellsight.trackers.TrackerChoice`): ``kinematic``
 the default, ``plain`` the paper's tracker from the images alone, and the default with one
 change: ``nopred`` windows on every model point in the image, ``offsets`` and ``unknown`` the
 experimental camera offsets and unknown-occluder map, ``calibrated`` the cell calibrated on the
 run's own seed (module docstring)."""
-CALIBRATED = "calibrated"
 
 SENSORS = ("rendered", "ideal")
 
