@@ -32,6 +32,9 @@ BUILTIN_CELLS: dict[str, BuiltinCell] = {cell.name: cell for cell in (
                 "two UR5 (example-robot-data URDF, collision meshes), three cameras, a conveyor"),
     BuiltinCell("kr16-cell", "kr16_cell.yaml",
                 "two KUKA KR16-2 (rtb-data URDF, collision meshes), three cameras, a conveyor"),
+    BuiltinCell("iiwa-cell", "iiwa_cell.yaml",
+                "two KUKA LBR iiwa 14 R820, 7 axes (rtb-data URDF, collision meshes), three "
+                "cameras, a conveyor"),
 )}
 DEFAULT_CELL = "dual-arm"
 
