@@ -4,7 +4,7 @@ STAMP   := .venv/.installed
 DEV     := .venv/.installed-dev
 export MUJOCO_GL ?= egl
 
-.PHONY: venv dev test demo experiments results docs recordings bench fuzz lint clean
+.PHONY: venv dev test test-slow demo experiments results docs recordings bench fuzz lint clean
 
 # `venv`: what cellsight needs to run; `dev`: plus the test tools and the benchmark peers.
 venv: $(STAMP)
@@ -24,9 +24,13 @@ lint: dev
 	.venv/bin/ruff check cellsight tests bench scripts examples docs/gen
 
 # The suite runs on every core (at most 4; each test module stays on one worker, so its
-# fixtures are built once).
+# fixtures are built once). `make test` leaves out the long end-to-end tests (marked slow),
+# which `make test-slow` runs; CI runs both.
 test: dev lint
-	$(PY) -m pytest -n auto --maxprocesses 4 --dist loadscope
+	$(PY) -m pytest -n auto --maxprocesses 4 --dist loadscope -m "not slow"
+
+test-slow: dev
+	$(PY) -m pytest -n auto --maxprocesses 4 --dist loadscope -m slow
 
 # The main job: the built-in cell calibrated by its own robots (out/calibration), then the
 # paper's third experiment on it, in a world with a lab cell's errors (report in

@@ -112,6 +112,7 @@ def _plain(offsets_px: float) -> TrackerChoice:
                          else frozenset())
 
 
+@pytest.mark.slow
 def test_a_run_in_a_cell_of_disagreeing_cameras_holds_the_part_only_with_offsets(tmp_path):
     """The main path, `cellsight run --tracker plain --experimental camera-offsets`: harsh's
     cameras alone, seed 1 (cam1's

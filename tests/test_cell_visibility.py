@@ -119,6 +119,7 @@ def test_features_resting_on_a_support_stay_visible(cell) -> None:
         assert np.all(lo.visible >= ex.visible)
 
 
+@pytest.mark.slow
 def test_near_occluder_flags_match_the_oracle_on_the_ring(cell) -> None:
     """A visible feature is flagged ``near_occluder`` when, of 8 points 5 px around it in the
     image plane, one moved 1 cm towards the camera is hidden by another object, or, moved 20 m

@@ -25,6 +25,7 @@ CASES = {
     "dual-arm": ("R7AX", "R6AX", [Block("cam2", 8.5, 15.0), Block("cam1", 20.0, 22.5)]),
     "kr16-cell": ("KR16A", "KR16B", [Block("cam2", 9.5, 15.0), Block("cam1", 21.0, 22.5)]),
 }
+pytestmark = pytest.mark.slow  # four runs of the task
 
 
 @pytest.fixture(scope="module", params=list(CASES))
@@ -33,8 +34,9 @@ def designed(request, tmp_path_factory):
     grasping, crossing, blocks = CASES[name]
     cell = load_cell(name)
     folder = tmp_path_factory.mktemp(f"design-{name}")
-    run_experiment(RunConfig(2, folder / "e2", cell=name, sensor="ideal", progress=False,
-                             video_every=0))
+    # the blocks end by 22.5 s: the runs stop at 26 s, past the crossing's last waypoint
+    run_experiment(RunConfig(2, folder / "e2", cell=name, sensor="ideal", duration=26.0,
+                             progress=False, video_every=0))
     design = design_crossing(cell, blocks, TaskPath(folder / "e2"))
     cell_file = folder / "crossed.yaml"
     text = Path(cell.source).read_text()
@@ -44,8 +46,8 @@ def designed(request, tmp_path_factory):
     crossed = load_cell(cell_file)
     assert crossed.experiments.crossing_waypoints[1][0] == pytest.approx(design.waypoints[1][0],
                                                                          abs=0.01)
-    run_experiment(RunConfig(3, folder / "e3", cell=cell_file, sensor="ideal", progress=False,
-                             video_every=0))
+    run_experiment(RunConfig(3, folder / "e3", cell=cell_file, sensor="ideal", duration=26.0,
+                             progress=False, video_every=0))
     return design, crossed, folder / "e3", CASES[name]
 
 

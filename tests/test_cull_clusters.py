@@ -62,6 +62,7 @@ def _crossed(a, b, c, view, points) -> np.ndarray:
             & (t > 0) & (t < 1 - 1e-7))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("near_px", [0.0, 5.0])
 def test_every_polygon_that_can_hide_a_feature_is_kept(cell, near_px) -> None:
     predictor = VisibilityPredictor(cell, near_px=near_px, structure=FRAME_BSP)

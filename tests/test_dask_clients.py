@@ -26,6 +26,7 @@ def test_workers_without_the_package_are_named():
     assert "cannot import cellsight_not_installed_here" in text and "\n" not in text
 
 
+@pytest.mark.slow
 def test_a_sweep_whose_workers_all_die_ends_with_a_clear_error():
     with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=True,
                                   dashboard_address=None) as cluster:

@@ -138,6 +138,7 @@ def _wait_for(condition, timeout: float, what: str) -> None:
         time.sleep(0.2)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("jobs", [2, 1])
 def test_sigterm_ends_a_sweep_like_ctrl_c(jobs, tmp_path):
     """Once a run has finished and another is running, SIGTERM to the sweep: exit 143 within

@@ -45,6 +45,7 @@ def test_check_finds_no_error_and_the_crossing_blinds_both_cameras(cell):
     assert any("KR16B blinds cam2" in b for b in blinds), blinds
 
 
+@pytest.mark.slow
 def test_short_ideal_run_acquires_the_part(tmp_path, capsys):
     out = tmp_path / "run"
     code = main(["run", "1", "--cell", "kr16-cell", "--sensor", "ideal", "--duration", "2",

@@ -656,6 +656,7 @@ def test_acquisition_search_visits_the_nominal_first_then_rings_outwards():
     assert max(radii) == pytest.approx(0.01 * math.sqrt(2))
 
 
+@pytest.mark.slow
 def test_same_seed_and_profile_give_identical_metrics(tmp_path):
     from cellsight.experiments import RunConfig, run_experiment
 
@@ -712,6 +713,7 @@ def test_one_knob_group_alone_keeps_its_harsh_strength_and_nothing_else(cell):
         load_profile("harsh/timing+lighting")
 
 
+@pytest.mark.slow
 def test_a_run_folder_replays_the_world_its_profile_drew(tmp_path):
     from cellsight.experiments import RunConfig, run_experiment
     from cellsight.runfolder import load_run

@@ -91,6 +91,7 @@ def test_tracking_the_recording_gives_the_runs_estimates(recorded, tmp_path):
     assert (tmp_path / "track" / "report.html").is_file()
 
 
+@pytest.mark.slow
 def test_a_run_of_the_plain_tracker_tracks_back_with_it(tmp_path):
     """The plain tracker's run and its recording tracked with the plain tracker agree; the
     default tracker's track of the same recording does not."""
@@ -105,6 +106,7 @@ def test_a_run_of_the_plain_tracker_tracks_back_with_it(tmp_path):
     assert np.nanmax(np.abs(ran - default)) > 1e-6
 
 
+@pytest.mark.slow
 def test_a_jpeg_recording_tracks_within_a_tenth_of_a_millimetre(tmp_path):
     run, record = _run(tmp_path, jpeg=90)
     assert any(t == "/cam1/image_raw/compressed" for t, _, _, _ in read_mcap(record))
@@ -267,6 +269,7 @@ def test_a_bad_topic_map_names_the_file_and_field(tmp_path):
     assert TopicMap().joint_states == ["/joint_states"]
 
 
+@pytest.mark.slow
 def test_the_command_line_tracks_and_refuses_in_one_line(recorded, tmp_path):
     cli = [sys.executable, "-m", "cellsight.cli", "track"]
     done = subprocess.run([*cli, str(recorded[1]), "--out", str(tmp_path / "ok"), "--quiet",

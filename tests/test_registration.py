@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -98,6 +99,7 @@ def test_a_rendered_run_registers_each_camera_to_the_gripper_as_the_true_camera_
         assert entry["t"] < 2.5
 
 
+@pytest.mark.slow
 def test_each_camera_is_registered_again_by_the_part(tmp_path):
     """harsh's cameras alone, seed 11: camera 1's lens distortion error makes its offset at
     HOME 4.4 px off the true camera's at the part. Registered again once the gripper is within
@@ -133,6 +135,7 @@ def test_each_camera_is_registered_again_by_the_part(tmp_path):
     assert far >= 1  # the case is not trivial
 
 
+@pytest.mark.slow
 def test_a_recording_registers_each_camera_as_its_run_did(tmp_path):
     """``cellsight track`` (the default tracker) on the recording of a ``harsh/cameras`` run
     (seed 1, the arm exact; ``cellsight run --record``): the recorded whole images, joints and

@@ -70,6 +70,7 @@ def test_a_crash_is_recorded_and_handlers_come_back(tmp_path: Path) -> None:
     assert "failed at t = " in (tmp_path / "run.log").read_text()
 
 
+@pytest.mark.slow
 def test_the_cli_words_a_crash_in_one_line(tmp_path: Path, capsys, monkeypatch) -> None:
     monkeypatch.setattr(cellsight.experiments, "run_experiment",
                         lambda config: _crashing_run(config).run())
@@ -126,6 +127,7 @@ def _run_and_signal(out: Path, signals: list[signal.Signals]) -> subprocess.Comp
     ([signal.SIGTERM], 143),
     ([signal.SIGINT, signal.SIGINT, signal.SIGTERM], 130),  # later signals change nothing
 ])
+@pytest.mark.slow
 def test_a_signal_ends_the_run_cleanly(signals, code: int, tmp_path: Path) -> None:
     done = _run_and_signal(tmp_path, signals)
     name = signals[0].name

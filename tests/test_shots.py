@@ -117,6 +117,7 @@ def test_a_shot_is_the_state_it_was_taken_in():
     world.close()
 
 
+@pytest.mark.slow
 def test_a_run_on_windows_measures_what_a_run_on_whole_frames_measures(tmp_path: Path):
     """The plain tracker: the kinematic one registers the cameras from whole images, which a
     run on windows renders only for the registration."""

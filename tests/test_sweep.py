@@ -67,6 +67,7 @@ def test_a_worker_that_crashes_in_native_code_prints_its_python_stack(capfd):
     assert "Segmentation fault" in err and "in _crash" in err
 
 
+@pytest.mark.slow
 def test_a_crashing_job_is_recorded_and_the_others_still_run():
     """Job 1 kills its worker wherever it runs: it alone gets ``on_crash``'s result, every
     other job its own, on a pool of 2 (the job running beside it is run again)."""
@@ -108,6 +109,7 @@ def test_sweep_resumes_finished_runs_and_redoes_interrupted_ones(local_sweep):
     assert not results[1].get("reused") and not json.loads(second.read_text())["interrupted"]
 
 
+@pytest.mark.slow
 def test_dask_cluster_gives_the_local_results(local_sweep, tmp_path):
     distributed = pytest.importorskip("distributed")
     _, specs, local = local_sweep
@@ -130,6 +132,7 @@ def test_unreachable_scheduler_is_a_clear_error(tmp_path, capsys):
     assert "--scheduler" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_a_run_on_a_cell_file_changed_since_is_run_again(tmp_path):
     from cellsight.model.loader import cell_path
 

@@ -11,6 +11,7 @@ import threading
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from cellsight.cli import main
 from cellsight.experiments import views_video
@@ -83,6 +84,7 @@ def test_a_video_that_cannot_be_written_fails_the_run_naming_it(tmp_path: Path, 
     assert 4 <= metrics["frames"] < 26 and (out / "frames.csv").stat().st_size > 0
 
 
+@pytest.mark.slow
 def test_the_video_changes_nothing_the_run_measures(tmp_path: Path) -> None:
     """The harsh world drops frames and draws each image's noise from a random stream: the
     video's picture of a dropped frame is rendered anew, and must not draw from it (it did:

@@ -32,6 +32,7 @@ def _scene(rng: np.random.Generator, kind: int):
     return polygons, points, viewpoint
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("kind", [0, 1, 2])
 def test_fast_paths_agree_with_the_full_bsp(kind):
     rng = np.random.default_rng(100 + kind)

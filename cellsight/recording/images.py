@@ -4,15 +4,20 @@
 ``rgb8``, ``bgr8``, ``rgba8`` or ``bgra8`` (to gray by OpenCV's weights), rows of ``step``
 bytes; ``sensor_msgs/msg/CompressedImage`` in JPEG or PNG (decoded by OpenCV to gray). Any
 other encoding, or an image whose size is not the camera's, is a
-:class:`~cellsight.recording.reader.RecordingError` naming the topic and the message.
+:class:`~cellsight.recording.reader.RecordingError` naming the topic and the message. A
+compressed image's size is read from its header (Pillow reads only the header) and checked
+against the camera's before anything is decoded: a few kilobytes that would decode to gigabytes
+are refused without allocating them.
 """
 
 from __future__ import annotations
 
+import io
 from typing import Any
 
 import cv2
 import numpy as np
+from PIL import Image, UnidentifiedImageError
 
 from cellsight.recording.names import COMPRESSED
 from cellsight.recording.reader import RecordingError
@@ -26,11 +31,15 @@ ENCODINGS = (*_CHANNELS, "mono16")
 def gray_image(kind: str, msg: Any, where: str, size: tuple[int, int]) -> np.ndarray:
     """The grayscale image of message ``msg`` of type ``kind``; ``where`` names it in errors
     (``/cam1/image_raw, message 12``); ``size``: the camera's (width, height)."""
-    image = _compressed(msg, where) if kind == COMPRESSED else _raw(msg, where)
+    image = _compressed(msg, where, size) if kind == COMPRESSED else _raw(msg, where)
     if image.shape != (size[1], size[0]):
-        raise RecordingError(f"{where}: a {image.shape[1]}x{image.shape[0]} image; the cell's "
-                             f"camera takes {size[0]}x{size[1]}")
+        _wrong_size(where, image.shape[1], image.shape[0], size)
     return image
+
+
+def _wrong_size(where: str, width: int, height: int, size: tuple[int, int]) -> None:
+    raise RecordingError(f"{where}: a {width}x{height} image; the cell's camera takes "
+                         f"{size[0]}x{size[1]}")
 
 
 def _buffer(data: Any) -> np.ndarray:
@@ -61,12 +70,31 @@ def _raw(msg: Any, where: str) -> np.ndarray:
     return cv2.cvtColor(np.ascontiguousarray(rows.reshape(h, w, depth)), _TO_GRAY[encoding])
 
 
-def _compressed(msg: Any, where: str) -> np.ndarray:
+def declared_size(data: bytes, where: str, fmt: str, size: tuple[int, int]) -> tuple[int, int]:
+    """The (width, height) in px that a JPEG or PNG's header declares, read without decoding
+    its pixels; a header Pillow cannot read, or one over Pillow's own bound (twice
+    ``Image.MAX_IMAGE_PIXELS``), is a :class:`RecordingError` (``size``: the camera's)."""
+    try:
+        with Image.open(io.BytesIO(data)) as header:
+            return header.size
+    except Image.DecompressionBombError:
+        raise RecordingError(f"{where}: a {fmt!r} image declaring over "
+                             f"{2 * Image.MAX_IMAGE_PIXELS} px; the cell's camera takes "
+                             f"{size[0]}x{size[1]}") from None
+    except (UnidentifiedImageError, OSError, SyntaxError, ValueError) as e:
+        raise RecordingError(f"{where}: {len(data)} bytes with no readable {fmt!r} header "
+                             f"({e})") from None
+
+
+def _compressed(msg: Any, where: str, size: tuple[int, int]) -> np.ndarray:
     fmt = str(msg.format).lower()
     if "jpeg" not in fmt and "jpg" not in fmt and "png" not in fmt:
         raise RecordingError(f"{where}: compressed format {msg.format!r} is not supported; "
                              f"expected JPEG or PNG")
     data = _buffer(msg.data)
+    declared = declared_size(data.tobytes(), where, msg.format, size)
+    if declared != tuple(size):
+        _wrong_size(where, *declared, size)
     image = cv2.imdecode(data, cv2.IMREAD_GRAYSCALE)
     if image is None:
         raise RecordingError(f"{where}: {len(data)} bytes that OpenCV cannot decode as "
