@@ -40,7 +40,8 @@ def test_ur_cell_loads_by_name(cell):
     assert cell.experiments.robot == "UR5A" and cell.experiments.crossing_robot == "UR5B"
     assert cell.source == str(builtin_cell_path("ur-cell"))
     assert load_cell("dual-arm").source == load_cell().source == str(builtin_cell_path())
-    with pytest.raises(CellFileError, match=r"built-in cell \(dual-arm, ur-cell, kr16-cell\)"):
+    with pytest.raises(CellFileError,
+                       match=r"built-in cell \(dual-arm, ur-cell, kr16-cell, iiwa-cell\)"):
         load_cell("no-such-cell")
 
 
@@ -48,13 +49,13 @@ def test_cells_command_lists_both(capsys):
     assert main(["cells"]) == 0
     lines = capsys.readouterr().out.splitlines()
     assert [line.split()[0] for line in lines] == list(BUILTIN_CELLS) == ["dual-arm", "ur-cell",
-                                                                   "kr16-cell"]
+                                                                   "kr16-cell", "iiwa-cell"]
     assert "UR5A, UR5B" in lines[1] and "cam1, cam2, cam3" in lines[1]
     assert "R7AX, R6AX" in lines[0] and "dual_arm_cell.yaml" in lines[0]
     assert main(["visibility", "--cell", "ur-cell", "--json"]) == 0
     assert set(json.loads(capsys.readouterr().out)) >= {"part"}
     assert main(["visibility", "--cell", "nope"]) == 2
-    assert "dual-arm, ur-cell, kr16-cell" in capsys.readouterr().err
+    assert "dual-arm, ur-cell, kr16-cell, iiwa-cell" in capsys.readouterr().err
 
 
 def test_home_and_final_hold_the_part_in_every_view(cell):
