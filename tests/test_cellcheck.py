@@ -1,13 +1,15 @@
 """``cellsight check`` (cellsight.experiments.cellcheck): the built-in cells pass, and broken
 copies of the dual-arm cell get one error line each for what is broken: a robot 25.4x too
 large, HOME on a joint limit, FINAL holding the part out of view, a crossing that blinds
-nothing, a workpiece in millimetres."""
+nothing, a workpiece in millimetres, a conveyor out of reach, a grasp into the conveyor."""
 
 from __future__ import annotations
 
+import re
 from dataclasses import replace
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from cellsight import load_cell
@@ -39,8 +41,43 @@ def cell() -> Cell:
 @pytest.mark.parametrize("name", [None, "ur-cell"])
 def test_the_built_in_cells_pass(name):
     findings = check_cell(load_cell(name))
-    assert not [f for f in findings if f.level != "ok"]
+    # the one warning: the grasp puts the jaws' tips at the part's bottom, on the conveyor
+    warned = [f.line for f in findings if f.level != "ok"]
+    assert len(warned) == 1 and "gripper.jaw" in warned[0] and "into conveyor by" in warned[0]
+    assert float(re.search(r"by ([0-9.]+) mm", warned[0])[1]) <= 0.05, warned
     assert sum("blinds" in f.line for f in findings) == 2
+    assert any(f.line.startswith("reach: ") and "16 positions" in f.line for f in findings)
+
+
+def test_a_conveyor_out_of_reach_is_found_where_it_leaves_the_reach(cell):
+    """The conveyor carried on 4 m along x: the arm (R7AX on its track, 3.06 m reach at most)
+    cannot follow the part past the track's end; the first position missed is named, and it
+    lies past where the track's end plus the arm's reach leaves the part."""
+    points = cell.experiments.conveyor_points
+    far = np.vstack([points, points[-1] + [4.0, 0.0]])
+    errors = [e for e in _errors(_with(cell, experiments=replace(
+        cell.experiments, conveyor_points=far))) if e.startswith("reach: ")]
+    assert errors and all("cannot get within the task's tolerances (5 mm, 2 deg)" in e
+                          for e in errors)
+    first = float(re.search(r"the part ([0-9]+) cm along the conveyor", errors[0])[1]) / 100
+    length = float(np.linalg.norm(np.diff(points, axis=0), axis=1).sum())
+    part_xy = points[-1] + [first - length, 0.0]
+    r7 = cell.robot("R7AX")
+    track_end = r7.T_base_robot[:3, :3] @ [0, 0, r7.chain.qlim[0, 1]] + r7.T_base_robot[:3, 3]
+    assert first > length and np.linalg.norm(part_xy - track_end[:2]) > 0.5
+
+
+def test_a_grasp_into_the_conveyor_is_found(cell):
+    """The grasp lowered 2 cm: the jaws would go 2 cm into the conveyor at every grasp, more
+    than the task's 5 mm tolerance."""
+    part = cell.workpieces[0]
+    T = part.T_part_grasp.copy()
+    T[2, 3] -= 0.02
+    errors = _errors(_with(cell, workpieces=[replace(part, T_part_grasp=T)]))
+    deep = [e for e in errors if "into conveyor" in e]
+    assert len(deep) == 1 and "contacts push the arm back; raise the grasp" in deep[0]
+    depth = float(re.search(r"by ([0-9.]+) mm", deep[0])[1])
+    assert 19.5 <= depth <= 20.5
 
 
 def test_a_robot_in_inches_is_found(cell):
@@ -90,7 +127,7 @@ def test_a_part_in_millimetres_is_found(cell):
 def test_the_command_prints_one_line_per_problem_and_fails(tmp_path, capsys):
     assert main(["check"]) == 0
     out = capsys.readouterr().out
-    assert "0 error(s), 0 warning(s)" in out and out.count("ok ") >= 10
+    assert "0 error(s), 1 warning(s)" in out and out.count("ok ") >= 10
     text = Path(load_cell().source).read_text()
     home = "home: [0.499, -0.051, 0.259, 0.65, 0.0, 0.664, -0.051]"
     assert home in text
@@ -98,8 +135,10 @@ def test_the_command_prints_one_line_per_problem_and_fails(tmp_path, capsys):
     broken.write_text(text.replace(home, "home: [0.499, -0.051, 0.259, 0.65, 0.0, 0.664, 4.7]"))
     assert main(["check", "--cell", str(broken), "--quiet"]) == 1
     lines = capsys.readouterr().out.strip().splitlines()
-    assert len(lines) == 2 and "HOME: joint 7 = 4.7 is on its limit" in lines[0]
-    assert lines[1].endswith("1 error(s), 0 warning(s)")
+    # HOME's wrist on its limit: the arm cannot turn the held part to FINAL from there either
+    assert len(lines) == 4 and "HOME: joint 7 = 4.7 is on its limit" in lines[0]
+    assert "FINAL's TCP pose holding the part" in lines[1]
+    assert lines[3].endswith("2 error(s), 1 warning(s)")
 
 
 def test_a_crossing_into_the_other_robot_is_found(cell):
@@ -121,6 +160,7 @@ def test_a_gripper_inside_the_wrist_is_found():
     short = robot.tool.T_flange_tool.copy()
     short[:3, 3] -= 0.0655 * short[:3, 2]
     moved = _robot(cell, "KR16A", tool=replace(robot.tool, T_flange_tool=short))
-    warnings = [f.line for f in check_cell(moved, crossing=False) if f.level == "warning"]
+    warnings = [f.line for f in check_cell(moved, crossing=False)
+                if f.level == "warning" and not f.line.startswith("reach: ")]
     assert len(warnings) == 1 and warnings[0].startswith("robot KR16A: link_6 reaches 66 mm past")
     assert "tool.mount" in warnings[0]

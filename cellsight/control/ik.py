@@ -93,8 +93,8 @@ def solve_ik(robot: Robot, T_base_tcp: np.ndarray, *, seeds: int = 48, tol_m: fl
         raise IKError(f"ik: the TCP pose must be a finite 4x4 matrix, got {T_goal.tolist()}")
     found, closest = [], (np.inf, np.inf)
     for name, q0 in _seeds(robot, seeds):
-        q, err = _converge(robot, T_goal, q0, tol_m, tol_rad)
-        if q is None:
+        q, err = converge(robot, T_goal, q0, tol_m, tol_rad)
+        if err[0] >= tol_m or err[1] >= tol_rad:
             closest = min(closest, err)
             continue
         found.append(_solution(robot, T_goal, q, name))
@@ -143,10 +143,11 @@ def _seeds(robot: Robot, n: int) -> list[tuple[str, np.ndarray]]:
     return out
 
 
-def _converge(robot: Robot, T_goal: np.ndarray, q0: np.ndarray, tol_m: float,
-              tol_rad: float) -> tuple[np.ndarray | None, tuple[float, float]]:
-    """Levenberg-Marquardt from ``q0``: (q, errors) on convergence, else (None, the smallest
-    errors (m, rad) met)."""
+def converge(robot: Robot, T_goal: np.ndarray, q0: np.ndarray, tol_m: float,
+             tol_rad: float) -> tuple[np.ndarray, tuple[float, float]]:
+    """Levenberg-Marquardt from ``q0``, every step clipped to the joint limits, until the TCP's
+    errors are under ``tol_m`` and ``tol_rad`` or no step lowers them: the joints that came
+    closest and their errors (m, rad)."""
     qlim = robot.chain.qlim
     q = np.clip(np.asarray(q0, dtype=float), qlim[:, 0], qlim[:, 1])
     e, J = _error(robot, T_goal, q)
@@ -169,8 +170,7 @@ def _converge(robot: Robot, T_goal: np.ndarray, q0: np.ndarray, tol_m: float,
             lam *= 4.0
             if lam > 1e6:
                 break
-    ok = best[0] < tol_m and best[1] < tol_rad
-    return (q if ok else None), best
+    return q, best
 
 
 def _error(robot: Robot, T_goal: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -15,6 +15,14 @@
 - **Key poses in view:** the part at its start, at the conveyor's end, and held at the grasping
   robot's HOME and FINAL (by its grasp): every feature point inside each camera's image by
   ``margin_px``; an error when outside, a warning when within the margin.
+- **Reach along the task:** the grasping robot's TCP followed from HOME, as the CLIK does
+  (damped least squares from the last joints, every step clipped to the limits), over the part
+  (``APPROACH_M`` above the grasp) and at the grasp, with the part at its start and every
+  ``REACH_STEP_M`` along the conveyor, then holding it at HOME's and FINAL's TCP poses: an error
+  where the joints cannot get within the task's tolerances (``TaskTolerances``: 5 mm, 2°);
+  and the tool at each grasp against the static objects (MuJoCo's distances): an error where
+  it goes more than that tolerance into one (contacts push the arm back), a warning where it
+  touches.
 - **Experiment 3's crossing:** along the crossing (every ``step_s``), the part on the conveyor
   and the grasping robot at HOME (or, given a run of the task, ``path``, the part and the other
   robots where that run had them), the features each camera sees (the occlusion predictor) with
@@ -36,11 +44,14 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from cellsight.camera import border_distance
-from cellsight.model.cell import Cell
+from cellsight.control.ik import converge
+from cellsight.control.task import TaskTolerances
+from cellsight.model.cell import Cell, Workpiece
 from cellsight.model.robot import Robot
 from cellsight.occlusion.predictor import VisibilityPredictor
 from cellsight.world import ReplayWorld
-from cellsight.world.grasp import grasp_pose
+from cellsight.world.contacts import mount_pairs
+from cellsight.world.grasp import grasp_opening, grasp_pose
 from cellsight.world.paths import ConveyorPath, JointTask, Waypoint
 
 if TYPE_CHECKING:
@@ -52,6 +63,8 @@ REACH_SAMPLES = 400
 LIMIT_MARGIN = 1e-6  # rad or m
 CLEARANCE_M = 0.05  # m: the crossing robot's least distance to the other robots and the part
 MOUNT_M = 0.05  # m: how far the flange link may end from the tool frame along its approach
+REACH_STEP_M = 0.02  # m between the part's positions along the conveyor checked for reach
+APPROACH_M = 0.05  # m: the approach pose over the grasp (the task's approach height)
 
 
 @dataclass(frozen=True)
@@ -68,7 +81,8 @@ def check_cell(cell: Cell, *, margin_px: float = 20.0, step_s: float = 0.1,
     experiment 3's crossing (the slow ones: the predictor and MuJoCo along the crossing);
     ``path``: a run of the task (experiment 2) giving the part's pose and the other robots'
     joints along the crossing (default: the part on the conveyor, the robots at HOME)."""
-    findings = _units(cell) + _mounts(cell) + _limits(cell) + _key_poses(cell, margin_px)
+    findings = (_units(cell) + _mounts(cell) + _limits(cell) + _key_poses(cell, margin_px)
+                + _task_reach(cell))
     return findings + (_crossing(cell, step_s, path) if crossing else [])
 
 
@@ -186,6 +200,113 @@ def _key_poses(cell: Cell, margin_px: float) -> list[Finding]:
             out.append(Finding(level, f"part {what}: {text} {cam.name}'s image"
                                       + (f" (margin {margin_px:g} px)" if level != "ok" else "")))
     return out
+
+
+def _part_positions(cell: Cell, part: Workpiece) -> list[tuple[str, np.ndarray]]:
+    """The part's start pose, then its pose every ``REACH_STEP_M`` along the conveyor (its
+    polyline, the part's height and orientation kept), each named."""
+    setup = cell.experiments
+    out = [("at its start", part.T_base_part)]
+    if setup.conveyor_points is None or len(setup.conveyor_points) < 2:
+        return out
+    points = np.asarray(setup.conveyor_points, dtype=float)
+    lengths = np.linalg.norm(np.diff(points, axis=0), axis=1)
+    along = np.cumsum(np.concatenate([[0.0], lengths]))
+    for s in np.arange(REACH_STEP_M, along[-1] + 1e-9, REACH_STEP_M):
+        T = part.T_base_part.copy()
+        T[:2, 3] = [np.interp(s, along, points[:, k]) for k in range(2)]
+        out.append((f"{100 * s:.0f} cm along the conveyor", T))
+    return out
+
+
+def _task_reach(cell: Cell) -> list[Finding]:
+    """The module docstring's reach along the task, for the grasping robot."""
+    robot = _grasping(cell)
+    if robot is None or robot.tool is None or not cell.workpieces:
+        return []
+    setup = cell.experiments
+    part = cell.workpiece(setup.workpiece) if setup.workpiece else cell.workpieces[0]
+    tol = TaskTolerances()
+    T_part_tcp = grasp_pose(part, robot.tool)
+    turned = T_part_tcp @ np.diag([-1.0, -1.0, 1.0, 1.0])  # the same grasp, half a turn about z
+    raised = np.eye(4)
+    raised[2, 3] = APPROACH_M
+    q, misses, grasps = robot.home, [], []
+    for where, T_part in _part_positions(cell, part):
+        tries = [_follow(robot, q, [raised @ T_part @ g, T_part @ g], tol)
+                 for g in (T_part_tcp, turned)]
+        q_end, error = next((t for t in tries if t[1] is None), tries[0])
+        if error is not None:
+            misses.append(f"the grasp with the part {where} ({error})")
+            continue
+        q = q_end
+        grasps.append((where, q))
+    for name, q_key in (("HOME", robot.home), ("FINAL", robot.final)):
+        if grasps and q_key is not None:  # from the last grasp, then from HOME as reached
+            q, error = _follow(robot, q, [robot.tcp_pose(q_key)], tol)
+            if error is not None:
+                misses.append(f"{name}'s TCP pose holding the part ({error})")
+    out = [Finding("error", f"reach: {robot.name} cannot get within the task's tolerances "
+                            f"({tol.position * 1e3:g} mm, {np.degrees(tol.angle):.0f} deg) of "
+                            f"{what}") for what in misses]
+    if not misses:
+        out.append(Finding("ok", f"reach: {robot.name} gets within the task's tolerances of the "
+                                 f"grasp at {len(grasps)} positions of the part, HOME and FINAL"))
+    return out + _grasp_contacts(cell, robot, part, grasps)
+
+
+def _follow(robot: Robot, q0: np.ndarray, goals: list[np.ndarray],
+            tol: TaskTolerances) -> tuple[np.ndarray, str | None]:
+    """The joints reaching ``goals`` in turn from ``q0`` (:func:`converge`), and None; or, at
+    the first goal missed, the joints that came closest and how far they stayed."""
+    q = q0
+    for T in goals:
+        q, (e_m, e_rad) = converge(robot, T, q, 1e-5, 1e-4)
+        if e_m > tol.position or e_rad > tol.angle:
+            return q, f"{e_m * 1e3:.1f} mm and {np.degrees(e_rad):.1f} deg away"
+    return q, None
+
+
+def _grasp_contacts(cell: Cell, robot: Robot, part: Workpiece,
+                    grasps: list[tuple[str, np.ndarray]]) -> list[Finding]:
+    """The robot's deepest way into a static object over the grasps reached (MuJoCo's signed
+    distances between the robot's solids and the static objects', jaws at the grasp's
+    opening or open; mounts left out: :func:`~cellsight.world.contacts.mount_pairs`)."""
+    import mujoco  # after cellsight.world, which chooses MuJoCo's OpenGL back-end
+
+    if not grasps or not cell.static:
+        return []
+    world = ReplayWorld(cell)
+    model, data = world.scene.model, world.scene.data
+    mounts = mount_pairs(world.scene, cell)
+    names = [model.geom(g).name for g in range(model.ngeom)]
+    static = {obj.name for obj in cell.static}
+    mine = [g for g, n in enumerate(names) if n.startswith(f"{robot.name}.")]
+    theirs = [g for g, n in enumerate(names) if n.split(".")[0] in static or n in static]
+    opening = grasp_opening(part.solid, robot.tool, grasp_pose(part, robot.tool))
+    fromto, deepest, what, where = np.zeros(6), np.inf, "", ""
+    try:
+        for at, q in grasps:
+            world.show_state({robot.name: q}, {}, {robot.name: opening or robot.tool.max_opening})
+            for i in mine:
+                for j in theirs:
+                    if (min(i, j), max(i, j)) in mounts:
+                        continue
+                    d = mujoco.mj_geomDistance(model, data, i, j, 0.05, fromto)
+                    if d < deepest:
+                        deepest, what, where = d, f"{names[i]} into {names[j]}", at
+    finally:
+        world.close()
+    tol = TaskTolerances().position
+    if deepest >= 0:
+        return [Finding("ok", f"reach: {robot.name} clears the static objects at every "
+                              f"grasp reached (least {100 * min(deepest, 0.05):.1f} cm)")]
+    line = (f"reach: {robot.name} at the grasp with the part {where}: {what} by "
+            f"{-deepest * 1e3:.2f} mm")
+    if -deepest > tol:
+        return [Finding("error", line + f", more than the task's {tol * 1e3:g} mm: contacts "
+                                        f"push the arm back; raise the grasp")]
+    return [Finding("warning", line + " (contacts push back in a world of MuJoCo's actuators)")]
 
 
 def _grasping(cell: Cell) -> Robot | None:
