@@ -239,7 +239,7 @@ def _intruders(k: _Knobs, p: Profile, cell: Cell) -> tuple:
         which = int(k.draw("unmodelled.box_camera", Distribution(dist="uniform", high=cams)))
         out.append(table_box(part, cell.cameras[min(which, cams - 1)], size,
                              k.draw("unmodelled.box_place", Distribution(dist="uniform", high=1),
-                                    2)))
+                                    2), cell.experiments.conveyor_points))
     if k.event("unmodelled.forearm", u.forearm_probability):
         which = int(k.draw("unmodelled.forearm_camera", Distribution(dist="uniform", high=cams)))
         which = u.forearm_camera if u.forearm_camera >= 0 else which
