@@ -323,10 +323,10 @@ def _actuated(**servo) -> Imperfections:
 
 
 def test_mujoco_actuators_follow_the_servos_second_order_response(cell):
-    """MuJoCo's position actuator on the wrist joint's rotor inertia, integrated by mj_step:
-    the step response and the ramp's lag of the analytic loop, the other joints held. The
-    links add about 3 % of inertia, and the implicit integration of the actuator's damping
-    (wn dt = 0.1) shortens the ramp's lag by 5 %."""
+    """MuJoCo's position actuator on the wrist joint (its rotor and links, the gains set for
+    both), integrated by mj_step: the step response and the ramp's lag of the analytic loop,
+    the other joints held. The implicit integration of the actuator's damping (wn dt = 0.1)
+    shortens the ramp's lag by 5 %."""
     f = 8.0
     wn = 2 * math.pi * f
     world = World(cell, errors=_actuated(bandwidth_hz=f))
@@ -391,8 +391,8 @@ def test_a_joint_run_into_its_limit_overshoots_and_its_reading_is_accepted(cell)
 
 
 def test_mujoco_actuators_limit_torque_and_velocity(cell):
-    """A large step: the joint's acceleration stays within the torque limit's (armature times
-    the acceleration limit) and its speed within the velocity limit (clipped after each step:
+    """A large step: the joint's acceleration stays within the torque limit's (the joint's
+    inertia times the acceleration limit) and its speed within the velocity limit (clipped after each step:
     within one step's acceleration of it)."""
     a_max, v_max = math.radians(900.0), math.radians(150.0)
     world = World(cell, errors=_actuated(bandwidth_hz=8.0, max_velocity=v_max,

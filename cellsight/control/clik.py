@@ -44,10 +44,11 @@ REVOLUTE_SPEED = 2.0  # rad/s, default limit of a revolute joint
 
 
 def default_joint_velocity_limits(robot: Robot) -> np.ndarray:
-    """Default joint speed limits: 0.5 m/s per prismatic joint, 2 rad/s per revolute joint.
-
-    The cell file gives no speed limits; these are conservative for a SMART-3 S-class arm."""
-    return np.where(robot.chain.prismatic, PRISMATIC_SPEED, REVOLUTE_SPEED)
+    """Default joint speed limits: 0.5 m/s per prismatic joint, 2 rad/s per revolute joint
+    (conservative for a SMART-3 S-class arm), or the robot's rated speed where it is lower (a
+    URDF's ``limit velocity``: a KUKA LBR iiwa's first joints turn at 85 deg/s)."""
+    limits = np.where(robot.chain.prismatic, PRISMATIC_SPEED, REVOLUTE_SPEED)
+    return limits if robot.max_velocity is None else np.minimum(limits, robot.max_velocity)
 
 
 def tcp_pose_and_jacobian(robot: Robot, q: np.ndarray,

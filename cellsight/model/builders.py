@@ -151,7 +151,7 @@ def _robot(rs: RobotSpec, at: str, file: str, folder: Path,
         tool = _gripper(rs, at, file, folder, model.T_last_flange)
         home, final = _joint_vectors(rs, model.chain, at, file)
         return Robot(rs.name, rs.base.matrix(), model.chain, model.link_solids, tool, home,
-                     final, model.solid_links)
+                     final, model.solid_links, model.max_velocity)
     chain = DHChain(
         [DHLink(lk.a, lk.alpha, lk.d, lk.theta, lk.kind, tuple(lk.qlim)) for lk in rs.links],
         name=rs.name,

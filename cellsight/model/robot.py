@@ -54,7 +54,9 @@ class Robot:
     ``home`` and ``final`` are joint vectors (m for prismatic joints, rad for revolute ones).
     ``solid_links`` names, per frame and per solid, the link the solid belongs to (a URDF
     link's name; a link fixed to frame i carries its own name); None: ``link<i>`` (DH robots).
-    Occlusion reports name a robot's link ``<robot>.<link>``.
+    Occlusion reports name a robot's link ``<robot>.<link>``. ``max_velocity``: each joint's
+    rated speed (rad/s, m/s for a prismatic joint; a URDF's ``limit velocity``, inf where it
+    gives none); None: not known (DH robots).
     """
 
     name: str
@@ -65,6 +67,7 @@ class Robot:
     home: np.ndarray
     final: np.ndarray | None = None
     solid_links: tuple[tuple[str, ...], ...] | None = None
+    max_velocity: np.ndarray | None = None
 
     @property
     def n_joints(self) -> int:

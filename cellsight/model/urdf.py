@@ -68,7 +68,7 @@ _NUMBERS: dict[str, tuple[tuple[str, int | None, bool], ...]] = {
     "cylinder": (("radius", 1, True), ("length", 1, True)),
     "sphere": (("radius", 1, True),),
     "mesh": (("scale", None, False),),
-    "limit": (("lower", 1, False), ("upper", 1, False)),
+    "limit": (("lower", 1, False), ("upper", 1, False), ("velocity", 1, False)),
 }
 
 
@@ -85,13 +85,16 @@ class UrdfError(CellsightError, ValueError):
 class UrdfRobot:
     """What a URDF gives a :class:`~cellsight.model.Robot`: the chain (frame 0 = root link),
     per frame the solids and the URDF link each belongs to, and ``T_last_flange``, the flange
-    link's pose in frame n (the gripper mounts on the flange)."""
+    link's pose in frame n (the gripper mounts on the flange), and ``max_velocity``: each
+    actuated joint's rated speed (its ``limit velocity``, rad/s or m/s; inf where not a positive
+    number)."""
 
     chain: SerialChain
     link_solids: tuple[tuple[Polyhedron, ...], ...]
     solid_links: tuple[tuple[str, ...], ...]
     T_last_flange: np.ndarray
     flange: str
+    max_velocity: np.ndarray
 
 
 def installed_package_folder(name: str) -> Path | None:
@@ -274,6 +277,7 @@ class _Walk:
     joint_links: list
     link_frame: dict
     joint_names: list = field(default_factory=list)
+    speeds: list = field(default_factory=list)
 
 
 def _actuated(walk: _Walk, j, frame: int, T_frame_parent: np.ndarray, path: Path) -> None:
@@ -302,6 +306,8 @@ def _actuated(walk: _Walk, j, frame: int, T_frame_parent: np.ndarray, path: Path
     walk.qlim.append((lo, hi))
     walk.joint_links.append(j.child)
     walk.joint_names.append(j.name)
+    speed = None if j.limit is None else j.limit.velocity
+    walk.speeds.append(float(speed) if speed is not None and float(speed) > 0 else np.inf)
 
 
 def _walk(robot, path: Path) -> _Walk:
@@ -402,6 +408,8 @@ def _scale_walk(walk: _Walk, scale: float) -> None:
         T[:3, 3] *= scale
     walk.qlim = [(lo * scale, hi * scale) if kind == "prismatic" else (lo, hi)
                  for (lo, hi), kind in zip(walk.qlim, walk.kinds, strict=True)]
+    walk.speeds = [v * scale if kind == "prismatic" else v
+                   for v, kind in zip(walk.speeds, walk.kinds, strict=True)]
 
 
 def _solids(robot, walk: _Walk, geometry: str, robot_name: str, packages: Mapping[str, Path],
@@ -535,4 +543,4 @@ def load_urdf_robot(path: Path, robot_name: str, geometry: str = "collision",
     except CellsightError as exc:
         raise UrdfError("file", f"URDF file {path}: {exc}") from exc
     return UrdfRobot(chain, tuple(map(tuple, solids)), tuple(map(tuple, links)), T_last_flange,
-                     name)
+                     name, np.array(walk.speeds, dtype=float))

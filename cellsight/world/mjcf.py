@@ -260,18 +260,36 @@ def _world_bodies(cell: Cell, geoms: dict[str, list[str]], dynamic: bool) -> lis
     return world
 
 
-def _dynamics(cell: Cell, servo: ServoParams | None,
-              exclude: Sequence[tuple[str, str]]) -> tuple[str, str]:
+def link_inertia(model: mujoco.MjModel, data: mujoco.MjData,
+                 cell: Cell) -> dict[str, np.ndarray]:
+    """Robot name -> the inertia (kg m^2, kg for a prismatic joint) each of its joints moves
+    beyond its rotor in the model's state: the diagonal of MuJoCo's joint-space mass matrix
+    less the joints' armature (the links, tool and jaws beyond the joint)."""
+    mujoco.mj_forward(model, data)
+    M = np.zeros((model.nv, model.nv))
+    mujoco.mj_fullM(model, data, M)
+    out = {}
+    for robot in cell.robots:
+        dofs = [model.jnt_dofadr[model.joint(joint_name(robot.name, i)).id]
+                for i in range(1, robot.n_joints + 1)]
+        out[robot.name] = np.diag(M)[dofs] - model.dof_armature[dofs]
+    return out
+
+
+def _dynamics(cell: Cell, servo: ServoParams | None, exclude: Sequence[tuple[str, str]],
+              links: Mapping[str, np.ndarray] | None) -> tuple[str, str]:
     """The ``<actuator>`` section of a world of MuJoCo's actuators (module docstring; else
-    empty) and the ``<contact>`` section excluding the body pairs ``exclude``."""
+    empty), its gains set for each joint's rotor and ``links`` (:func:`link_inertia`; none:
+    the rotor's alone), and the ``<contact>`` section excluding the body pairs ``exclude``."""
     pairs = [f"<exclude body1={quoteattr(a)} body2={quoteattr(b)}/>" for a, b in exclude]
     contacts = f"<contact>{chr(10).join(pairs)}</contact>" if pairs else ""
     if servo is None or not servo.mujoco:
         return "", contacts
     actuators = []
     for robot in cell.robots:
+        moved = (links or {}).get(robot.name, np.zeros(robot.n_joints))
         for i, prismatic in enumerate(robot.chain.prismatic, start=1):
-            kp, kv, limit = actuator_gains(servo, _armature(prismatic))
+            kp, kv, limit = actuator_gains(servo, _armature(prismatic) + float(moved[i - 1]))
             force = (f' forcelimited="true" forcerange="{-limit:.17g} {limit:.17g}"'
                      if np.isfinite(limit) else "")
             actuators.append(f"<position name={quoteattr(f'{robot.name}/a{i}')} "
@@ -300,13 +318,15 @@ def excluded_pairs(cell: Cell, mounts: Iterable[tuple[str, str]] = ()) -> list[t
 def cell_mjcf(cell: Cell, render_size: tuple[int, int] | None = None,
               intruders: tuple[Intruder, ...] = (), servo: ServoParams | None = None,
               exclude: Sequence[tuple[str, str]] = (),
-              plates: Mapping[str, Plate] | None = None) -> str:
+              plates: Mapping[str, Plate] | None = None,
+              links: Mapping[str, np.ndarray] | None = None) -> str:
     """MJCF text of the cell and the ``intruders`` it does not know (see the module docstring
     for names and frames); ``plates``: robot name -> the plate on its flange.
 
     ``render_size`` = (width, height) of the rendered images (default: each camera's own).
     ``servo``: the joints' servo; with ``servo.mujoco`` the model is MuJoCo's dynamics, its
-    contacts pushing back; never between the body pairs of ``exclude`` (module docstring).
+    contacts pushing back; never between the body pairs of ``exclude`` (module docstring), the
+    actuators' gains set for each joint's rotor and ``links`` (:func:`link_inertia`).
     """
     dynamic = servo is not None and servo.mujoco
     geoms, assets = _geoms_and_assets(cell)
@@ -316,7 +336,7 @@ def cell_mjcf(cell: Cell, render_size: tuple[int, int] | None = None,
         geoms.setdefault(flange, []).append(plate_geom(robot, GROUP_ROBOT))
         assets += plate_assets(robot, plate)
     world = _world_bodies(cell, geoms, dynamic) + [_intruder_body(i) for i in intruders]
-    actuators, contacts = _dynamics(cell, servo, exclude)
+    actuators, contacts = _dynamics(cell, servo, exclude, links)
     sizes = [render_size or (c.width, c.height) for c in cell.cameras] or [(640, 480)]
     offw, offh = max(s[0] for s in sizes), max(s[1] for s in sizes)
     cameras = [mjcf_camera(c, render_size) for c in cell.cameras]

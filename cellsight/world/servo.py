@@ -16,12 +16,18 @@ target at the end of each period. Units: rad (m for a prismatic joint), s, Hz.
 With ``mujoco`` the joints are MuJoCo's instead (:mod:`cellsight.world.mjcf`,
 :class:`~cellsight.world.world.World`): each is driven by a position actuator on a rotor
 inertia (``armature``: :data:`ARMATURE_KG_M2`, :data:`ARMATURE_KG` for a prismatic joint, the
-motor's inertia through its gearbox, which dominates a geared arm's links) with the same
-second-order loop (:func:`actuator_gains`: ``kp = A wn^2``, ``kv = 2 zeta A wn``; the
-feed-forward enters as the actuator's set-point ``q_target + (kv / kp) v_target``), a torque
-(force) limit ``A max_acceleration``, gravity compensated (as a robot controller's feed-forward
-does), the velocity clipped to ``max_velocity`` after each step, and integrated by ``mj_step``
-with contacts on: what the arm hits pushes back.
+motor's inertia through its gearbox) with the same second-order loop, tuned to the robot being
+driven: its gains are set for the joint's whole inertia ``I`` at the robot's start (the rotor's
+plus the links' beyond it, from MuJoCo's mass matrix: 0.03-9.6 kg m^2 on the built-in cells'
+arms), so every joint of every robot has the profile's bandwidth there
+(:func:`actuator_gains`: ``kp = I wn^2``, ``kv = 2 zeta I wn``; the feed-forward enters as the
+actuator's set-point ``q_target + (kv / kp) v_target``), a torque (force) limit
+``I max_acceleration``, gravity compensated (as a robot controller's feed-forward does), the
+velocity clipped after each step, and integrated by ``mj_step`` with contacts on: what the arm
+hits pushes back.
+
+Every joint's speed limit is the profile's ``max_velocity`` or the robot's rated speed (its
+URDF's ``limit velocity``), whichever is lower.
 """
 
 from __future__ import annotations
@@ -64,20 +70,24 @@ class ServoParams:
         return 2.0 * self.damping / (2.0 * math.pi * self.bandwidth_hz)
 
 
-def actuator_gains(params: ServoParams, armature: float) -> tuple[float, float, float]:
-    """(kp, kv, force limit) of a MuJoCo position actuator that gives a joint of inertia
-    ``armature`` (kg m^2 or kg) the servo's second-order loop (module docstring); the force
-    limit is infinite when the acceleration is unlimited."""
+def actuator_gains(params: ServoParams, inertia: float) -> tuple[float, float, float]:
+    """(kp, kv, force limit) of a MuJoCo position actuator that gives a joint of ``inertia``
+    (kg m^2 or kg: its rotor's and its links') the servo's second-order loop (module
+    docstring); the force limit is infinite when the acceleration is unlimited."""
     wn = 2.0 * math.pi * params.bandwidth_hz
-    return (armature * wn * wn, 2.0 * params.damping * armature * wn,
-            armature * params.max_acceleration)
+    return (inertia * wn * wn, 2.0 * params.damping * inertia * wn,
+            inertia * params.max_acceleration)
 
 
 class JointServo:
-    """The servo of one robot's joints (module docstring), starting at rest at ``q0``."""
+    """The servo of one robot's joints (module docstring), starting at rest at ``q0``;
+    ``rated_velocity``: each joint's rated speed (rad/s, m/s), which caps the profile's."""
 
-    def __init__(self, params: ServoParams, q0: np.ndarray, dt: float) -> None:
+    def __init__(self, params: ServoParams, q0: np.ndarray, dt: float,
+                 rated_velocity: np.ndarray | None = None) -> None:
         self.params, self.dt = params, float(dt)
+        self.max_velocity = (np.full(len(q0), params.max_velocity) if rated_velocity is None
+                             else np.minimum(params.max_velocity, rated_velocity))
         self.q = np.array(q0, dtype=float)
         self.qd = np.zeros_like(self.q)
         self.target = self.q.copy()
@@ -101,7 +111,7 @@ class JointServo:
         qd = v + self._phi[1, 0] * error + self._phi[1, 1] * error_rate
         dv = p.max_acceleration * self.dt
         qd = np.minimum(np.maximum(qd, self.qd - dv), self.qd + dv)  # np.clip, cheaper
-        qd = np.minimum(np.maximum(qd, -p.max_velocity), p.max_velocity)
+        qd = np.minimum(np.maximum(qd, -self.max_velocity), self.max_velocity)
         clipped = qd != v + self._phi[1, 0] * error + self._phi[1, 1] * error_rate
         self.q = np.where(clipped, self.q + 0.5 * (self.qd + qd) * self.dt,
                           self.target + new_error)
