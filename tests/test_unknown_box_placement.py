@@ -1,11 +1,13 @@
 """The realism profiles' unknown box is never on the conveyor's path: wherever the seed puts
 it, the part's footprint along the whole path (the polyline sampled every millimetre) keeps at
 least ``PATH_CLEARANCE_M`` from the box's footprint (both outlines sampled every millimetre,
-distances by a k-d tree); a box drawn clear of the path stays where it was drawn."""
+distances by a k-d tree), and so does the open gripper's reach around the path; a box drawn
+clear of the path stays where it was drawn."""
 
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.spatial import ConvexHull, cKDTree
@@ -42,11 +44,15 @@ CELL = load_cell()
 def test_the_box_keeps_clear_of_the_part_along_the_path(size, camera, place):
     part = CELL.workpieces[0]
     path = CELL.experiments.conveyor_points
-    intruder = table_box(part, CELL.cameras[camera], np.array(size), np.array(place), path)
+    gripper = CELL.robot("R7AX").tool.reach_across()
+    intruder = table_box(part, CELL.cameras[camera], np.array(size), np.array(place), path,
+                         gripper)
     corners = transform_points(intruder.pose(0.0), intruder.solid.vertices)[:, :2]
-    box = _outline(corners[ConvexHull(corners).vertices])
-    gap = cKDTree(box).query(_part_footprints(part, path))[0].min()
+    box = cKDTree(_outline(corners[ConvexHull(corners).vertices]))
+    gap = box.query(_part_footprints(part, path))[0].min()
     assert gap >= PATH_CLEARANCE_M - 2e-3, gap
+    route = _outline(np.vstack([part.T_base_part[:2, 3], path, path[::-1]]))
+    assert box.query(route)[0].min() >= gripper + PATH_CLEARANCE_M - 2e-3
 
 
 def test_a_box_clear_of_the_path_stays_where_drawn():
@@ -56,3 +62,9 @@ def test_a_box_clear_of_the_path_stays_where_drawn():
         drawn = table_box(part, CELL.cameras[0], np.full(3, 0.1), np.array(place))
         kept = table_box(part, CELL.cameras[0], np.full(3, 0.1), np.array(place), far[1:])
         np.testing.assert_array_equal(drawn.pose(0.0), kept.pose(0.0))
+
+
+def test_the_grippers_reach_across_is_its_palms_corner():
+    """The built-in gripper: a 8 x 15 cm palm centred on the TCP's axis, jaws 9 cm apart at
+    most (each 3.5 x 1.2 cm): the palm's corner is the farthest, hypot(4, 7.5) cm."""
+    assert CELL.robot("R7AX").tool.reach_across() == pytest.approx(np.hypot(0.04, 0.075))

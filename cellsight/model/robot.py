@@ -45,6 +45,14 @@ class ParallelGripper:
         """Pose of the tool centre point in the tool frame (same axes as the tool frame)."""
         return make_pose(None, self.tcp)
 
+    def reach_across(self) -> float:
+        """How far the palm and the open jaws reach from the TCP across the approach axis (m,
+        in the tool's x-y plane): the room the gripper takes around a part it grasps."""
+        jaws = [T[:3, :3] @ self.jaw.vertices.T + T[:3, 3:] for T in
+                self.jaw_poses(self.max_opening)]
+        points = np.hstack([p.vertices.T for p in self.palm] + jaws)
+        return float(np.linalg.norm(points[:2] - self.tcp[:2, None], axis=0).max())
+
 
 @dataclass(frozen=True)
 class Robot:

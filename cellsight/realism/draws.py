@@ -237,9 +237,12 @@ def _intruders(k: _Knobs, p: Profile, cell: Cell) -> tuple:
     if k.event("unmodelled.box", u.box_probability):
         size = k.draw("unmodelled.box_size_mm", u.box_size_mm, 3, 1e-3)
         which = int(k.draw("unmodelled.box_camera", Distribution(dist="uniform", high=cams)))
+        tools = [r.tool for r in cell.robots if r.tool is not None and (
+            cell.experiments.robot in (None, r.name))]
         out.append(table_box(part, cell.cameras[min(which, cams - 1)], size,
                              k.draw("unmodelled.box_place", Distribution(dist="uniform", high=1),
-                                    2), cell.experiments.conveyor_points))
+                                    2), cell.experiments.conveyor_points,
+                             tools[0].reach_across() if tools else 0.0))
     if k.event("unmodelled.forearm", u.forearm_probability):
         which = int(k.draw("unmodelled.forearm_camera", Distribution(dist="uniform", high=cams)))
         which = u.forearm_camera if u.forearm_camera >= 0 else which

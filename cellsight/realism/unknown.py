@@ -3,8 +3,9 @@
 - ``unknown.box``: a box standing at the part's height 15-30 cm from its start towards one
   camera (up to 10 cm to either side), turned to face it, so that it may hide the part's lower
   features from that camera; never on the conveyor's path (the conveyor would carry the part
-  through it): a spot nearer the path than ``PATH_CLEARANCE_M`` beyond the box's and the part's
-  half widths is moved straight away from the path to that distance;
+  through it, and the gripper grasps the part there): a spot nearer the path than
+  ``PATH_CLEARANCE_M`` beyond the box's half width and the part's or the open gripper's,
+  whichever is wider, is moved straight away from the path to that distance;
 - ``unknown.forearm``: a 40 x 8 x 8 cm bar, horizontal and across one camera's line of sight to
   the part (5 cm above the part's start), 25-60 % of the way to the camera; it comes in along
   its own length from 80 cm to the side and leaves the same way.
@@ -36,9 +37,11 @@ def _frame(x_axis: np.ndarray, origin: np.ndarray) -> np.ndarray:
 
 
 def table_box(part: Workpiece, camera: Camera, size: np.ndarray, place: np.ndarray,
-              path: np.ndarray | None = None) -> Intruder:
+              path: np.ndarray | None = None, gripper_m: float = 0.0) -> Intruder:
     """The box of the module docstring, ``size`` (3,) m; ``path``: the conveyor's polyline
-    ((k, 2) x, y of the part's origin, base frame), none for a part that stays put."""
+    ((k, 2) x, y of the part's origin, base frame), none for a part that stays put;
+    ``gripper_m``: how far the gripper reaches across its approach around the part's grasp
+    (:meth:`~cellsight.model.robot.ParallelGripper.reach_across`)."""
     start = part.T_base_part[:3, 3]
     vertices = transform_points(part.T_base_part, part.solid.vertices)
     towards = camera.center - start
@@ -47,9 +50,9 @@ def table_box(part: Workpiece, camera: Camera, size: np.ndarray, place: np.ndarr
     centre = start + (0.15 + 0.15 * place[0]) * ahead + (place[1] - 0.5) * 0.2 * side
     centre[2] = vertices[:, 2].min() + 0.5 * size[2]
     if path is not None and len(path):
-        reach = (0.5 * float(np.hypot(size[0], size[1]))
-                 + float(np.linalg.norm(vertices[:, :2] - start[:2], axis=1).max())
-                 + PATH_CLEARANCE_M)
+        part_m = float(np.linalg.norm(vertices[:, :2] - start[:2], axis=1).max())
+        reach = 0.5 * float(np.hypot(size[0], size[1])) + max(part_m, gripper_m) + (
+            PATH_CLEARANCE_M)
         centre[:2] = _off_path(centre[:2], np.vstack([start[:2], path]), reach, side[:2])
     frame[:3, 3] = centre
     return Intruder("unknown.box", box("unknown.box", size), frame)
