@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from cellsight.errors import CellsightError
 from cellsight.geometry.transforms import pose_from_xyz_rpy
 from cellsight.rates import VISION_HZ
 from cellsight.runfolder.framelog import (
@@ -177,7 +178,20 @@ def test_wrong_columns_and_lengths_are_refused(tmp_path: Path):
     with FrameWriter(tmp_path / "frames.csv", 1) as writer, pytest.raises(KeyError, match="c2"):
         writer.write({"vis_pred_c2": "01"})
     log = FrameLog({"sel_c1": ["011", "01"], "occ_true_c1": ["a;b;c", "a;b"]}, 2)
-    with pytest.raises(ValueError, match="sel_c1 row 1: 2 flags, expected 3"):
+    with pytest.raises(CellsightError, match="^frames.csv: column 'sel_c1', row 2: 2 flags, "
+                                             "expected 3$"):
         log.bits("sel_c1", 3)
-    with pytest.raises(ValueError, match="occ_true_c1 row 1: 2 labels, expected 3"):
+    with pytest.raises(CellsightError, match="column 'occ_true_c1', row 2: 2 labels, expected 3"):
         log.labels("occ_true_c1", 3)
+
+
+@pytest.mark.parametrize("bad", ["abc", "1,5", "0x1p", "--1"])
+def test_a_value_that_is_not_a_number_names_the_file_column_and_row(tmp_path: Path, bad: str):
+    path = tmp_path / "frames.csv"
+    path.write_text("t,true_x\n0.0,1.5\n0.04," + ('"1,5"' if "," in bad else bad) + "\n0.08,\n")
+    log = FrameLog.read(path)
+    np.testing.assert_array_equal(log.floats("t"), [0.0, 0.04, 0.08])
+    with pytest.raises(CellsightError) as e:
+        log.floats("true_x")
+    assert str(e.value) == (f"{path}: column 'true_x', row 2: {bad!r} is not a number (edited "
+                            f"by hand, or not a cellsight run's frames.csv?)")

@@ -156,3 +156,24 @@ def test_a_bad_address_is_one_clear_error(text):
         parse_address(text)
     with pytest.raises(CellsightError, match="--live"):
         RunConfig(3, Path("/tmp/never"), live=text)
+
+
+def test_a_port_in_use_is_refused_before_the_run_naming_it(tmp_path, capsys):
+    """Another program listens on the port: the run is refused before its folder exists (no
+    half run blocks the rerun), by the API and the command line, naming --live and the
+    address; the same port free again is taken."""
+    from cellsight.cli import main
+
+    with socket.socket() as other:
+        other.bind(("127.0.0.1", 0))
+        other.listen()
+        port = other.getsockname()[1]
+        wanted = f"--live: 127.0.0.1:{port} is already in use"
+        with pytest.raises(CellsightError, match=wanted.replace(".", r"\.")):
+            RunConfig(1, tmp_path / "api", live=str(port))
+        assert main(["run", "1", "--sensor", "ideal", "--out", str(tmp_path / "cli"),
+                     "--live", f"127.0.0.1:{port}"]) == 2
+        err = capsys.readouterr().err
+        assert wanted in err and "pick another port, or 0 for a free one" in err
+        assert not (tmp_path / "cli").exists() and not (tmp_path / "api").exists()
+    assert parse_address(str(port)) == ("127.0.0.1", port)

@@ -12,6 +12,8 @@ import numpy as np
 
 from cellsight.commands.text import CELL_HELP
 
+MAX_SEEDS = 1000  # random starts of `ik` at most: about 30 s
+
 
 def register(sub: argparse._SubParsersAction) -> None:
     """Add ``cellsight ik`` to the sub-commands."""
@@ -25,7 +27,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     pose.add_argument("--part-pose", help='a part held at a pose by its grasp: JSON '
                                           '{"part": {"xyz": [..], "rpy": [..]}}')
     ik.add_argument("--seeds", type=int, default=48,
-                    help="random starts besides HOME, FINAL and mid-range (48)")
+                    help=f"random starts besides HOME, FINAL and mid-range (48; at most "
+                         f"{MAX_SEEDS}: about 30 ms each)")
     ik.add_argument("--json", action="store_true", help="print JSON instead of a table")
     ik.set_defaults(func=cmd_ik)
 
@@ -36,8 +39,9 @@ def cmd_ik(args: argparse.Namespace) -> int:
     from cellsight.model.arguments import parse_part_poses, parse_tcp_pose
     from cellsight.model.loader import load_cell
 
-    if args.seeds < 0:
-        raise CellsightError(f"--seeds: expected a whole number >= 0, got {args.seeds}")
+    if not 0 <= args.seeds <= MAX_SEEDS:
+        raise CellsightError(f"--seeds: expected a whole number from 0 to {MAX_SEEDS} (about "
+                             f"30 ms each), got {args.seeds}")
     cell = load_cell(args.cell)
     robot = _robot(cell, args.robot)
     part = None

@@ -43,6 +43,7 @@ from cellsight.geometry.transforms import transform_points
 from cellsight.model.cell import Cell
 from cellsight.report.overlay import draw_camera_overlay
 from cellsight.tracking.records import PartFrame
+from cellsight.view.inputs import check_port
 
 log = logging.getLogger(__name__)
 
@@ -53,7 +54,8 @@ LEVELS = {"lost": "Error", "degraded": "Warning", "coasting": "Warning"}
 
 def parse_address(text: str) -> tuple[str, int]:
     """``HOST:PORT``, ``:PORT`` or ``PORT`` (host 127.0.0.1) as (host, port); port 0 picks a
-    free one."""
+    free one. The port is tried before anything runs: one in use, or a host this machine
+    cannot listen on, is a :class:`CellsightError` naming ``--live`` and the address."""
     host, _, port = text.rpartition(":")
     try:
         number = int(port)
@@ -61,7 +63,9 @@ def parse_address(text: str) -> tuple[str, int]:
         number = -1
     if not 0 <= number <= 65535:
         raise CellsightError(f"--live: expected [HOST:]PORT with a port 0-65535, got {text!r}")
-    return host or "127.0.0.1", number
+    host = host or "127.0.0.1"
+    check_port(host, number, "--live", "--live")
+    return host, number
 
 
 def _stamp(ns: int):
@@ -155,8 +159,11 @@ class LiveStream:
 
         self.cell, self.part, self.image_every = cell, cell.workpiece(part), image_every
         self.context = foxglove.Context()
-        self.server = foxglove.start_server(name="cellsight", host=host, port=port,
-                                            context=self.context)
+        try:
+            self.server = foxglove.start_server(name="cellsight", host=host, port=port,
+                                                context=self.context)
+        except RuntimeError as exc:  # taken between the check and now
+            raise CellsightError(f"--live: {host}:{port} is already in use ({exc})") from None
         token, ctx = topic_token(part), self.context
         self.tf = FrameTransformsChannel("/tf", context=ctx)
         self.estimate = PoseInFrameChannel(f"/{token}/estimate", context=ctx)

@@ -60,6 +60,7 @@ the file itself fails (a full disk) nothing takes its name (a file there before,
 
 from __future__ import annotations
 
+import tempfile
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
@@ -208,9 +209,9 @@ def start_time_ns(value: int | str) -> int:
 
 def check_output(path: str | Path, overwrite: bool, run_folder: Path,
                  option: str = "--mcap") -> Path:
-    """The output file (of command-line ``option``), checked touching nothing: not a folder,
-    not one of the run's own files (nor a link to one), not existing unless ``overwrite``, its
-    folder creatable."""
+    """The output file (of command-line ``option``), checked before the work starts and touching
+    nothing: not a folder, not one of the run's own files (nor a link to one), not existing
+    unless ``overwrite``, its folder creatable and the nearest existing one writable."""
 
     path = Path(path)
     if path.is_dir():
@@ -223,6 +224,13 @@ def check_output(path: str | Path, overwrite: bool, run_folder: Path,
     parent = next((p for p in path.absolute().parents if p.exists()), None)
     if parent is not None and not parent.is_dir():
         raise CellsightError(f"{option}: {str(path)!r} is under {str(parent)!r}, a file")
+    if parent is not None:
+        try:  # an unnamed file (O_TMPFILE where the system has it): nothing is left behind
+            with tempfile.TemporaryFile(dir=parent):
+                pass
+        except OSError as exc:
+            raise CellsightError(f"{option}: cannot write under {str(parent)!r} "
+                                 f"({exc.strerror or exc})") from None
     return path
 
 

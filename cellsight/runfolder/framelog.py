@@ -22,6 +22,7 @@ from typing import TextIO
 
 import numpy as np
 
+from cellsight.errors import CellsightError
 from cellsight.geometry.transforms import xyz_rpy_from_pose
 from cellsight.runfolder.writes import write_error
 from cellsight.tracking.timing import STAGES
@@ -281,10 +282,13 @@ class FrameWriter:
 @dataclass
 class FrameLog:
     """``frames.csv`` read back: ``columns`` name -> one string per row ('' = missing), ``n``
-    rows. The accessors type the columns; an absent column reads as missing in every row."""
+    rows, ``source`` the file (for errors). The accessors type the columns; an absent column
+    reads as missing in every row; a value that is not what its column holds is a
+    :class:`~cellsight.errors.CellsightError` naming the file, the column and the row."""
 
     columns: dict[str, list[str]]
     n: int
+    source: str = "frames.csv"
 
     @classmethod
     def read(cls, path: Path) -> FrameLog:
@@ -297,7 +301,8 @@ class FrameLog:
             reader = csv.reader(f)
             header = next(reader, [])
             rows = [r for r in reader if header and len(r) == len(header)]
-        return cls({name: [r[i] for r in rows] for i, name in enumerate(header)}, len(rows))
+        return cls({name: [r[i] for r in rows] for i, name in enumerate(header)}, len(rows),
+                   str(path))
 
     def text(self, name: str) -> list[str]:
         """A column's strings."""
@@ -305,7 +310,14 @@ class FrameLog:
 
     def floats(self, name: str) -> np.ndarray:
         """A column as float (N,), NaN where missing."""
-        return np.array([float(v) if v else np.nan for v in self.text(name)], dtype=float)
+        values = self.text(name)
+        try:
+            return np.array([float(v) if v else np.nan for v in values], dtype=float)
+        except ValueError:
+            row, bad = next((i, v) for i, v in enumerate(values) if v and not _is_number(v))
+            raise CellsightError(f"{self.source}: column {name!r}, row {row + 1}: {bad!r} is "
+                                 f"not a number (edited by hand, or not a cellsight run's "
+                                 f"frames.csv?)") from None
 
     def present(self, name: str) -> np.ndarray:
         """(N,) bool: rows where the column has a value."""
@@ -332,7 +344,8 @@ class FrameLog:
         for i, s in enumerate(self.text(name)):
             if s:
                 if len(s) != F:
-                    raise ValueError(f"{name} row {i}: {len(s)} flags, expected {F}")
+                    raise CellsightError(f"{self.source}: column {name!r}, row {i + 1}: "
+                                         f"{len(s)} flags, expected {F}")
                 out[i] = decode_bits(s)
         return out
 
@@ -345,7 +358,8 @@ class FrameLog:
             if s:
                 parts = s.split(LABEL_SEPARATOR)
                 if len(parts) != F:
-                    raise ValueError(f"{name} row {i}: {len(parts)} labels, expected {F}")
+                    raise CellsightError(f"{self.source}: column {name!r}, row {i + 1}: "
+                                         f"{len(parts)} labels, expected {F}")
                 out[i] = parts
         return out
 
@@ -393,3 +407,11 @@ class FrameLog:
             if flags:
                 return len(flags[0])
         return 0
+
+
+def _is_number(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True

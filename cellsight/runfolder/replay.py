@@ -179,9 +179,9 @@ def _visibility(frames: FrameLog, cell: Cell, part: Workpiece, name: str):
         column = camera_column(name, c)
         try:
             bits.append(frames.bits(column, F))
-        except ValueError as exc:
-            raise RunDataError(f"frames.csv: {exc} (the features of workpiece {part.name!r} "
-                               f"of cell {cell.source})") from exc
+        except CellsightError as exc:
+            raise RunDataError(f"{exc} (the features of workpiece {part.name!r} of cell "
+                               f"{cell.source})") from exc
         present.append(frames.present(column))
     return bits, present
 

@@ -1,0 +1,49 @@
+"""Hostile input, third round (issue 59): refusals that come before the work, naming the option
+and the value: an ``--mcap`` that cannot be written (under /proc), ``ik --seeds`` past its
+bound; the refusal leaves nothing behind (the output folders are not created)."""
+
+from __future__ import annotations
+
+import time
+
+import pytest
+
+from cellsight.cli import main
+from cellsight.commands.ik import MAX_SEEDS
+from cellsight.errors import CellsightError
+from cellsight.export.mcap_run import check_output
+
+PART = '{"part": {"xyz": [0.6, -0.15, 0.79], "rpy": [0, 0, 0.15]}}'
+
+
+@pytest.mark.parametrize("where", ["/proc/cellsight.mcap", "/proc/self/new/run.mcap"])
+def test_an_mcap_that_cannot_be_written_is_refused_before_the_work(where, tmp_path):
+    with pytest.raises(CellsightError, match=r"^--mcap: cannot write under '/proc"):
+        check_output(where, False, tmp_path / "run")
+
+
+def test_a_writable_mcap_folder_is_left_as_it_was(tmp_path):
+    before = sorted(tmp_path.iterdir())
+    assert check_output(tmp_path / "new" / "run.mcap", False, tmp_path / "run") == (
+        tmp_path / "new" / "run.mcap")
+    assert sorted(tmp_path.iterdir()) == before  # no probe file, no folder made
+
+
+def test_track_refuses_an_unwritable_mcap_before_tracking(tmp_path, capsys):
+    out = tmp_path / "tracked"
+    start = time.monotonic()
+    code = main(["track", str(tmp_path / "absent.mcap"), "--out", str(out),
+                 "--mcap", "/proc/cellsight.mcap"])
+    err = capsys.readouterr().err
+    assert code == 2 and not out.exists() and time.monotonic() - start < 30
+    assert "--mcap: cannot write under '/proc'" in err  # before the recording is even opened
+
+
+@pytest.mark.parametrize("seeds", [MAX_SEEDS + 1, 10**9])
+def test_ik_seeds_past_the_bound_are_refused_at_once(seeds, capsys):
+    start = time.monotonic()
+    assert main(["ik", "--part-pose", PART, "--seeds", str(seeds)]) == 2
+    assert time.monotonic() - start < 10
+    assert (f"--seeds: expected a whole number from 0 to {MAX_SEEDS} (about 30 ms each), "
+            f"got {seeds}") in capsys.readouterr().err
+
