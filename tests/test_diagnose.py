@@ -70,3 +70,16 @@ def test_the_report_shows_the_worst_accepted_wrong_corners(wrong_run):
         assert f'src="fig_wrong_corner_{i}.png"' in report
         # the green cross at the crop's true projection
         assert (picture[..., 1] > 150).sum() > 20 and (picture[..., 0] < 50).sum() > 20
+
+
+def test_top_lists_the_spans_with_the_most_accepted_first(wrong_run, capsys):
+    spans = wrong_corner_spans(wrong_run)
+    assert len(spans) > 2
+    assert main(["diagnose", str(wrong_run), "--top", "2", "--json"]) == 0
+    listed = json.loads(capsys.readouterr().out)
+    assert [s["accepted"] for s in listed] == [s.accepted for s in spans[:2]]
+    assert main(["diagnose", str(wrong_run), "--top", "2"]) == 0
+    out = " ".join(capsys.readouterr().out.split())
+    assert f"in {len(spans)} spans; the first 2:" in out
+    assert main(["diagnose", str(wrong_run), "--top", "0"]) == 2
+    assert "--top: expected a whole number >= 1, got 0" in capsys.readouterr().err

@@ -199,13 +199,18 @@ def test_export_refuses_a_link_to_the_runs_own_file(calibrated_run, tmp_path) ->
 def test_compare_says_when_runs_are_not_like_for_like(tmp_path: Path, capsys) -> None:
     from cellsight.runfolder import write_metrics
 
-    for name, t_end in (("a", 12.5), ("b", 48.0)):
+    for name, t_end, cell in (("a", 12.5, "/x/dual_arm_cell.yaml"), ("b", 48.0, "/y/ur_cell.yaml"),
+                              ("c", 12.5, "/x/dual_arm_cell.yaml")):
         (tmp_path / name).mkdir()
-        write_metrics(tmp_path / name, {"experiment": 3, "t_end_s": t_end, "cell_sha256": name})
+        write_metrics(tmp_path / name, {"experiment": 3, "t_end_s": t_end, "cell_sha256": name,
+                                        "cell": cell})
     assert main(["compare", str(tmp_path / "a"), str(tmp_path / "b")]) == 0
     out = " ".join(capsys.readouterr().out.split())
-    assert "not like for like" in out and "cell a vs b" in out
+    assert "not like for like" in out and "cell dual_arm_cell.yaml vs ur_cell.yaml" in out
     assert "duration (s) 12.5 vs 48.0" in out
+    assert main(["compare", str(tmp_path / "a"), str(tmp_path / "c")]) == 0
+    assert "cell dual_arm_cell.yaml, changed between the runs" in " ".join(
+        capsys.readouterr().out.split())
     assert main(["compare", str(tmp_path / "a"), str(tmp_path / "a")]) == 0
     assert "not like for like" not in capsys.readouterr().out
 

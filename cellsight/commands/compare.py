@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 
 from cellsight.commands.metric_rows import metric_rows
 from cellsight.commands.text import one_line
@@ -33,9 +34,19 @@ not like for like, and compare says so above its table."""
 
 def differences(a: dict, b: dict) -> list[str]:
     """What two runs' metrics say was run differently: ``"duration (s) 12.3 vs 48.5"`` per
-    :data:`SETTING` field present in both and different."""
-    return [f"{name} {one_line(a[key], 20)} vs {one_line(b[key], 20)}"
-            for key, name in SETTING.items() if key in a and key in b and a[key] != b[key]]
+    :data:`SETTING` field present in both and different; the cells by their files (the same
+    file: changed between the runs)."""
+    out = []
+    for key, name in SETTING.items():
+        if key not in a or key not in b or a[key] == b[key]:
+            continue
+        if key == "cell_sha256":
+            files = [one_line(Path(str(m.get("cell"))).name, 60) for m in (a, b)]
+            out.append(f"cell {files[0]} vs {files[1]}" if files[0] != files[1] else
+                       f"cell {files[0]}, changed between the runs")
+        else:
+            out.append(f"{name} {one_line(a[key], 20)} vs {one_line(b[key], 20)}")
+    return out
 
 
 def cmd_compare(args: argparse.Namespace) -> int:

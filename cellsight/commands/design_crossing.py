@@ -40,6 +40,8 @@ def cmd_design_crossing(args: argparse.Namespace) -> int:
         raise CellsightError(f"--clearance-cm: expected a number >= 0, got {args.clearance_cm}")
     with tempfile.TemporaryDirectory() as tmp:
         path = TaskPath.of_task(args.cell, args.path, Path(tmp), "design-crossing")
+    for block in blocks:
+        path.check_span(block.t0, block.t1, f"--block {block.camera}")
     design = design_crossing(cell, blocks, path, clearance_m=args.clearance_cm / 100)
     robot = cell.experiments.crossing_robot or next(r.name for r in cell.robots
                                                     if r.name != cell.experiments.robot)

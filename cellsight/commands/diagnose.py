@@ -13,6 +13,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                                            "accepted or rejected, and what hid the feature")
     diag.add_argument("run_dir", metavar="RUN_DIR", help="a run folder (cellsight run --out)")
     diag.add_argument("--json", action="store_true", help="print JSON instead of a table")
+    diag.add_argument("--top", type=int, metavar="N",
+                      help="only the N spans with the most accepted wrong corners")
     diag.set_defaults(func=cmd_diagnose)
 
 
@@ -22,24 +24,28 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     from rich.console import Console
     from rich.table import Table
 
-    from cellsight.runfolder import read_metrics
+    from cellsight.errors import CellsightError
+    from cellsight.runfolder.checked import checked_run
     from cellsight.runfolder.replay import run_cell
     from cellsight.runfolder.wrong_corners import WRONG_PX, wrong_corner_spans
 
+    if args.top is not None and args.top < 1:
+        raise CellsightError(f"--top: expected a whole number >= 1, got {args.top}")
     folder = Path(args.run_dir)
-    metrics = read_metrics(folder)
+    metrics = checked_run(folder, "RUN_DIR", whole=False)
     cell = run_cell(metrics, folder)
     part = cell.workpiece(metrics["workpiece"])
-    spans = wrong_corner_spans(folder, [c.name for c in cell.cameras],
-                               list(part.feature_names))
+    every = wrong_corner_spans(folder, [c.name for c in cell.cameras], list(part.feature_names))
+    spans = every[:args.top] if args.top is not None else every
     if args.json:
         print(json.dumps([s.as_dict() for s in spans], indent=2))
         return 0
-    accepted = sum(s.accepted for s in spans)
+    accepted = sum(s.accepted for s in every)
     console = Console(width=160)
-    console.print(f"{folder}: {sum(s.frames for s in spans)} wrong corners (more than "
-                  f"{WRONG_PX:g} px off), {accepted} accepted by the gate, in {len(spans)} "
-                  f"spans", soft_wrap=True)
+    shown = f"; the first {len(spans)}:" if len(spans) < len(every) else ""
+    console.print(f"{folder}: {sum(s.frames for s in every)} wrong corners (more than "
+                  f"{WRONG_PX:g} px off), {accepted} accepted by the gate, in {len(every)} "
+                  f"spans{shown}", soft_wrap=True)
     table = Table()
     for col in ("camera", "feature", "t (s)", "phase", "frames", "accepted", "rejected",
                 "unused", "truly", "predicted"):

@@ -40,8 +40,10 @@ from cellsight.errors import CellsightError
 from cellsight.experiments.cellcheck import least_distance, seen_with_and_without
 from cellsight.geometry.transforms import pose_from_xyz_rpy
 from cellsight.model.cell import Cell
+from cellsight.model.loader import load_cell
 from cellsight.model.robot import Robot
 from cellsight.occlusion.predictor import VisibilityPredictor
+from cellsight.runfolder.checked import checked_run
 from cellsight.runfolder.framelog import FrameLog
 from cellsight.world.paths import JointTask, Waypoint
 
@@ -84,9 +86,13 @@ class Design:
 
 
 class TaskPath:
-    """The part's pose and every robot's joints over a run's frames (``frames.csv``)."""
+    """The part's pose and every robot's joints over a run's frames (``frames.csv``): a whole
+    run of experiment 2 or 3 of ``cell`` (:func:`~cellsight.runfolder.checked.checked_run`;
+    ``option`` names the argument that gave the folder)."""
 
-    def __init__(self, run_dir: str | Path) -> None:
+    def __init__(self, run_dir: str | Path, cell: Cell | None = None,
+                 option: str = "--path") -> None:
+        checked_run(run_dir, option, experiments=(2, 3), cell=cell)
         log = FrameLog.read(Path(run_dir) / "frames.csv")
         self.t = log.floats("t")
         self._part = log.poses("true")
@@ -101,13 +107,20 @@ class TaskPath:
         """The path of the run ``run_dir``, else of experiment 2 run now on ``cell`` with the
         ideal sensor into ``scratch`` (``who`` says so on the console first)."""
         if run_dir is not None:
-            return cls(run_dir)
+            return cls(run_dir, load_cell(cell))
         from cellsight.experiments.runner import RunConfig, run_experiment
 
         print(f"{who}: running experiment 2 (ideal sensor) for the part's path")
         run_experiment(RunConfig(2, scratch / "experiment2", cell=cell, sensor="ideal",
                                  progress=False, video_every=0))
-        return cls(scratch / "experiment2")
+        return cls(scratch / "experiment2", load_cell(cell))
+
+    def check_span(self, t0: float, t1: float, what: str) -> None:
+        """A :class:`CellsightError` naming ``what`` unless ``t0``..``t1`` (s) lies within the
+        run's frames."""
+        if t0 < self.t[0] or t1 > self.t[-1]:
+            raise CellsightError(f"{what}: {t0:g}-{t1:g} s is outside the run's frames "
+                                 f"({self.t[0]:g}-{self.t[-1]:g} s)")
 
     def at(self, t: float) -> tuple[np.ndarray, dict[str, np.ndarray]]:
         """The part's pose and the robots' joints at the frame nearest ``t`` (s)."""

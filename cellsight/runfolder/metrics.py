@@ -20,6 +20,7 @@ from pydantic import BaseModel, ConfigDict, ValidationError
 
 from cellsight.errors import CellsightError, short_repr
 from cellsight.fields import about
+from cellsight.runfolder.digest import file_digest
 from cellsight.runfolder.writes import write_file
 
 METRICS_VERSION = 1
@@ -52,6 +53,9 @@ class RunMetrics(BaseModel):
     cell_sha256: str | None = about(
         None, "SHA-256 (hex) over the cell file and every file it points to; none when one cannot "
         "be read.", "-")
+    frames_sha256: str | None = about(
+        None, "SHA-256 (hex) of frames.csv as the run closed it: what reads the run back checks "
+        "that frames.csv is still that file.", "-")
     identity: dict | None = about(
         None, "Every input that shapes the run (experiment, seed, sensor, tracker options, "
         "structure, duration and limits, the cell's, the realism profile's and the "
@@ -296,11 +300,14 @@ def checked_metrics(folder: Path, metrics: dict) -> dict:
 
 
 def write_metrics(folder: Path, metrics: dict) -> dict:
-    """Write ``metrics`` as ``<folder>/metrics.json`` (with ``metrics_version``), checked
-    against :class:`RunMetrics` first; returns what was written. The file is written whole or
+    """Write ``metrics`` as ``<folder>/metrics.json`` (with ``metrics_version`` and the
+    ``frames_sha256`` of the folder's frames.csv, closed by then), checked against
+    :class:`RunMetrics` first; returns what was written. The file is written whole or
     not at all (:func:`~cellsight.runfolder.writes.write_file`: a failure is a
     :class:`~cellsight.runfolder.writes.WriteError` and leaves no ``metrics.json`` of it)."""
-    out = checked_metrics(folder, metrics)
+    frames = file_digest(Path(folder) / "frames.csv")
+    out = checked_metrics(folder, metrics if frames is None else
+                          {**metrics, "frames_sha256": frames})
     write_file(Path(folder) / "metrics.json", json.dumps(out, indent=1))
     return out
 

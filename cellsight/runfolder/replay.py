@@ -20,6 +20,7 @@ from cellsight.geometry.transforms import pose_from_xyz_rpy
 from cellsight.model.cell import Cell, Workpiece
 from cellsight.model.loader import load_cell
 from cellsight.runfolder.cell_copy import kept_cell
+from cellsight.runfolder.checked import frames_digest
 from cellsight.runfolder.digest import cell_digest, file_digest
 from cellsight.runfolder.framelog import POSE, FrameLog, camera_column
 from cellsight.runfolder.metrics import RunDataError, read_metrics
@@ -192,7 +193,9 @@ def load_run(folder: str | Path, cell: str | Path | None = None,
     ``metrics``: the run's metrics when its metrics.json is not written yet (a run's report,
     written just before it)."""
     folder = Path(folder)
-    metrics = read_metrics(folder) if metrics is None else metrics
+    if metrics is None:
+        metrics = read_metrics(folder)
+        frames_digest(folder, metrics)
     the_cell = run_cell(metrics, folder, cell)
     path = folder / "metrics.json"
     part_name = _text_field(metrics, "workpiece", path)
