@@ -164,3 +164,18 @@ def test_a_gripper_inside_the_wrist_is_found():
                 if f.level == "warning" and not f.line.startswith("reach: ")]
     assert len(warnings) == 1 and warnings[0].startswith("robot KR16A: link_6 reaches 66 mm past")
     assert "tool.mount" in warnings[0]
+
+
+def test_a_base_in_mid_air_is_found(cell):
+    """R6AX's base lifted 30 cm off what it stands on: a warning naming the robot and the gap;
+    lifted 1 cm (within SUPPORT_M), nothing."""
+    for lift, warned in ((0.30, True), (0.01, False)):
+        T = cell.robot("R6AX").T_base_robot.copy()
+        T[2, 3] += lift
+        lines = [f.line for f in check_cell(_robot(cell, "R6AX", T_base_robot=T),
+                                            crossing=False)
+                 if f.level == "warning" and "stands on nothing" in f.line]
+        assert bool(lines) == warned, lines
+        if warned:
+            assert len(lines) == 1 and lines[0].startswith("robot R6AX: its base stands on")
+            assert "bottom is 30.0 cm above" in lines[0]

@@ -69,6 +69,13 @@ def test_the_cameras_are_blind_when_asked_in_the_simulators_truth(designed):
                if any(b.startswith(f"{crossing}.") for b in c["bodies"])]
     assert metrics["grasp_success"] and not touched, touched
     assert design.yaml(crossing).startswith(f"  crossing:\n    robot: {crossing}")
+    # where it blinds a camera outside the blocks: named, outside that camera's blocks (1 s)
+    for cam, t0, t1 in design.elsewhere:
+        assert t0 <= t1 and not any(b.camera == cam and b.t0 - 1 <= t0 <= b.t1 + 1
+                                    for b in blocks)
+    assert design.elsewhere_text() == (", ".join(
+        f"{c} {a:.1f} s" if a == b else f"{c} {a:.1f}-{b:.1f} s"
+        for c, a, b in design.elsewhere) or "none")
 
 
 def _least_distance_along(crossed, run: Path, grasping: str, crossing: str) -> float:

@@ -47,3 +47,15 @@ def test_ik_seeds_past_the_bound_are_refused_at_once(seeds, capsys):
     assert (f"--seeds: expected a whole number from 0 to {MAX_SEEDS} (about 30 ms each), "
             f"got {seeds}") in capsys.readouterr().err
 
+
+
+def test_ik_names_a_redundant_arms_solutions_by_their_start(capsys):
+    """A 7-axis arm has no branch flags: each row is named by the start that found it (HOME,
+    middle, FINAL, random k), not "seed HOME" or "seed seed 17"."""
+    part = '{"part": {"xyz": [0.6, -0.15, 0.79], "rpy": [0, 0, 0.35]}}'
+    assert main(["ik", "--cell", "iiwa-cell", "--part-pose", part, "--seeds", "4"]) == 0
+    starts = [line.split("│")[1].strip() for line in capsys.readouterr().out.splitlines()
+              if line.startswith("│")]
+    starts = [s for s in starts if s]  # not a wrapped row's continuation
+    assert starts and "HOME" in starts and not any(s.startswith("seed") for s in starts)
+    assert all(s in ("HOME", "middle", "FINAL") or s.startswith("random ") for s in starts)

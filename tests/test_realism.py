@@ -392,8 +392,8 @@ def test_a_joint_run_into_its_limit_overshoots_and_its_reading_is_accepted(cell)
 
 def test_mujoco_actuators_limit_torque_and_velocity(cell):
     """A large step: the joint's acceleration stays within the torque limit's (the joint's
-    inertia times the acceleration limit) and its speed within the velocity limit (clipped after each step:
-    within one step's acceleration of it)."""
+    inertia times the acceleration limit) and its speed within the velocity limit (clipped
+    after each step: within one step's acceleration of it)."""
     a_max, v_max = math.radians(900.0), math.radians(150.0)
     world = World(cell, errors=_actuated(bandwidth_hz=8.0, max_velocity=v_max,
                                          max_acceleration=a_max))

@@ -48,7 +48,8 @@ def cmd_design_crossing(args: argparse.Namespace) -> int:
     for block, left, of in zip(blocks, design.left, design.of, strict=True):
         print(f"{block.camera} {block.t0:g}-{block.t1:g} s: at most {left} of {of} features "
               f"visible")
-    print(f"blinded elsewhere (outside the blocks, 1 s margin): {design.elsewhere_s:.1f} s")
+    print(f"blinded elsewhere (outside the blocks, 1 s margin): {design.elsewhere_s:.1f} s "
+          f"({design.elsewhere_text()})")
     print(f"clearance: {design.clearance_m * 100:.1f} cm (closest: {design.closest[0]} at "
           f"{design.closest[1]:.1f} s); palm {design.fraction:g} of the way to the camera")
     print(design.yaml(robot))

@@ -137,7 +137,8 @@ def _print(robot: str, rows: list[dict], unreached: list[dict], cameras: list[st
     for r in rows:
         cams = [f"{v['visible']} visible, {v['inside']} inside, margin {v['margin_px']:g} px"
                 for v in r["cameras"]]
-        table.add_row(", ".join(f"{k} {v}" for k, v in r["branch"].items()),
+        table.add_row(r["branch"]["seed"] if seeded else
+                      ", ".join(f"{k} {v}" for k, v in r["branch"].items()),
                       " ".join(f"{x:g}" for x in r["q_shown"]),
                       f"joint {r['tightest_joint']}: {r['tightest_margin']}",
                       f"{r['sigma_min']:g}", *cams)

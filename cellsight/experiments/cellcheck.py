@@ -9,6 +9,10 @@
   gripper inside the arm (a flange link short of the real flange, such as a ``tool0`` at the
   wrist centre: set the tool's ``mount``), ending more than ``MOUNT_M`` before it leaves the
   gripper in the air; a warning either way.
+- **Supports:** each robot's base stands on something: the bottom of its base's solids (its
+  frame's origin without any) within ``SUPPORT_M`` of the floor (z = 0) or of the top of a
+  static object's solid under it (its bounding box's, around the base's origin); a warning otherwise
+  (a base left in the air: a wrong height or a missing pedestal).
 - **Joint limits:** HOME, FINAL and the crossing's waypoints inside every joint's limits by at
   least ``LIMIT_MARGIN`` (rad or m): a joint on its limit passes the loader and stops the run
   at its first control step.
@@ -63,6 +67,7 @@ REACH_SAMPLES = 400
 LIMIT_MARGIN = 1e-6  # rad or m
 CLEARANCE_M = 0.05  # m: the crossing robot's least distance to the other robots and the part
 MOUNT_M = 0.05  # m: how far the flange link may end from the tool frame along its approach
+SUPPORT_M = 0.02  # m: a robot's base this close above the floor or a static object stands on it
 REACH_STEP_M = 0.02  # m between the part's positions along the conveyor checked for reach
 APPROACH_M = 0.05  # m: the approach pose over the grasp (the task's approach height)
 
@@ -81,7 +86,8 @@ def check_cell(cell: Cell, *, margin_px: float = 20.0, step_s: float = 0.1,
     experiment 3's crossing (the slow ones: the predictor and MuJoCo along the crossing);
     ``path``: a run of the task (experiment 2) giving the part's pose and the other robots'
     joints along the crossing (default: the part on the conveyor, the robots at HOME)."""
-    findings = (_units(cell) + _mounts(cell) + _limits(cell) + _key_poses(cell, margin_px)
+    findings = (_units(cell) + _mounts(cell) + _supports(cell) + _limits(cell)
+                + _key_poses(cell, margin_px)
                 + _task_reach(cell))
     return findings + (_crossing(cell, step_s, path) if crossing else [])
 
@@ -127,6 +133,32 @@ def _mounts(cell: Cell) -> list[Finding]:
             out.append(Finding("warning", f"robot {robot.name}: {link} ends {-end * 1e3:.0f} mm "
                                           f"before the tool's mount: the gripper floats off "
                                           f"the flange (tool.mount)"))
+    return out
+
+
+def _supports(cell: Cell) -> list[Finding]:
+    tops = []
+    for obj in cell.static:
+        for solid in obj.solids:
+            v = solid.vertices @ obj.T_base_obj[:3, :3].T + obj.T_base_obj[:3, 3]
+            tops.append((v[:, :2].min(axis=0), v[:, :2].max(axis=0), float(v[:, 2].max())))
+    out = []
+    for robot in cell.robots:
+        origin = robot.T_base_robot[:3, 3]
+        base = [s.vertices for frame, _, solids in robot.link_groups() if frame == 0
+                for s in solids]
+        bottom = (float((np.vstack(base) @ robot.T_base_robot[:3, :3].T)[:, 2].min()
+                        + origin[2]) if base else float(origin[2]))
+        under = [top for lo, hi, top in tops if np.all(lo - SUPPORT_M <= origin[:2])
+                 and np.all(origin[:2] <= hi + SUPPORT_M)]
+        if abs(bottom) <= SUPPORT_M or any(abs(bottom - top) <= SUPPORT_M for top in under):
+            continue
+        below = max([t for t in under if t < bottom] + [0.0])
+        out.append(Finding("warning", f"robot {robot.name}: its base stands on nothing: its "
+                                      f"bottom is {100 * (bottom - below):.1f} cm above "
+                                      f"{'the floor' if below == 0.0 else 'the object under it'}"
+                                      f" (base z = {origin[2]:g} m: a wrong height, or a "
+                                      f"missing pedestal?)"))
     return out
 
 

@@ -66,8 +66,9 @@ class Block:
 class Design:
     """A crossing: its ``waypoints`` ((t, q) pairs), the ``fraction`` used, per block the most
     features its camera sees during it (``left``) and without the crossing (``of``), the seconds
-    a camera is blinded outside its blocks (``elsewhere_s``), and the least ``clearance_m``
-    with where (``closest``: solid, time)."""
+    a camera is blinded outside its blocks (``elsewhere_s``, summed over the cameras) and when
+    (``elsewhere``: (camera, from, to) s), and the least ``clearance_m`` with where
+    (``closest``: solid, time)."""
 
     waypoints: list[tuple[float, np.ndarray]]
     fraction: float
@@ -76,6 +77,12 @@ class Design:
     elsewhere_s: float
     clearance_m: float
     closest: tuple[str, float]
+    elsewhere: tuple[tuple[str, float, float], ...] = ()
+
+    def elsewhere_text(self) -> str:
+        """``elsewhere`` in words: ``cam1 10.2-11.0 s, cam3 20.4 s``, or ``none``."""
+        return ", ".join(f"{c} {t0:.1f} s" if t1 == t0 else f"{c} {t0:.1f}-{t1:.1f} s"
+                         for c, t0, t1 in self.elsewhere) or "none"
 
     def yaml(self, robot: str) -> str:
         """The cell file's ``crossing:`` section (under ``experiments:``)."""
@@ -225,25 +232,36 @@ def _judged(cell: Cell, robot: Robot, part: str, blocks: Sequence[Block], path: 
             seen.append((on, off))
         left.append(max(s[0] for s in seen))
         of.append(max(s[1] for s in seen))
-    elsewhere = _elsewhere(cell, robot, part, blocks, path, task, waypoints[-1][0], predictor)
+    spans = _elsewhere(cell, robot, part, blocks, path, task, waypoints[-1][0], predictor)
     clearance, closest = _clearance(cell, robot, part, path, task, waypoints[-1][0])
-    return Design(waypoints, fraction, left, of, elsewhere, clearance, closest)
+    return Design(waypoints, fraction, left, of, sum(t1 - t0 + 2 * STEP_S for _, t0, t1 in spans),
+                  clearance, closest, spans)
 
 
 def _elsewhere(cell: Cell, robot: Robot, part: str, blocks: Sequence[Block], path: TaskPath,
-               task: JointTask, t_end: float, predictor: VisibilityPredictor) -> float:
-    """Seconds, summed over the cameras, that one sees at most half its features (against the
-    crossing robot at HOME) outside its blocks."""
+               task: JointTask, t_end: float, predictor: VisibilityPredictor
+               ) -> tuple[tuple[str, float, float], ...]:
+    """When a camera sees at most half its features (against the crossing robot at HOME)
+    outside its blocks: (camera, first, last sample) s, samples every ``2 STEP_S`` joined
+    into spans."""
     names = [cam.name for cam in cell.cameras]
-    step, total = 2 * STEP_S, 0.0
+    step = 2 * STEP_S
+    spans: list[list] = []
+    last: dict[str, list] = {}
     for t in np.arange(0.0, t_end + 1e-9, step):
         T_part, joints = path.at(t)
         on, off = seen_with_and_without(predictor, joints, robot, task.at(t), part, T_part)
         for c, name in enumerate(names):
             inside = any(b.camera == name and b.t0 - 1.0 <= t <= b.t1 + 1.0 for b in blocks)
-            if not inside and off[c] > 0 and 2 * on[c] <= off[c]:
-                total += step
-    return total
+            if inside or off[c] == 0 or 2 * on[c] > off[c]:
+                continue
+            span = last.get(name)
+            if span is not None and t - span[2] <= step + 1e-9:
+                span[2] = float(t)
+            else:
+                last[name] = [name, float(t), float(t)]
+                spans.append(last[name])
+    return tuple((c, t0, t1) for c, t0, t1 in sorted(spans, key=lambda s: (s[1], s[0])))
 
 
 def _clearance(cell: Cell, robot: Robot, part: str, path: TaskPath, task: JointTask,
