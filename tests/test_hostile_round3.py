@@ -59,3 +59,18 @@ def test_ik_names_a_redundant_arms_solutions_by_their_start(capsys):
     starts = [s for s in starts if s]  # not a wrapped row's continuation
     assert starts and "HOME" in starts and not any(s.startswith("seed") for s in starts)
     assert all(s in ("HOME", "middle", "FINAL") or s.startswith("random ") for s in starts)
+
+
+def test_a_run_says_what_ended_it(tmp_path, capsys):
+    """The time limit is named when it ends a run with the task not done, and the run's
+    printed result says it (with the phase the task stopped in)."""
+    from cellsight.experiments import RunConfig, run_experiment
+
+    metrics = run_experiment(RunConfig(2, tmp_path / "limit", sensor="ideal", max_duration=3.0,
+                                       progress=False, video_every=0))
+    assert metrics["ended_by"] == "the time limit (3 s) with the task not done"
+    assert metrics["final_phase"] == "waiting" and metrics["last_setback"] is None
+    assert main(["run", "2", "--sensor", "ideal", "--duration", "2", "--quiet", "--out",
+                 str(tmp_path / "short")]) == 0
+    assert "ended by --duration 2 s; the task waiting" in " ".join(
+        capsys.readouterr().out.split())

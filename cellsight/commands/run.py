@@ -117,6 +117,7 @@ def _run_failed(exc: Exception, out: Path) -> int:
 
 def cmd_run(args: argparse.Namespace) -> int:
     from rich.console import Console
+    from rich.markup import escape
     from rich.table import Table
 
     from cellsight.experiments import RunConfig, run_experiment
@@ -148,6 +149,10 @@ def cmd_run(args: argparse.Namespace) -> int:
         table.add_row(key, format_value(value))
     console = Console()
     console.print(table)
+    console.print(escape(f"ended by {metrics.get('ended_by')}; the task "
+                         f"{metrics.get('final_phase')}"
+                         + (f"; its last setback at {metrics['last_setback']}"
+                            if metrics.get("last_setback") else "")), soft_wrap=True)
     console.print(f"wrote [bold]{out}[/bold]: frames.csv, metrics.json, run.log, report.html"
                   + (f"; the recording [bold]{args.record}[/bold]" if args.record else ""))
     return 0

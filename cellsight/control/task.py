@@ -385,6 +385,20 @@ class GraspTask:
             return f"not reached after {self.timing.reach_timeout:g} s ({error}); going on"
         return None
 
+    def last_setback(self) -> str | None:
+        """The task's last step back, with its time, or None: a failed grasp check (back to
+        the approach), a move that timed out ("not reached"), the part lost (the ``clear``
+        stage), the task failed."""
+        found = [(t, f"{a} -> {b}: {why}") for t, a, b, why in self.transitions
+                 if b is Phase.FAILED or "not reached" in why
+                 or (b is Phase.APPROACH and a is not Phase.WAITING)]
+        found += [(t, f"{phase}/{stage}: {note}") for t, phase, stage, note in self.events
+                  if stage == "clear" or "not reached" in note]
+        if not found:
+            return None
+        t, text = max(found, key=lambda f: f[0])
+        return f"t = {t:.1f} s, {text}"
+
     def _go(self, t: float, to: Phase, reason: str) -> None:
         self.transitions.append((t, self.phase, to, reason))
         log.info("t=%.3f s: %s -> %s (%s)", t, self.phase.value, to.value, reason)

@@ -371,13 +371,18 @@ class ExperimentRun:
         until ``duration`` (or ``max_duration``), or ``tail_s`` after the task ends."""
         cfg, task = self.config, self.task
         end = cfg.duration if cfg.duration is not None else cfg.max_duration
+        self.ended_by = (f"--duration {end:g} s" if cfg.duration is not None else
+                         f"the time limit ({end:g} s) with the task not done")
         done_at = None
         k = 0
         with _progress_bar(cfg.progress) as progress:
             bar = progress.add_task(f"experiment {cfg.experiment}", total=end, phase="")
             while self.stop.name is None:
                 t = self.world.time
-                if t > end + 1e-9 or (done_at is not None and t >= done_at + cfg.tail_s):
+                if done_at is not None and t >= done_at + cfg.tail_s:
+                    self.ended_by = f"the task {task.phase} (and {cfg.tail_s:g} s after)"
+                    break
+                if t > end + 1e-9:
                     break
                 self._vision_frame(k, t, writer, video, keys)
                 k += 1
@@ -553,6 +558,8 @@ class ExperimentRun:
             **_arm_error(self.draws, self.robot, frames, self.registration is not None),
             "grasp_success": bool(self.grasp.held_at_manipulate),
             "grasp_position_error_mm": self.grasp.error_mm,
+            "ended_by": getattr(self, "ended_by", None),
+            "last_setback": self.task.last_setback(),
             "final_phase": str(self.task.phase),
             "failed_grasp_checks": self.task.attempts,
             **frame_metrics(frames),

@@ -121,6 +121,12 @@ class RunMetrics(BaseModel):
     grasp_position_error_mm: Number = about(
         None, "The TCP's distance from the part's grasp pose when the grasp first engaged (the "
         "world's truth); none: it never engaged.", "mm")
+    ended_by: str | None = about(
+        None, "What ended the run: the task done (and its tail), the task failed, the "
+        "--duration asked for, or the time limit (max_duration) with the task not done.", "-")
+    last_setback: str | None = about(
+        None, "The task's last step back, in words, with its time: a grasp check that failed, "
+        "a pose not reached, the part lost (none: it never stepped back).", "-")
     final_phase: str | None = about(
         None, "The task's phase at the end of the run (done, failed, ...).", "-")
     failed_grasp_checks: int | None = about(
