@@ -25,7 +25,7 @@ from cellsight.experiments import RunConfig, run_experiment
 from cellsight.export import export_mcap
 from cellsight.geometry.transforms import pose_from_xyz_rpy, transform_points
 from cellsight.recording import TopicMap
-from cellsight.recording.reader import RecordingError
+from cellsight.recording.reader import RecordingError, open_recording
 from cellsight.recording.track import TrackOptions, track_recording
 from cellsight.runfolder import FrameLog
 from cellsight.runfolder.framelog import decode_corners, decode_windows
@@ -431,3 +431,17 @@ def test_an_image_of_another_size_is_refused(recorded, tmp_path):
 
     _refused(_bag(recorded, tmp_path, edit=crop), tmp_path, "/cam1/image_raw, message 1",
              "760x576", "768x576")
+
+
+def test_a_fifo_is_refused_without_waiting_for_a_writer(tmp_path):
+    import os
+    import threading
+
+    fifo = tmp_path / "live.mcap"
+    os.mkfifo(fifo)
+    errors: list[Exception] = []
+    thread = threading.Thread(target=lambda: errors.append(
+        pytest.raises(RecordingError, open_recording, fifo).value), daemon=True)
+    thread.start()
+    thread.join(10)
+    assert not thread.is_alive() and "not a regular file (a FIFO" in str(errors[0])

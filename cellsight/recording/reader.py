@@ -172,4 +172,7 @@ def open_recording(path: str | Path) -> Recording:
             raise RecordingError(f"recording {path}: a folder without metadata.yaml; expected a "
                                  f"rosbag2 folder or an .mcap file")
         return Rosbag2Recording(path)
+    if not path.is_file():  # opening a FIFO would wait for a writer forever
+        raise RecordingError(f"recording {path}: not a regular file (a FIFO, a socket or a "
+                             f"device); expected an .mcap file or a rosbag2 folder")
     return McapRecording(path)
