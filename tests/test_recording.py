@@ -445,3 +445,17 @@ def test_a_fifo_is_refused_without_waiting_for_a_writer(tmp_path):
     thread.start()
     thread.join(10)
     assert not thread.is_alive() and "not a regular file (a FIFO" in str(errors[0])
+
+
+@pytest.mark.parametrize("quaternion", [(0.0, 0.0, 0.0, 0.0), (float("nan"), 0.0, 0.0, 1.0),
+                                        (0.0, 0.0, 0.0, 2.0)])
+def test_a_bad_quaternion_in_the_truth_topic_names_the_topic_and_message(recorded, tmp_path,
+                                                                         quaternion):
+    def bad(topic, m, k):
+        if topic == "/part/true_pose" and k == 3:
+            o = m.pose.orientation
+            o.x, o.y, o.z, o.w = quaternion
+        return m
+
+    _refused(_bag(recorded, tmp_path, edit=bad), tmp_path, "/part/true_pose, message ",
+             "expected finite values and a unit quaternion")

@@ -90,23 +90,30 @@ class PoseSeries(Series):
         return T
 
 
-def pose_matrix(position: Any, orientation: Any) -> np.ndarray:
-    """The 4x4 pose of a ``geometry_msgs`` position (Point or Vector3) and Quaternion."""
-    q = orientation
+def pose_matrix(position: Any, orientation: Any, where: str = "a pose") -> np.ndarray:
+    """The 4x4 pose of a ``geometry_msgs`` position (Point or Vector3) and Quaternion; a
+    value that is not finite, or a quaternion far from unit length (0.9 to 1.1 is taken,
+    normalised), is a :class:`RecordingError` naming ``where``."""
+    q = np.array([orientation.x, orientation.y, orientation.z, orientation.w], dtype=float)
+    p = np.array([position.x, position.y, position.z], dtype=float)
+    norm = float(np.linalg.norm(q))
+    if not (np.isfinite(q).all() and np.isfinite(p).all() and 0.9 <= norm <= 1.1):
+        raise RecordingError(f"{where}: position {p.tolist()}, quaternion (x, y, z, w) "
+                             f"{q.tolist()}: expected finite values and a unit quaternion")
     T = np.eye(4)
-    T[:3, :3] = Rotation.from_quat([q.x, q.y, q.z, q.w]).as_matrix()
-    T[:3, 3] = [position.x, position.y, position.z]
+    T[:3, :3] = Rotation.from_quat(q / norm).as_matrix()
+    T[:3, 3] = p
     return T
 
 
-def _true_poses(kind: str, msg: Any, frame: str) -> list[tuple[Any, np.ndarray]]:
+def _true_poses(kind: str, msg: Any, frame: str, where: str) -> list[tuple[Any, np.ndarray]]:
     """(header, pose) of a truth message: a PoseStamped, a TransformStamped, or the
-    transforms of a TFMessage to the child ``frame``."""
+    transforms of a TFMessage to the child ``frame``; ``where`` names the message."""
     if kind == POSE:
-        return [(msg.header, pose_matrix(msg.pose.position, msg.pose.orientation))]
+        return [(msg.header, pose_matrix(msg.pose.position, msg.pose.orientation, where))]
     stamped = [msg] if kind == TRANSFORM else [t for t in msg.transforms
                                                if t.child_frame_id == frame]
-    return [(t.header, pose_matrix(t.transform.translation, t.transform.rotation))
+    return [(t.header, pose_matrix(t.transform.translation, t.transform.rotation, where))
             for t in stamped]
 
 
@@ -178,7 +185,7 @@ class _SignalReader:
         if topic in self.truth_parts:
             for part in self.truth_parts[topic]:
                 frame = self.map.truth_frame(part)
-                for header, T in _true_poses(self.kinds[topic], msg, frame):
+                for header, T in _true_poses(self.kinds[topic], msg, frame, where):
                     self.truth[part].add(stamp_ns(_Stamped(header), log_ns), T, where)
             return
         ns = stamp_ns(msg, log_ns)
