@@ -459,3 +459,16 @@ def test_a_bad_quaternion_in_the_truth_topic_names_the_topic_and_message(recorde
 
     _refused(_bag(recorded, tmp_path, edit=bad), tmp_path, "/part/true_pose, message ",
              "expected finite values and a unit quaternion")
+
+
+@pytest.mark.parametrize("field, change", [("k", lambda m: m.k.__setitem__(0, m.k[0] * 1.01)),
+                                           ("width", lambda m: setattr(m, "width", 640))])
+def test_a_camera_info_that_changes_mid_recording_is_refused(recorded, tmp_path, field,
+                                                             change):
+    def edit(topic, m, k):
+        if topic == "/cam2/camera_info" and k >= 4:
+            change(m)
+        return m
+
+    _refused(_bag(recorded, tmp_path, edit=edit), tmp_path, "/cam2/camera_info, message ",
+             f"field {field!r}", "changes mid-recording")

@@ -1,7 +1,8 @@
 """A recording's ``CameraInfo`` against the cell's cameras.
 
 The first ``sensor_msgs/msg/CameraInfo`` of each camera that has one is compared with the
-cell's camera: image size exactly, ``K`` within :data:`K_TOLERANCE_PX`, the distortion
+cell's camera (the later ones must repeat it; a calibration that changes mid-recording is
+refused): image size exactly, ``K`` within :data:`K_TOLERANCE_PX`, the distortion
 coefficients (OpenCV's order, zeros appended to 8) within :data:`D_TOLERANCE`. A
 disagreement is one :class:`~cellsight.recording.reader.RecordingError` naming the topic, the
 field and both values; with ``from_bag`` the recording's ``K``, ``D`` and ``P`` replace the
@@ -28,17 +29,39 @@ _K_NAMES = ("fx", "skew", "cx", "0", "fy", "cy", "0", "0", "1")
 
 
 def first_infos(recording: Recording, topics: list[str | None]) -> list[Any | None]:
-    """The first message of each camera-info topic (None where there is no topic)."""
+    """The first message of each camera-info topic (None where there is no topic); every
+    later one must say the same (size, model, ``K``, ``D``, ``P``): one that changes
+    mid-recording is a :class:`RecordingError` naming the topic, the message and the field."""
     wanted = [t for t in topics if t is not None]
     first: dict[str, Any] = {}
+    count: dict[str, int] = {}
     if wanted:
-        messages = recording.messages(wanted)
-        for topic, _, msg in messages:
-            first.setdefault(topic, msg)
-            if len(first) == len(wanted):
-                break
-        messages.close()
+        for topic, _, msg in recording.messages(wanted):
+            count[topic] = count.get(topic, 0) + 1
+            if topic not in first:
+                first[topic] = msg
+            else:
+                _same_info(first[topic], msg, f"{topic}, message {count[topic]}")
     return [first.get(t) if t is not None else None for t in topics]
+
+
+def _same_info(a: Any, b: Any, where: str) -> None:
+    for name in ("width", "height", "distortion_model", "k", "d", "p"):
+        x, y = getattr(a, name), getattr(b, name)
+        same = (x == y) if isinstance(x, int | str) else (
+            np.shape(x) == np.shape(y) and np.array_equal(np.asarray(x, dtype=float),
+                                                       np.asarray(y, dtype=float)))
+        if not same:
+            raise RecordingError(f"{where}: field {name!r} = {_shown(y)}, not the first "
+                                 f"message's {_shown(x)}: a camera_info that changes "
+                                 f"mid-recording is not supported; track each part of the "
+                                 f"recording on its own")
+
+
+def _shown(value: Any) -> str:
+    if isinstance(value, int | str):
+        return repr(value)
+    return str(np.round(np.asarray(value, dtype=float), 4).tolist())
 
 
 def _padded(d: Any) -> np.ndarray:
