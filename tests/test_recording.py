@@ -472,3 +472,15 @@ def test_a_camera_info_that_changes_mid_recording_is_refused(recorded, tmp_path,
 
     _refused(_bag(recorded, tmp_path, edit=edit), tmp_path, "/cam2/camera_info, message ",
              f"field {field!r}", "changes mid-recording")
+
+
+def test_joint_states_on_another_clock_are_refused(recorded, tmp_path):
+    """The joint states stamped an hour earlier than the images (another clock): refused at
+    the first frame, naming the topic and both times, not tracked with the last sample held."""
+    def earlier(topic, m, k):
+        if topic == "/joint_states":
+            m.header.stamp.sec -= 3600
+        return m
+
+    _refused(_bag(recorded, tmp_path, edit=earlier), tmp_path, "the joint states (/joint_states)",
+             "another clock")

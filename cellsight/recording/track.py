@@ -70,6 +70,7 @@ log = logging.getLogger(__name__)
 
 PHASE = "recorded"
 HOLD_WARN_S = 0.1  # joints held this long past their samples are reported
+CLOCK_GAP_S = 1.0  # the first image this far from every joint sample: another clock
 TRUTH_HOLD_S = 0.05  # a true pose further than this from its samples is no truth
 
 
@@ -112,6 +113,7 @@ class _Session:
     def __init__(self, cell: Cell, recording: Recording, out: Path, options: TrackOptions,
                  topic_map: TopicMap) -> None:
         self.recording, self.out, self.options = recording, out, options
+        self.topic_map = topic_map
         self.part = _workpiece(cell, options.part)
         self.topics = resolve_topics(recording, list(cell.cameras),
                                      [p.name for p in cell.workpieces], topic_map)
@@ -168,6 +170,15 @@ class _Session:
 
     def _frame(self, frame: Frame) -> dict:
         joints, held = self.signals.joints_at(frame.ns)
+        if self.frames == 0 and held > CLOCK_GAP_S:
+            spans = [(s.ns[0], s.ns[-1]) for s in self.signals.joints.values() if len(s.ns)]
+            first, last = (min(a for a, _ in spans), max(b for _, b in spans))
+            raise RecordingError(
+                f"recording {self.recording.path}: the joint states ("
+                f"{', '.join(self.topic_map.joint_states)}) are stamped from "
+                f"{(first - self.origin_ns) / 1e9:.3f} to {(last - self.origin_ns) / 1e9:.3f} s, "
+                f"the first image at {frame.t:.3f} s ({held:.1f} s from the nearest joint "
+                f"sample): are they stamped on another clock?")
         if held > HOLD_WARN_S and held > self.held_s + HOLD_WARN_S:
             log.warning("t = %.3f s: joints held %.3f s past their last sample", frame.t, held)
         self.held_s = max(self.held_s, held)
