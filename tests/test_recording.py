@@ -484,3 +484,28 @@ def test_joint_states_on_another_clock_are_refused(recorded, tmp_path):
 
     _refused(_bag(recorded, tmp_path, edit=earlier), tmp_path, "the joint states (/joint_states)",
              "another clock")
+
+
+def test_without_cell_the_recordings_own_cell_is_taken_and_checked(tmp_path):
+    """A recording names its cell and the cell's SHA-256: tracked without --cell, that cell
+    is used; the cell file changed since, the recording is refused, saying to pass --cell."""
+    import shutil
+
+    from cellsight.model.registry import builtin_cell_path
+
+    cell_file = tmp_path / "my_cell.yaml"
+    shutil.copy(builtin_cell_path(), cell_file)
+    record = tmp_path / "rec.mcap"
+    run_experiment(RunConfig(1, tmp_path / "run", cell=cell_file, duration=0.3, progress=False,
+                             record=record, video_every=0))
+    result = track_recording(None, record, tmp_path / "track", TrackOptions(progress=False))
+    assert result.metrics["cell"] == str(cell_file) and result.frames > 0
+    cell_file.write_text(cell_file.read_text() + "\n# edited\n")
+    _refused(record, tmp_path, "made with the cell", "my_cell.yaml", "has changed since",
+             "--cell")
+
+
+def test_a_bag_that_names_no_cell_says_the_built_in_cell_was_assumed(recorded, tmp_path):
+    bag = _bag(recorded, tmp_path, joints={"R6AX/joint3": "elbow"})
+    _refused(bag, tmp_path, "'elbow'", "no --cell given, and the recording names none: the "
+             "built-in cell was assumed; pass --cell")

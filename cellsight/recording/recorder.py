@@ -35,6 +35,7 @@ from cellsight.export import ros
 from cellsight.export.mcap_run import RosBag, check_jpeg, jpeg_image
 from cellsight.model.cell import Cell
 from cellsight.recording import names
+from cellsight.runfolder.digest import cell_digest
 from cellsight.runfolder.writes import AtomicFile
 from cellsight.world.shots import Shot
 
@@ -105,7 +106,8 @@ class Recorder:
         """Finish the file (its metadata says whether the run ended ``complete``, and
         ``facts``) and give it its name."""
         self._bag.close({
-            "cell": str(self.cell.source), "part": self.part, "frames": str(self.frames),
+            "cell": str(self.cell.source), "cell_sha256": cell_digest(self.cell) or "",
+            "part": self.part, "frames": str(self.frames),
             "images": "mono8" if self.jpeg is None else f"jpeg quality {self.jpeg}",
             "time": "stamps and log times: the run's time t (s) from the Unix epoch",
             "complete": "true" if complete else "false", **(facts or {})})

@@ -32,6 +32,7 @@ from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
 from cellsight.control import grasp_pose_in_part
 from cellsight.control.task import TaskTolerances
+from cellsight.errors import CellsightError
 from cellsight.experiments.baseline import PnPBaseline
 from cellsight.experiments.metrics import frame_metrics
 from cellsight.experiments.rows import FrameRows, FrameTruth, PartTruth
@@ -267,6 +268,28 @@ class _Pace:
         time.sleep(max(0.0, (t - self._start[1]) - (now - self._start[0])))
 
 
+def recorded_cell(rec: Recording) -> Cell:
+    """The cell a cellsight recording names in its metadata (``cell``, checked against its
+    ``cell_sha256``), else the built-in cell; a named cell that is gone or changed since is a
+    :class:`RecordingError` saying to pass ``--cell``."""
+    facts = rec.metadata("cellsight")
+    source = facts.get("cell")
+    if not source:
+        return load_cell(None)
+    try:
+        cell = load_cell(source)
+    except CellsightError as exc:
+        raise RecordingError(f"recording {rec.path}: made with the cell {source!r}, which "
+                             f"cannot be loaded here ({exc}); pass --cell NAME|FILE") from None
+    recorded, now = facts.get("cell_sha256"), cell_digest(cell)
+    if recorded and now and recorded != now:
+        raise RecordingError(f"recording {rec.path}: made with the cell {source!r}, which has "
+                             f"changed since (its SHA-256 differs from the recording's); pass "
+                             f"--cell NAME|FILE to track with it anyway")
+    log.info("the cell from the recording: %s", source)
+    return cell
+
+
 def _progress(enabled: bool) -> Progress:
     return Progress(TextColumn("[bold]{task.description}"), BarColumn(),
                     TextColumn("t = {task.completed:6.2f} / {task.total:.2f} s"),
@@ -276,8 +299,9 @@ def _progress(enabled: bool) -> Progress:
 def track_recording(cell: str | Path | Cell | None, recording: str | Path, out: str | Path,
                     options: TrackOptions | None = None) -> TrackResult:
     """Track the workpieces through ``recording`` with the cell ``cell`` (a built-in cell's
-    name, a cell file or a loaded cell; None: the built-in cell) into the folder ``out``
-    (module docstring). Returns the folder and its metrics."""
+    name, a cell file or a loaded cell; None: the cell a cellsight recording names, checked by
+    its SHA-256, else the built-in cell) into the folder ``out`` (module docstring). Returns
+    the folder and its metrics."""
     options = options or TrackOptions()
     if not (options.tolerance_s > 0 and np.isfinite(options.tolerance_s)):
         raise RecordingError(f"--sync-tolerance: expected a positive number of seconds, got "
@@ -286,11 +310,20 @@ def track_recording(cell: str | Path | Cell | None, recording: str | Path, out: 
         parse_address(options.live)
     out = Path(out)
     stale = check_out_folder(out, options.overwrite, "--out", "--overwrite")
-    cell = cell if isinstance(cell, Cell) else load_cell(cell)
     topic_map = load_topic_map(options.topics)
-    topic_map.check(cell)
     with open_recording(recording) as rec:
-        session = _Session(cell, rec, out, options, topic_map)
+        assumed = cell is None and not rec.metadata("cellsight").get("cell")
+        cell = cell if isinstance(cell, Cell) else (
+            load_cell(cell) if cell is not None else recorded_cell(rec))
+        topic_map.check(cell)
+        try:
+            session = _Session(cell, rec, out, options, topic_map)
+        except RecordingError as exc:
+            if assumed:  # the likely cause: another cell's recording
+                raise RecordingError(f"{exc} (no --cell given, and the recording names none: "
+                                     f"the built-in cell was assumed; pass --cell NAME|FILE, "
+                                     f"the recording's cell)") from exc
+            raise
         make_out_folder(out, stale, "--out")
         writes = RunWrites(out)
         cell_files = keep_cell(out, cell)
