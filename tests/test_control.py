@@ -707,3 +707,36 @@ def test_compiled_rotations_agree_with_scipy(direction, angle):
     if angle > np.pi - 1e-6:
         theirs = theirs if ours @ theirs > 0 else -theirs
     np.testing.assert_allclose(ours, theirs, atol=1e-12)
+
+
+@pytest.mark.parametrize("turn_deg, switched", [(180.0, True), (130.0, True), (20.0, False),
+                                                (100.0, False)])
+def test_a_turned_estimate_switches_to_the_twin_grasp_without_a_jump(turn_deg, switched):
+    """The part's estimate turns about the vertical by ``turn_deg`` after the grasp was chosen:
+    past 110 deg (90 and half the margin) the twin grasp (half a turn about the approach
+    axis) is the nearer one to the TCP (which has not turned), and the segment starts again
+    from the TCP towards it; the goal's orientation is then the twin's at the turned estimate."""
+    planner = TrajectoryPlanner(grasp_pose_in_part(PART))
+    T_start = ROBOT.tcp_pose(Q_START)
+    planner.reset(0.0, T_start)
+    T_part = PART.T_base_part.copy()
+    planner.part.update(0.0, T_part)
+    planner.move_to(0.0, PartGoal(0.05), 4.0)
+    chosen = planner.chosen_grasp
+    turned = T_part.copy()
+    turned[:3, :3] = Rotation.from_euler("z", turn_deg, degrees=True).as_matrix() @ T_part[:3, :3]
+    for t in np.arange(0.04, 1.0, 0.04):  # the estimate holds the turned pose from now on
+        planner.part.update(float(t), turned)
+    T_tcp = T_part @ chosen  # the TCP over the part at the grasp chosen, not turned since
+    T_tcp[2, 3] += 0.05
+    before = planner.target(1.0)[0]
+    assert planner.keep_grasp_near(1.0, T_tcp) is switched
+    after = planner.target(1.0)[0]
+    start = T_tcp if switched else before  # a new segment starts where the TCP is
+    assert np.linalg.norm(after[:3, 3] - start[:3, 3]) < 1e-9 and _angle(
+        after[:3, :3], start[:3, :3]) < 1e-9
+    expected = chosen @ HALF_TURN_Z if switched else chosen
+    np.testing.assert_allclose(planner.chosen_grasp, expected, atol=1e-12)
+    goal = turned @ expected
+    assert _angle(planner.goal_at(PartGoal(0.05), 1.0)[0][:3, :3], goal[:3, :3]) < 1e-9
+    assert planner.keep_grasp_near(1.0, T_tcp) is False  # no switching back and forth

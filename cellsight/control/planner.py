@@ -40,6 +40,9 @@ from cellsight.model.cell import Workpiece
 MIN_JERK_PEAK = 1.875  # peak of ds/dtau for the minimum-jerk profile
 HALF_TURN_Z = make_pose(np.diag([-1.0, -1.0, 1.0]))
 """A half turn about the TCP's approach axis (z): a parallel gripper's grasp and its twin."""
+REGRASP_MARGIN = np.radians(40.0)
+"""How much nearer the twin grasp must be to the TCP target than the chosen one before a
+segment towards the part switches to it (:meth:`TrajectoryPlanner.keep_grasp_near`)."""
 
 
 def nearer_grasp(T_part_tcp: np.ndarray, T_base_part: np.ndarray,
@@ -190,6 +193,26 @@ class TrajectoryPlanner:
 
     def _nearer_grasp(self, T_base_part: np.ndarray, T_near: np.ndarray) -> np.ndarray:
         return nearer_grasp(self.T_part_tcp, T_base_part, T_near)
+
+    def keep_grasp_near(self, t: float, T_tcp: np.ndarray) -> bool:
+        """In a segment towards the part, switch to the twin grasp when, at the part's latest
+        estimate, it is nearer to the TCP's pose ``T_tcp`` (base frame) than the chosen one by
+        more than :data:`REGRASP_MARGIN` (an estimate that has turned since the choice: a part
+        acquired with a wrong yaw, or as its turned twin, then corrected; the target, which
+        follows the estimate, would turn the wrist half a turn); the segment starts again from
+        ``T_tcp`` over the time it had left. Returns whether it switched."""
+        seg = self._segment
+        if seg is None or not isinstance(seg.goal, PartGoal) or not self.part.known:
+            return False
+        T_now = np.asarray(T_tcp, dtype=float)
+        T_part = self.part.predict(t)[0]
+        chosen = self._T_part_tcp_chosen
+        angles = [float(np.linalg.norm(rotation_error(T_part[:3, :3] @ g[:3, :3], T_now[:3, :3])))
+                  for g in (chosen, chosen @ HALF_TURN_Z)]
+        if angles[0] - angles[1] <= REGRASP_MARGIN:
+            return False
+        self.move_to(t, seg.goal, max(seg.t0 + seg.duration - t, 0.0), start=T_now)
+        return True
 
     def goal_at(self, goal: PoseGoal | PartGoal, t: float) -> tuple[np.ndarray, np.ndarray]:
         """Pose of a goal at time ``t`` and its linear velocity."""

@@ -253,6 +253,11 @@ class GraspTask:
         if self.phase in (Phase.WAITING, Phase.APPROACH, Phase.GRASP):
             self.planner.part.update(t if stamp is None else stamp, part_pose, part_velocity)
         T_meas = self.robot.tcp_pose(joints_measured)
+        if self.phase is Phase.APPROACH and self.planner.keep_grasp_near(t, T_meas):
+            self.events.append((t, self.phase, self.stage, "the part's estimate turned: the "
+                                                           "twin grasp is nearer, switched to it"))
+            log.info("t=%.3f s: %s/%s: the twin grasp is nearer now; switched to it", t,
+                     self.phase.value, self.stage)
         if handler := self._handlers.get(self.phase):
             handler(t, T_meas, bool(jaws_closed))
         self.servo.new_target(t)
