@@ -305,6 +305,14 @@ def _copy_run(run_dir: Path, to: Path) -> Path:
     return to
 
 
+def _without_frames_digest(folder: Path) -> None:
+    """metrics.json without frames.csv's SHA-256: a run from before it was recorded, whose
+    frames.csv the test edits to reach the checks behind it."""
+    metrics = json.loads((folder / "metrics.json").read_text())
+    metrics.pop("frames_sha256", None)
+    (folder / "metrics.json").write_text(json.dumps(metrics))
+
+
 def test_run_errors_name_the_file(run_dir, tmp_path):
     with pytest.raises(CellsightError, match="no such run folder"):
         RunReplay(tmp_path / "nothing")
@@ -326,6 +334,7 @@ def test_run_errors_name_the_file(run_dir, tmp_path):
     with (old / "frames.csv").open("w", newline="") as f:
         csv.writer(f, quoting=csv.QUOTE_NONNUMERIC).writerows([[r[i] for i in keep]
                                                               for r in rows])
+    _without_frames_digest(old)
     with pytest.raises(CellsightError, match=r"frames.csv: no joint columns .*logged before"):
         RunReplay(old)
 
@@ -356,6 +365,7 @@ def test_estimate_hidden_where_the_log_has_none(run_dir, tmp_path):
         rows[1][i] = ""
     with (lost / "frames.csv").open("w", newline="") as f:
         csv.writer(f, quoting=csv.QUOTE_NONNUMERIC).writerows(rows)
+    _without_frames_digest(lost)
     replay = RunReplay(lost)
     assert not replay.state(0).estimates and replay.state(1).estimates
     app = ViewApp(replay.cell, replay=replay, port=free_port())

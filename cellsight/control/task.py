@@ -256,8 +256,7 @@ class GraspTask:
         if self.phase is Phase.APPROACH and self.planner.keep_grasp_near(t, T_meas):
             self.events.append((t, self.phase, self.stage, "the part's estimate turned: the "
                                                            "twin grasp is nearer, switched to it"))
-            log.info("t=%.3f s: %s/%s: the twin grasp is nearer now; switched to it", t,
-                     self.phase.value, self.stage)
+            log.info("t=%.3f s: the twin grasp is nearer now; switched to it", t)
         if handler := self._handlers.get(self.phase):
             handler(t, T_meas, bool(jaws_closed))
         self.servo.new_target(t)
@@ -390,20 +389,6 @@ class GraspTask:
             return f"not reached after {self.timing.reach_timeout:g} s ({error}); going on"
         return None
 
-    def last_setback(self) -> str | None:
-        """The task's last step back, with its time, or None: a failed grasp check (back to
-        the approach), a move that timed out ("not reached"), the part lost (the ``clear``
-        stage), the task failed."""
-        found = [(t, f"{a} -> {b}: {why}") for t, a, b, why in self.transitions
-                 if b is Phase.FAILED or "not reached" in why
-                 or (b is Phase.APPROACH and a is not Phase.WAITING)]
-        found += [(t, f"{phase}/{stage}: {note}") for t, phase, stage, note in self.events
-                  if stage == "clear" or "not reached" in note]
-        if not found:
-            return None
-        t, text = max(found, key=lambda f: f[0])
-        return f"t = {t:.1f} s, {text}"
-
     def _go(self, t: float, to: Phase, reason: str) -> None:
         self.transitions.append((t, self.phase, to, reason))
         log.info("t=%.3f s: %s -> %s (%s)", t, self.phase.value, to.value, reason)
@@ -414,3 +399,18 @@ class GraspTask:
         self._stage_t = t
         self.events.append((t, self.phase, stage, note))
         log.debug("t=%.3f s: %s/%s (%s)", t, self.phase.value, stage, note)
+
+
+def last_setback(task: GraspTask) -> str | None:
+    """The task's last step back, with its time, or None: a failed grasp check (back to the
+    approach), a move that timed out ("not reached"), the part lost (the ``clear`` stage), the
+    task failed (from its ``transitions`` and ``events``)."""
+    found = [(t, f"{a} -> {b}: {why}") for t, a, b, why in task.transitions
+             if b is Phase.FAILED or "not reached" in why
+             or (b is Phase.APPROACH and a is not Phase.WAITING)]
+    found += [(t, f"{phase}/{stage}: {note}") for t, phase, stage, note in task.events
+              if stage == "clear" or "not reached" in note]
+    if not found:
+        return None
+    t, text = max(found, key=lambda f: f[0])
+    return f"t = {t:.1f} s, {text}"

@@ -49,6 +49,7 @@ import numpy as np
 
 from cellsight.camera import border_distance
 from cellsight.control.ik import converge
+from cellsight.control.planner import HALF_TURN_Z
 from cellsight.control.task import TaskTolerances
 from cellsight.model.cell import Cell, Workpiece
 from cellsight.model.robot import Robot
@@ -260,7 +261,7 @@ def _task_reach(cell: Cell) -> list[Finding]:
     part = cell.workpiece(setup.workpiece) if setup.workpiece else cell.workpieces[0]
     tol = TaskTolerances()
     T_part_tcp = grasp_pose(part, robot.tool)
-    turned = T_part_tcp @ np.diag([-1.0, -1.0, 1.0, 1.0])  # the same grasp, half a turn about z
+    turned = T_part_tcp @ HALF_TURN_Z  # the same grasp, half a turn about the approach axis
     raised = np.eye(4)
     raised[2, 3] = APPROACH_M
     q, misses, grasps = robot.home, [], []

@@ -54,7 +54,7 @@ from rich.progress import BarColumn, Progress, TextColumn
 
 from cellsight.calibration.folder import calibrated_cell, read_calibration
 from cellsight.control import GraspTask, Phase, grasp_pose_in_part
-from cellsight.control.task import grasp_miss
+from cellsight.control.task import grasp_miss, last_setback
 from cellsight.errors import CellsightError
 from cellsight.experiments.baseline import PnPBaseline
 from cellsight.experiments.exposure import Exposures
@@ -559,7 +559,7 @@ class ExperimentRun:
             "grasp_success": bool(self.grasp.held_at_manipulate),
             "grasp_position_error_mm": self.grasp.error_mm,
             "ended_by": getattr(self, "ended_by", None),
-            "last_setback": self.task.last_setback(),
+            "last_setback": last_setback(self.task),
             "final_phase": str(self.task.phase),
             "failed_grasp_checks": self.task.attempts,
             **frame_metrics(frames),
