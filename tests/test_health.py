@@ -197,6 +197,7 @@ def test_status_text_says_why_a_track_is_degraded():
         "waiting", "acquired", "tracking", "degraded", "coasting", "lost"]
 
 
+@pytest.mark.slow
 def test_a_real_short_run_on_the_exact_world_raises_no_alarm(tmp_path):
     """Experiment 1, ideal sensor, exact world, 4 s: the monitor judges every camera once its
     window has filled, and never finds the track inconsistent."""

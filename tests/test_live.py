@@ -97,6 +97,7 @@ def streamed(tmp_path_factory):
     return folder, received, advertised
 
 
+@pytest.mark.slow
 def test_the_channels_are_advertised(streamed):
     _, _, advertised = streamed
     topics = {c["topic"]: c["schemaName"] for c in advertised}
@@ -107,6 +108,7 @@ def test_the_channels_are_advertised(streamed):
                       "/cam2/image": "foxglove.CompressedImage"}
 
 
+@pytest.mark.slow
 def test_tf_holds_the_cameras_where_the_cell_has_them(streamed):
     _, received, _ = streamed
     assert len(received["/tf"]) > 10
@@ -119,6 +121,7 @@ def test_tf_holds_the_cameras_where_the_cell_has_them(streamed):
         assert np.allclose(xyz, cam.T_base_cam[:3, 3], atol=1e-12)
 
 
+@pytest.mark.slow
 def test_the_estimates_are_the_runs(streamed):
     folder, received, _ = streamed
     logged = FrameLog.read(folder / "live" / "frames.csv").poses("est")[:, :3]
@@ -129,6 +132,7 @@ def test_the_estimates_are_the_runs(streamed):
         assert np.min(np.linalg.norm(logged - [p.x, p.y, p.z], axis=1)) < 1e-12
 
 
+@pytest.mark.slow
 def test_an_image_decodes_with_the_overlay(streamed):
     _, received, _ = streamed
     image = cv2.imdecode(np.frombuffer(received["/cam1/image"][-1].data, np.uint8),
@@ -139,6 +143,7 @@ def test_an_image_decodes_with_the_overlay(streamed):
     assert np.sum((g > 150) & (r < 100) & (b < 100)) > 20  # the green predicted-visible discs
 
 
+@pytest.mark.slow
 def test_the_run_is_the_same_with_and_without_live(streamed):
     folder, _, _ = streamed
     a, b = read_metrics(folder / "live"), read_metrics(folder / "quiet")

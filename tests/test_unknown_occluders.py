@@ -164,6 +164,7 @@ def test_the_map_covers_what_the_forearm_hides_in_the_simulators_truth(tmp_path)
     assert any("under unknown occluders in cam1" in s for s in log.text("status"))
 
 
+@pytest.mark.slow
 def test_the_map_is_off_by_default_and_the_run_is_todays(tmp_path):
     """Without the experimental ``unknown-occluders`` the same world runs the tracker as
     before: nothing is labelled ``unknown`` and no map is logged."""

@@ -23,6 +23,7 @@ from cellsight.runfolder.framelog import FrameLog
 from cellsight.world.shots import Shot
 
 
+@pytest.mark.slow
 def test_the_video_thread_draws_what_the_run_handed_over(tmp_path: Path, monkeypatch) -> None:
     """The oracle: each picture drawn again on the run's thread as the frame is handed over,
     with a renderer of its own (the same settings as the thread's). A thread that drew from a
