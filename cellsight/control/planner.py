@@ -41,8 +41,8 @@ MIN_JERK_PEAK = 1.875  # peak of ds/dtau for the minimum-jerk profile
 HALF_TURN_Z = make_pose(np.diag([-1.0, -1.0, 1.0]))
 """A half turn about the TCP's approach axis (z): a parallel gripper's grasp and its twin."""
 REGRASP_MARGIN = np.radians(40.0)
-"""How much nearer the twin grasp must be to the TCP target than the chosen one before a
-segment towards the part switches to it (:meth:`TrajectoryPlanner.keep_grasp_near`)."""
+"""How much nearer (rad) the twin grasp must be to the TCP's orientation than the chosen one
+before a segment towards the part switches to it (:meth:`TrajectoryPlanner.keep_grasp_near`)."""
 
 
 def nearer_grasp(T_part_tcp: np.ndarray, T_base_part: np.ndarray,
