@@ -268,6 +268,8 @@ def test_the_whole_task_is_tracked_within_the_targets(whole_task: Path) -> None:
     metrics = json.loads((whole_task / "metrics.json").read_text())
     rows = read_frames(whole_task / "frames.csv")
     assert metrics["grasp_success"] and metrics["final_phase"] == "done"
+    assert metrics["ended_by"] == "the task's end, 1 s after it"
+    assert metrics["last_setback"] is None  # the ideal sensor: no grasp retried, no part lost
     assert metrics["in_view_fraction"] >= 0.9 and metrics["lost_in_view_s"] == 0
     assert metrics["position_rmse_mm"] <= 1.0 and metrics["max_position_error_mm"] <= 5.0
     assert metrics["orientation_rmse_deg"] <= 0.5 and metrics["visibility_accuracy"] >= 0.99

@@ -380,7 +380,7 @@ class ExperimentRun:
             while self.stop.name is None:
                 t = self.world.time
                 if done_at is not None and t >= done_at + cfg.tail_s:
-                    self.ended_by = f"the task {task.phase} (and {cfg.tail_s:g} s after)"
+                    self.ended_by = f"the task's end, {cfg.tail_s:g} s after it"
                     break
                 if t > end + 1e-9:
                     break
