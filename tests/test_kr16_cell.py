@@ -10,7 +10,6 @@ import pytest
 
 from cellsight import load_cell
 from cellsight.cli import main
-from cellsight.experiments.cellcheck import check_cell
 from cellsight.model.loader import builtin_cell_path
 
 
@@ -33,18 +32,6 @@ def test_kr16_cell_loads_by_name(cell):
         robot.chain.check_q(q, check_limits=True)
         T_part = robot.tcp_pose(q) @ np.linalg.inv(part.T_part_grasp)
         assert T_part[2, 3] == pytest.approx(z, abs=2e-3)
-
-
-def test_check_finds_no_error_and_the_crossing_blinds_both_cameras(cell):
-    findings = check_cell(cell)
-    assert not [f.line for f in findings if f.level == "error"]
-    # only the jaws' tips touching the conveyor (the grasp at the part's mid-height)
-    assert all("gripper.jaw" in f.line and "into conveyor" in f.line
-               for f in findings if f.level == "warning")
-    blinds = [f.line for f in findings if "blinds" in f.line]
-    assert len(blinds) == 2, blinds
-    assert any("KR16B blinds cam1" in b for b in blinds), blinds
-    assert any("KR16B blinds cam2" in b for b in blinds), blinds
 
 
 @pytest.mark.slow

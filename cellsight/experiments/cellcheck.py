@@ -210,7 +210,7 @@ def _key_poses(cell: Cell, margin_px: float) -> list[Finding]:
     setup = cell.experiments
     if not cell.workpieces or not cell.cameras:
         return []
-    part = cell.workpiece(setup.workpiece) if setup.workpiece else cell.workpieces[0]
+    part = _workpiece(cell)
     poses = [("at its start", part.T_base_part)]
     if setup.conveyor_points is not None and len(setup.conveyor_points):
         end = part.T_base_part.copy()
@@ -236,18 +236,17 @@ def _key_poses(cell: Cell, margin_px: float) -> list[Finding]:
 
 
 def _part_positions(cell: Cell, part: Workpiece) -> list[tuple[str, np.ndarray]]:
-    """The part's start pose, then its pose every ``REACH_STEP_M`` along the conveyor (its
-    polyline, the part's height and orientation kept), each named."""
+    """The part's start pose, then its pose every ``REACH_STEP_M`` along the conveyor
+    (:class:`~cellsight.world.paths.ConveyorPath` at 1 m/s: its position at ``t`` s is ``t`` m
+    along; the part's height and orientation kept), each named."""
     setup = cell.experiments
     out = [("at its start", part.T_base_part)]
     if setup.conveyor_points is None or len(setup.conveyor_points) < 2:
         return out
-    points = np.asarray(setup.conveyor_points, dtype=float)
-    lengths = np.linalg.norm(np.diff(points, axis=0), axis=1)
-    along = np.cumsum(np.concatenate([[0.0], lengths]))
-    for s in np.arange(REACH_STEP_M, along[-1] + 1e-9, REACH_STEP_M):
+    path = ConveyorPath(np.asarray(setup.conveyor_points, dtype=float), 1.0)
+    for s in np.arange(REACH_STEP_M, path.length + 1e-9, REACH_STEP_M):
         T = part.T_base_part.copy()
-        T[:2, 3] = [np.interp(s, along, points[:, k]) for k in range(2)]
+        T[:2, 3] = path.position(float(s))
         out.append((f"{100 * s:.0f} cm along the conveyor", T))
     return out
 
@@ -257,8 +256,7 @@ def _task_reach(cell: Cell) -> list[Finding]:
     robot = _grasping(cell)
     if robot is None or robot.tool is None or not cell.workpieces:
         return []
-    setup = cell.experiments
-    part = cell.workpiece(setup.workpiece) if setup.workpiece else cell.workpieces[0]
+    part = _workpiece(cell)
     tol = TaskTolerances()
     T_part_tcp = grasp_pose(part, robot.tool)
     turned = T_part_tcp @ HALF_TURN_Z  # the same grasp, half a turn about the approach axis
@@ -342,6 +340,12 @@ def _grasp_contacts(cell: Cell, robot: Robot, part: Workpiece,
     return [Finding("warning", line + " (contacts push back in a world of MuJoCo's actuators)")]
 
 
+def _workpiece(cell: Cell) -> Workpiece:
+    """The part of the experiments: the cell file's ``experiments.workpiece``, else the first."""
+    setup = cell.experiments
+    return cell.workpiece(setup.workpiece) if setup.workpiece else cell.workpieces[0]
+
+
 def _grasping(cell: Cell) -> Robot | None:
     setup = cell.experiments
     if setup.robot is not None:
@@ -359,7 +363,7 @@ def _crossing(cell: Cell, step_s: float, path: TaskPath | None) -> list[Finding]
                                    "cannot run")]
     crosser = cell.robot(setup.crossing_robot)
     task = JointTask(crosser.home, [Waypoint(t, q) for t, q in setup.crossing_waypoints])
-    part = cell.workpiece(setup.workpiece) if setup.workpiece else cell.workpieces[0]
+    part = _workpiece(cell)
     predictor = VisibilityPredictor(cell)
     times = np.arange(0.0, setup.crossing_waypoints[-1][0] + step_s, step_s)
     states = list(_states(cell, part.name, crosser.name, times, path))

@@ -268,14 +268,14 @@ class _Pace:
         time.sleep(max(0.0, (t - self._start[1]) - (now - self._start[0])))
 
 
-def recorded_cell(rec: Recording) -> Cell:
+def recorded_cell(rec: Recording) -> Cell | None:
     """The cell a cellsight recording names in its metadata (``cell``, checked against its
-    ``cell_sha256``), else the built-in cell; a named cell that is gone or changed since is a
+    ``cell_sha256``), None when it names none; a named cell that is gone or changed since is a
     :class:`RecordingError` saying to pass ``--cell``."""
     facts = rec.metadata("cellsight")
     source = facts.get("cell")
     if not source:
-        return load_cell(None)
+        return None
     try:
         cell = load_cell(source)
     except CellsightError as exc:
@@ -312,9 +312,9 @@ def track_recording(cell: str | Path | Cell | None, recording: str | Path, out: 
     stale = check_out_folder(out, options.overwrite, "--out", "--overwrite")
     topic_map = load_topic_map(options.topics)
     with open_recording(recording) as rec:
-        assumed = cell is None and not rec.metadata("cellsight").get("cell")
-        cell = cell if isinstance(cell, Cell) else (
-            load_cell(cell) if cell is not None else recorded_cell(rec))
+        named = recorded_cell(rec) if cell is None else None
+        assumed = cell is None and named is None
+        cell = cell if isinstance(cell, Cell) else (named if named is not None else load_cell(cell))
         topic_map.check(cell)
         try:
             session = _Session(cell, rec, out, options, topic_map)

@@ -19,19 +19,16 @@ from cellsight.runfolder.metrics import RunDataError, read_metrics
 
 
 def checked_run(folder: str | Path, option: str, *, whole: bool = True,
-                experiments: Sequence[int] | None = None, cell: Cell | None = None,
-                metrics: dict | None = None) -> dict:
+                experiments: Sequence[int] | None = None, cell: Cell | None = None) -> dict:
     """The run's metrics after the module docstring's checks; ``option`` names the argument
     that gave the folder; ``whole``: the run must have finished; ``experiments``: the ones
-    the reader takes (None: any, a tracked recording too); ``cell``: the reader's cell;
-    ``metrics``: already read (a run's own report, before metrics.json is written)."""
+    the reader takes (None: any, a tracked recording too); ``cell``: the reader's cell."""
     folder = Path(folder)
-    if metrics is None:
-        if not (folder / "metrics.json").exists() and (folder / "frames.csv").exists():
-            raise RunDataError(f"{option}: {folder} has frames.csv but no metrics.json: the run "
-                               f"did not finish (killed?); run it again")
-        metrics = read_metrics(folder)
-        frames_digest(folder, metrics)
+    if not (folder / "metrics.json").exists() and (folder / "frames.csv").exists():
+        raise RunDataError(f"{option}: {folder} has frames.csv but no metrics.json: the run "
+                           f"did not finish (killed?); run it again")
+    metrics = read_metrics(folder)
+    frames_digest(folder, metrics)
     path = folder / "metrics.json"
     if whole and (metrics.get("interrupted") or metrics.get("error")):
         why = (f"error {metrics['error']!r}" if metrics.get("error") else
