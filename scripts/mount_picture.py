@@ -47,9 +47,9 @@ def _panel(ax, cell, name: str, title: str) -> None:
     for solid in tool.palm:
         _outline(ax, solid.vertices @ T_tool[:3, :3].T + T_tool[:3, 3], T_tool, "tab:blue",
                  "palm")
-    for T_jaw in tool.jaw_poses(tool.max_opening):
+    for jaw, T_jaw in zip(tool.jaws, tool.jaw_poses(tool.max_opening), strict=True):
         T = T_tool @ T_jaw
-        _outline(ax, tool.jaw.vertices @ T[:3, :3].T + T[:3, 3], T_tool, "tab:orange", "jaw")
+        _outline(ax, jaw.solid.vertices @ T[:3, :3].T + T[:3, 3], T_tool, "tab:orange", "jaw")
     ax.annotate("", (0, 40), (0, 0), arrowprops={"arrowstyle": "->", "color": "k", "lw": 2})
     ax.annotate("", (40, 0), (0, 0), arrowprops={"arrowstyle": "->", "color": "k", "lw": 2})
     ax.text(2, 42, "tool z (approach)", fontsize=8)

@@ -183,3 +183,16 @@ def test_a_base_in_mid_air_is_found(cell):
         if warned:
             assert len(lines) == 1 and lines[0].startswith("robot R6AX: its base stands on")
             assert "bottom is 30.0 cm above" in lines[0]
+
+
+def test_a_second_robot_whose_home_hides_the_part_is_found(cell):
+    # R6AX's HOME moved to its crossing pose over cam2's line of sight: experiments 1 and 2
+    # would run with cam2 blinded throughout
+    _, q_block = cell.experiments.crossing_waypoints[2]
+    blocking = _robot(cell, "R6AX", home=q_block)
+    warned = [f.line for f in check_cell(blocking, crossing=False)
+              if f.level == "warning" and "at HOME hides" in f.line]
+    assert len(warned) == 1 and warned[0].startswith("R6AX at HOME hides features from cam2: ")
+    assert "with the part at its start" in warned[0]
+    assert not [f for f in check_cell(cell, crossing=False) if f.level != "ok"
+                and "at HOME hides" in f.line]

@@ -20,6 +20,7 @@ from cellsight.model.schema import (
     ConveyorSpec,
     CrossingSpec,
     ExperimentsSpec,
+    FingersSpec,
     GripperSpec,
     HandEyeSpec,
     LinkSpec,
@@ -78,6 +79,7 @@ def _unit(model: type[BaseModel], name: str) -> str:
 
 def test_the_walk_reaches_every_model_of_the_three_schemas():
     cell = {PoseSpec, BoxSpec, PrismSpec, SegmentSpec, MeshSpec, SolidSpec, LinkSpec, GripperSpec,
+            FingersSpec,
             UrdfSpec, RobotSpec, WorkpieceSpec, StaticSpec, LookAtSpec, CalibrationFileSpec,
             HandEyeSpec, CameraSpec, ConveyorSpec, WaypointSpec, CrossingSpec, ExperimentsSpec,
             CellSpec}

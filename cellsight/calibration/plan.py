@@ -326,9 +326,9 @@ def _place_home(scene: Scene, cell: Cell) -> None:
     for robot in cell.robots:
         scene.set_qpos(_qpos_addresses(model, robot), robot.home)
         if robot.tool is not None:
-            for jaw in ("jaw1", "jaw2"):
-                adr = model.jnt_qposadr[model.joint(body_name(robot.name, jaw)).id]
-                scene.set_qpos([adr], robot.tool.max_opening / 2)
+            adr = [model.jnt_qposadr[model.joint(body_name(robot.name, jaw)).id]
+                   for jaw in ("jaw1", "jaw2")]
+            scene.set_qpos(adr, robot.tool.jaw_values(robot.tool.max_opening))
     scene.sync()
 
 

@@ -19,6 +19,11 @@
 - **Key poses in view:** the part at its start, at the conveyor's end, and held at the grasping
   robot's HOME and FINAL (by its grasp): every feature point inside each camera's image by
   ``margin_px``; an error when outside, a warning when within the margin.
+- **The other robots out of the views:** each robot but the grasping one, at HOME, with the
+  part at those key poses (the grasping robot at HOME, or at FINAL for the part held there):
+  a warning for every camera from which it hides features (in experiments 1 and 2 it stays
+  at HOME, "out of the cameras' view"; a HOME on a line of sight blinds a camera for the
+  whole run).
 - **Reach along the task:** the grasping robot's TCP followed from HOME, as the CLIK does
   (damped least squares from the last joints, every step clipped to the limits), over the part
   (``APPROACH_M`` above the grasp) and at the grasp, with the part at its start and every
@@ -88,7 +93,7 @@ def check_cell(cell: Cell, *, margin_px: float = 20.0, step_s: float = 0.1,
     ``path``: a run of the task (experiment 2) giving the part's pose and the other robots'
     joints along the crossing (default: the part on the conveyor, the robots at HOME)."""
     findings = (_units(cell) + _mounts(cell) + _supports(cell) + _limits(cell)
-                + _key_poses(cell, margin_px)
+                + _key_poses(cell, margin_px) + _idle_robots(cell)
                 + _task_reach(cell))
     return findings + (_crossing(cell, step_s, path) if crossing else [])
 
@@ -232,6 +237,43 @@ def _key_poses(cell: Cell, margin_px: float) -> list[Finding]:
             text = (f"{-worst:.0f} px out of" if worst < 0 else f"{worst:.0f} px inside")
             out.append(Finding(level, f"part {what}: {text} {cam.name}'s image"
                                       + (f" (margin {margin_px:g} px)" if level != "ok" else "")))
+    return out
+
+
+def _idle_robots(cell: Cell) -> list[Finding]:
+    """The module docstring's check of the other robots at HOME, out of the views."""
+    grasping = _grasping(cell)
+    others = [r for r in cell.robots if grasping is None or r.name != grasping.name]
+    if not cell.workpieces or not cell.cameras or not others:
+        return []
+    part = _workpiece(cell)
+    states = [("at its start", {}, part.T_base_part)]
+    if cell.experiments.conveyor_points is not None and len(cell.experiments.conveyor_points):
+        end = part.T_base_part.copy()
+        end[:2, 3] = cell.experiments.conveyor_points[-1]
+        states.append(("at the conveyor's end", {}, end))
+    if grasping is not None and grasping.tool is not None:
+        T_tcp_part = np.linalg.inv(grasp_pose(part, grasping.tool))
+        for name, q in (("HOME", grasping.home), ("FINAL", grasping.final)):
+            if q is not None:
+                states.append((f"held at {grasping.name}'s {name}", {grasping.name: q},
+                               grasping.tcp_pose(q) @ T_tcp_part))
+    predictor = VisibilityPredictor(cell)
+    out = []
+    for robot in others:
+        hidden: dict[str, list[str]] = {}
+        for what, joints, T in states:
+            views = predictor.predict(joints, {part.name: T})[part.name]
+            for view in views:
+                count = sum(r.startswith(f"{robot.name}.") for r in view.reason)
+                if count:
+                    hidden.setdefault(view.camera, []).append(f"{count} with the part {what}")
+        for camera, where in hidden.items():
+            out.append(Finding("warning", f"{robot.name} at HOME hides features from {camera}: "
+                                          f"{'; '.join(where)} (of {len(part.feature_points)}; "
+                                          f"in experiments 1 and 2 it stays there)"))
+        if not hidden:
+            out.append(Finding("ok", f"{robot.name} at HOME hides no feature from any camera"))
     return out
 
 

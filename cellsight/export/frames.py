@@ -11,12 +11,14 @@ joint's origin (lengths in metres, the cell file's URDF ``scale`` applied), as
 robot_state_publisher publishes them; the URDF is read again from the cell file
 (``cell.source``; a cell not read from a file has none of these). With a gripper: ``R/tool``
 on the flange (a URDF robot's flange link, ``tool0`` by default; a DH robot's frame n) and
-``R/tcp`` on the tool, at its tool centre point. Per camera ``C``: ``C_optical_frame`` in
-``world``, the ROS optical convention (z forward, x right, y down: cellsight's camera frame).
-Per static object ``S``: ``S`` in ``world``. Per workpiece ``P``: ``P_true`` (its true pose)
-and ``P_est`` (the tracker's estimate) in ``world``; a workpiece that was not logged rests at
-its nominal pose. Fixed transforms go on ``/tf_static``, the robots' joints and the parts on
-``/tf``. Every frame has one parent; the names are checked unique.
+``R/tcp`` on the tool, at its tool centre point; a URDF hand's finger links ``R/<link>``
+on ``R/tool`` at the jaw opening (the world's open hand where the run logs none). Per camera
+``C``: ``C_optical_frame`` in ``world``, the ROS optical convention (z forward, x right, y
+down: cellsight's camera frame). Per static object ``S``: ``S`` in ``world``. Per workpiece
+``P``: ``P_true`` (its true pose) and ``P_est`` (the tracker's estimate) in ``world``; a
+workpiece that was not logged rests at its nominal pose. Fixed transforms go on
+``/tf_static``, the robots' joints and the parts on ``/tf``. Every frame has one parent; the
+names are checked unique.
 """
 
 from __future__ import annotations
@@ -134,9 +136,16 @@ def static_transforms(cell: Cell, logged_part: str) -> list[Transform]:
     return out
 
 
+def finger_frames(robot: Robot) -> list[str]:
+    """The TF names of a URDF hand's finger links (none for other grippers)."""
+    jaws = () if robot.tool is None else robot.tool.jaws
+    return [f"{robot.name}/{jaw.link}" for jaw in jaws if jaw.link]
+
+
 def link_frames_all(cell: Cell) -> list[str]:
-    """The moving chain frames 1..n of every robot."""
-    return [name for robot in cell.robots for name in link_frames(robot)[1:]]
+    """The moving frames of every robot: chain frames 1..n and a URDF hand's fingers."""
+    return [name for robot in cell.robots
+            for name in link_frames(robot)[1:] + finger_frames(robot)]
 
 
 def _check_unique(cell: Cell, names: list[str]) -> None:
@@ -151,9 +160,18 @@ def _check_unique(cell: Cell, names: list[str]) -> None:
         seen.add(name)
 
 
-def robot_transforms(robot: Robot, q: np.ndarray) -> list[Transform]:
-    """Frame i of the robot's chain in frame i-1, i = 1..n, at joints ``q``."""
+def robot_transforms(robot: Robot, q: np.ndarray,
+                     opening: float | None = None) -> list[Transform]:
+    """Frame i of the robot's chain in frame i-1, i = 1..n, at joints ``q``; a URDF hand's
+    finger links in ``R/tool`` at the jaw ``opening`` (m; None: open, as the world leaves a
+    gripper it never commands)."""
     F = robot.chain.fkine(q)
     names = link_frames(robot)
-    return [(names[i - 1], names[i], invert_pose(F[i - 1]) @ F[i])
-            for i in range(1, len(F))]
+    out = [(names[i - 1], names[i], invert_pose(F[i - 1]) @ F[i]) for i in range(1, len(F))]
+    fingers = finger_frames(robot)
+    if fingers:
+        tool = robot.tool
+        poses = tool.jaw_poses(tool.max_opening if opening is None else opening)
+        out += [(tool_frames(robot)[0], name, T)
+                for name, T in zip(fingers, poses, strict=True)]
+    return out

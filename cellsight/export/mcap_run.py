@@ -343,8 +343,9 @@ class _Frames:
         run = self.run
         ns = self.ns(k)
         true_frame, est_frame = tf.part_frames(run.part.name)
-        transforms = [t for r in run.cell.robots
-                      for t in tf.robot_transforms(r, run.joints[r.name][k])]
+        opening = run.opening[k] if np.isfinite(run.opening[k]) else None
+        transforms = [t for r in run.cell.robots for t in tf.robot_transforms(
+            r, run.joints[r.name][k], opening if r.name == self.holder else None)]
         has_true = bool(np.all(np.isfinite(run.T_true[k])))
         has_est = bool(np.all(np.isfinite(run.T_est[k])))
         if has_true:

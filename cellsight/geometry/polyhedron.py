@@ -183,6 +183,18 @@ def _check_closed(name: str, v: np.ndarray, faces: Sequence[Sequence[int]]) -> N
         )
 
 
+def joined(name: str, solids: Sequence[Polyhedron]) -> Polyhedron:
+    """One solid made of several (their vertices and faces side by side; closed when every one
+    is): a rigid body of many parts, as a URDF link of several collision elements."""
+    if len(solids) == 1:
+        return solids[0].renamed(name)
+    starts = np.cumsum([0] + [len(s.vertices) for s in solids])
+    faces = tuple(tuple(int(i) + int(start) for i in face)
+                  for s, start in zip(solids, starts, strict=False) for face in s.faces)
+    return Polyhedron(name, np.vstack([s.vertices for s in solids]), faces,
+                      all(s.closed for s in solids))
+
+
 def box(name: str, size, center=(0.0, 0.0, 0.0)) -> Polyhedron:
     """Axis-aligned box of the given size (m) centred at ``center``, 8 vertices, 6 faces."""
     sx, sy, sz = (0.5 * float(s) for s in size)

@@ -34,6 +34,8 @@ from cellsight.model.schema import (
     CameraSpec,
     CellSpec,
     ExperimentsSpec,
+    FingersSpec,
+    GripperSpec,
     HandEyeSpec,
     MeshSpec,
     RobotSpec,
@@ -43,6 +45,7 @@ from cellsight.model.schema import (
 from cellsight.model.urdf import (
     UrdfError,
     UrdfRobot,
+    finger_gripper,
     load_urdf_robot,
     package_folder,
     resolve_uri,
@@ -107,11 +110,33 @@ def _gripper(rs: RobotSpec, at: str, file: str, folder: Path,
     if rs.tool is None:
         return None
     t = rs.tool
+    if isinstance(t, FingersSpec):
+        raise CellFileError(file, f"{at}.tool.fingers", t.fingers,
+                            "a robot's own fingers come from its URDF: this robot has none")
     palm = tuple(_solid(s, f"{rs.name}.gripper", f"{at}.tool.palm[{j}]", file, folder)
                  for j, s in enumerate(t.palm))
     jaw = _solid(t.jaw, f"{rs.name}.gripper.jaw", f"{at}.tool.jaw", file, folder)
     mount = t.mount.matrix() if T_last_flange is None else T_last_flange @ t.mount.matrix()
-    return ParallelGripper(palm, jaw, mount, t.max_opening, np.array(t.tcp))
+    return ParallelGripper.mirrored(palm, jaw, mount, t.max_opening, np.array(t.tcp))
+
+
+def _urdf_gripper(rs: RobotSpec, model: UrdfRobot, at: str, file: str,
+                  folder: Path, path: Path) -> ParallelGripper | None:
+    """A URDF robot's gripper: its own fingers (when the URDF has a hand, and ``tool`` is
+    ``{fingers: urdf}`` or not given), else the ``tool`` given."""
+    if not model.fingers:
+        return _gripper(rs, at, file, folder, model.T_last_flange)
+    names = [f.joint for f in model.fingers]
+    if isinstance(rs.tool, GripperSpec):
+        raise CellFileError(file, f"{at}.tool", "a gripper",
+                            f"URDF file {path} has its own fingers (joints {names}): give "
+                            f"tool: {{fingers: urdf, tcp: [x, y, z]}}, or no tool, not a "
+                            f"second gripper")
+    tcp = (0.0, 0.0, 0.0) if rs.tool is None else rs.tool.tcp
+    try:
+        return finger_gripper(model.fingers, model.T_last_flange, tcp, path)
+    except UrdfError as exc:
+        raise CellFileError(file, f"{at}.urdf.file", rs.urdf.file, str(exc)) from exc
 
 
 def _joint_vectors(rs: RobotSpec, chain: KinematicChain, at: str,
@@ -148,7 +173,8 @@ def _robot(rs: RobotSpec, at: str, file: str, folder: Path,
     field path; ``packages``: the cell file's package folders)."""
     if rs.urdf is not None:
         model = _urdf(rs, at, file, packages or {}, folder)
-        tool = _gripper(rs, at, file, folder, model.T_last_flange)
+        path = resolve_uri(rs.urdf.file, packages or {}, folder)
+        tool = _urdf_gripper(rs, model, at, file, folder, path)
         home, final = _joint_vectors(rs, model.chain, at, file)
         return Robot(rs.name, rs.base.matrix(), model.chain, model.link_solids, tool, home,
                      final, model.solid_links, model.max_velocity)

@@ -216,9 +216,9 @@ class Cell:
         for j, solid in enumerate(robot.tool.palm):
             self._add(CellObject(label + _suffix(j, robot.tool.palm), "tool", solid, label,
                                  robot.name), ObjectFrame("palm", robot.name))
-        for jaw in (0, 1):
-            self._add(CellObject(f"{label}.jaw{jaw + 1}", "tool", robot.tool.jaw, label,
-                                 robot.name), ObjectFrame("jaw", robot.name, jaw))
+        for k, jaw in enumerate(robot.tool.jaws):
+            self._add(CellObject(f"{label}.jaw{k + 1}", "tool", jaw.solid, label,
+                                 robot.name), ObjectFrame("jaw", robot.name, k))
 
     def _add(self, obj: CellObject, frame: ObjectFrame) -> None:
         if any(o.name == obj.name for o in self.objects):

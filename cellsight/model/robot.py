@@ -10,7 +10,7 @@ the jaws close along y; the tool centre point ``tcp`` is given in the tool frame
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -22,23 +22,83 @@ _FLIP_Z = make_pose(np.diag([-1.0, -1.0, 1.0]))  # half turn about the tool z ax
 
 
 @dataclass(frozen=True)
+class Jaw:
+    """One jaw of a parallel gripper: ``solid`` in the jaw's own frame, that frame's pose in the
+    tool frame when the jaw's joint is at 0 (``T_tool_jaw0``), and the unit direction it slides
+    along (``axis``, tool frame). Its joint value follows the gripper's leading joint ``q``
+    (m): ``multiplier * q + offset`` (a URDF ``mimic``; 1 and 0 for the leader itself). A URDF
+    finger also names its ``joint`` and ``link`` (None for cellsight's own jaws)."""
+
+    solid: Polyhedron
+    T_tool_jaw0: np.ndarray
+    axis: np.ndarray
+    multiplier: float = 1.0
+    offset: float = 0.0
+    joint: str | None = None
+    link: str | None = None
+
+    def value(self, q_leader: float) -> float:
+        """This jaw's joint value (m) when the leading joint is at ``q_leader`` (m)."""
+        return self.multiplier * float(q_leader) + self.offset
+
+    def pose(self, q_leader: float) -> np.ndarray:
+        """The jaw frame in the tool frame when the leading joint is at ``q_leader`` (m)."""
+        return make_pose(None, self.value(q_leader) * self.axis) @ self.T_tool_jaw0
+
+
+@dataclass(frozen=True)
 class ParallelGripper:
-    """Pneumatic parallel-jaw gripper. ``jaw`` is one jaw's solid in its own frame, with its
-    gripping face on the plane y = 0 and its body at y > 0; the jaws sit at y = +-opening/2 in
-    the tool frame, the second one turned half a turn about z. Opening in metres."""
+    """A parallel-jaw gripper: palm solids fixed to the tool frame and two jaws (:class:`Jaw`)
+    driven by one leading joint, jaw 1's. The opening is the distance between the jaws' frames
+    along tool y: ``opening = opening_at_zero + opening_gain * q_leader`` (m), from 0 to
+    ``max_opening``, the leading joint within ``leader_range`` (m). The jaws' gripping faces
+    lie on their frames' x-z planes, so the faces are at y = +-opening/2 when the jaws are
+    symmetric. :meth:`mirrored` is cellsight's own pneumatic gripper (one jaw's solid, the
+    second turned half a turn about z); a URDF's fingers give theirs (:mod:`.urdf`)."""
 
     palm: tuple[Polyhedron, ...]
-    jaw: Polyhedron
+    jaws: tuple[Jaw, Jaw]
     T_flange_tool: np.ndarray
     max_opening: float
     tcp: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    opening_gain: float = 2.0
+    opening_at_zero: float = 0.0
+    leader_range: tuple[float, float] | None = None
+
+    @classmethod
+    def mirrored(cls, palm: tuple[Polyhedron, ...], jaw: Polyhedron, T_flange_tool: np.ndarray,
+                 max_opening: float, tcp=(0.0, 0.0, 0.0)) -> ParallelGripper:
+        """Two jaws of one solid (gripping face on its plane y = 0, body at y > 0), at
+        y = +-opening/2 in the tool frame, the second turned half a turn about z."""
+        y = np.array([0.0, 1.0, 0.0])
+        return cls(tuple(palm), (Jaw(jaw, np.eye(4), y), Jaw(jaw, _FLIP_Z, -y)),
+                   T_flange_tool, float(max_opening), np.asarray(tcp, dtype=float),
+                   leader_range=(0.0, 0.5 * float(max_opening)))
+
+    def leader_value(self, opening: float) -> float:
+        """The leading joint's value (m) for an opening (m) clipped to [0, ``max_opening``]."""
+        opening = float(np.clip(opening, 0.0, self.max_opening))
+        q = (opening - self.opening_at_zero) / self.opening_gain
+        return q if self.leader_range is None else float(np.clip(q, *self.leader_range))
+
+    def opening_of(self, q_leader: float) -> float:
+        """The opening (m) when the leading joint is at ``q_leader`` (m)."""
+        return self.opening_at_zero + self.opening_gain * float(q_leader)
+
+    def jaw_values(self, opening: float) -> tuple[float, float]:
+        """Both jaws' joint values (m) at an opening (m, clipped to the gripper's range)."""
+        q = self.leader_value(opening)
+        return self.jaws[0].value(q), self.jaws[1].value(q)
 
     def jaw_poses(self, opening: float) -> tuple[np.ndarray, np.ndarray]:
         """Poses of the two jaws in the tool frame for an opening (m) clipped to [0, max]."""
-        half = 0.5 * float(np.clip(opening, 0.0, self.max_opening))
-        first = make_pose(None, (0.0, half, 0.0))
-        second = make_pose(None, (0.0, -half, 0.0)) @ _FLIP_Z
-        return first, second
+        q = self.leader_value(opening)
+        return self.jaws[0].pose(q), self.jaws[1].pose(q)
+
+    def with_jaw_solids(self, solids: tuple[Polyhedron, Polyhedron]) -> ParallelGripper:
+        """The same gripper with other solids for its jaws (each in its jaw's frame)."""
+        return replace(self, jaws=tuple(replace(j, solid=s)
+                                        for j, s in zip(self.jaws, solids, strict=True)))
 
     @property
     def T_tool_tcp(self) -> np.ndarray:
@@ -48,8 +108,8 @@ class ParallelGripper:
     def reach_across(self) -> float:
         """How far the palm and the open jaws reach from the TCP across the approach axis (m,
         in the tool's x-y plane): the room the gripper takes around a part it grasps."""
-        jaws = [T[:3, :3] @ self.jaw.vertices.T + T[:3, 3:] for T in
-                self.jaw_poses(self.max_opening)]
+        jaws = [T[:3, :3] @ jaw.solid.vertices.T + T[:3, 3:] for jaw, T in
+                zip(self.jaws, self.jaw_poses(self.max_opening), strict=True)]
         points = np.hstack([p.vertices.T for p in self.palm] + jaws)
         return float(np.linalg.norm(points[:2] - self.tcp[:2, None], axis=0).max())
 

@@ -218,6 +218,18 @@ class GripperSpec(_Strict):
                       "default: the tool frame's origin.", "m")
 
 
+class FingersSpec(_Strict):
+    """A URDF robot's own hand as its gripper: the two fingers of its URDF (a prismatic joint
+    and its mimic, hanging off the last actuated link) become the jaws. The tool frame sits at
+    the leading finger's joint origin, y along its axis; the opening is the distance between
+    the fingers' frames along it."""
+
+    fingers: Literal["urdf"] = about(..., "Where the fingers come from: the robot's URDF.", "-")
+    tcp: Vec3 = about([0.0, 0.0, 0.0], "The tool centre point in the tool frame (at the "
+                      "leading finger's joint origin, y along its axis); default: its origin.",
+                      "m")
+
+
 URDF_UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001, "inch": 0.0254, "tenth-inch": 0.00254}
 """The length units a URDF may be written in (``urdf: {scale: inch}``), in metres."""
 
@@ -262,8 +274,10 @@ class RobotSpec(_Strict):
         None, "The DH table, one link per joint from the base (give links or urdf).", "-")
     urdf: UrdfSpec | None = about(None, "The URDF the robot is read from (give links or urdf).",
                                   "-")
-    tool: GripperSpec | None = about(None, "The parallel gripper on the flange; default none "
-                                     "(a robot without one does not grasp).", "-")
+    tool: GripperSpec | FingersSpec | None = about(
+        None, "The parallel gripper on the flange, or {fingers: urdf} for the URDF's own "
+        "fingers; default none (a robot without one does not grasp), or the URDF's fingers "
+        "when it has them.", "-")
     home: list[Finite] = about(..., "HOME, one value per joint within its limits: where the "
                                "robot starts, stays when idle, and carries the part back to.",
                                JOINT_UNIT)

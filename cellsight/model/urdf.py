@@ -2,6 +2,12 @@
 
 The URDF is parsed with ``yourdfpy``. The actuated joints (revolute, continuous, prismatic)
 must form one serial chain from the root link; they are the robot's joints, in chain order.
+A gripper's fingers are the exception: two prismatic joints with nothing actuated beyond them,
+one mimicking the other (``<mimic joint multiplier offset>``: its value is ``multiplier`` times
+the leader's plus ``offset``), hanging off links fixed to the chain's last frame, as the
+Franka Panda's hand. They are not joints of the chain: they become the robot's parallel gripper
+(:func:`finger_gripper`), the leader its jaw 1 and the opening the distance between the two
+fingers' frames along the leader's axis. Any other mimic joint is refused.
 Fixed joints fold into their parent: a link fixed to the child link of actuated joint ``i``
 (or to the root) moves with chain frame ``i`` (0: the root link's frame), and keeps its own name
 as its solids' label. Frames (URDF convention): frame ``i`` is the child link of actuated joint
@@ -46,12 +52,14 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from cellsight.errors import CellsightError, GeometryError, short_repr
 from cellsight.geometry.meshes import load_mesh_solid
-from cellsight.geometry.polyhedron import Polyhedron, box, prism
-from cellsight.geometry.transforms import invert_pose
+from cellsight.geometry.polyhedron import Polyhedron, box, joined, prism
+from cellsight.geometry.transforms import invert_pose, make_pose
 from cellsight.kinematics import JointKind, SerialChain
+from cellsight.model.robot import Jaw, ParallelGripper
 
 CYLINDER_SIDES = 24
 SPHERE_BANDS, SPHERE_SECTORS = 8, 16
@@ -82,12 +90,30 @@ class UrdfError(CellsightError, ValueError):
 
 
 @dataclass(frozen=True)
+class UrdfFinger:
+    """A finger of a URDF hand: its prismatic ``joint`` and child ``link``, the link's frame
+    at the joint's zero in the chain's last frame (``T_last_finger0``, m), the joint's unit
+    ``axis`` in that frame's axes, its value as ``multiplier`` times the leader's plus
+    ``offset`` (m; 1 and 0 for the leader), the joint's limits (m), and ``solid``: the finger
+    link's solids and those of links fixed to it, joined, in the finger link's frame."""
+
+    joint: str
+    link: str
+    T_last_finger0: np.ndarray
+    axis: np.ndarray
+    multiplier: float
+    offset: float
+    limits: tuple[float, float]
+    solid: Polyhedron
+
+
+@dataclass(frozen=True)
 class UrdfRobot:
     """What a URDF gives a :class:`~cellsight.model.Robot`: the chain (frame 0 = root link),
     per frame the solids and the URDF link each belongs to, and ``T_last_flange``, the flange
     link's pose in frame n (the gripper mounts on the flange), and ``max_velocity``: each
     actuated joint's rated speed (its ``limit velocity``, rad/s or m/s; inf where not a positive
-    number)."""
+    number); ``fingers``: the hand's two fingers, leader first, or none."""
 
     chain: SerialChain
     link_solids: tuple[tuple[Polyhedron, ...], ...]
@@ -95,6 +121,7 @@ class UrdfRobot:
     T_last_flange: np.ndarray
     flange: str
     max_velocity: np.ndarray
+    fingers: tuple[UrdfFinger, ...] = ()
 
 
 def installed_package_folder(name: str) -> Path | None:
@@ -278,6 +305,7 @@ class _Walk:
     link_frame: dict
     joint_names: list = field(default_factory=list)
     speeds: list = field(default_factory=list)
+    fingers: list = field(default_factory=list)  # (joint, parent frame, T_frame_parent)
 
 
 def _actuated(walk: _Walk, j, frame: int, T_frame_parent: np.ndarray, path: Path) -> None:
@@ -286,8 +314,9 @@ def _actuated(walk: _Walk, j, frame: int, T_frame_parent: np.ndarray, path: Path
         raise UrdfError("file", f"URDF file {path}: joint {j.name!r} of type {j.type!r}; "
                         f"expected revolute, continuous, prismatic or fixed")
     if j.mimic is not None:
-        raise UrdfError("file", f"URDF file {path}: joint {j.name!r} mimics another; "
-                        f"mimic joints are not supported")
+        raise UrdfError("file", f"URDF file {path}: joint {j.name!r} mimics {j.mimic.joint!r}; "
+                        f"a mimic joint is supported only between a gripper's two fingers "
+                        f"(prismatic joints with nothing actuated beyond them)")
     if frame != len(walk.origins):
         raise UrdfError("file", f"URDF file {path}: joint {j.name!r} branches off the chain "
                         f"of actuated joints; only serial chains are supported")
@@ -310,16 +339,51 @@ def _actuated(walk: _Walk, j, frame: int, T_frame_parent: np.ndarray, path: Path
     walk.speeds.append(float(speed) if speed is not None and float(speed) > 0 else np.inf)
 
 
+def _actuated_below(link: str, children: dict[str, list]) -> bool:
+    """Whether any joint under ``link`` is not fixed."""
+    return any(j.type != "fixed" or _actuated_below(j.child, children) for j in children[link])
+
+
+def _finger_joints(robot, children: dict[str, list], path: Path) -> set[str]:
+    """The names of a hand's finger joints: a mimic joint and its leader, both prismatic with
+    nothing actuated beyond them (none when no joint mimics another); a :class:`UrdfError`
+    for a mimic that is not such a pair."""
+    joints = {j.name: j for j in robot.joints}
+    mimics = [j for j in robot.joints if j.mimic is not None]
+    if not mimics:
+        return set()
+    pair = [mimics[0], joints.get(mimics[0].mimic.joint)]
+    for j in pair:
+        if j is None:
+            raise UrdfError("file", f"URDF file {path}: joint {mimics[0].name!r} mimics "
+                            f"{mimics[0].mimic.joint!r}, which is not a joint of the file")
+        if j.type != "prismatic" or _actuated_below(j.child, children):
+            raise UrdfError("file", f"URDF file {path}: joint {mimics[0].name!r} mimics "
+                            f"{mimics[0].mimic.joint!r}: a mimic joint is supported only "
+                            f"between a gripper's two fingers (prismatic joints with nothing "
+                            f"actuated beyond them); {j.name!r} is {j.type}"
+                            + ("" if j.type != "prismatic" else " with actuated joints beyond"))
+    if len(mimics) > 1 or pair[1].mimic is not None:
+        names = sorted(j.name for j in mimics)
+        raise UrdfError("file", f"URDF file {path}: mimic joints {names}: a hand of two fingers "
+                        f"(one leading, one mimicking it) is supported, not more")
+    return {j.name for j in pair}
+
+
 def _walk(robot, path: Path) -> _Walk:
-    """Depth-first walk from the root: the chain of actuated joints and where each link sits."""
+    """Depth-first walk from the root: the chain of actuated joints and where each link sits;
+    a hand's finger joints (:func:`_finger_joints`) are set aside with their parents' frames."""
     root, children = _tree(robot, path)
+    fingers = _finger_joints(robot, children, path)
     walk = _Walk([], [], [], [], [root], {})
     stack = [(root, 0, np.eye(4))]
     while stack:
         link, frame, T = stack.pop()
         walk.link_frame[link] = (frame, T)
         for j in reversed(children[link]):
-            if j.type == "fixed":
+            if j.name in fingers:
+                walk.fingers.append((j, frame, T))
+            elif j.type == "fixed":
                 origin = np.eye(4) if j.origin is None else np.asarray(j.origin, dtype=float)
                 stack.append((j.child, frame, T @ origin))
             else:
@@ -327,6 +391,13 @@ def _walk(robot, path: Path) -> _Walk:
                 stack.append((j.child, len(walk.origins), np.eye(4)))
     if not walk.origins:
         raise UrdfError("file", f"URDF file {path}: no actuated joint")
+    for j, frame, _ in walk.fingers:
+        if frame != len(walk.origins):
+            raise UrdfError("file", f"URDF file {path}: finger joint {j.name!r} hangs off link "
+                            f"{j.parent!r}, which moves with joint "
+                            f"{walk.joint_names[frame - 1] if frame else 'none'!r}: a hand's "
+                            f"fingers must hang off links fixed to the last actuated link")
+    walk.fingers.sort(key=lambda f: f[0].mimic is not None)  # the leader first
     return walk
 
 
@@ -412,38 +483,88 @@ def _scale_walk(walk: _Walk, scale: float) -> None:
                    for v, kind in zip(walk.speeds, walk.kinds, strict=True)]
 
 
+def _link_shapes(link, geometry: str, robot_name: str, packages: Mapping[str, Path],
+                 path: Path, scale: float) -> list[Polyhedron]:
+    """A link's ``geometry`` elements as solids in the link's frame; the file's lengths times
+    ``scale`` (m)."""
+    shapes = []
+    elements = link.collisions if geometry == "collision" else link.visuals
+    for k, element in enumerate(elements):
+        name = f"{robot_name}.{link.name}"
+        try:
+            shape = _shape(element.geometry, name, packages, path.parent)
+        except CellsightError as exc:
+            raise UrdfError("geometry", f"URDF file {path}: link {link.name!r}, "
+                            f"{geometry} {k}: {exc}") from exc
+        origin = np.eye(4) if element.origin is None else np.asarray(element.origin, float)
+        if scale != 1.0:
+            shape = shape.transformed(np.diag([scale, scale, scale, 1.0]))
+            origin = origin.copy()
+            origin[:3, 3] *= scale
+        placed = shape.vertices @ origin[:3, :3].T + origin[:3, 3]
+        reach = float(np.linalg.norm(placed, axis=1).max())
+        if reach > MAX_REACH:
+            raise UrdfError("geometry", f"URDF file {path}: link {link.name!r}, {geometry} "
+                            f"{k} reaches {reach:.4g} m from the link frame, over "
+                            f"{MAX_REACH:g} m: lengths must be metres (a mesh in mm "
+                            f"needs scale=\"0.001 0.001 0.001\", in inches 0.0254 each)")
+        shapes.append(shape.transformed(origin))
+    return shapes
+
+
 def _solids(robot, walk: _Walk, geometry: str, robot_name: str, packages: Mapping[str, Path],
             path: Path, scale: float = 1.0) -> tuple[list[list[Polyhedron]], list[list[str]]]:
     """Per chain frame, the solids of the links it carries (in that frame) and their links;
-    the file's lengths times ``scale`` (m)."""
+    the file's lengths times ``scale`` (m). A hand's fingers are not the chain's."""
     n = len(walk.origins)
     solids: list[list[Polyhedron]] = [[] for _ in range(n + 1)]
     links: list[list[str]] = [[] for _ in range(n + 1)]
     for link in robot.links:
+        if link.name not in walk.link_frame:
+            continue
         frame, T_frame_link = walk.link_frame[link.name]
-        elements = link.collisions if geometry == "collision" else link.visuals
-        for k, element in enumerate(elements):
-            name = f"{robot_name}.{link.name}"
-            try:
-                shape = _shape(element.geometry, name, packages, path.parent)
-            except CellsightError as exc:
-                raise UrdfError("geometry", f"URDF file {path}: link {link.name!r}, "
-                                f"{geometry} {k}: {exc}") from exc
-            origin = np.eye(4) if element.origin is None else np.asarray(element.origin, float)
-            if scale != 1.0:
-                shape = shape.transformed(np.diag([scale, scale, scale, 1.0]))
-                origin = origin.copy()
-                origin[:3, 3] *= scale
-            placed = shape.vertices @ origin[:3, :3].T + origin[:3, 3]
-            reach = float(np.linalg.norm(placed, axis=1).max())
-            if reach > MAX_REACH:
-                raise UrdfError("geometry", f"URDF file {path}: link {link.name!r}, {geometry} "
-                                f"{k} reaches {reach:.4g} m from the link frame, over "
-                                f"{MAX_REACH:g} m: lengths must be metres (a mesh in mm "
-                                f"needs scale=\"0.001 0.001 0.001\", in inches 0.0254 each)")
-            solids[frame].append(shape.transformed(T_frame_link @ origin))
+        for shape in _link_shapes(link, geometry, robot_name, packages, path, scale):
+            solids[frame].append(shape.transformed(T_frame_link))
             links[frame].append(link.name)
     return solids, links
+
+
+def _fingers(robot, walk: _Walk, geometry: str, robot_name: str,
+             packages: Mapping[str, Path], path: Path, scale: float) -> tuple[UrdfFinger, ...]:
+    """The hand's fingers (leader first), their solids those of the finger link and the links
+    fixed below it, joined in the finger link's frame; lengths times ``scale`` (m)."""
+    _, children = _tree(robot, path)
+    links = {lk.name: lk for lk in robot.links}
+    fingers = []
+    for j, _, T_last_parent in walk.fingers:
+        shapes, stack = [], [(j.child, np.eye(4))]
+        while stack:
+            name, T_finger_link = stack.pop()
+            shapes += [s.transformed(T_finger_link) for s in
+                       _link_shapes(links[name], geometry, robot_name, packages, path, scale)]
+            for below in children[name]:
+                origin = np.asarray(below.origin if below.origin is not None else np.eye(4),
+                                    dtype=float).copy()
+                origin[:3, 3] *= scale
+                stack.append((below.child, T_finger_link @ origin))
+        if not shapes:
+            raise UrdfError("geometry", f"URDF file {path}: finger link {j.child!r} has no "
+                            f"{geometry} geometry: a finger needs a solid")
+        origin = np.asarray(j.origin if j.origin is not None else np.eye(4), dtype=float).copy()
+        origin[:3, 3] *= scale
+        axis = np.asarray([1.0, 0.0, 0.0] if j.axis is None else j.axis, dtype=float)
+        mimic = j.mimic
+        multiplier = 1.0 if mimic is None or mimic.multiplier is None else float(mimic.multiplier)
+        offset = 0.0 if mimic is None or mimic.offset is None else float(mimic.offset) * scale
+        if j.limit is None or j.limit.lower is None or j.limit.upper is None \
+                or not j.limit.lower < j.limit.upper:
+            raise UrdfError("file", f"URDF file {path}: finger joint {j.name!r} needs <limit "
+                            f"lower upper> with lower < upper")
+        fingers.append(UrdfFinger(
+            j.name, j.child, T_last_parent @ origin, axis / np.linalg.norm(axis), multiplier,
+            offset, (float(j.limit.lower) * scale, float(j.limit.upper) * scale),
+            joined(f"{robot_name}.{j.child}", shapes)))
+    return tuple(fingers)
 
 
 def _check_reach(walk: _Walk, path: Path) -> None:
@@ -481,6 +602,47 @@ def _flange(walk: _Walk, flange: str | None, path: Path) -> tuple[str, np.ndarra
     return name, where[1]
 
 
+PARALLEL_TOL = 1e-6  # |1 - |cos||, fingers' axes and the leader's: a parallel gripper's
+
+
+def finger_gripper(fingers: tuple[UrdfFinger, ...], T_last_flange: np.ndarray, tcp,
+                   path: Path) -> ParallelGripper:
+    """A URDF hand as the robot's parallel gripper: the tool frame at the leading finger's
+    joint origin, y along its axis (the other axes those of the joint's frame, turned the least
+    that does it), the jaws the fingers (jaw 1 the leader, jaw 2 its mimic), no palm of its own
+    (the hand's solids stay the robot's links), ``tcp`` in the tool frame (m); the opening is
+    the distance between the fingers' frames along tool y. A :class:`UrdfError` when the
+    fingers do not slide along one line, apart as the leader's value rises."""
+    leader = fingers[0]
+    e_y = np.array([0.0, 1.0, 0.0])
+    turn, _ = Rotation.align_vectors([leader.axis], [e_y])
+    T_last_tool = leader.T_last_finger0 @ make_pose(turn.as_matrix())
+    T_tool_last = invert_pose(T_last_tool)
+    jaws = []
+    for finger in fingers:
+        T_tool_jaw0 = T_tool_last @ finger.T_last_finger0
+        axis = T_tool_jaw0[:3, :3] @ finger.axis
+        if abs(abs(axis[1]) - 1.0) > PARALLEL_TOL:
+            raise UrdfError("file", f"URDF file {path}: finger joint {finger.joint!r} slides "
+                            f"along {np.round(axis, 4).tolist()} in the frame of "
+                            f"{leader.joint!r}'s axis (y): a parallel gripper's fingers slide "
+                            f"along one line")
+        jaws.append(Jaw(finger.solid, T_tool_jaw0, axis, finger.multiplier, finger.offset,
+                        finger.joint, finger.link))
+    first, second = jaws
+    at_zero = float(first.T_tool_jaw0[1, 3] - second.T_tool_jaw0[1, 3] - second.axis[1]
+                    * second.offset)
+    gain = float(first.axis[1] - second.multiplier * second.axis[1])
+    if gain <= 0:
+        raise UrdfError("file", f"URDF file {path}: fingers {leader.joint!r} and "
+                        f"{fingers[1].joint!r} do not move apart as {leader.joint!r}'s value "
+                        f"rises (mimic multiplier {fingers[1].multiplier:g})")
+    lo, hi = leader.limits
+    return ParallelGripper((), (first, second), invert_pose(T_last_flange) @ T_last_tool,
+                           at_zero + gain * hi, np.asarray(tcp, dtype=float), gain, at_zero,
+                           (lo, hi))
+
+
 def urdf_files(path: Path, geometry: str = "collision",
                packages: Mapping[str, Path] | None = None) -> list[Path]:
     """The URDF file in ``path`` and the mesh files of its ``geometry`` (``collision`` or
@@ -516,7 +678,7 @@ def fixed_frames(path: Path, scale: float = 1.0, flange: str | None = None) -> F
     _scale_walk(walk, float(scale))
     transforms = [(j.parent, j.child,
                    invert_pose(walk.link_frame[j.parent][1]) @ walk.link_frame[j.child][1])
-                  for j in robot.joints if j.type == "fixed"]
+                  for j in robot.joints if j.type == "fixed" and j.child in walk.link_frame]
     name, T_last_flange = _flange(walk, flange, path)
     return FixedFrames(transforms, tuple(walk.joint_links), name, T_last_flange)
 
@@ -542,5 +704,6 @@ def load_urdf_robot(path: Path, robot_name: str, geometry: str = "collision",
                             joint_names=tuple(walk.joint_names))
     except CellsightError as exc:
         raise UrdfError("file", f"URDF file {path}: {exc}") from exc
+    fingers = _fingers(robot, walk, geometry, robot_name, packages, path, float(scale))
     return UrdfRobot(chain, tuple(map(tuple, solids)), tuple(map(tuple, links)), T_last_flange,
-                     name, np.array(walk.speeds, dtype=float))
+                     name, np.array(walk.speeds, dtype=float), fingers)

@@ -141,7 +141,7 @@ def _robot_error(k: _Knobs, p: Profile, robot) -> RobotError:
     if robot.tool is not None:
         change = k.draw("geometry.gripper_size_mm", p.geometry.gripper_size_mm, 3, 1e-3,
                         robot.name)
-        grip = size_scale(robot.tool.jaw, change)
+        grip = size_scale(robot.tool.jaws[0].solid, change)
     return RobotError(base, links, grip)
 
 

@@ -127,8 +127,8 @@ def robot_as_built(robot: Robot, err: RobotError) -> Robot:
         return robot
     tool = robot.tool
     if tool is not None:
-        tool = replace(tool, palm=tuple(scaled(s, err.gripper_scale) for s in tool.palm),
-                       jaw=scaled(tool.jaw, err.gripper_scale))
+        tool = replace(tool, palm=tuple(scaled(s, err.gripper_scale) for s in tool.palm))
+        tool = tool.with_jaw_solids(tuple(scaled(j.solid, err.gripper_scale) for j in tool.jaws))
     return replace(robot, T_base_robot=robot.T_base_robot @ err.base,
                    chain=chain_as_built(robot.chain, err.links), tool=tool)
 

@@ -11,7 +11,9 @@ Conventions (``<cam>``, ``<part>``: the cell's camera and workpiece names as ROS
   topic, ``/ns/camera_info`` for ``/ns/image_raw``): checked against the cell;
 - ``/joint_states`` (``sensor_msgs/msg/JointState``): every robot's joints, named
   ``<robot>/<joint>`` (the URDF's joint names; ``joint1`` .. ``joint<n>`` for DH robots), and
-  each gripper's jaw opening (m) as the joint ``<robot>/jaw_opening``;
+  each gripper's jaw opening (m) as the joint ``<robot>/jaw_opening`` (a URDF hand's as its
+  finger joints, ``<robot>/panda_finger_joint1``: the leader's value gives the opening, its
+  mimic's is not read);
 - ``/<part>/true_pose`` (``geometry_msgs/msg/PoseStamped`` in the cell's base frame,
   optional): the part's true pose, where something measured it (the simulator, a motion
   capture), for the metrics. The topic map may name instead a ``TransformStamped`` topic or a
@@ -61,14 +63,21 @@ def joint_name(robot: str, joint: str) -> str:
 def joint_positions(cell: Cell, joints: Mapping[str, np.ndarray],
                     openings: Mapping[str, float]) -> tuple[list[str], list[float]]:
     """The ``/joint_states`` names and positions of robots' joints (robot -> joint vector,
-    rad / m) and of grippers' jaw openings (robot -> m), named by the convention."""
+    rad / m) and of grippers' jaw openings (robot -> m), named by the convention; a URDF
+    hand's opening as its two finger joints' values (m), as the robot's driver gives them."""
     names, positions = [], []
     for robot, q in joints.items():
         names += [joint_name(robot, j) for j in cell.robot(robot).chain.joint_names]
         positions += [float(v) for v in q]
     for robot, opening in openings.items():
-        names.append(joint_name(robot, OPENING))
-        positions.append(float(opening))
+        tool = cell.robot(robot).tool
+        fingers = [] if tool is None else [jaw.joint for jaw in tool.jaws if jaw.joint]
+        if fingers:  # a URDF hand: its fingers' own joints, the mimic's too
+            names += [joint_name(robot, j) for j in fingers]
+            positions += [float(v) for v in tool.jaw_values(opening)]
+        else:
+            names.append(joint_name(robot, OPENING))
+            positions.append(float(opening))
     return names, positions
 
 

@@ -158,6 +158,10 @@ def _targets(cell: Cell, topic_map: TopicMap) -> dict[str, tuple[str, str]]:
            for r in cell.robots for j in r.chain.joint_names}
     out.update({joint_name(r.name, OPENING): ("opening", r.name)
                 for r in cell.robots if r.tool is not None})
+    for r in cell.robots:  # a URDF hand's fingers: the leader gives the opening
+        for jaw, kind in zip(r.tool.jaws if r.tool else (), ("leader", "mimic"), strict=False):
+            if jaw.joint:
+                out[joint_name(r.name, jaw.joint)] = (kind, r.name)
     out.update({k: ("joint", v) for k, v in topic_map.joints.items()})
     out.update({k: ("opening", v) for k, v in topic_map.openings.items()})
     return out
@@ -203,9 +207,14 @@ class _SignalReader:
                 raise RecordingError(f"{where}: joint {name!r} has no finite position "
                                      f"({positions.tolist()[:12]})")
             kind, target = self.targets[name]
-            store = self.openings if kind == "opening" else self.series
+            value = positions[i:i + 1].copy()
+            if kind == "mimic":
+                continue
+            if kind == "leader":
+                value[0] = self.cell.robot(target).tool.opening_of(value[0])
+            store = self.series if kind == "joint" else self.openings
             series = store.setdefault(target, Series(f"joint {name!r}"))
-            series.add(ns, positions[i:i + 1].copy(), where)
+            series.add(ns, value, where)
 
     def signals(self, joint_topics: Iterable[str]) -> Signals:
         robots = {}

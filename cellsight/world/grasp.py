@@ -73,9 +73,11 @@ class JawPads:
 
     @classmethod
     def of(cls, tool: ParallelGripper) -> JawPads:
-        v = tool.jaw.vertices  # jaw 1 is only shifted along y; jaw 2 is also turned about z
-        x0, x1, z0, z1 = v[:, 0].min(), v[:, 0].max(), v[:, 2].min(), v[:, 2].max()
-        return cls((x0, x1, z0, z1), (-x1, -x0, z0, z1))
+        pads = []
+        for jaw in tool.jaws:  # the jaws slide along tool y: their (x, z) spans stay
+            v = transform_points(jaw.T_tool_jaw0, jaw.solid.vertices)
+            pads.append((v[:, 0].min(), v[:, 0].max(), v[:, 2].min(), v[:, 2].max()))
+        return cls(*pads)
 
 
 class PartSection:
@@ -228,7 +230,8 @@ class Grippers:
     def openings(self) -> dict[str, float]:
         """Jaw opening (m) of every robot with a gripper, read from MuJoCo."""
         qpos = self.scene.data.qpos
-        return {name: float(qpos[adr].sum()) for name, adr in self._jaw_adr.items()}
+        return {name: self._tools[name].opening_of(qpos[adr[0]])
+                for name, adr in self._jaw_adr.items()}
 
     def set_opening(self, robot: str, opening: float) -> None:
         """Put the jaws at an opening (m, clipped to the gripper's range) at once, holding
@@ -318,4 +321,5 @@ class Grippers:
         return new
 
     def _write(self, robot: str) -> None:
-        self.scene.set_qpos(self._jaw_adr[robot], 0.5 * self._jaws[robot].opening)
+        self.scene.set_qpos(self._jaw_adr[robot],
+                            self._tools[robot].jaw_values(self._jaws[robot].opening))

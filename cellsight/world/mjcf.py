@@ -8,8 +8,9 @@ Every cell object becomes a mesh geom named like the object (``R7AX.link3``, ``p
   ``R/1`` .. ``R/n`` at the chain's frames (standard DH: joint ``R/q<i>`` on the axis z_{i-1};
   URDF: at the joint origins, joint ``R/q<i>`` on the URDF axis through the body's origin; a
   hinge for a revolute joint, a slide for a prismatic one), body ``R/tool`` at
-  ``T_flange_tool`` (palm geoms, site ``R/tcp``), jaw bodies ``R/jaw1``, ``R/jaw2`` sliding
-  along their own y by half the opening (joints ``R/jaw1``, ``R/jaw2``);
+  ``T_flange_tool`` (palm geoms, site ``R/tcp``), jaw bodies ``R/jaw1``, ``R/jaw2`` at
+  their joints' zero, sliding along their axes by their joint values (joints ``R/jaw1``,
+  ``R/jaw2``; the second a mimic of the first: :class:`~cellsight.model.robot.Jaw`);
 - workpiece ``P``: a mocap body ``P`` (driven kinematically by the world);
 - static object ``S``: a fixed body ``S`` at ``T_base_obj``;
 - an intruder the cell file does not know (:mod:`cellsight.world.intruders`): a mocap body and
@@ -206,17 +207,21 @@ def _tool_body(robot: Robot, geoms: dict[str, list[str]], dynamic: bool) -> list
         f"<body name={quoteattr(body_name(robot.name, 'tool'))} "
         f"{_pose_attrs(tool.T_flange_tool)}{gravcomp}>"
     ]
-    xml += geoms[body_name(robot.name, "tool")]
+    xml += geoms.get(body_name(robot.name, "tool"), [])  # a URDF hand's palm is a link
     site = quoteattr(tcp_site_name(robot.name))
     xml.append(f'<site name={site} pos="{_num(tool.tcp)}"/>')
-    for jaw, quat in (("jaw1", "1 0 0 0"), ("jaw2", "0 0 0 1")):
-        name = body_name(robot.name, jaw)
-        xml.append(f"<body name={quoteattr(name)} quat=\"{quat}\"{gravcomp}>{_INERTIAL}")
+    travel = np.sort(np.array([tool.jaw_values(0.0), tool.jaw_values(tool.max_opening)]),
+                     axis=0)
+    for k, jaw in enumerate(tool.jaws):
+        name = body_name(robot.name, f"jaw{k + 1}")
+        axis = jaw.T_tool_jaw0[:3, :3].T @ jaw.axis  # in the jaw's own frame
+        xml.append(f"<body name={quoteattr(name)} {_pose_attrs(jaw.T_tool_jaw0)}{gravcomp}>"
+                   f"{_INERTIAL}")
         xml.append(
-            f'<joint name={quoteattr(name)} type="slide" axis="0 1 0" '
-            f'range="0 {tool.max_opening / 2:.17g}"/>'
+            f'<joint name={quoteattr(name)} type="slide" axis="{_num(axis)}" '
+            f'range="{_num(travel[:, k])}"/>'
         )
-        xml += geoms[name]
+        xml += geoms.get(name, [])
         xml.append("</body>")
     xml.append("</body>")
     return xml
