@@ -384,10 +384,10 @@ def test_a_misspelt_map_key_lists_the_keys(tmp_path):
         load_topic_map(path)
 
 
-def _encoded(encoding: str):
-    """An edit that re-encodes every raw image: as ``encoding`` (mono16: v * 257, the colour
-    encodings: grey in every channel, rows padded by 4 bytes), or ``png``: a PNG
-    CompressedImage."""
+def _encoded(encoding: str, bits: int = 16):
+    """An edit that re-encodes every raw image: as ``encoding`` (mono16: v * 257, or in the low
+    ``bits`` bits v * 2^(bits - 8) + 2^(bits - 8) - 1; the colour encodings: grey in every
+    channel, rows padded by 4 bytes), or ``png``: a PNG CompressedImage."""
     def edit(topic, m, k):
         if not topic.endswith("image_raw"):
             return m
@@ -398,7 +398,10 @@ def _encoded(encoding: str):
                                                                data=data.ravel())
             return "sensor_msgs/msg/CompressedImage", compressed
         if encoding == "mono16":
-            pixels = (gray.astype("<u2") * 257).view(np.uint8).reshape(m.height, -1)
+            scale = 2 ** (bits - 8)
+            values = gray.astype("<u2") * 257 if bits == 16 else gray.astype("<u2") * scale \
+                + (scale - 1)
+            pixels = values.view(np.uint8).reshape(m.height, -1)
         else:
             channels = {"rgb8": 3, "bgr8": 3, "rgba8": 4, "bgra8": 4}[encoding]
             pixels = np.repeat(gray[:, :, None], channels, axis=2).reshape(m.height, -1)
@@ -419,6 +422,22 @@ def test_every_image_encoding_tracks_as_mono8(recorded, tmp_path, encoding):
     ran = FrameLog.read(recorded[0] / "frames.csv")
     assert tracked.n == 12
     assert np.nanmax(np.abs(tracked.poses("est") - ran.poses("est")[:12])) < 1e-9
+
+
+def test_12_bit_data_in_mono16_is_refused_unless_declared_then_tracks_as_mono8(recorded,
+                                                                             tmp_path):
+    bag = write_rosbag2(recorded[1], tmp_path / "bag", frames=12, edit=_encoded("mono16", 12))
+    _refused(bag, tmp_path, "/cam1/image_raw, message 1", "fit in 12 bits (largest ",
+             "bits: {CAMERA: 12}")
+    topic_map = tmp_path / "topics.yaml"
+    topic_map.write_text("bits: {cam1: 12, cam2: 12}\n")
+    tracked = _track(bag, tmp_path / "declared", topics=topic_map)
+    ran = FrameLog.read(recorded[0] / "frames.csv")
+    assert tracked.n == 12
+    assert np.nanmax(np.abs(tracked.poses("est") - ran.poses("est")[:12])) < 1e-9
+    topic_map.write_text("bits: {cam1: 20}\n")
+    with pytest.raises(CellFileError, match=r"field 'bits.cam1'.*10 to 16"):
+        _track(bag, tmp_path / "out2", topics=topic_map)
 
 
 def test_an_image_of_another_size_is_refused(recorded, tmp_path):

@@ -41,11 +41,13 @@ MIN_INTERVALS = 4  # intervals seen before gaps are judged
 @dataclass(frozen=True)
 class Topics:
     """Per camera (cell order) its image topic and type, and its camera-info topic (None: the
-    recording has none); per workpiece with one, its true-pose topic."""
+    recording has none) and the significant bits of its ``mono16`` images (None: not
+    declared); per workpiece with one, its true-pose topic."""
 
     images: list[tuple[str, str]]
     camera_info: list[str | None]
     truth: dict[str, str]
+    bits: list[int | None] = field(default_factory=list)
 
 
 def _image_topic(recording: Recording, camera: str, topic_map: TopicMap) -> tuple[str, str]:
@@ -101,7 +103,7 @@ def resolve_topics(recording: Recording, cameras: list[Camera], parts: list[str]
         elif part in topic_map.truth:
             raise RecordingError(f"recording {recording.path}: no {topic} (true pose of {part} "
                                  f"in the topic map); it holds: {recording.listing()}")
-    return Topics(images, info, truth)
+    return Topics(images, info, truth, [topic_map.bits.get(c.name) for c in cameras])
 
 
 @dataclass
@@ -180,7 +182,8 @@ class FrameGrouper:
             topic, kind = self.topics.images[c]
             where = f"{topic}, message {self._counts[topic]}"
             cam = self.cameras[c]
-            frame.images[c] = gray_image(kind, msg, where, (cam.width, cam.height))
+            bits = self.topics.bits[c] if self.topics.bits else None
+            frame.images[c] = gray_image(kind, msg, where, (cam.width, cam.height), bits)
             frame.stamps[c] = (stamp - self.origin_ns) / 1e9
         if last is not None:
             if frame.ns <= last.ns:

@@ -1,6 +1,9 @@
 """Camera images of a recording as the (H, W) uint8 grayscale arrays the tracker takes.
 
-``sensor_msgs/msg/Image`` in ``mono8``, ``mono16`` (its high byte: value / 256, rounded down),
+``sensor_msgs/msg/Image`` in ``mono8``, ``mono16`` (its ``bits`` significant bits, the low
+ones: value / 2^(bits - 8), rounded down, at most 255; 16 bits when not declared, and then an
+image whose values all fit in 12 bits is refused: 12-bit data read as 16-bit would be all but
+black),
 ``rgb8``, ``bgr8``, ``rgba8`` or ``bgra8`` (to gray by OpenCV's weights), rows of ``step``
 bytes; ``sensor_msgs/msg/CompressedImage`` in JPEG or PNG (decoded by OpenCV to gray). Any
 other encoding, or an image whose size is not the camera's, is a
@@ -28,10 +31,15 @@ _TO_GRAY = {"rgb8": cv2.COLOR_RGB2GRAY, "bgr8": cv2.COLOR_BGR2GRAY,
 ENCODINGS = (*_CHANNELS, "mono16")
 
 
-def gray_image(kind: str, msg: Any, where: str, size: tuple[int, int]) -> np.ndarray:
+SMALL_BITS = 12  # undeclared mono16 images whose values fit in this many bits are refused
+
+
+def gray_image(kind: str, msg: Any, where: str, size: tuple[int, int],
+               bits: int | None = None) -> np.ndarray:
     """The grayscale image of message ``msg`` of type ``kind``; ``where`` names it in errors
-    (``/cam1/image_raw, message 12``); ``size``: the camera's (width, height)."""
-    image = _compressed(msg, where, size) if kind == COMPRESSED else _raw(msg, where)
+    (``/cam1/image_raw, message 12``); ``size``: the camera's (width, height); ``bits``: the
+    significant bits of a ``mono16`` image (None: not declared)."""
+    image = _compressed(msg, where, size) if kind == COMPRESSED else _raw(msg, where, bits)
     if image.shape != (size[1], size[0]):
         _wrong_size(where, image.shape[1], image.shape[0], size)
     return image
@@ -50,7 +58,21 @@ def _buffer(data: Any) -> np.ndarray:
     return np.asarray(data, dtype=np.uint8).ravel()
 
 
-def _raw(msg: Any, where: str) -> np.ndarray:
+def _mono16(rows: np.ndarray, big_endian: bool, where: str, bits: int | None) -> np.ndarray:
+    """A ``mono16`` image to 8 bits: its ``bits`` significant bits (module docstring)."""
+    values = rows.copy().view(">u2" if big_endian else "<u2")
+    if bits is None:
+        top = int(values.max(initial=0))
+        if 0 < top < 2 ** SMALL_BITS:
+            raise RecordingError(
+                f"{where}: a mono16 image whose values all fit in {SMALL_BITS} bits (largest "
+                f"{top}): read as 16-bit it is all but black; declare the camera's bits in a "
+                f"topic map (--topics, bits: {{CAMERA: 12}}), or 16 if the data fill 16 bits")
+        bits = 16
+    return np.minimum(values >> (bits - 8), 255).astype(np.uint8)
+
+
+def _raw(msg: Any, where: str, bits: int | None = None) -> np.ndarray:
     encoding = str(msg.encoding).lower()
     if encoding not in ENCODINGS:
         raise RecordingError(f"{where}: image encoding {msg.encoding!r} is not supported; "
@@ -63,8 +85,7 @@ def _raw(msg: Any, where: str) -> np.ndarray:
                              f"with rows of {step} bytes")
     rows = data[:step * h].reshape(h, step)[:, :w * depth]
     if encoding == "mono16":
-        order = ">u2" if int(msg.is_bigendian) else "<u2"
-        return (rows.copy().view(order) >> 8).astype(np.uint8)
+        return _mono16(rows, bool(int(msg.is_bigendian)), where, bits)
     if encoding == "mono8":
         return np.ascontiguousarray(rows)
     return cv2.cvtColor(np.ascontiguousarray(rows.reshape(h, w, depth)), _TO_GRAY[encoding])

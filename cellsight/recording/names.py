@@ -29,6 +29,7 @@ follows the conventions::
     joints: {a_shoulder_pan_joint: UR5A/shoulder_pan_joint}   # recorded name -> robot/joint
     openings: {a_gripper_opening: UR5A}                       # recorded name -> robot (m)
     ignore_joints: [conveyor_belt]                            # recorded names not used
+    bits: {cam1: 12}                   # significant (low) bits of a camera's mono16 images
     truth: {part: /tf}
     truth_frames: {part: mocap/part}                          # the TF child frame
 """
@@ -53,6 +54,7 @@ IMAGE, COMPRESSED, CAMERA_INFO, JOINT_STATE, POSE, TRANSFORM, TF = (
     "geometry_msgs/msg/TransformStamped", "tf2_msgs/msg/TFMessage")
 TRUTH_TYPES = (POSE, TRANSFORM, TF)
 OPENING = "jaw_opening"
+MONO16_BITS = (10, 16)  # the significant bits a topic map may declare for mono16 images
 
 
 def joint_name(robot: str, joint: str) -> str:
@@ -111,6 +113,7 @@ class TopicMap(BaseModel):
     ignore_joints: list[str] = Field(default_factory=list)
     truth: dict[str, str] = Field(default_factory=dict)
     truth_frames: dict[str, str] = Field(default_factory=dict)
+    bits: dict[str, int] = Field(default_factory=dict)
     file: str = "<topic map>"
 
     def truth_frame(self, part: str) -> str:
@@ -121,7 +124,13 @@ class TopicMap(BaseModel):
         """Every camera, robot, joint and workpiece the map names is the cell's (a
         :class:`CellFileError` naming the map's file and field otherwise)."""
         cameras = [c.name for c in cell.cameras]
-        for field, names in (("cameras", self.cameras), ("camera_info", self.camera_info)):
+        for name, bits in self.bits.items():
+            if not MONO16_BITS[0] <= bits <= MONO16_BITS[1]:
+                raise CellFileError(self.file, f"bits.{name}", bits,
+                                    f"the significant bits of a mono16 image, "
+                                    f"{MONO16_BITS[0]} to {MONO16_BITS[1]}")
+        for field, names in (("cameras", self.cameras), ("camera_info", self.camera_info),
+                             ("bits", self.bits)):
             for name in names:
                 if name not in cameras:
                     raise CellFileError(self.file, f"{field}.{name}", name,
@@ -155,7 +164,7 @@ def load_topic_map(path: str | Path | None) -> TopicMap:
     raw = load_yaml(read_cell_text(Path(path)), file) or {}
     if not isinstance(raw, dict):
         raise CellFileError(file, "<root>", raw, "a mapping (cameras, joint_states, joints, "
-                            "openings, ignore_joints, camera_info, truth, truth_frames)")
+                            "openings, ignore_joints, camera_info, truth, truth_frames, bits)")
     try:
         return TopicMap.model_validate({**raw, "file": file})
     except ValidationError as exc:
