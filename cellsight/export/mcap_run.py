@@ -325,6 +325,9 @@ class _Frames:
         self.size = markers.marker_size(run.part.feature_points)
         self.joint_states, self.joint_positions = names.JOINT_STATES, names.joint_positions
         self.holder = gripper(run)
+        n = len(run.part.feature_points)  # each camera's rejected corners, decoded once
+        self.rejected = [run.frames.bits(camera_column("rej", c), n)
+                         for c in range(1, len(run.cell.cameras) + 1)]
 
     def ns(self, k: int) -> int:
         """The ROS time (ns) of frame ``k``: the start time plus the run's time ``t``."""
@@ -417,9 +420,8 @@ class _Frames:
                 corners = decode_corners(frames.text(camera_column("corners", c))[k], n)
             except ValueError as exc:
                 raise CellsightError(f"frames.csv row {k + 1}: {exc}") from exc
-            rejected = frames.bits(camera_column("rej", c), n)[k]
             out += [(f"/{token}/annotations", IMAGE_MARKER, m) for m in image_markers.annotations(
-                ns, tf.optical_frame(cam.name), boxes, corners, rejected)]
+                ns, tf.optical_frame(cam.name), boxes, corners, self.rejected[c - 1][k])]
         return out
 
     def _camera_messages(self, k: int, ns: int) -> list[tuple[str, str, dict]]:
