@@ -25,9 +25,9 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from cellsight import load_cell
-from cellsight.control import grasp_pose_in_part
 from cellsight.control.ik import solve_ik
 from cellsight.geometry.transforms import pose_from_xyz_rpy
+from cellsight.model.grasp import grasp_pose
 from cellsight.occlusion.predictor import VisibilityPredictor
 from cellsight.world import World
 
@@ -51,7 +51,7 @@ print(f"workpiece {part.name}: {len(part.feature_names)} feature points; "
 # inverse kinematics of the cell file's grasp pose, taking the configuration nearest HOME.
 
 T_base_part = pose_from_xyz_rpy([0.62, 0.02, 0.62], [0.0, 0.0, 0.5])
-T_base_tcp = T_base_part @ grasp_pose_in_part(part)
+T_base_tcp = T_base_part @ grasp_pose(part)
 solutions = solve_ik(grasper, T_base_tcp).solutions
 q_grasp = min(solutions, key=lambda s: np.linalg.norm(s.q - grasper.home)).q
 print(f"{len(solutions)} IK branches reach the grasp; nearest HOME: {np.round(q_grasp, 3)}")

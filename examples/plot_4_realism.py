@@ -24,8 +24,8 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from cellsight import load_cell
-from cellsight.control import grasp_pose_in_part
 from cellsight.geometry.transforms import invert_pose, transform_points
+from cellsight.model.grasp import grasp_pose
 from cellsight.realism import draw_world, load_profile
 from cellsight.world import World
 
@@ -72,7 +72,7 @@ part = cell.workpiece(cell.experiments.workpiece)
 robot = cell.robot(cell.experiments.robot)
 places = {
     "start": part.T_base_part,
-    "FINAL": robot.tcp_pose(robot.final) @ invert_pose(grasp_pose_in_part(part)),
+    "FINAL": robot.tcp_pose(robot.final) @ invert_pose(grasp_pose(part)),
 }
 for name, T in places.items():
     print(f"part at {name}: {np.round(T[:3, 3], 3)} m")

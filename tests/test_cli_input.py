@@ -12,7 +12,7 @@ from oracle import cell_scene, segment_oracle
 
 from cellsight import load_cell
 from cellsight.cli import main
-from cellsight.world.grasp import default_grasp_pose
+from cellsight.model.grasp import default_grasp_pose
 
 
 @pytest.mark.parametrize(("args", "message"), [

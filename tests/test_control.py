@@ -35,12 +35,12 @@ from cellsight.control import (
     TaskTiming,
     TrajectoryPlanner,
     default_joint_velocity_limits,
-    grasp_pose_in_part,
     min_jerk,
 )
 from cellsight.control.clik import rotation_error
 from cellsight.control.task import grasp_miss
 from cellsight.geometry.transforms import make_pose
+from cellsight.model.grasp import grasp_pose
 
 CELL = load_cell()
 ROBOT = CELL.robot("R7AX")
@@ -64,7 +64,7 @@ def _angle(R_a: np.ndarray, R_b: np.ndarray) -> float:
 
 def _grasp_error(T_tcp: np.ndarray, T_part: np.ndarray) -> tuple[float, float]:
     """Position (m) and angle (rad) error of the TCP from the nearer of the two grasps."""
-    G = T_part @ grasp_pose_in_part(PART)
+    G = T_part @ grasp_pose(PART)
     return (float(np.linalg.norm(T_tcp[:3, 3] - G[:3, 3])),
             min(_angle(G[:3, :3], T_tcp[:3, :3]), _angle((G @ HALF_TURN_Z)[:3, :3], T_tcp[:3, :3])))
 
@@ -161,7 +161,7 @@ def _run(task: GraspTask, sim: _KinematicCell, t_end: float, localised_after: fl
 
 
 def _fast_task(**kwargs) -> GraspTask:
-    planner = TrajectoryPlanner(grasp_pose_in_part(PART), max_speed=0.5, max_angular_speed=1.2)
+    planner = TrajectoryPlanner(grasp_pose(PART), max_speed=0.5, max_angular_speed=1.2)
     return GraspTask(ROBOT, PART, timing=FAST, planner=planner, **kwargs)
 
 
@@ -299,7 +299,7 @@ def test_filter_follows_a_moving_target_without_lag() -> None:
 def test_filter_reproduces_a_planned_segment_and_smooths_a_jump() -> None:
     """A minimum-jerk segment handed over at 26 Hz with its twist and acceleration comes out
     at 500 Hz on the planned path; a sudden jump of the goal comes out without overshoot."""
-    planner = TrajectoryPlanner(grasp_pose_in_part(PART))
+    planner = TrajectoryPlanner(grasp_pose(PART))
     T_home = ROBOT.tcp_pose(Q_START)
     planner.reset(0.0, T_home)
     T_goal = make_pose(Rotation.from_rotvec([0.0, 0.0, 1.0]).as_matrix(), (0.6, 0.0, 0.8)) @ T_home
@@ -349,7 +349,7 @@ def test_grasp_pose_geometry() -> None:
     1 cm off-centre); of the two symmetric grasps the planner picks the one nearer in
     orientation."""
     T_part = PART.T_base_part
-    planner = TrajectoryPlanner(grasp_pose_in_part(PART))
+    planner = TrajectoryPlanner(grasp_pose(PART))
     T_home = ROBOT.tcp_pose(ROBOT.home)
     G = planner.grasp_pose(T_part, T_home)
     np.testing.assert_allclose(G[:3, 2], [0.0, 0.0, -1.0], atol=1e-12)
@@ -391,7 +391,7 @@ def test_part_motion_smooths_noisy_estimates() -> None:
 
 def test_segment_follows_a_moving_part_and_keeps_the_speed_limit() -> None:
     v = np.array([0.05, 0.02, 0.0])
-    planner = TrajectoryPlanner(grasp_pose_in_part(PART), max_speed=0.25)
+    planner = TrajectoryPlanner(grasp_pose(PART), max_speed=0.25)
     T_home = ROBOT.tcp_pose(Q_START)
     planner.reset(0.0, T_home)
 
@@ -426,7 +426,7 @@ def test_segment_follows_a_moving_part_and_keeps_the_speed_limit() -> None:
 
 
 def test_planner_needs_a_start_pose_and_a_localised_part() -> None:
-    planner = TrajectoryPlanner(grasp_pose_in_part(PART))
+    planner = TrajectoryPlanner(grasp_pose(PART))
     with pytest.raises(RuntimeError, match="reset"):
         planner.target(0.0)
     planner.reset(0.0, np.eye(4))
@@ -457,7 +457,7 @@ def test_still_part_is_grasped_and_delivered_with_paper_like_durations(still_run
     assert task.attempts == 0
     # delivered: released at FINAL, the robot back HOME with the jaws open
     T_final = ROBOT.tcp_pose(ROBOT.final)
-    held_at = (sim.T_part @ grasp_pose_in_part(PART))[:2, 3]  # where the jaws held the part
+    held_at = (sim.T_part @ grasp_pose(PART))[:2, 3]  # where the jaws held the part
     assert np.linalg.norm(held_at - T_final[:2, 3]) < 0.005
     T_end = ROBOT.tcp_pose(sim.q)
     assert np.linalg.norm(T_end[:3, 3] - task.T_home[:3, 3]) < 0.005
@@ -471,7 +471,7 @@ def test_approach_goes_five_cm_over_the_part_then_descends(still_run) -> None:
     (t_descend,) = [e[0] for e in task.events if e[2] == "descend"]
     k = int(np.searchsorted(t, t_descend)) - 1
     T = ROBOT.tcp_pose(q[k])
-    G = part[k] @ grasp_pose_in_part(PART)
+    G = part[k] @ grasp_pose(PART)
     assert T[2, 3] - G[2, 3] == pytest.approx(0.05, abs=0.002)
     assert np.linalg.norm(T[:2, 3] - G[:2, 3]) < 0.005
     t_grasp = task.transitions[1][0]
@@ -490,14 +490,14 @@ def test_moving_part_is_followed_and_grasped(moving_run) -> None:
     (t_descend,) = [e[0] for e in task.events if e[2] == "descend"]
     hover = (t > t_descend - FAST.stable) & (t < t_descend)
     tcp = np.array([ROBOT.tcp_pose(qk)[:3, 3] for qk in q[hover]])
-    goal = np.array([(P @ grasp_pose_in_part(PART))[:3, 3] for P in part[hover]])
+    goal = np.array([(P @ grasp_pose(PART))[:3, 3] for P in part[hover]])
     assert np.max(np.linalg.norm(tcp[:, :2] - goal[:, :2], axis=1)) < 0.002
     np.testing.assert_allclose(tcp[:, 2] - goal[:, 2], 0.05, atol=0.002)
     assert np.linalg.norm(part[hover][-1][:3, 3] - part[hover][0][:3, 3]) > 0.01  # it did move
     # grasped while moving and carried: the part ends at FINAL, not on the conveyor
     assert not sim.on_conveyor
     T_final = ROBOT.tcp_pose(ROBOT.final)
-    held_at = (sim.T_part @ grasp_pose_in_part(PART))[:2, 3]  # where the jaws held the part
+    held_at = (sim.T_part @ grasp_pose(PART))[:2, 3]  # where the jaws held the part
     assert np.linalg.norm(held_at - T_final[:2, 3]) < 0.005
     assert t_over == pytest.approx(FAST.start, abs=0.05)
 
@@ -609,11 +609,11 @@ def _world_run(speed: float, world_grasp: bool, t_end: float = 40.0, miss_x: flo
     conveyor = (world_mod.ConveyorPath(np.array([start, start + [0.8, 0.0]]), speed)
                 if speed > 0 else world_mod.ConveyorPath.still())
     world = world_mod.World(CELL, seed=1, conveyor=conveyor)
-    T_part_tcp = world.grippers.grasp_pose(PART.name) if world_grasp else grasp_pose_in_part(PART)
+    T_part_tcp = world.grippers.grasp_pose(PART.name) if world_grasp else grasp_pose(PART)
     aim = T_part_tcp.copy()
     aim[0, 3] += miss_x
     planner = TrajectoryPlanner(aim, max_speed=0.5, max_angular_speed=1.2)
-    opening = (pytest.importorskip("cellsight.world.grasp").grasp_opening(
+    opening = (pytest.importorskip("cellsight.model.grasp").grasp_opening(
         PART.solid, ROBOT.tool, T_part_tcp) if check_opening else None)
     task = GraspTask(ROBOT, PART, timing=FAST, planner=planner, grasp_opening=opening,
                      retry_shift=retry_shift)
@@ -674,8 +674,8 @@ def test_jaws_caught_off_the_grasp_are_opened_again_in_the_mujoco_world() -> Non
     Without the opening check the task lifts empty jaws; with it, it opens them and tries
     again, 3.5 mm along the jaws' width: 0.5 mm off the slot's middle, the world welds the
     grasp and the part is lifted. Tried again at the same aim, it misses again."""
-    grasp_opening = pytest.importorskip("cellsight.world.grasp").grasp_opening
-    assert grasp_opening(PART.solid, ROBOT.tool, grasp_pose_in_part(PART)) == \
+    grasp_opening = pytest.importorskip("cellsight.model.grasp").grasp_opening
+    assert grasp_opening(PART.solid, ROBOT.tool, grasp_pose(PART)) == \
         pytest.approx(0.04)
     blind, world, *_ = _world_run(0.0, True, t_end=12.0, miss_x=0.004)
     assert Phase.MANIPULATE in _phases(blind) and world.grasp(ROBOT.name) is None
@@ -716,7 +716,7 @@ def test_a_turned_estimate_switches_to_the_twin_grasp_without_a_jump(turn_deg, s
     past 110 deg (90 and half the margin) the twin grasp (half a turn about the approach
     axis) is the nearer one to the TCP (which has not turned), and the segment starts again
     from the TCP towards it; the goal's orientation is then the twin's at the turned estimate."""
-    planner = TrajectoryPlanner(grasp_pose_in_part(PART))
+    planner = TrajectoryPlanner(grasp_pose(PART))
     T_start = ROBOT.tcp_pose(Q_START)
     planner.reset(0.0, T_start)
     T_part = PART.T_base_part.copy()
@@ -740,3 +740,23 @@ def test_a_turned_estimate_switches_to_the_twin_grasp_without_a_jump(turn_deg, s
     goal = turned @ expected
     assert _angle(planner.goal_at(PartGoal(0.05), 1.0)[0][:3, :3], goal[:3, :3]) < 1e-9
     assert planner.keep_grasp_near(1.0, T_tcp) is False  # no switching back and forth
+
+
+def test_the_task_and_the_world_aim_at_one_grasp_when_the_cell_gives_none():
+    # Without a grasp in the cell file, the task's planner and the world's grippers take the
+    # same default (cellsight.model.grasp): the jaws across the part's narrower side, centred
+    # between where they touch it (two rules once aimed 1 cm apart on a part like this one).
+    from dataclasses import replace
+
+    from cellsight.model import Cell
+    from cellsight.world import World
+
+    part = replace(PART, T_part_grasp=None)
+    cell = Cell(CELL.name, CELL.robots, [part], CELL.static, CELL.cameras, CELL.source,
+                CELL.experiments)
+    task = GraspTask(ROBOT, part, timing=FAST)
+    world = World(cell)
+    assert np.allclose(task.planner.T_part_tcp, world.grippers.grasp_pose(part.name))
+    world.close()
+    with pytest.raises(ValueError, match="no grasp in the cell file, and no gripper"):
+        grasp_pose(part)

@@ -17,7 +17,7 @@ from cellsight.cli import main
 from cellsight.control.ik import BRANCH_FLAGS, IKError, branch_of, solve_ik
 from cellsight.geometry.transforms import pose_from_xyz_rpy
 from cellsight.kinematics import DHChain
-from cellsight.world.grasp import default_grasp_pose
+from cellsight.model.grasp import default_grasp_pose
 
 
 def _check_every_solution(robot, T_goal, result) -> None:

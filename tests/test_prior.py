@@ -10,17 +10,15 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from cellsight import load_cell
-from cellsight.control import grasp_pose_in_part
-from cellsight.control.planner import HALF_TURN_Z
 from cellsight.geometry.transforms import invert_pose, pose_from_xyz_rpy, transform_points
+from cellsight.model.grasp import HALF_TURN_Z, grasp_opening, grasp_pose
 from cellsight.model.landing import Landing
 from cellsight.tracking.prior import KinematicPrior, RecordedGrasp
-from cellsight.world.grasp import grasp_opening
 
 CELL = load_cell("dual-arm")
 PART = CELL.workpieces[0]
 ROBOT = CELL.robot("R7AX")
-GRASP = grasp_pose_in_part(PART)
+GRASP = grasp_pose(PART)
 OPENING = grasp_opening(PART.solid, ROBOT.tool, GRASP)
 TOLERANCE = 0.005
 

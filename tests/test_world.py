@@ -20,9 +20,9 @@ from cellsight.geometry.transforms import (
     transform_points,
 )
 from cellsight.model import Cell, StaticObject
+from cellsight.model.grasp import JawPads, PartSection
 from cellsight.visibility import STATUS_BEHIND, STATUS_INSIDE, STATUS_OUTSIDE
 from cellsight.world import ConveyorPath, Waypoint, World
-from cellsight.world.grasp import JawPads, PartSection
 from cellsight.world.imperfections import Imperfections
 from cellsight.world.mjcf import mjcf_camera
 

@@ -80,7 +80,7 @@ def _grasp(workpiece, robot) -> np.ndarray:
     """``T_part_tcp`` of the robot holding the part: the cell file's grasp, else the world's
     default top-down grasp."""
     from cellsight.errors import CellsightError
-    from cellsight.world.grasp import grasp_pose
+    from cellsight.model.grasp import grasp_pose
 
     if robot.tool is None and workpiece.T_part_grasp is None:
         raise CellsightError(f"--part-pose: robot {robot.name!r} has no tool to hold "

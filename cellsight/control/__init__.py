@@ -28,7 +28,6 @@ from cellsight.control.planner import (
     PartMotion,
     PoseGoal,
     TrajectoryPlanner,
-    grasp_pose_in_part,
     min_jerk,
 )
 from cellsight.control.task import GraspTask, Phase, ServoLoop, TaskTiming, TaskTolerances
@@ -46,6 +45,5 @@ __all__ = [
     "TaskTolerances",
     "TrajectoryPlanner",
     "default_joint_velocity_limits",
-    "grasp_pose_in_part",
     "min_jerk",
 ]

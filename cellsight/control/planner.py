@@ -35,25 +35,12 @@ from scipy.spatial.transform import Rotation
 
 from cellsight.control.clik import rotation_error
 from cellsight.geometry.transforms import make_pose
-from cellsight.model.cell import Workpiece
+from cellsight.model.grasp import HALF_TURN_Z, nearer_grasp
 
 MIN_JERK_PEAK = 1.875  # peak of ds/dtau for the minimum-jerk profile
-HALF_TURN_Z = make_pose(np.diag([-1.0, -1.0, 1.0]))
-"""A half turn about the TCP's approach axis (z): a parallel gripper's grasp and its twin."""
 REGRASP_MARGIN = np.radians(40.0)
 """How much nearer (rad) the twin grasp must be to the TCP's orientation than the chosen one
 before a segment towards the part switches to it (:meth:`TrajectoryPlanner.keep_grasp_near`)."""
-
-
-def nearer_grasp(T_part_tcp: np.ndarray, T_base_part: np.ndarray,
-                 T_near: np.ndarray) -> np.ndarray:
-    """Of a parallel gripper's grasp ``T_part_tcp`` and its twin (turned half about the TCP's
-    approach axis), the ``T_part_tcp`` whose TCP orientation at the part pose ``T_base_part`` is
-    nearer to ``T_near``'s."""
-    candidates = (T_part_tcp, T_part_tcp @ HALF_TURN_Z)
-    angles = [np.linalg.norm(rotation_error(T_base_part[:3, :3] @ c[:3, :3], T_near[:3, :3]))
-              for c in candidates]
-    return candidates[int(np.argmin(angles))]
 
 
 def min_jerk(tau: float) -> tuple[float, float, float]:
@@ -64,19 +51,6 @@ def min_jerk(tau: float) -> tuple[float, float, float]:
     ds = 30.0 * tau**2 * (1.0 - tau) ** 2
     dds = 60.0 * tau * (1.0 - tau) * (1.0 - 2.0 * tau)
     return s, ds, dds
-
-
-def grasp_pose_in_part(part: Workpiece) -> np.ndarray:
-    """``T_part_tcp`` of the grasp: the cell file's ``grasp`` when it gives one, else the TCP at
-    the centre of the part's bounding box (mid-height), tool z along -z of the part (pointing
-    down onto it), tool y along the part's y axis (the jaws close across the part's width).
-    The other grasp, turned half a turn about the tool z axis, is equivalent;
-    :class:`TrajectoryPlanner` picks the nearer one."""
-    if part.T_part_grasp is not None:
-        return part.T_part_grasp.copy()
-    vertices = part.solid.vertices
-    centre = 0.5 * (vertices.min(axis=0) + vertices.max(axis=0))
-    return make_pose(np.diag([-1.0, 1.0, -1.0]), centre)
 
 
 @dataclass(frozen=True)
@@ -165,9 +139,10 @@ class _Segment:
 class TrajectoryPlanner:
     """The dynamic trajectory planner of Fig. 7 (run at the vision rate).
 
-    ``T_part_tcp``: grasp pose of the TCP in the part frame (:func:`grasp_pose_in_part`);
-    ``max_speed`` (m/s) and ``max_angular_speed`` (rad/s) bound the relative motion of a
-    segment; ``part_window`` and ``max_extrapolation`` (s) configure :class:`PartMotion`.
+    ``T_part_tcp``: grasp pose of the TCP in the part frame
+    (:func:`~cellsight.model.grasp.grasp_pose`); ``max_speed`` (m/s) and ``max_angular_speed``
+    (rad/s) bound the relative motion of a segment; ``part_window`` and ``max_extrapolation``
+    (s) configure :class:`PartMotion`.
     """
 
     def __init__(self, T_part_tcp: np.ndarray, *, max_speed: float = 0.25,

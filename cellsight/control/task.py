@@ -43,8 +43,9 @@ import numpy as np
 
 from cellsight.control.clik import Clik, rotation_error
 from cellsight.control.interpolator import InterpolatingFilter
-from cellsight.control.planner import PartGoal, PoseGoal, TrajectoryPlanner, grasp_pose_in_part
+from cellsight.control.planner import PartGoal, PoseGoal, TrajectoryPlanner
 from cellsight.model.cell import Workpiece
+from cellsight.model.grasp import grasp_pose
 from cellsight.model.robot import Robot
 
 log = logging.getLogger(__name__)
@@ -174,14 +175,15 @@ class ServoLoop:
 class GraspTask:
     """Phase machine + servo loop for one robot grasping one workpiece (paper, Section V).
 
-    ``part`` gives the grasp geometry (:func:`grasp_pose_in_part`). ``approach_height`` (m,
-    default 5 cm as in the paper) and ``lift_height`` (m) along base +z. ``planner``, ``clik``
-    and ``interpolator`` default to a :class:`TrajectoryPlanner`, :class:`Clik` and
-    :class:`InterpolatingFilter` with their default parameters; the control period is the
-    interpolator's ``dt``. Gripper commands: ``robot.tool.max_opening`` open, 0 closed.
-    ``grasp_opening`` (m): the jaws' opening when closed on the part at its grasp (None: any
-    opening counts); ``retry_shift`` (m): how far a retry after a grasp caught off the part
-    moves the grasp along the jaws' width (module docstring; 0: not at all).
+    ``part`` gives the grasp geometry (:func:`~cellsight.model.grasp.grasp_pose`, with the
+    robot's tool). ``approach_height`` (m, default 5 cm as in the paper) and ``lift_height`` (m)
+    along base +z. ``planner``, ``clik`` and ``interpolator`` default to a
+    :class:`TrajectoryPlanner`, :class:`Clik` and :class:`InterpolatingFilter` with their
+    default parameters; the control period is the interpolator's ``dt``. Gripper commands:
+    ``robot.tool.max_opening`` open, 0 closed. ``grasp_opening`` (m): the jaws' opening when
+    closed on the part at its grasp (None: any opening counts); ``retry_shift`` (m): how far a
+    retry after a grasp caught off the part moves the grasp along the jaws' width (module
+    docstring; 0: not at all).
     """
 
     def __init__(
@@ -208,7 +210,7 @@ class GraspTask:
         self.approach_height = float(approach_height)
         self.lift_height = float(lift_height)
         self.max_attempts = int(max_attempts)
-        self.servo = ServoLoop(robot, planner or TrajectoryPlanner(grasp_pose_in_part(part)),
+        self.servo = ServoLoop(robot, planner or TrajectoryPlanner(grasp_pose(part, robot.tool)),
                                clik or Clik(robot), interpolator or InterpolatingFilter())
         self.planner = self.servo.planner
         self.T_home = robot.tcp_pose(robot.home)

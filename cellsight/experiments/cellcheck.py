@@ -54,14 +54,13 @@ import numpy as np
 
 from cellsight.camera import border_distance
 from cellsight.control.ik import converge
-from cellsight.control.planner import HALF_TURN_Z
 from cellsight.control.task import TaskTolerances
 from cellsight.model.cell import Cell, Workpiece
+from cellsight.model.grasp import HALF_TURN_Z, grasp_opening, grasp_pose
 from cellsight.model.robot import Robot
 from cellsight.occlusion.predictor import VisibilityPredictor
 from cellsight.world import ReplayWorld
 from cellsight.world.contacts import mount_pairs
-from cellsight.world.grasp import grasp_opening, grasp_pose
 from cellsight.world.paths import ConveyorPath, JointTask, Waypoint
 
 if TYPE_CHECKING:

@@ -53,7 +53,7 @@ import numpy as np
 from rich.progress import BarColumn, Progress, TextColumn
 
 from cellsight.calibration.folder import calibrated_cell, read_calibration
-from cellsight.control import GraspTask, Phase, grasp_pose_in_part
+from cellsight.control import GraspTask, Phase
 from cellsight.control.task import grasp_miss, last_setback
 from cellsight.errors import CellsightError
 from cellsight.experiments.baseline import PnPBaseline
@@ -77,6 +77,7 @@ from cellsight.export.live import LiveStream, parse_address
 from cellsight.export.mcap_run import check_jpeg, check_output
 from cellsight.geometry.transforms import invert_pose, transform_points
 from cellsight.model.cell import Cell
+from cellsight.model.grasp import grasp_opening, grasp_pose
 from cellsight.model.landing import Landing
 from cellsight.model.loader import load_cell
 from cellsight.model.robot import Robot
@@ -106,7 +107,6 @@ from cellsight.tracking.records import PartFrame
 from cellsight.tracking.registration import RegistrationRule
 from cellsight.tracking.setup import build_tracker, tracker_facts
 from cellsight.world import World
-from cellsight.world.grasp import grasp_opening
 
 log = logging.getLogger(__name__)
 
@@ -251,7 +251,7 @@ class ExperimentRun:
         self._part_at: np.ndarray | None = None  # the part's last estimated position (m)
         tool = self.robot.tool  # GraspTask names a robot without one
         self.task = GraspTask(self.robot, self.part, grasp_opening=None if tool is None else
-                              grasp_opening(self.part.solid, tool, grasp_pose_in_part(self.part)))
+                              grasp_opening(self.part.solid, tool, grasp_pose(self.part, tool)))
         self.baseline = PnPBaseline.of(self.tracker, self.part.feature_points)
         self.grasp = GraspMonitor(self.world, self.robot.name)
         self.events = OcclusionEvents([c.name for c in cell.cameras])

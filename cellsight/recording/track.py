@@ -30,7 +30,6 @@ from pathlib import Path
 import numpy as np
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
-from cellsight.control import grasp_pose_in_part
 from cellsight.control.task import TaskTolerances
 from cellsight.errors import CellsightError
 from cellsight.experiments.baseline import PnPBaseline
@@ -39,6 +38,7 @@ from cellsight.experiments.rows import FrameRows, FrameTruth, PartTruth
 from cellsight.experiments.runner import StopSignals
 from cellsight.export.live import LiveStream, parse_address
 from cellsight.model.cell import Cell, Workpiece
+from cellsight.model.grasp import grasp_opening, grasp_pose
 from cellsight.model.landing import Landing
 from cellsight.model.loader import load_cell
 from cellsight.model.robot import Robot
@@ -65,7 +65,6 @@ from cellsight.trackers import DEFAULT_TRACKER, TrackerChoice
 from cellsight.tracking.prior import KinematicPrior, RecordedGrasp
 from cellsight.tracking.registration import RegistrationRule
 from cellsight.tracking.setup import build_tracker, tracker_facts
-from cellsight.world.grasp import grasp_opening
 
 log = logging.getLogger(__name__)
 
@@ -234,7 +233,7 @@ def _prior(cell: Cell, robot: Robot, part: Workpiece) -> tuple[RecordedGrasp,
     openings (:mod:`cellsight.tracking.prior`; the task's grasp and tolerance), or None, with a
     warning, where the robot has no gripper or its jaws would close on no material at the
     part's grasp."""
-    T_part_tcp = grasp_pose_in_part(part)
+    T_part_tcp = None if robot.tool is None else grasp_pose(part, robot.tool)
     opening = None if robot.tool is None else grasp_opening(part.solid, robot.tool, T_part_tcp)
     if opening is None:
         log.warning("the kinematic tracker: %s's jaws close on no material of %s at its grasp; "

@@ -17,16 +17,16 @@ part is held and where (the simulated run: the task's grasp and the jaws' check)
 track``, the default tracker): the part is held while the jaws stand at the opening its grasp
 closes them to, within a tolerance, and it is held at the one of the grasp and its half-turn
 twin about the TCP's approach axis whose orientation is nearer the TCP's when they close (the
-choice the task's planner makes, :func:`~cellsight.control.planner.nearer_grasp`).
+choice the task's planner makes, :func:`~cellsight.model.grasp.nearer_grasp`).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from cellsight.control.planner import nearer_grasp
 from cellsight.geometry.transforms import invert_pose
 from cellsight.model.cell import Workpiece
+from cellsight.model.grasp import nearer_grasp
 from cellsight.model.landing import Landing
 from cellsight.model.robot import Robot
 

@@ -245,7 +245,7 @@ class World:
     rendered images (default: each camera's own size). ``initial_joints``: robot name -> joint
     vector at t = 0 (default HOME). ``grasp_poses``: workpiece name -> ``T_part_tcp`` of its
     grasp (default: the cell file's ``grasp``, else
-    :func:`~cellsight.world.grasp.default_grasp_pose`). ``grasp_tolerance``:
+    :func:`~cellsight.model.grasp.default_grasp_pose`). ``grasp_tolerance``:
     largest TCP position (m) and rotation (rad) error for a grasp to engage. ``jaw_speed``: rate
     of change of the jaw opening (m/s). ``plates``: robot name -> a printed plate on its
     flange (a calibration board: :mod:`~cellsight.world.board_plate`; a robot without a tool).
