@@ -16,7 +16,8 @@ import pytest
 from cellsight import load_cell
 from cellsight.experiments import RunConfig, run_experiment
 from cellsight.experiments.cellcheck import check_cell
-from cellsight.experiments.crossing_design import Block, TaskPath, design_crossing
+from cellsight.experiments.crossing_design import Block, design_crossing
+from cellsight.experiments.task_path import TaskPath
 from cellsight.geometry.transforms import pose_from_xyz_rpy
 from cellsight.runfolder import FrameLog
 from cellsight.world import ReplayWorld

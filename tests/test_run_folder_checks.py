@@ -16,7 +16,7 @@ import pytest
 from cellsight import load_cell
 from cellsight.cli import main
 from cellsight.experiments import RunConfig, run_experiment
-from cellsight.experiments.crossing_design import TaskPath
+from cellsight.experiments.task_path import TaskPath
 from cellsight.runfolder import RunDataError
 from cellsight.runfolder.replay import load_run
 

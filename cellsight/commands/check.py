@@ -35,7 +35,7 @@ def cmd_check(args: argparse.Namespace) -> int:
 
     from cellsight.errors import CellsightError
     from cellsight.experiments.cellcheck import check_cell
-    from cellsight.experiments.crossing_design import TaskPath
+    from cellsight.experiments.task_path import TaskPath
     from cellsight.model.loader import load_cell
 
     if not args.margin_px >= 0:

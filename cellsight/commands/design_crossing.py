@@ -31,7 +31,8 @@ def cmd_design_crossing(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from cellsight.errors import CellsightError
-    from cellsight.experiments.crossing_design import TaskPath, design_crossing
+    from cellsight.experiments.crossing_design import design_crossing
+    from cellsight.experiments.task_path import TaskPath
     from cellsight.model.loader import load_cell
 
     cell = load_cell(args.cell)

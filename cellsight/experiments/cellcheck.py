@@ -64,7 +64,7 @@ from cellsight.world.contacts import mount_pairs
 from cellsight.world.paths import ConveyorPath, JointTask, Waypoint
 
 if TYPE_CHECKING:
-    from cellsight.experiments.crossing_design import TaskPath
+    from cellsight.experiments.task_path import TaskPath
 
 REACH_M = (0.2, 4.0)  # m: the reach of industrial and collaborative arms, with room
 PART_M = (0.005, 2.0)  # m: a workpiece's bounding-box diagonal
