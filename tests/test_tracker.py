@@ -321,7 +321,7 @@ def test_a_lying_part_coasts_no_faster_than_its_support_moves(bound):
         run.predictor.blind = run.truth_vis.blind = {0, 1} if k >= k0 else set()
         run.step(k)
     assert all(run.frames[k].status == "coasting" for k in range(k0, k0 + 8))
-    across = np.hypot(*run.frames[-1].state[6:8])
+    across = np.hypot(*run.frames[-1].velocity[:2])
     off = run.errors(k0 + 7)[0]
     if bound is not None:
         assert across <= bound + 1e-6 and off < 0.03, (across, off)

@@ -29,7 +29,7 @@ class Estimate:
     def of(cls, t: float, rec: PartFrame) -> Estimate:
         if not rec.status.has_estimate:
             return cls(t, None, None, rec.status is TrackStatus.LOST)
-        return cls(t, np.array(rec.T_base_part), np.array(rec.state[6:9]))
+        return cls(t, np.array(rec.T_base_part), rec.velocity)
 
 
 class Deliveries:

@@ -26,6 +26,8 @@ import numpy as np
 
 STATE_DIM = 12
 POSE_DIM = 6
+POSITION, ANGLES = slice(0, 3), slice(3, 6)  # the state's parts: m, rad (roll, pitch, yaw)
+VELOCITY, ANGLE_RATES = slice(6, 9), slice(9, 12)  # m/s, rad/s
 
 
 @dataclass(frozen=True)

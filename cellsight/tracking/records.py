@@ -7,6 +7,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from cellsight.tracking.health import TrackHealthReport
+from cellsight.tracking.motion import VELOCITY
 from cellsight.tracking.selection import Selection
 from cellsight.tracking.status import TrackStatus
 from cellsight.tracking.unknown import UNKNOWN_LABEL, Grid
@@ -55,6 +56,12 @@ class PartFrame:
     views: list[CameraVisibility] = field(default_factory=list)
     health: TrackHealthReport | None = None
     held_out: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
+
+    @property
+    def velocity(self) -> np.ndarray | None:
+        """The part's estimated velocity after the update (m/s, base frame; None while
+        waiting)."""
+        return None if self.state is None else self.state[VELOCITY].copy()
 
     @classmethod
     def empty(cls, name: str, status: TrackStatus, n_cameras: int, n_features: int,
