@@ -65,7 +65,8 @@ recordings: venv
 	$(PY) scripts/recording_roundtrip.py out/recordings/run out/recordings/lossless \
 		out/recordings/jpeg90 --out docs/recording_roundtrip.png
 
-# Hostile and random input, 10^5 cases (about a thousand run in `make test`); tests/fuzzing.py.
+# Hostile and random input, by default 114,500 cases (about a thousand run in `make test`),
+# run folders, recordings and sweep resumes among them; tests/fuzzing.py.
 fuzz: dev
 	$(PY) scripts/fuzz.py --out out/fuzz
 

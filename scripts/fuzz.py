@@ -2,8 +2,10 @@
 
 Runs the case kinds of ``tests/fuzzing.py`` (soups against the oracle, hostile soups, mutated
 and damaged cell files, random command lines, the run folder's families of
-``tests/fuzz_folders.py``), by default 108,700 cases in all, on a process
-pool (one kind per process), with a progress bar; every failure is appended to
+``tests/fuzz_folders.py``, and damaged run folders read back, damaged or hostile recordings
+tracked and damaged sweeps resumed, of ``tests/fuzz_inputs.py``), by default 114,500 cases in
+all, on a process pool (one kind per process; each of the last three about 20 minutes on one
+core), with a progress bar; every failure is appended to
 ``out/fuzz/failures.txt`` as it is found, and the summary to ``out/fuzz/summary.json``.
 Exit status 1 when any case failed.
 
@@ -29,7 +31,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
 import fuzzing  # noqa: E402
 
 CASES = {"soup": 50_000, "hostile_soup": 30_000, "cell_file": 10_000, "cell_text": 10_000,
-         "cli": 5_000, "out_folder": 3_000, "replay": 500, "write_failure": 200}
+         "cli": 5_000, "out_folder": 3_000, "replay": 500, "write_failure": 200,
+         "run_folder": 3_000, "recording": 2_000, "sweep_resume": 800}
 
 
 def _run(kind: str, cases: int, seed: int, queue, failures: str) -> dict:

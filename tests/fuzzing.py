@@ -22,7 +22,12 @@ Each kind draws cases from a seeded generator and judges each one:
 - ``out_folder``, ``replay``, ``write_failure``: the run folder's families
   (``tests/fuzz_folders.py``): a writing command refuses bad arguments and a taken ``--out``
   before it changes anything, a replay refuses a changed cell, a failed write is never a
-  finished run.
+  finished run;
+- ``run_folder``, ``recording``, ``sweep_resume``: what reads files back
+  (``tests/fuzz_inputs.py``): a damaged run folder read by each of its readers, a damaged or
+  hostile recording tracked, a damaged sweep resumed: an answer or a one-line refusal (the
+  refusal where the input cannot be trusted, a run reused only with its identity), never a
+  traceback, a hang or a write outside the output folder.
 
 A failure is a disagreement or an unexpected exception; :func:`run_kind` returns them.
 """
@@ -42,12 +47,13 @@ from pathlib import Path
 import numpy as np
 import yaml
 from fuzz_folders import out_folder_case, replay_case, run_cli, write_failure_case
+from fuzz_inputs import recording_case, run_folder_case, sweep_resume_case
 from oracle import random_convex_solid, random_prism, random_soup, segment_oracle
 
 from cellsight.errors import CellsightError, GeometryError
 
 KINDS = ("soup", "hostile_soup", "cell_file", "cell_text", "cli", "out_folder", "replay",
-         "write_failure")
+         "write_failure", "run_folder", "recording", "sweep_resume")
 
 SMALL_CELL = {
     "name": "fuzz cell",
@@ -86,7 +92,9 @@ SMALL_CELL = {
 }
 
 FOLDER_CASES = {"out_folder": out_folder_case, "replay": replay_case,
-                "write_failure": write_failure_case}  # tests/fuzz_folders.py
+                "write_failure": write_failure_case,  # tests/fuzz_folders.py
+                "run_folder": run_folder_case, "recording": recording_case,
+                "sweep_resume": sweep_resume_case}  # tests/fuzz_inputs.py
 
 HOSTILE_VALUES = (None, True, False, 0, -1, 1, 7, 1e300, -1e300, math.nan, math.inf, -math.inf,
                   "", "x", "nan", "a/b", "../../etc", "é" * 5, "x" * 300, [], {}, [0], [1, 2],

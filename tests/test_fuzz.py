@@ -9,7 +9,8 @@ import fuzzing
 import pytest
 
 CASES = {"soup": 150, "hostile_soup": 500, "cell_file": 150, "cell_text": 150, "cli": 50,
-         "out_folder": 30, "replay": 10, "write_failure": 4}
+         "out_folder": 30, "replay": 10, "write_failure": 4, "run_folder": 20, "recording": 8,
+         "sweep_resume": 6}
 
 
 @pytest.mark.parametrize("kind", fuzzing.KINDS)

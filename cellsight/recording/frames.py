@@ -16,7 +16,8 @@ images; never before an exposure), each camera's exposure its image's stamp. A c
 stamps go back is an error; so is a frame time that does not increase. Where the frames stop
 for longer than 1.5 periods (the median interval so far), the missing frames (the gap over
 the period, rounded) are given as frames without images, evenly spaced across the gap
-(prediction steps), and each gap is reported.
+(prediction steps), and each gap is reported; frames more than ``MAX_GAP_S`` apart are an
+error (a stamp on another clock, or damaged: a gap of years would be filled for ever).
 """
 
 from __future__ import annotations
@@ -36,6 +37,7 @@ from cellsight.recording.series import stamp_ns
 
 GAP_PERIODS = 1.5  # frames further apart than this many periods leave a gap
 MIN_INTERVALS = 4  # intervals seen before gaps are judged
+MAX_GAP_S = 60.0  # frames further apart than this are an error, not a gap
 
 
 @dataclass(frozen=True)
@@ -196,11 +198,18 @@ class FrameGrouper:
         yield frame
 
     def _gap(self, last: Frame, frame: Frame, intervals: list[float]) -> Iterator[Frame]:
-        """Empty frames where the images stopped for longer than ``GAP_PERIODS`` periods."""
+        """Empty frames where the images stopped for longer than ``GAP_PERIODS`` periods; a
+        :class:`RecordingError` where they stopped for longer than ``MAX_GAP_S``."""
+        span = frame.t - last.t
+        if span > MAX_GAP_S:
+            raise RecordingError(f"recording {self.recording.path}: no images from "
+                                 f"{last.t:.3f} s to {frame.t:.3f} s, {span:.4g} s (more than "
+                                 f"{MAX_GAP_S:g} s): an image stamped on another clock, or "
+                                 f"damaged? Track the parts before and after as two "
+                                 f"recordings")
         if len(intervals) < MIN_INTERVALS:
             return
         period = float(np.median(intervals[-50:]))
-        span = frame.t - last.t
         if span <= GAP_PERIODS * period:
             return
         missing = max(int(round(span / period)) - 1, 1)

@@ -5,13 +5,28 @@ only for the same cell, even when a file the cell file names was rewritten since
 from __future__ import annotations
 
 import hashlib
+import os
+import stat
 from pathlib import Path
 
 from cellsight.model.cell import Cell
 
 
+def is_regular_file(path: str | Path) -> bool:
+    """``path`` is a regular file (through links): not missing, not a folder, and not a FIFO,
+    a socket or a device, which could block a reader for ever (a FIFO with no writer) or never
+    end (``/dev/zero``)."""
+    try:
+        return stat.S_ISREG(os.stat(path).st_mode)
+    except (OSError, ValueError):  # missing, a broken link, a NUL in the name
+        return False
+
+
 def file_digest(path: str | Path) -> str | None:
-    """SHA-256 (hex) of a file's bytes; None when it cannot be read."""
+    """SHA-256 (hex) of a file's bytes; None when it cannot be read or is not a regular file
+    (:func:`is_regular_file`)."""
+    if not is_regular_file(path):
+        return None
     try:
         return hashlib.sha256(Path(path).read_bytes()).hexdigest()
     except OSError:

@@ -24,6 +24,7 @@ import numpy as np
 
 from cellsight.errors import CellsightError
 from cellsight.geometry.transforms import xyz_rpy_from_pose
+from cellsight.runfolder.digest import is_regular_file
 from cellsight.runfolder.writes import write_error
 from cellsight.tracking.timing import STAGES
 from cellsight.tracking.unknown import Grid
@@ -293,14 +294,28 @@ class FrameLog:
     @classmethod
     def read(cls, path: Path) -> FrameLog:
         """Read a frames file; rows with the wrong field count (a line cut off mid-write) are
-        dropped. An absent file reads as no rows."""
+        dropped. An absent file reads as no rows; one that is not a regular file, not UTF-8
+        text, or not CSV (a field past the csv module's limit) is a :class:`CellsightError`
+        naming it."""
         path = Path(path)
         if not path.exists():
             return cls({}, 0)
-        with path.open(newline="") as f:
-            reader = csv.reader(f)
-            header = next(reader, [])
-            rows = [r for r in reader if header and len(r) == len(header)]
+        if not is_regular_file(path):  # a FIFO would block for ever
+            raise CellsightError(f"{path}: not a regular file (a folder, a FIFO or a device); "
+                                 f"expected a run's frames.csv")
+        try:
+            with path.open(newline="", encoding="utf-8") as f:
+                reader = csv.reader(f)
+                header = next(reader, [])
+                rows = [r for r in reader if header and len(r) == len(header)]
+        except UnicodeDecodeError:
+            raise CellsightError(f"{path}: not UTF-8 text: not a cellsight run's frames.csv, "
+                                 f"or damaged") from None
+        except csv.Error as exc:
+            raise CellsightError(f"{path}: not a CSV file cellsight can read ({exc}): not a "
+                                 f"cellsight run's frames.csv, or damaged") from None
+        except OSError as exc:
+            raise CellsightError(f"{path}: cannot read it ({exc.strerror or exc})") from None
         return cls({name: [r[i] for r in rows] for i, name in enumerate(header)}, len(rows),
                    str(path))
 

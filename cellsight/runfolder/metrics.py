@@ -20,7 +20,7 @@ from pydantic import BaseModel, ConfigDict, ValidationError
 
 from cellsight.errors import CellsightError, short_repr
 from cellsight.fields import about
-from cellsight.runfolder.digest import file_digest
+from cellsight.runfolder.digest import file_digest, is_regular_file
 from cellsight.runfolder.writes import write_file
 
 METRICS_VERSION = 1
@@ -264,6 +264,9 @@ def _checked(data: object, path: Path) -> dict:
 
 def _json_object(path: Path, folder: Path) -> object:
     """The JSON value in ``path``; a :class:`RunDataError` naming it when it cannot be read."""
+    if path.exists() and not is_regular_file(path):  # a FIFO would block for ever
+        raise RunDataError(f"{path}: not a regular file (a folder, a FIFO or a device); "
+                           f"expected the run's metrics.json")
     try:
         text = path.read_bytes()
     except (FileNotFoundError, NotADirectoryError) as exc:

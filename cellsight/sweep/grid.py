@@ -229,6 +229,7 @@ def run_spec(job: tuple[RunSpec, Path]) -> dict:
     if done is not None:
         return {**done, "reused": True}
     try:
+        _check_under_out(spec, Path(out))
         if spec.calibration_folder is not None:
             _calibrate(spec, Path(out))
         metrics = run_experiment(spec.config(out))
@@ -237,6 +238,24 @@ def run_spec(job: tuple[RunSpec, Path]) -> dict:
     if metrics.get("signal") and multiprocessing.parent_process() is not None:
         _STOPPED_BY.append(str(metrics["signal"]))
     return metrics
+
+
+def _check_under_out(spec: RunSpec, out: Path) -> None:
+    """A :class:`~cellsight.runfolder.RunFolderError` when the run's folder (or its
+    calibration's) leads, through a link in ``out``, to a folder outside ``out``: a run that is
+    not reused is cleared and written again, and the sweep writes only under its ``--out``
+    (a run reused through such a link is only read)."""
+    from cellsight.runfolder import RunFolderError
+
+    inside = out.resolve()
+    for folder in (spec.folder, spec.calibration_folder):
+        if folder is None:
+            continue
+        target = (out / folder).resolve()
+        if not target.is_relative_to(inside):
+            raise RunFolderError(f"--out: {str(out / folder)!r} leads to {str(target)!r}, "
+                                 f"outside {str(out)!r} (a link): the sweep writes only under "
+                                 f"its --out; remove the link, or copy the run there")
 
 
 def _calibrate(spec: RunSpec, out: Path) -> None:
