@@ -224,6 +224,7 @@ def test_the_exports_name_the_fingers_and_a_recording_reads_them_back(cell, orac
     assert robot.tool.opening_of(0.025) == pytest.approx(0.05)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("experiment", [1, 2, 3])
 def test_the_panda_crosses_in_experiments_1_to_3(tmp_path, capsys, experiment):
     out = tmp_path / "run"
