@@ -749,6 +749,8 @@ def _joints(items: list[Item], rng: random.Random) -> str:
     j = rng.randrange(len(chosen[0][3].name))
     for it in chosen:
         m = it[3]
+        if j >= len(m.name):  # a message with fewer joints (or one already cut by this case)
+            continue
         position = np.asarray(m.position, float).copy()
         names = list(m.name)
         if how in ("nan", "inf", "huge"):
