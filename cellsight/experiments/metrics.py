@@ -45,8 +45,9 @@ became degraded), ``confident_wrong_frames`` (evaluated frames more than
 and ``max_error_tracking_mm`` (the largest error over the evaluated frames said ``tracking``).
 ``fewest_visible``: per working phase, per camera, the fewest features truly
 visible in any frame of it (how deeply the occluders blinded each camera: experiment 3's
-meaning, per seed). :func:`position_rmse_in_arm_frame_mm` takes one more input, an arm's own
-error (the world's truth, not in the log): the run's ``position_rmse_arm_mm``.
+meaning, per seed), each camera at its own worst frame, not at one instant.
+:func:`position_rmse_in_arm_frame_mm` takes one more input, an arm's own error (the world's
+truth, not in the log): the run's ``position_rmse_arm_mm``.
 """
 
 from __future__ import annotations

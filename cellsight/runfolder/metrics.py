@@ -134,7 +134,8 @@ class RunMetrics(BaseModel):
     frames: int | None = about(None, "The vision frames logged (rows of frames.csv).", "-")
     fewest_visible: dict[str, list[int]] | None = about(
         None, "Per task phase, per camera: the fewest feature points truly visible in any of its "
-        "frames.", "-")
+        "frames, each camera at its own worst frame (two cameras at 0 were not blinded at the "
+        "same instant unless their worst frames coincide).", "-")
     evaluated_frames: int | None = about(
         None, "The evaluated frames: part in some camera's image, from the first estimate on, "
         "whole task.", "-")
