@@ -210,25 +210,32 @@ def _joint_limits(robot: Robot, what: str, q: np.ndarray) -> list[Finding]:
     return out
 
 
-def _key_poses(cell: Cell, margin_px: float) -> list[Finding]:
+def _key_states(cell: Cell, part: Workpiece) -> list[tuple[str, dict, np.ndarray]]:
+    """The part's key poses, each named, with the grasping robot's joints there (empty: HOME):
+    at its start, at the conveyor's end, and held at the grasping robot's HOME and FINAL (by
+    its grasp)."""
     setup = cell.experiments
-    if not cell.workpieces or not cell.cameras:
-        return []
-    part = _workpiece(cell)
-    poses = [("at its start", part.T_base_part)]
+    states = [("at its start", {}, part.T_base_part)]
     if setup.conveyor_points is not None and len(setup.conveyor_points):
         end = part.T_base_part.copy()
         end[:2, 3] = setup.conveyor_points[-1]
-        poses.append(("at the conveyor's end", end))
+        states.append(("at the conveyor's end", {}, end))
     robot = _grasping(cell)
     if robot is not None and robot.tool is not None:
         T_tcp_part = np.linalg.inv(grasp_pose(part, robot.tool))
-        poses.append((f"held at {robot.name}'s HOME", robot.tcp_pose(robot.home) @ T_tcp_part))
-        if robot.final is not None:
-            poses.append((f"held at {robot.name}'s FINAL",
-                          robot.tcp_pose(robot.final) @ T_tcp_part))
+        for name, q in (("HOME", robot.home), ("FINAL", robot.final)):
+            if q is not None:
+                states.append((f"held at {robot.name}'s {name}", {robot.name: q},
+                               robot.tcp_pose(q) @ T_tcp_part))
+    return states
+
+
+def _key_poses(cell: Cell, margin_px: float) -> list[Finding]:
+    if not cell.workpieces or not cell.cameras:
+        return []
+    part = _workpiece(cell)
     out = []
-    for what, T in poses:
+    for what, _, T in _key_states(cell, part):
         points = part.feature_points @ T[:3, :3].T + T[:3, 3]
         for cam in cell.cameras:
             worst = float(border_distance(cam, cam.project(points)).min())
@@ -246,17 +253,7 @@ def _idle_robots(cell: Cell) -> list[Finding]:
     if not cell.workpieces or not cell.cameras or not others:
         return []
     part = _workpiece(cell)
-    states = [("at its start", {}, part.T_base_part)]
-    if cell.experiments.conveyor_points is not None and len(cell.experiments.conveyor_points):
-        end = part.T_base_part.copy()
-        end[:2, 3] = cell.experiments.conveyor_points[-1]
-        states.append(("at the conveyor's end", {}, end))
-    if grasping is not None and grasping.tool is not None:
-        T_tcp_part = np.linalg.inv(grasp_pose(part, grasping.tool))
-        for name, q in (("HOME", grasping.home), ("FINAL", grasping.final)):
-            if q is not None:
-                states.append((f"held at {grasping.name}'s {name}", {grasping.name: q},
-                               grasping.tcp_pose(q) @ T_tcp_part))
+    states = _key_states(cell, part)
     predictor = VisibilityPredictor(cell)
     out = []
     for robot in others:
