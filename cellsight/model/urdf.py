@@ -305,7 +305,8 @@ class _Walk:
     link_frame: dict
     joint_names: list = field(default_factory=list)
     speeds: list = field(default_factory=list)
-    fingers: list = field(default_factory=list)  # (joint, parent frame, T_frame_parent)
+    fingers: list = field(default_factory=list)  # (finger joint, its parent's frame)
+    children: dict = field(default_factory=dict)  # link -> its child joints
 
 
 def _actuated(walk: _Walk, j, frame: int, T_frame_parent: np.ndarray, path: Path) -> None:
@@ -375,14 +376,14 @@ def _walk(robot, path: Path) -> _Walk:
     a hand's finger joints (:func:`_finger_joints`) are set aside with their parents' frames."""
     root, children = _tree(robot, path)
     fingers = _finger_joints(robot, children, path)
-    walk = _Walk([], [], [], [], [root], {})
+    walk = _Walk([], [], [], [], [root], {}, children=children)
     stack = [(root, 0, np.eye(4))]
     while stack:
         link, frame, T = stack.pop()
         walk.link_frame[link] = (frame, T)
         for j in reversed(children[link]):
             if j.name in fingers:
-                walk.fingers.append((j, frame, T))
+                walk.fingers.append((j, frame))
             elif j.type == "fixed":
                 origin = np.eye(4) if j.origin is None else np.asarray(j.origin, dtype=float)
                 stack.append((j.child, frame, T @ origin))
@@ -391,7 +392,7 @@ def _walk(robot, path: Path) -> _Walk:
                 stack.append((j.child, len(walk.origins), np.eye(4)))
     if not walk.origins:
         raise UrdfError("file", f"URDF file {path}: no actuated joint")
-    for j, frame, _ in walk.fingers:
+    for j, frame in walk.fingers:
         if frame != len(walk.origins):
             raise UrdfError("file", f"URDF file {path}: finger joint {j.name!r} hangs off link "
                             f"{j.parent!r}, which moves with joint "
@@ -533,16 +534,16 @@ def _fingers(robot, walk: _Walk, geometry: str, robot_name: str,
              packages: Mapping[str, Path], path: Path, scale: float) -> tuple[UrdfFinger, ...]:
     """The hand's fingers (leader first), their solids those of the finger link and the links
     fixed below it, joined in the finger link's frame; lengths times ``scale`` (m)."""
-    _, children = _tree(robot, path)
     links = {lk.name: lk for lk in robot.links}
     fingers = []
-    for j, _, T_last_parent in walk.fingers:
+    for j, _ in walk.fingers:
+        T_last_parent = walk.link_frame[j.parent][1]  # the parent is on the last frame
         shapes, stack = [], [(j.child, np.eye(4))]
         while stack:
             name, T_finger_link = stack.pop()
             shapes += [s.transformed(T_finger_link) for s in
                        _link_shapes(links[name], geometry, robot_name, packages, path, scale)]
-            for below in children[name]:
+            for below in walk.children[name]:
                 origin = np.asarray(below.origin if below.origin is not None else np.eye(4),
                                     dtype=float).copy()
                 origin[:3, 3] *= scale
