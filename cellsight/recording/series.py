@@ -207,9 +207,9 @@ class _SignalReader:
                 raise RecordingError(f"{where}: joint {name!r} has no finite position "
                                      f"({positions.tolist()[:12]})")
             kind, target = self.targets[name]
-            value = positions[i:i + 1].copy()
-            if kind == "mimic":
+            if kind == "mimic":  # follows the leader, which gives the opening
                 continue
+            value = positions[i:i + 1].copy()
             if kind == "leader":
                 value[0] = self.cell.robot(target).tool.opening_of(value[0])
             store = self.series if kind == "joint" else self.openings

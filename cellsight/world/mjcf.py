@@ -221,7 +221,7 @@ def _tool_body(robot: Robot, geoms: dict[str, list[str]], dynamic: bool) -> list
             f'<joint name={quoteattr(name)} type="slide" axis="{_num(axis)}" '
             f'range="{_num(travel[:, k])}"/>'
         )
-        xml += geoms.get(name, [])
+        xml += geoms[name]
         xml.append("</body>")
     xml.append("</body>")
     return xml
