@@ -42,11 +42,15 @@ def oracle():
 
 
 def _finger_poses_oracle(oracle, robot, q, opening) -> list[np.ndarray]:
-    """The fingers' links in the cell's base frame by yourdfpy, the leader at opening / 2."""
+    """The fingers' links in the cell's base frame by yourdfpy, the leader at opening / 2; a
+    fresh scene of the parsed model each time (a scene updated from one configuration to the
+    next can keep a transform of the one before, a few nm off)."""
     cfg = dict(zip(robot.chain.joint_names, q, strict=True))
     cfg["panda_finger_joint1"] = opening / 2
-    oracle.update_cfg(cfg)
-    return [robot.T_base_robot @ oracle.get_transform(link, "panda_link0") for link in FINGERS]
+    fresh = yourdfpy.URDF(robot=oracle.robot, load_meshes=False,
+                          build_collision_scene_graph=False, load_collision_meshes=False)
+    fresh.update_cfg(cfg)
+    return [robot.T_base_robot @ fresh.get_transform(link, "panda_link0") for link in FINGERS]
 
 
 @pytest.mark.parametrize("file", ["panda.urdf", "panda_collision.urdf"])
