@@ -18,7 +18,7 @@ from pathlib import Path
 from cellsight.runfolder import read_metrics
 
 SKIPPED = {"wall_s", "timing_ms", "metrics_version", "cell", "realism_file", "cell_sha256",
-           "cell_files"}
+           "cell_files", "frames_sha256"}
 
 
 def _rows(folder: Path) -> list[list[str]]:

@@ -12,9 +12,9 @@ from __future__ import annotations
 
 import argparse
 
-from cellsight.experiments.metrics import _per_camera, in_image
 from cellsight.occlusion.predictor import VisibilityPredictor
 from cellsight.runfolder import load_run
+from cellsight.runfolder.figures import _per_camera, in_image
 
 
 def accuracies(folder: str, every: int = 3) -> tuple[float, float]:

@@ -21,6 +21,7 @@ LAYERS = [
     {"occlusion", "tracking", "control"},
     {"world", "framelog", "runfolder", "realism"},
     {"report"},
+    {"session"},
     {"experiments", "sweep", "view", "export", "placement", "recording", "calibration"},
     {"cli", "commands", "__init__", "__main__", "data"},
 ]
@@ -73,6 +74,66 @@ def test_imports_only_go_down_the_layers(path: Path):
             if name.startswith("cellsight.") and _layer(name.removeprefix("cellsight.")) > own:
                 upward.append(name)
     assert not upward, f"cellsight.{_relative(path)} (layer {own}) imports upward: {upward}"
+
+
+# Within a layer, arrows that would point the wrong way: what a real cell's data goes through
+# (recordings, exports) never needs the simulator or the experiments, nor the tracker the
+# controller.
+NEVER = {"recording": {"world", "experiments"}, "export": {"world", "experiments"},
+         "tracking": {"control"}}
+MAX_PARAMETERS = 8  # a function's, self aside, outside the compiled kernels
+
+
+def _imports(path: Path) -> list[str]:
+    """Every ``cellsight`` module ``path`` imports, at the top or inside a function, with
+    the names it imports from each (``cellsight.a.b`` for ``from cellsight.a import b``)."""
+    names = []
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+            names += [node.module, *(f"{node.module}.{a.name}" for a in node.names)]
+        elif isinstance(node, ast.Import):
+            names += [a.name for a in node.names]
+    return [n.removeprefix("cellsight.") for n in names if n.startswith("cellsight.")]
+
+
+def test_the_wrong_way_arrows_stay_gone():
+    found = {_relative(path): wrong for path in _sources()
+             if (top := _relative(path).split(".")[0]) in NEVER
+             and (wrong := sorted({n for n in _imports(path) if n.split(".")[0] in NEVER[top]}))}
+    assert not found, f"imports that point the wrong way: {found}"
+
+
+def test_no_import_cycle_anywhere():
+    """Module by module, lazy imports and type-checking ones included: no cycle."""
+    modules = {_relative(p).removesuffix(".__init__"): p for p in _sources()}
+    graph = {m: {n for n in _imports(p) if n in modules and n != m} for m, p in modules.items()}
+    state: dict[str, int] = {}  # 1: on the path, 2: done
+
+    def cycle_from(m: str, path: list[str]) -> list[str] | None:
+        state[m] = 1
+        for n in sorted(graph[m]):
+            if state.get(n) == 1:
+                return [*path[path.index(n):], n] if n in path else [m, n]
+            if n not in state and (found := cycle_from(n, [*path, n])):
+                return found
+        state[m] = 2
+        return None
+
+    cycles = [c for m in sorted(modules) if m not in state and (c := cycle_from(m, [m]))]
+    assert not cycles, f"import cycles: {cycles}"
+
+
+def test_functions_take_few_parameters():
+    many = []
+    for path in _sources():
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef) and not _is_jitted(node):
+                args = node.args
+                named = [a.arg for a in args.posonlyargs + args.args]
+                n = len(named) + len(args.kwonlyargs) - (named[:1] in (["self"], ["cls"]))
+                if n > MAX_PARAMETERS:
+                    many.append(f"{_relative(path)}.{node.name} ({n})")
+    assert not many, f"functions of more than {MAX_PARAMETERS} parameters: {many}"
 
 
 def test_metrics_json_is_opened_only_in_the_run_folder_package():

@@ -1,4 +1,4 @@
-"""Run metrics from a frame log (cellsight.experiments.metrics) on a small hand-made log whose
+"""Run metrics from a frame log (cellsight.runfolder.figures) on a small hand-made log whose
 figures are worked out here by hand."""
 
 from __future__ import annotations
@@ -8,12 +8,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from cellsight.experiments.metrics import (
+from cellsight.geometry.transforms import pose_from_xyz_rpy
+from cellsight.runfolder.figures import (
     evaluated_frames,
     frame_metrics,
     position_rmse_in_arm_frame_mm,
 )
-from cellsight.geometry.transforms import pose_from_xyz_rpy
 from cellsight.runfolder.framelog import FrameLog, FrameWriter, pose_fields, timing_fields
 from cellsight.tracking.timing import STAGES
 

@@ -675,7 +675,7 @@ def test_a_skewed_camera_is_exposed_before_the_frame(cell):
     """Camera 2 triggered 10 ms early sees the moving part where it was 10 ms before the
     frame (the ray-cast truth of that instant), camera 1 where it is at the frame."""
     from cellsight.experiments.exposure import Exposures
-    from cellsight.experiments.rows import PartTruth
+    from cellsight.experiments.plant import part_truth
     from cellsight.world import ConveyorPath
 
     path = ConveyorPath([(0.55, 0.0), (0.85, 0.0)], speed=0.2)
@@ -685,10 +685,10 @@ def test_a_skewed_camera_is_exposed_before_the_frame(cell):
     while world.time < t_frame - 1e-9:
         exposures.before_step(t_frame)
         if abs(world.time - (t_frame - 0.010)) < 1e-9:
-            seen["early"] = PartTruth.of(world, "part").pixels[1].copy()
+            seen["early"] = part_truth(world, "part").pixels[1].copy()
         world.step()
     out = exposures.frame()
-    now = PartTruth.of(world, "part").pixels
+    now = part_truth(world, "part").pixels
     np.testing.assert_array_equal(out[0].pixels, now[0])
     np.testing.assert_array_equal(out[1].pixels, seen["early"])
     assert np.abs(out[1].pixels - now[1]).max() > 1.0  # 2 mm of conveyor travel

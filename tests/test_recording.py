@@ -336,16 +336,16 @@ def test_sigterm_ends_the_tracking_at_a_frame_with_everything_written(recorded, 
                                                                       monkeypatch):
     from cellsight.recording import track as track_module
 
-    frame = track_module._Session._frame
+    frame = track_module.RecordingSource._frame
     calls = []
 
-    def signalled(self, recorded_frame):
+    def signalled(self, k, recorded_frame):  # the signal comes as the 6th frame is read
         calls.append(recorded_frame.t)
-        if len(calls) == 5:
+        if len(calls) == 6:
             os.kill(os.getpid(), signal.SIGTERM)
-        return frame(self, recorded_frame)
+        return frame(self, k, recorded_frame)
 
-    monkeypatch.setattr(track_module._Session, "_frame", signalled)
+    monkeypatch.setattr(track_module.RecordingSource, "_frame", signalled)
     result = track_recording(None, recorded[1], tmp_path / "out", TrackOptions(progress=False))
     assert result.frames == 5 and result.metrics["interrupted"] is True
     assert result.metrics["signal"] == "SIGTERM"

@@ -13,9 +13,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from cellsight.experiments.plant import SimulatedCell
-from cellsight.experiments.rows import PartTruth
+from cellsight.experiments.plant import SimulatedCell, part_truth
 from cellsight.experiments.sensors import IdealView
+from cellsight.session.frames import PartTruth
 
 
 class Exposures:
@@ -59,7 +59,7 @@ class Exposures:
     def _expose(self, cameras: list[int], truth: PartTruth | None = None) -> list:
         if not self.ideal:
             return self.world.render(cameras, on_demand=not self.full_frames)
-        truth = truth or PartTruth.of(self.world, self.part)
+        truth = truth or part_truth(self.world, self.part)
         corners = self.world.true_corners()
         return [IdealView(truth.pixels[c], truth.visible[c], corners[c]) if c in cameras
                 else None for c in range(len(self.skews))]

@@ -26,7 +26,7 @@ from cellsight.runfolder import cell_digest
 from cellsight.tracking.setup import tracker_facts
 
 if TYPE_CHECKING:
-    from cellsight.experiments.runner import RunConfig
+    from cellsight.experiments.config import RunConfig
 
 
 def _sha256(data: bytes) -> str:

@@ -1,11 +1,11 @@
 """What the run watches and writes into ``run.log`` as it goes, besides the task's own phase
-changes: the grasp (:class:`GraspMonitor`) and what hides the part (:class:`OcclusionEvents`)."""
+changes: the grasp (:class:`GraspMonitor`) and the kidnapping (:class:`KidnapMonitor`); what hides
+the part is the session's (:mod:`cellsight.session.events`)."""
 
 from __future__ import annotations
 
 import logging
 import math
-from collections import Counter
 from collections.abc import Sequence
 from dataclasses import replace
 
@@ -42,28 +42,6 @@ class GraspMonitor:
         """Call after the task's vision update, with its phase before and after."""
         if before == Phase.GRASP and after == Phase.MANIPULATE:
             self.held_at_manipulate = self.world.grasp(self.robot) is not None
-
-
-class OcclusionEvents:
-    """A line in the log (predicted visibility) whenever the set of what hides the part from a
-    camera changes, or the count of visible points crosses 3 or 1."""
-
-    def __init__(self, cameras: Sequence[str]) -> None:
-        self.cameras = list(cameras)
-        self._state: dict[int, tuple] = {}
-
-    def update(self, t: float, phase: str, reasons: Sequence[Sequence[str]]) -> None:
-        """``reasons``: per camera, per feature, '' or why it is predicted hidden."""
-        for c, per_feature in enumerate(reasons):
-            hidden = Counter(r for r in per_feature if r)
-            n_visible = sum(1 for r in per_feature if not r)
-            state = (frozenset(hidden), min(n_visible, 3), n_visible == 0)
-            if self._state.get(c) == state:
-                continue
-            self._state[c] = state
-            text = ", ".join(f"{label} {n}" for label, n in sorted(hidden.items()))
-            log.info("t=%6.2f s %-10s %s: %d/%d visible%s", t, phase, self.cameras[c],
-                     n_visible, len(per_feature), f"; hidden: {text}" if text else "")
 
 
 class KidnapMonitor:

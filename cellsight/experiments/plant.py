@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 
+from cellsight.session.frames import FrameTruth, PartTruth
 from cellsight.visibility import Views
 
 if TYPE_CHECKING:
@@ -92,3 +93,14 @@ class GroundTruth(Protocol):
 class SimulatedCell(Plant, GroundTruth, Protocol):
     """A plant that also knows the truth: what :class:`~cellsight.experiments.ExperimentRun`
     drives and logs."""
+
+
+def part_truth(world: GroundTruth, part: str) -> PartTruth:
+    """The world's truth now about workpiece ``part``."""
+    return PartTruth(world.true_part_poses()[part], world.true_views()[part])
+
+
+def frame_truth(world: SimulatedCell, part: str, robot: str) -> FrameTruth:
+    """The world's truth now about workpiece ``part`` and robot ``robot``."""
+    return FrameTruth(part_truth(world, part), world.true_joints(), world.jaw_openings()[robot],
+                      world.jaws_closed_on_part(robot), world.grasp(robot) is not None)

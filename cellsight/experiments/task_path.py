@@ -39,7 +39,8 @@ class TaskPath:
         ideal sensor into ``scratch`` (``who`` says so on the console first)."""
         if run_dir is not None:
             return cls(run_dir, load_cell(cell))
-        from cellsight.experiments.runner import RunConfig, run_experiment
+        from cellsight.experiments.config import RunConfig
+        from cellsight.experiments.runner import run_experiment
 
         print(f"{who}: running experiment 2 (ideal sensor) for the part's path")
         run_experiment(RunConfig(2, scratch / "experiment2", cell=cell, sensor="ideal",

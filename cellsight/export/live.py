@@ -42,6 +42,8 @@ from cellsight.export.ros import topic_token
 from cellsight.geometry.transforms import transform_points
 from cellsight.model.cell import Cell
 from cellsight.report.overlay import draw_camera_overlay
+from cellsight.session.frames import FrameRecord
+from cellsight.session.protocols import RunContext
 from cellsight.tracking.records import PartFrame
 from cellsight.view.inputs import check_port
 
@@ -257,6 +259,38 @@ class LiveStream:
         if self.painter.dropped:
             log.info("live: %d of %d frames' images not sent (the painter was busy)",
                      self.painter.dropped, self.frames)
+
+
+class LiveSink:
+    """The sink that streams a run to Foxglove (:class:`LiveStream`) at ``address``
+    (``[HOST:]PORT``); ``paced``: at the run's own pace (a recording: each frame no sooner
+    than its time since the first), else as fast as the run goes."""
+
+    def __init__(self, address: str, paced: bool = False) -> None:
+        self.address, self.paced = parse_address(address), paced
+        self.stream: LiveStream | None = None
+        self._start: tuple[float, float] | None = None  # (wall clock, run time) s
+
+    def start(self, run: RunContext) -> None:
+        self.stream = LiveStream(run.cell, run.part.name, *self.address)
+
+    def frame(self, record: FrameRecord) -> None:
+        frame, truth = record.frame, record.frame.truth
+        if self.paced:
+            self._wait(frame.t)
+        self.stream.frame(frame.t, frame.joints, record.part, record.result.unknown,
+                          frame.observed if frame.images else None,
+                          None if truth.part is None else truth.part.T_base_part)
+
+    def _wait(self, t: float) -> None:
+        """Wait until the wall clock has moved on as far as the run since its first frame."""
+        now = time.monotonic()
+        if self._start is None:
+            self._start = (now, t)
+        time.sleep(max(0.0, (t - self._start[1]) - (now - self._start[0])))
+
+    def close(self, completed: bool) -> None:
+        self.stream.close()
 
 
 def _translation(p: np.ndarray) -> np.ndarray:

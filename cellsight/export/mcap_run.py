@@ -71,7 +71,7 @@ import yaml
 
 from cellsight.errors import CellsightError
 from cellsight.export import frames as tf
-from cellsight.export import image_markers, markers, ros
+from cellsight.export import image_markers, markers, ros, topics
 from cellsight.export.msgdefs import msgdef, schema_name
 from cellsight.geometry.transforms import transform_points
 from cellsight.model.cell import Cell
@@ -316,14 +316,12 @@ class _Frames:
 
     def __init__(self, run: RunData, every: int, images: _Images | None,
                  start_ns: int = 0) -> None:
-        from cellsight.recording import names  # not at the top: recording imports the export
-
         self.run, self.every, self.images, self.start_ns = run, every, images, start_ns
         self.cams, self.part = _topic_tokens(run)
         self.static = tf.static_transforms(run.cell, run.part.name)
         self.descriptions = robot_descriptions(run.cell)
         self.size = markers.marker_size(run.part.feature_points)
-        self.joint_states, self.joint_positions = names.JOINT_STATES, names.joint_positions
+        self.joint_states, self.joint_positions = topics.JOINT_STATES, topics.joint_positions
         self.holder = gripper(run)
         n = len(run.part.feature_points)  # each camera's rejected corners, decoded once
         self.rejected = [run.frames.bits(camera_column("rej", c), n)

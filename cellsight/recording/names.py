@@ -36,67 +36,55 @@ follows the conventions::
 
 from __future__ import annotations
 
-from collections.abc import Mapping
 from pathlib import Path
 
-import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from cellsight.errors import CellFileError
-from cellsight.export.ros import topic_token
+from cellsight.export.topics import (  # the conventions, shared with the exports
+    CAMERA_INFO,
+    COMPRESSED,
+    IMAGE,
+    JOINT_STATE,
+    JOINT_STATES,
+    OPENING,
+    POSE,
+    TF,
+    TRANSFORM,
+    TRUTH_TYPES,
+    camera_info_topic,
+    compressed_topic,
+    image_topic,
+    joint_name,
+    joint_positions,
+    truth_topic,
+)
 from cellsight.model.cell import Cell
 from cellsight.model.yaml_input import load_yaml, read_cell_text
 
-JOINT_STATES = "/joint_states"
-IMAGE, COMPRESSED, CAMERA_INFO, JOINT_STATE, POSE, TRANSFORM, TF = (
-    "sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage", "sensor_msgs/msg/CameraInfo",
-    "sensor_msgs/msg/JointState", "geometry_msgs/msg/PoseStamped",
-    "geometry_msgs/msg/TransformStamped", "tf2_msgs/msg/TFMessage")
-TRUTH_TYPES = (POSE, TRANSFORM, TF)
-OPENING = "jaw_opening"
 MONO16_BITS = (10, 16)  # the significant bits a topic map may declare for mono16 images
 
-
-def joint_name(robot: str, joint: str) -> str:
-    """The conventional name of a robot's joint in ``/joint_states``."""
-    return f"{robot}/{joint}"
-
-
-def joint_positions(cell: Cell, joints: Mapping[str, np.ndarray],
-                    openings: Mapping[str, float]) -> tuple[list[str], list[float]]:
-    """The ``/joint_states`` names and positions of robots' joints (robot -> joint vector,
-    rad / m) and of grippers' jaw openings (robot -> m), named by the convention; a URDF
-    hand's opening as its two finger joints' values (m), as the robot's driver gives them."""
-    names, positions = [], []
-    for robot, q in joints.items():
-        names += [joint_name(robot, j) for j in cell.robot(robot).chain.joint_names]
-        positions += [float(v) for v in q]
-    for robot, opening in openings.items():
-        tool = cell.robot(robot).tool
-        fingers = [] if tool is None else [jaw.joint for jaw in tool.jaws if jaw.joint]
-        if fingers:  # a URDF hand: its fingers' own joints, the mimic's too
-            names += [joint_name(robot, j) for j in fingers]
-            positions += [float(v) for v in tool.jaw_values(opening)]
-        else:
-            names.append(joint_name(robot, OPENING))
-            positions.append(float(opening))
-    return names, positions
-
-
-def image_topic(camera: str) -> str:
-    return f"/{topic_token(camera)}/image_raw"
-
-
-def compressed_topic(camera: str) -> str:
-    return f"{image_topic(camera)}/compressed"
-
-
-def camera_info_topic(camera: str) -> str:
-    return f"/{topic_token(camera)}/camera_info"
-
-
-def truth_topic(part: str) -> str:
-    return f"/{topic_token(part)}/true_pose"
+__all__ = [
+    "CAMERA_INFO",
+    "COMPRESSED",
+    "IMAGE",
+    "JOINT_STATE",
+    "JOINT_STATES",
+    "OPENING",
+    "POSE",
+    "TF",
+    "TRANSFORM",
+    "TRUTH_TYPES",
+    "camera_info_topic",
+    "compressed_topic",
+    "image_topic",
+    "joint_name",
+    "joint_positions",
+    "truth_topic",
+    "MONO16_BITS",
+    "TopicMap",
+    "load_topic_map",
+]
 
 
 class TopicMap(BaseModel):

@@ -36,8 +36,10 @@ from cellsight.export.mcap_run import RosBag, check_jpeg, jpeg_image
 from cellsight.model.cell import Cell
 from cellsight.recording import names
 from cellsight.runfolder.digest import cell_digest
-from cellsight.runfolder.writes import AtomicFile
-from cellsight.world.shots import Shot
+from cellsight.runfolder.writes import AtomicFile, RunWrites
+from cellsight.session.frames import FrameRecord
+from cellsight.session.protocols import RunContext
+from cellsight.tracking.grabbing import grabbed
 
 JOINT_STATE, IMAGE, COMPRESSED, CAMERA_INFO, POSE, TF = (
     "sensor_msgs/JointState", "sensor_msgs/Image", "sensor_msgs/CompressedImage",
@@ -86,7 +88,7 @@ class Recorder:
 
     def _image(self, c: int, observed: object, stamp_ns: int, ns: int) -> None:
         cam = self.cell.cameras[c]
-        image = observed.whole() if isinstance(observed, Shot) else np.asarray(observed)
+        image = np.asarray(grabbed(observed))
         frame = tf.optical_frame(cam.name)
         if self.jpeg is None:
             self._write(names.image_topic(cam.name), IMAGE,
@@ -112,3 +114,29 @@ class Recorder:
             "time": "stamps and log times: the run's time t (s) from the Unix epoch",
             "complete": "true" if complete else "false", **(facts or {})})
         self._file.commit()
+
+
+class RecordingSink:
+    """The sink that records a run (:class:`Recorder`) into ``path``; ``jpeg``: JPEG quality
+    of the images (None: lossless mono8). The file's metadata says whether the run
+    completed."""
+
+    def __init__(self, path: Path, jpeg: int | None = None) -> None:
+        self.path, self.jpeg = Path(path), jpeg
+        self.recorder: Recorder | None = None
+        self.writes: RunWrites | None = None
+
+    def start(self, run: RunContext) -> None:
+        self.writes = run.writes
+        with run.writes.guard(self.path):
+            self.recorder = Recorder(self.path, run.cell, run.part.name, self.jpeg)
+
+    def frame(self, record: FrameRecord) -> None:
+        frame, truth = record.frame, record.frame.truth
+        with self.writes.guard(self.path):
+            self.recorder.frame(frame.t, frame.observed, frame.stamps, frame.joints,
+                                frame.openings, None if truth.part is None
+                                else truth.part.T_base_part)
+
+    def close(self, completed: bool) -> None:
+        self.writes.close(self.path, lambda: self.recorder.close(completed))

@@ -7,7 +7,7 @@ on reading (a run cut short writes what it has; ``cellsight compare`` takes any 
 field that is there must have its type: a hand-edited ``"seed": "three"`` or ``"phases": [1]``
 is one :class:`~cellsight.runfolder.replay.RunDataError` naming the file and the field. Fields
 the schema does not know are kept as they are. The figures' meaning and units are those of
-:mod:`cellsight.experiments.metrics` (``*_mm`` in mm, ``*_deg`` in degrees, ``*_s`` in s).
+:mod:`cellsight.runfolder.figures` (``*_mm`` in mm, ``*_deg`` in degrees, ``*_s`` in s).
 """
 
 from __future__ import annotations

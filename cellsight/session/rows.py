@@ -1,17 +1,15 @@
 """Each vision frame's row of ``frames.csv`` (columns: :mod:`cellsight.runfolder.framelog`),
-from what the run loop has at hand: the tracker's record, the simulator's truth (read once per
-frame: :class:`FrameTruth`), the PnP baseline and the task."""
+from what the run session has at hand: the tracker's record, what the source knows of the truth
+(read once per frame: :class:`FrameTruth`), the PnP baseline and the task."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
-from cellsight.experiments.plant import GroundTruth, SimulatedCell
 from cellsight.model.robot import Robot
 from cellsight.runfolder.framelog import (
     WRONG_PX,
+    FrameWriter,
     camera_column,
     encode_bits,
     encode_corners,
@@ -22,52 +20,12 @@ from cellsight.runfolder.framelog import (
     pose_fields,
     timing_fields,
 )
+from cellsight.runfolder.writes import RunWrites
+from cellsight.session.baseline import PnPBaseline
+from cellsight.session.frames import FrameRecord, FrameTruth, PartTruth
+from cellsight.session.protocols import RunContext
 from cellsight.tracking.health import TrackHealthReport
 from cellsight.tracking.records import PartFrame, TrackerFrame
-from cellsight.visibility import CameraVisibility
-
-
-@dataclass(frozen=True)
-class PartTruth:
-    """The simulator's truth about one workpiece at one frame: ``T_base_part`` and what each
-    camera sees of it (``views``, one per camera)."""
-
-    T_base_part: np.ndarray
-    views: list[CameraVisibility]
-
-    @classmethod
-    def of(cls, world: GroundTruth, part: str) -> PartTruth:
-        return cls(world.true_part_poses()[part], world.true_views()[part])
-
-    @property
-    def pixels(self) -> np.ndarray:
-        """(C, F, 2) true projections (px, distorted; NaN behind a camera)."""
-        return np.stack([v.pixels for v in self.views])
-
-    @property
-    def visible(self) -> np.ndarray:
-        """(C, F) truly visible."""
-        return np.stack([v.visible for v in self.views])
-
-
-@dataclass(frozen=True)
-class FrameTruth:
-    """The simulator's truth at one vision frame, read once: the workpiece's (``part``; None
-    where nothing knows it, e.g. a recording without the part's pose), every robot's true
-    ``joints`` (rad, m), and of the grasping robot: its jaw opening (m), its jaws closed on the
-    part, the grasp engaged."""
-
-    part: PartTruth | None
-    joints: dict[str, np.ndarray]
-    jaw_opening: float
-    jaws_closed: bool
-    grasped: bool
-
-    @classmethod
-    def of(cls, world: SimulatedCell, part: str, robot: str) -> FrameTruth:
-        """The truth now about workpiece ``part`` and robot ``robot``."""
-        return cls(PartTruth.of(world, part), world.true_joints(), world.jaw_openings()[robot],
-                   world.jaws_closed_on_part(robot), world.grasp(robot) is not None)
 
 
 class FrameRows:
@@ -144,3 +102,28 @@ def _health_fields(health: TrackHealthReport | None, c: int) -> dict[str, float 
     values = {"nis": health.nis_ratio[c], "notfound": health.missing_fraction[c],
               "rejfrac": health.rejected_fraction[c]}
     return {k: round(float(v), 4) if np.isfinite(v) else None for k, v in values.items()}
+
+
+class FramesCsv:
+    """The sink of ``frames.csv``: one row a frame (:class:`FrameRows`), with the pose the
+    PnP ``baseline`` finds from the same corners."""
+
+    def __init__(self, rows: FrameRows, baseline: PnPBaseline) -> None:
+        self.rows, self.baseline = rows, baseline
+        self.writer: FrameWriter | None = None
+        self.writes: RunWrites | None = None
+
+    def start(self, run: RunContext) -> None:
+        self.writes = run.writes
+        self.writer = FrameWriter(run.out / "frames.csv", len(run.cell.cameras),
+                                  {r.name: r.n_joints for r in run.cell.robots})
+
+    def frame(self, record: FrameRecord) -> None:
+        pnp = self.baseline.update(record.t, record.part.measured)
+        row = self.rows.row(record.t, record.phase, record.stage, record.result, record.part,
+                            record.frame.truth, pnp)
+        with self.writes.guard(self.writer.path):
+            self.writer.write(row)
+
+    def close(self, completed: bool) -> None:
+        self.writes.close(self.writer.path, self.writer.close)
