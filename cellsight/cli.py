@@ -30,9 +30,9 @@ from cellsight.commands import (
     track,
     visibility,
 )
+from cellsight.commands import export as export_command
 from cellsight.commands.text import debug, one_line
 from cellsight.errors import CellsightError
-from cellsight.export import command as export_command
 from cellsight.placement import command as placement_command
 from cellsight.realism import command as realism_command
 from cellsight.sweep import command as sweep_command

@@ -25,14 +25,14 @@ from scipy.spatial.transform import Rotation
 
 from cellsight import load_cell
 from cellsight.camera import Camera
+from cellsight.commands.export import register
 from cellsight.errors import CellsightError
 from cellsight.experiments import RunConfig, run_experiment
-from cellsight.export import export_mcap
-from cellsight.export import mcap_run as mcap_run_module
-from cellsight.export.command import register
+from cellsight.export import ExportOptions, export_mcap
 from cellsight.export.ros import camera_info
 from cellsight.geometry.transforms import invert_pose, look_at, pose_from_xyz_rpy
 from cellsight.world import ReplayWorld
+from cellsight.world.replay_images import ReplayImages
 
 EVERY = 3
 GREEN, RED = (0.1, 0.85, 0.2), (0.95, 0.15, 0.1)
@@ -59,7 +59,7 @@ def cell(run_dir: Path):
 @pytest.fixture(scope="module")
 def exported(run_dir: Path) -> Path:
     path = run_dir.parent / "run.mcap"
-    result = export_mcap(run_dir, path, every=EVERY, progress=False)
+    result = export_mcap(run_dir, path, ExportOptions(every=EVERY, progress=False), ReplayImages)
     assert result.stopped_by is None and result.frames == result.total
     return path
 
@@ -358,9 +358,9 @@ def test_cli_without_images_and_every_n(run_dir: Path, rows, tmp_path: Path, cap
 
 
 def _stopping_render(monkeypatch, after: int, action) -> None:
-    """``_Images.render`` that calls ``action`` on its call number ``after`` + 1."""
+    """``ReplayImages.render`` that calls ``action`` on its call number ``after`` + 1."""
     calls = {"n": 0}
-    original = mcap_run_module._Images.render
+    original = ReplayImages.render
 
     def render(self, k):
         calls["n"] += 1
@@ -368,7 +368,7 @@ def _stopping_render(monkeypatch, after: int, action) -> None:
             action()
         return original(self, k)
 
-    monkeypatch.setattr(mcap_run_module._Images, "render", render)
+    monkeypatch.setattr(ReplayImages, "render", render)
 
 
 def _read_back(path: Path) -> tuple[dict[str, int], dict[str, str]]:
@@ -385,7 +385,7 @@ def test_ctrl_c_leaves_a_readable_file_of_the_frames_before(run_dir, tmp_path, m
 
     _stopping_render(monkeypatch, 2, interrupt)
     path = tmp_path / "cut.mcap"
-    result = export_mcap(run_dir, path, progress=False)
+    result = export_mcap(run_dir, path, ExportOptions(progress=False), ReplayImages)
     assert (result.stopped_by, result.frames, result.images) == ("SIGINT", 2, 4)
     counts, metadata = _read_back(path)
     assert counts["/tf"] == counts["/cam1/image_raw"] == 2
@@ -427,23 +427,24 @@ def _rewrite_frames(folder: Path, keep=lambda column: True, edit=lambda i, colum
 def test_bad_inputs_are_clear_errors(run_dir: Path, tmp_path: Path) -> None:
     out = tmp_path / "x.mcap"
     with pytest.raises(CellsightError, match="does not exist"):
-        export_mcap(tmp_path / "nowhere", out, progress=False)
+        export_mcap(tmp_path / "nowhere", out, ExportOptions(progress=False), ReplayImages)
     with pytest.raises(CellsightError, match="no metrics.json"):
-        export_mcap(tmp_path, out, progress=False)
+        export_mcap(tmp_path, out, ExportOptions(progress=False), ReplayImages)
     with pytest.raises(CellsightError, match="--every: expected a whole number >= 1, got 0"):
-        export_mcap(run_dir, out, every=0, progress=False)
+        export_mcap(run_dir, out, ExportOptions(every=0, progress=False), ReplayImages)
     out.write_bytes(b"")
     with pytest.raises(CellsightError, match="exists; pass --overwrite"):
-        export_mcap(run_dir, out, progress=False)
+        export_mcap(run_dir, out, ExportOptions(progress=False), ReplayImages)
     with pytest.raises(CellsightError, match="the run's own frames.csv"):
-        export_mcap(run_dir, run_dir / "frames.csv", overwrite=True, progress=False)
+        export_mcap(run_dir, run_dir / "frames.csv", ExportOptions(overwrite=True, progress=False),
+                    ReplayImages)
 
 
 def test_a_run_without_joint_columns_asks_for_a_new_run(run_dir: Path, tmp_path: Path) -> None:
     old = _copy_run(run_dir, tmp_path)
     _rewrite_frames(old, keep=lambda c: not c.startswith("q_"))
     with pytest.raises(CellsightError, match=r"no joint columns .*run the experiment again"):
-        export_mcap(old, tmp_path / "x.mcap", progress=False)
+        export_mcap(old, tmp_path / "x.mcap", ExportOptions(progress=False), ReplayImages)
     assert not (tmp_path / "x.mcap").exists()
 
 
@@ -452,14 +453,14 @@ def test_a_bad_field_names_its_row_and_column(run_dir: Path, tmp_path: Path) -> 
     _rewrite_frames(bad, edit=lambda i, c, v: "" if (i, c) == (4, "q_R6AX_2") else v)
     with pytest.raises(CellsightError, match=r"frames.csv row 5 \(t = .* s\): field "
                                              r"'q_R6AX_2' is empty"):
-        export_mcap(bad, tmp_path / "x.mcap", progress=False)
+        export_mcap(bad, tmp_path / "x.mcap", ExportOptions(progress=False), ReplayImages)
     (bad / "run_cell.yaml").unlink()  # a run from before cells were kept
     metrics = json.loads((bad / "metrics.json").read_text())
     metrics["cell"] = str(tmp_path / "gone.yaml")
     metrics.pop("cell_files", None)
     (bad / "metrics.json").write_text(json.dumps(metrics))
     with pytest.raises(CellsightError, match=r"metrics.json: field 'cell': .*gone.yaml.*--cell"):
-        export_mcap(bad, tmp_path / "x.mcap", progress=False)
+        export_mcap(bad, tmp_path / "x.mcap", ExportOptions(progress=False), ReplayImages)
 
 
 def test_joint_states_of_dh_robots_are_joint1_to_n(messages, rows, cell) -> None:

@@ -23,12 +23,13 @@ from mcap_ros2.decoder import DecoderFactory
 from scipy.spatial.transform import Rotation
 
 from cellsight import load_cell
+from cellsight.commands.export import register
 from cellsight.errors import CellsightError
 from cellsight.experiments import RunConfig, run_experiment
-from cellsight.export import export_mcap
-from cellsight.export.command import register
+from cellsight.export import ExportOptions, export_mcap
 from cellsight.export.mcap_run import robot_descriptions, start_time_ns
 from cellsight.model.registry import builtin_cell_path
+from cellsight.world.replay_images import ReplayImages
 
 UR_CELL = builtin_cell_path("ur-cell")
 LATCHED = {"/tf_static", "/UR5A/robot_description", "/UR5B/robot_description"}
@@ -51,7 +52,7 @@ def ur_rows(ur_run: Path) -> list[dict[str, str]]:
 @pytest.fixture(scope="module")
 def ur_export(ur_run: Path) -> Path:
     path = ur_run.parent / "ur.mcap"
-    export_mcap(ur_run, path, images=False, progress=False)
+    export_mcap(ur_run, path, ExportOptions(progress=False))
     return path
 
 
@@ -295,8 +296,8 @@ def test_start_time_forms_and_bad_ones() -> None:
 
 def test_a_run_ending_past_2038_is_refused(ur_run, tmp_path) -> None:
     with pytest.raises(CellsightError, match="would end after 2038-01-19"):
-        export_mcap(ur_run, tmp_path / "late.mcap", images=False, progress=False,
-                    start_time="2038-01-19T03:14:07.9Z")
+        export_mcap(ur_run, tmp_path / "late.mcap",
+                    ExportOptions(progress=False, start_time="2038-01-19T03:14:07.9Z"))
     assert not (tmp_path / "late.mcap").exists()
 
 
@@ -346,9 +347,10 @@ def test_jpeg_images_decode_close_to_the_render(ur_run, ur_rows, tmp_path) -> No
 def test_jpeg_quality_is_checked(ur_run, tmp_path) -> None:
     for bad in (0, 101, True, 9.5):
         with pytest.raises(CellsightError, match="--jpeg: expected a JPEG quality 1 to 100"):
-            export_mcap(ur_run, tmp_path / "x.mcap", jpeg=bad, progress=False)
+            export_mcap(ur_run, tmp_path / "x.mcap", ExportOptions(jpeg=bad, progress=False),
+                        ReplayImages)
     with pytest.raises(CellsightError, match="--jpeg: without images"):
-        export_mcap(ur_run, tmp_path / "x.mcap", jpeg=90, images=False, progress=False)
+        export_mcap(ur_run, tmp_path / "x.mcap", ExportOptions(jpeg=90, progress=False))
     assert not (tmp_path / "x.mcap").exists()
 
 
@@ -360,7 +362,8 @@ def test_cellsight_track_reads_an_export(ur_run, ur_rows, tmp_path) -> None:
     from cellsight.trackers import TrackerChoice
 
     path = tmp_path / "as_recording.mcap"
-    export_mcap(ur_run, path, jpeg=95, start_time=START, progress=False)
+    export_mcap(ur_run, path, ExportOptions(jpeg=95, start_time=START, progress=False),
+                ReplayImages)
     track_recording(UR_CELL, path, tmp_path / "tracked",  # the plain tracker: reading is tested
                     TrackOptions(progress=False, tracker=TrackerChoice("plain")))
     with (tmp_path / "tracked" / "frames.csv").open(newline="") as f:

@@ -22,7 +22,7 @@ from rosbags.typesys import Stores, get_typestore
 from cellsight import load_cell
 from cellsight.errors import CellFileError
 from cellsight.experiments import RunConfig, run_experiment
-from cellsight.export import export_mcap
+from cellsight.export import ExportOptions, export_mcap
 from cellsight.geometry.transforms import pose_from_xyz_rpy, transform_points
 from cellsight.recording import TopicMap
 from cellsight.recording.reader import RecordingError, open_recording
@@ -313,7 +313,7 @@ def test_the_logged_corners_are_the_measured_ones(recorded):
 def test_the_export_draws_the_windows_and_corners_on_the_images(recorded, tmp_path):
     run, _ = recorded
     path = tmp_path / "run.mcap"
-    export_mcap(run, path, images=False, progress=False)
+    export_mcap(run, path, ExportOptions(progress=False))
     log = FrameLog.read(run / "frames.csv")
     store = get_typestore(Stores.ROS2_HUMBLE)
     with path.open("rb") as f:

@@ -63,7 +63,7 @@ def cmd_track(args: argparse.Namespace) -> int:
     from rich.console import Console
     from rich.table import Table
 
-    from cellsight.export.mcap_run import check_output, export_mcap
+    from cellsight.export.mcap_run import ExportOptions, check_output, export_mcap
     from cellsight.recording.track import TrackOptions, track_recording
     from cellsight.report.run_report import format_value
 
@@ -81,8 +81,9 @@ def cmd_track(args: argparse.Namespace) -> int:
               f"in {result.out}", file=sys.stderr)
         return 128 + signal.Signals[name].value
     if args.mcap is not None:
-        export_mcap(result.out, args.mcap, images=False, overwrite=args.overwrite,
-                    progress=not args.quiet, start_time=result.metrics["time_origin_ns"])
+        export_mcap(result.out, args.mcap, ExportOptions(
+            start_time=result.metrics["time_origin_ns"], overwrite=args.overwrite,
+            progress=not args.quiet))
     table = Table(title=f"tracked {result.frames} frames of {args.recording}")
     table.add_column("metric")
     table.add_column("value", justify="right")

@@ -65,6 +65,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
+from typing import Protocol, runtime_checkable
 
 import numpy as np
 import yaml
@@ -253,42 +254,32 @@ def jpeg_image(ns: int, frame_id: str, image: np.ndarray, quality: int) -> dict:
     return {"header": ros.header(ns, frame_id), "format": "jpeg", "data": data.tobytes()}
 
 
-class _Images:
-    """The cameras' images re-rendered at logged states by a :class:`~cellsight.world.ReplayWorld`
-    of the run's world (its cell as the realism profile drew it) without tasks (made on first
-    use); ``jpeg``: their JPEG quality (None: raw mono8)."""
-
-    def __init__(self, run: RunData, jpeg: int | None = None) -> None:
-        self.run, self.jpeg = run, jpeg
-        self._world = None
-        self._gripper = gripper(run)
+@runtime_checkable
+class RunImages(Protocol):
+    """The cameras' images of a run's frames, one (H, W) uint8 array per camera of frame
+    ``k``, as :func:`export_mcap` asks for them (every ``every``-th frame, in order); the
+    simulated world re-renders them (:class:`cellsight.world.replay_images.ReplayImages`)."""
 
     def render(self, k: int) -> list[np.ndarray]:
-        from cellsight.world import ReplayWorld
-
-        run = self.run
-        if self._world is None:
-            self._world = ReplayWorld(run.world_cell())
-        openings = ({self._gripper: float(run.opening[k])}
-                    if self._gripper and np.isfinite(run.opening[k]) else {})
-        self._world.show_state({r: q[k] for r, q in run.joints.items()},
-                               {run.part.name: run.T_true[k]}, openings)
-        try:
-            return self._world.render()
-        except RuntimeError as exc:
-            raise CellsightError(f"rendering the camera images failed ({exc}); pass "
-                                 f"--no-images to export without them") from exc
+        ...
 
     def close(self) -> None:
-        if self._world is not None:
-            self._world.close()
+        ...
 
 
-def gripper(run: RunData) -> str | None:
-    """The robot whose jaw opening frames.csv logs: the grasping robot, when it has a tool."""
-    tool = run.robot is not None and any(r.name == run.robot and r.tool is not None
-                                         for r in run.cell.robots)
-    return run.robot if tool else None
+@dataclass(frozen=True)
+class ExportOptions:
+    """How to export: camera images and camera info every ``every``-th frame; ``jpeg``: the
+    images' JPEG quality (None: raw mono8); ``start_time``: the ROS time of the run's t = 0
+    (:func:`start_time_ns`); ``cell``: the run's cell, overriding the one its metrics.json
+    names; ``overwrite``: replace the file; ``progress``: show a progress bar."""
+
+    every: int = 1
+    jpeg: int | None = None
+    start_time: int | str = 0
+    cell: str | Path | None = None
+    overwrite: bool = False
+    progress: bool = True
 
 
 def robot_descriptions(cell: Cell) -> list[tuple[str, str]]:
@@ -314,15 +305,16 @@ class _Frames:
     """The messages of each frame of a run (module docstring), buffered per frame so that an
     interruption falls between frames."""
 
-    def __init__(self, run: RunData, every: int, images: _Images | None,
-                 start_ns: int = 0) -> None:
+    def __init__(self, run: RunData, every: int, images: RunImages | None,
+                 jpeg: int | None = None, start_ns: int = 0) -> None:
         self.run, self.every, self.images, self.start_ns = run, every, images, start_ns
+        self.jpeg = jpeg
         self.cams, self.part = _topic_tokens(run)
         self.static = tf.static_transforms(run.cell, run.part.name)
         self.descriptions = robot_descriptions(run.cell)
         self.size = markers.marker_size(run.part.feature_points)
         self.joint_states, self.joint_positions = topics.JOINT_STATES, topics.joint_positions
-        self.holder = gripper(run)
+        self.holder = run.gripper
         n = len(run.part.feature_points)  # each camera's rejected corners, decoded once
         self.rejected = [run.frames.bits(camera_column("rej", c), n)
                          for c in range(1, len(run.cell.cameras) + 1)]
@@ -428,9 +420,9 @@ class _Frames:
         for c, (cam, token) in enumerate(zip(self.run.cell.cameras, self.cams, strict=True)):
             frame = tf.optical_frame(cam.name)
             out.append((f"/{token}/camera_info", CAMERA_INFO, ros.camera_info(ns, frame, cam)))
-            if images is not None and self.images.jpeg is not None:
+            if images is not None and self.jpeg is not None:
                 out.append((f"/{token}/image_raw/compressed", COMPRESSED,
-                            jpeg_image(ns, frame, images[c], self.images.jpeg)))
+                            jpeg_image(ns, frame, images[c], self.jpeg)))
             elif images is not None:
                 out.append((f"/{token}/image_raw", IMAGE, ros.mono8_image(ns, frame, images[c])))
         return out
@@ -451,11 +443,11 @@ def _progress_bar(enabled: bool):
                     disable=not enabled, transient=False)
 
 
-def _images_note(images: _Images | None) -> str:
-    if images is None:
+def _images_note(source: _Frames) -> str:
+    if source.images is None:
         return "none"
     return "rendered by MuJoCo at the logged state" + (
-        "" if images.jpeg is None else f", JPEG quality {images.jpeg}")
+        "" if source.jpeg is None else f", JPEG quality {source.jpeg}")
 
 
 def _metadata(source: _Frames, result: ExportResult,
@@ -469,7 +461,7 @@ def _metadata(source: _Frames, result: ExportResult,
             "time": "stamps, log and publish times: start_time_ns + the run's time t (s)",
             "start_time_ns": str(source.start_ns),
             "frames": f"{result.frames}/{result.total}", "image_every": str(source.every),
-            "images": _images_note(source.images),
+            "images": _images_note(source),
             "complete": "true" if result.frames == result.total else "false"}
     if result.stopped_by:
         data["stopped_by"] = result.stopped_by
@@ -478,36 +470,36 @@ def _metadata(source: _Frames, result: ExportResult,
     return data
 
 
-def export_mcap(run_dir: str | Path, out: str | Path, *, every: int = 1, images: bool = True,
-                overwrite: bool = False, progress: bool = True,
-                cell: str | Path | None = None, start_time: int | str = 0,
-                jpeg: int | None = None) -> ExportResult:
-    """Write the run in ``run_dir`` to the MCAP file ``out`` (module docstring); ``cell``
-    overrides the cell named by the run's metrics.json; ``start_time`` is the ROS time of the
-    run's t = 0 (:func:`start_time_ns`); ``jpeg``: the images' JPEG quality (None: raw).
-    Returns what was written; stopped by SIGINT (or :class:`Stop`), the file holds the frames
-    before it and ``stopped_by`` says so."""
+def export_mcap(run_dir: str | Path, out: str | Path, options: ExportOptions | None = None,
+                images: Callable[[RunData], RunImages] | None = None) -> ExportResult:
+    """Write the run in ``run_dir`` to the MCAP file ``out`` (module docstring), as
+    ``options`` say; ``images`` makes the cameras' images of the run (None: none, the camera
+    info stays; :class:`cellsight.world.replay_images.ReplayImages` renders a simulated run's
+    again). Returns what was written; stopped by SIGINT (or :class:`Stop`), the file holds the
+    frames before it and ``stopped_by`` says so."""
+    options = options or ExportOptions()
+    every, jpeg = options.every, options.jpeg
     if isinstance(every, bool) or not isinstance(every, int) or every < 1:
         raise CellsightError(f"--every: expected a whole number >= 1, got {every!r}")
     check_jpeg(jpeg)
-    if jpeg is not None and not images:
+    if jpeg is not None and images is None:
         raise CellsightError("--jpeg: without images (--no-images) there is nothing to encode")
-    start_ns = start_time_ns(start_time)
-    run = load_run(run_dir, cell)
+    start_ns = start_time_ns(options.start_time)
+    run = load_run(run_dir, options.cell)
     if run.n and start_ns + ros.time_ns(run.t[-1]) >= END_NS:
         raise CellsightError("--start-time: the run would end after 2038-01-19T03:14:08Z, "
                              "past ROS time's int32 seconds")
-    path = check_output(out, overwrite, run.folder)
-    if images and "recording" in run.metrics:
+    path = check_output(out, options.overwrite, run.folder)
+    if images is not None and "recording" in run.metrics:
         raise CellsightError(f"{run_dir}: tracked from recording {run.metrics['recording']}, "
                              f"which holds its images; no world to render them again: pass "
                              f"--no-images")
     result = ExportResult(path, total=run.n, start_ns=start_ns)
-    renderer = _Images(run, jpeg) if images else None
-    source = _Frames(run, every, renderer, start_ns)
+    renderer = images(run) if images is not None else None
+    source = _Frames(run, every, renderer, jpeg, start_ns)
     error: BaseException | None = None
     try:
-        with _open_output(path) as file, _progress_bar(progress) as bar:
+        with _open_output(path) as file, _progress_bar(options.progress) as bar:
             bag = RosBag(file)
             result.topics = bag.topics
             task = bar.add_task("exporting", total=run.n)

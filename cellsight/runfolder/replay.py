@@ -54,6 +54,14 @@ class RunData:
     def n(self) -> int:
         return len(self.t)
 
+    @property
+    def gripper(self) -> str | None:
+        """The robot whose jaw opening frames.csv logs: the grasping robot, when it has a
+        tool."""
+        tool = self.robot is not None and any(r.name == self.robot and r.tool is not None
+                                              for r in self.cell.robots)
+        return self.robot if tool else None
+
     def world_cell(self) -> Cell:
         """The cell the run's world was: its realism profile's draws for its seed
         (``realism_spec`` and ``seed`` of ``metrics.json``), or the cell file's when the world

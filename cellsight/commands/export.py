@@ -1,4 +1,5 @@
-"""``cellsight export RUN_DIR --mcap FILE``: the command line of :mod:`cellsight.export`.
+"""``cellsight export RUN_DIR --mcap FILE``: the command line of :mod:`cellsight.export`, the
+images rendered again by the simulated world (:mod:`cellsight.world.replay_images`).
 
 :func:`register` adds the command to the ``cellsight`` parser's sub-commands. Exit status 0
 when the whole run was written; 130 (SIGINT) or 143 (SIGTERM) when stopped early, the file
@@ -73,14 +74,15 @@ def cmd_export(args: argparse.Namespace) -> int:
     from rich.markup import escape
     from rich.table import Table
 
-    from cellsight.export.mcap_run import Stop, export_mcap
+    from cellsight.export.mcap_run import ExportOptions, Stop, export_mcap
+    from cellsight.world.replay_images import ReplayImages
 
+    options = ExportOptions(every=args.every, jpeg=args.jpeg, start_time=args.start_time,
+                            cell=args.cell, overwrite=args.overwrite, progress=not args.quiet)
     try:
         with _sigterm_stops():
-            result = export_mcap(args.run_dir, args.mcap, every=args.every,
-                                 images=not args.no_images, overwrite=args.overwrite,
-                                 progress=not args.quiet, cell=args.cell,
-                                 start_time=args.start_time, jpeg=args.jpeg)
+            result = export_mcap(args.run_dir, args.mcap, options,
+                                 None if args.no_images else ReplayImages)
     except Stop as stop:  # before the file was opened: nothing written
         print(f"cellsight: interrupted by {stop.args[0]} before writing {args.mcap}",
               file=sys.stderr)
