@@ -144,30 +144,17 @@ class Camera:
         object.__setattr__(self, "focal_px", 0.5 * (K[0, 0] + K[1, 1]))
 
     @classmethod
-    def from_intrinsics(
-        cls,
-        width: int,
-        height: int,
-        T_base_cam: np.ndarray,
-        *,
-        fx: float | None = None,
-        fy: float | None = None,
-        lens_mm: float | None = None,
-        pixel_mm: float | None = None,
-        cx: float | None = None,
-        cy: float | None = None,
-        skew: float = 0.0,
-        dist: np.ndarray | None = None,
-        name: str = "camera",
-    ) -> Camera:
-        """A camera from its focal length, either ``fx`` (and ``fy``, default ``fx``) in px or a
-        lens ``lens_mm`` with square pixels of pitch ``pixel_mm`` (fx = fy = lens / pitch); the
-        principal point ``(cx, cy)`` (px) defaults to the image centre ``((W - 1) / 2,
-        (H - 1) / 2)`` (pixel centres at integers)."""
-        if (fx is None) == (lens_mm is None) or (lens_mm is not None and pixel_mm is None):
-            raise CameraError(f"camera {name}: give either fx (px) or lens_mm with pixel_mm")
-        fx = fx if fx is not None else lens_mm / pixel_mm
-        fy = fy if fy is not None else fx
+    def from_intrinsics(cls, width: int, height: int, T_base_cam: np.ndarray,
+                        focal_px: float | tuple[float, float], *,
+                        principal: tuple[float | None, float | None] | None = None,
+                        skew: float = 0.0, dist: np.ndarray | None = None,
+                        name: str = "camera") -> Camera:
+        """A camera of ``width`` x ``height`` px at ``T_base_cam`` from its focal length in px,
+        ``fx`` or ``(fx, fy)``; the principal point ``(cx, cy)`` (px; either None, or the
+        whole, defaults to the image centre ``((W - 1) / 2, (H - 1) / 2)``, pixel centres at
+        integers)."""
+        fx, fy = (focal_px, focal_px) if np.isscalar(focal_px) else focal_px
+        cx, cy = principal if principal is not None else (None, None)
         cx = cx if cx is not None else (width - 1) / 2
         cy = cy if cy is not None else (height - 1) / 2
         return cls(intrinsics(fx, fy, cx, cy, skew), width, height, T_base_cam, dist, name)
@@ -285,3 +272,15 @@ def border_distance(camera: Camera, pixels: np.ndarray) -> np.ndarray:
     d = np.minimum(np.minimum(u + 0.5, camera.width - 0.5 - u),
                    np.minimum(v + 0.5, camera.height - 0.5 - v))
     return np.where(np.isnan(d), -np.inf, d)
+
+
+def camera_from_lens(width: int, height: int, T_base_cam: np.ndarray, lens_mm: float,
+                     pixel_mm: float, *, dist: np.ndarray | None = None,
+                     name: str = "camera") -> Camera:
+    """A camera from a lens of focal length ``lens_mm`` on square pixels of pitch
+    ``pixel_mm`` (fx = fy = lens / pitch), its principal point at the image centre."""
+    if not (lens_mm > 0 and pixel_mm > 0):
+        raise CameraError(f"camera {name}: lens_mm and pixel_mm must be positive, got "
+                          f"{lens_mm!r} and {pixel_mm!r}")
+    return Camera.from_intrinsics(width, height, T_base_cam, lens_mm / pixel_mm, dist=dist,
+                                  name=name)

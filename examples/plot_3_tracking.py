@@ -30,7 +30,7 @@ from cellsight import load_cell
 from cellsight.geometry.transforms import rotation_angle
 from cellsight.occlusion.predictor import VisibilityPredictor
 from cellsight.rates import VISION_HZ
-from cellsight.report.overlay import draw_camera_overlay
+from cellsight.report.overlay import FeatureMarks, draw_camera_overlay
 from cellsight.tracking import Tracker
 from cellsight.world import ConveyorPath, Waypoint, World
 
@@ -142,11 +142,10 @@ world.close()
 fig, axes = plt.subplots(1, len(cell.cameras), figsize=(11, 4.6))
 for c, (cam, ax) in enumerate(zip(cell.cameras, axes, strict=True)):
     plan = rec.windows[c]
-    drawn = draw_camera_overlay(
-        images[c], pixels=rec.pixels[c], visible=rec.predicted_visible[c],
-        selected=rec.selected[c], measured=rec.measured[c], rejected=rec.rejected[c],
-        boxes=np.zeros((0, 4), int) if plan is None else plan.boxes, title=cam.name,
-        truth_visible=truth_views[c].visible)
+    marks = FeatureMarks(rec.pixels[c], rec.predicted_visible[c], rec.selected[c],
+                         rec.measured[c], rec.rejected[c], truth_views[c].visible)
+    drawn = draw_camera_overlay(images[c], marks, title=cam.name,
+                                boxes=np.zeros((0, 4), int) if plan is None else plan.boxes)
     (u0, v0), (u1, v1) = (np.nanmin(rec.pixels[c], axis=0) - 80,
                           np.nanmax(rec.pixels[c], axis=0) + 80)
     ax.imshow(drawn)

@@ -29,7 +29,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from cellsight.calibration.plan import SAME_POSE, plan_poses
+from cellsight.calibration.plan import SAME_POSE, BoardOnFlange, plan_poses
 from cellsight.camera import Camera
 from cellsight.errors import CellsightError
 from cellsight.geometry.polyhedron import Polyhedron
@@ -58,6 +58,7 @@ def _board() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 
 CORNERS, NORMAL, OUTLINE = _board()
+BOARD = BoardOnFlange.from_flange(CORNERS, NORMAL, OUTLINE)
 
 
 def _plate() -> Polyhedron:
@@ -79,7 +80,7 @@ def cell() -> Cell:
 @pytest.fixture(scope="module", params=["R7AX", "R6AX"])
 def planned(request, cell):
     """(robot name, plan)."""
-    return request.param, plan_poses(cell, request.param, CORNERS, NORMAL, OUTLINE)
+    return request.param, plan_poses(cell, request.param, BOARD)
 
 
 def _flange(cell: Cell, robot: str, q: np.ndarray) -> np.ndarray:
@@ -212,20 +213,20 @@ def test_relative_rotations_turn_about_axes_in_every_direction(cell, planned):
 
 def test_a_camera_looking_away_is_refused(cell):
     away = Camera.from_intrinsics(640, 480, look_at((0.8, 0.0, 2.0), (0.8, 0.0, 4.0),
-                                                    up=(0.0, 1.0, 0.0)), fx=600.0,
+                                                    up=(0.0, 1.0, 0.0)), 600.0,
                                   name="cam3")
     with_away = Cell(cell.name, cell.robots, cell.workpieces, cell.static,
                      [*cell.cameras, away])
     with pytest.raises(CellsightError, match=r"R7AX.*cam3.*aim it at the work area"):
-        plan_poses(with_away, "R7AX", CORNERS, NORMAL, OUTLINE)
+        plan_poses(with_away, "R7AX", BOARD)
     with pytest.raises(CellsightError, match="no camera 'cam9'"):
-        plan_poses(cell, "R7AX", CORNERS, NORMAL, OUTLINE, cameras=["cam9"])
+        plan_poses(cell, "R7AX", BOARD, cameras=["cam9"])
     with pytest.raises(CellsightError, match="no robot 'R9'"):
-        plan_poses(cell, "R9", CORNERS, NORMAL, OUTLINE)
+        plan_poses(cell, "R9", BOARD)
 
 
 def test_a_start_where_the_board_hits_the_forearm_is_refused(cell):
     folded = cell.robot("R6AX").home.copy()
     folded[4] = 2.15  # the wrist bent further than HOME's 1.839 rad: the plate meets link4
     with pytest.raises(CellsightError, match=r"R6AX.*R6AX\.link4.*calibration_board.*start="):
-        plan_poses(cell, "R6AX", CORNERS, NORMAL, OUTLINE, start=folded)
+        plan_poses(cell, "R6AX", BOARD, start=folded)

@@ -24,7 +24,7 @@ import pytest
 
 from cellsight.calibration.board import Board
 from cellsight.calibration.command import calibrate_recorded
-from cellsight.calibration.plan import plan_poses
+from cellsight.calibration.plan import BoardOnFlange, plan_poses
 from cellsight.calibration.recorded import recorded_views
 from cellsight.camera import Camera
 from cellsight.errors import CellsightError
@@ -72,8 +72,9 @@ def recording(tmp_path_factory) -> tuple[Path, dict[str, np.ndarray], Cell]:
     corners = transform_points(board.T_flange_board, board.corners())
     normal = board.T_flange_board[:3, :3] @ board.face_normal
     outline = transform_points(board.T_flange_board, board.outline())
-    plans = {r.name: plan_poses(cell, r.name, corners, normal, outline, per_camera=6,
-                                seed=3).joints for r in cell.robots}
+    on_flange = BoardOnFlange.from_flange(corners, normal, outline)
+    plans = {r.name: plan_poses(cell, r.name, on_flange, per_camera=6, seed=3).joints
+             for r in cell.robots}
     path = tmp_path_factory.mktemp("rec") / "motion.mcap"
     recorder = Recorder(path, cell, cell.workpieces[0].name)
     joints = {r.name: r.home.copy() for r in cell.robots}

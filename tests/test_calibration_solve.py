@@ -71,11 +71,11 @@ def _pose(rpy_deg, xyz) -> np.ndarray:
 CHAINS = {name: DHChain(_links(), name) for name in ("R1", "R2")}
 BOARD = _board_points()
 CAMERAS = [
-    Camera.from_intrinsics(WIDTH, HEIGHT, look_at((0.85, -1.0, 1.6), CENTRE), fx=1930.0,
-                           fy=1925.0, cx=380.0, cy=290.0, name="cam1",
+    Camera.from_intrinsics(WIDTH, HEIGHT, look_at((0.85, -1.0, 1.6), CENTRE), (1930.0, 1925.0),
+                           principal=(380.0, 290.0), name="cam1",
                            dist=np.array([-0.12, 0.08, 0.0, 0.0, 0.01])),
-    Camera.from_intrinsics(WIDTH, HEIGHT, look_at((0.25, 0.95, 1.7), CENTRE), fx=1935.0,
-                           fy=1932.0, cx=388.0, cy=284.0, name="cam2",
+    Camera.from_intrinsics(WIDTH, HEIGHT, look_at((0.25, 0.95, 1.7), CENTRE), (1935.0, 1932.0),
+                           principal=(388.0, 284.0), name="cam2",
                            dist=np.array([-0.1, 0.05, 0.0, 0.0, 0.0])),
 ]
 BASES = {"R1": np.eye(4), "R2": _pose((0.0, 0.0, 180.0), (1.70, 0.1, 0.0))}

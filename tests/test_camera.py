@@ -8,7 +8,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from cellsight._camera_kernel import pinhole_jacobian, project_point, to_camera
-from cellsight.camera import Camera, intrinsics
+from cellsight.camera import Camera, camera_from_lens, intrinsics
 from cellsight.errors import CameraError
 from cellsight.geometry.transforms import invert_pose, look_at, make_pose
 from cellsight.occlusion._frame_kernel import project_points
@@ -176,15 +176,15 @@ def test_distortion_maps_send_each_distorted_pixel_to_its_ideal_pixel() -> None:
 
 def test_intrinsics_from_focal_length_or_lens() -> None:
     T = look_at([0, -2, 1], [0, 0, 0])
-    lens = Camera.from_intrinsics(768, 576, T, lens_mm=16.0, pixel_mm=0.0083, name="lens")
+    lens = camera_from_lens(768, 576, T, 16.0, 0.0083, name="lens")
     f = 16.0 / 0.0083
     np.testing.assert_array_equal(lens.K, [[f, 0, 383.5], [0, f, 287.5], [0, 0, 1]])
-    px = Camera.from_intrinsics(640, 480, T, fx=800.0, fy=810.0, cx=300.0, cy=250.0,
+    px = Camera.from_intrinsics(640, 480, T, (800.0, 810.0), principal=(300.0, 250.0),
                                 skew=0.2, dist=[0.1, 0, 0, 0])
     np.testing.assert_array_equal(px.K, intrinsics(800.0, 810.0, 300.0, 250.0, 0.2))
     np.testing.assert_array_equal(px.dist5, [0.1, 0, 0, 0, 0])
     np.testing.assert_array_equal(lens.dist5, np.zeros(5))
-    with pytest.raises(CameraError, match="either fx"):
-        Camera.from_intrinsics(640, 480, T, fx=800.0, lens_mm=16.0, pixel_mm=0.01)
-    with pytest.raises(CameraError, match="either fx"):
-        Camera.from_intrinsics(640, 480, T, lens_mm=16.0)
+    centred = Camera.from_intrinsics(640, 480, T, 800.0)
+    np.testing.assert_array_equal(centred.K, intrinsics(800.0, 800.0, 319.5, 239.5))
+    with pytest.raises(CameraError, match="must be positive"):
+        camera_from_lens(640, 480, T, 16.0, 0.0)

@@ -38,7 +38,7 @@ from cellsight.control import (
     min_jerk,
 )
 from cellsight.control.clik import rotation_error
-from cellsight.control.task import grasp_miss
+from cellsight.control.task import TaskMoves, grasp_miss
 from cellsight.geometry.transforms import make_pose
 from cellsight.model.grasp import grasp_pose
 
@@ -513,7 +513,7 @@ def test_failed_jaw_check_goes_back_to_approach_and_retries() -> None:
 
 
 def test_grasp_gives_up_after_max_attempts() -> None:
-    task = _fast_task(max_attempts=2)
+    task = _fast_task(moves=TaskMoves(max_attempts=2))
     sim = _KinematicCell(refuse_grasps=5)
     _run(task, sim, 40.0)
     assert _phases(task)[-1] == Phase.FAILED and task.attempts == 2
@@ -616,7 +616,7 @@ def _world_run(speed: float, world_grasp: bool, t_end: float = 40.0, miss_x: flo
     opening = (pytest.importorskip("cellsight.model.grasp").grasp_opening(
         PART.solid, ROBOT.tool, T_part_tcp) if check_opening else None)
     task = GraspTask(ROBOT, PART, timing=FAST, planner=planner, grasp_opening=opening,
-                     retry_shift=retry_shift)
+                     moves=TaskMoves(retry_shift=retry_shift))
     rng = np.random.default_rng(2)
     name = ROBOT.name
     next_vision, grasped_at = 0.0, None

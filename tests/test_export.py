@@ -290,7 +290,7 @@ def test_camera_info_and_tf_project_features_where_the_camera_does(messages, row
 
 def test_camera_info_of_a_distorted_camera_projects_like_it() -> None:
     T = look_at([1.0, 0.5, 1.0], [0.0, 0.0, 0.0])
-    cam = Camera.from_intrinsics(640, 480, T, fx=600.0, fy=590.0, cx=330.0, cy=236.0,
+    cam = Camera.from_intrinsics(640, 480, T, (600.0, 590.0), principal=(330.0, 236.0),
                                  dist=np.array([-0.2, 0.05, 0.001, -0.002, 0.01]), name="d")
     info = camera_info(0, "d_optical_frame", cam)
     assert info["distortion_model"] == "plumb_bob"

@@ -15,7 +15,7 @@ from oracle import cell_scene, segment_oracle
 from cellsight.camera import Camera
 from cellsight.cli import main
 from cellsight.model.loader import load_cell
-from cellsight.placement.candidates import shell_candidates, work_area
+from cellsight.placement.candidates import Shell, shell_candidates, work_area
 from cellsight.placement.cellfile import write_cell_file
 from cellsight.placement.choose import choose_cameras, placement_loss, position_sigma_mm
 from cellsight.placement.scoring import CandidateScores, score_candidates
@@ -52,8 +52,8 @@ def task(cell):
 
 @pytest.fixture(scope="module")
 def candidates(cell, task):
-    return shell_candidates(cell, task, cell.cameras[0], radii=(1.5, 1.9),
-                            elevations=(25, 50, 75), azimuth_step=30.0)
+    return shell_candidates(cell, task, cell.cameras[0],
+                            Shell(radii=(1.5, 1.9), elevations=(25, 50, 75), azimuth_step=30.0))
 
 
 @pytest.fixture(scope="module")

@@ -15,7 +15,7 @@ import pytest
 import yaml
 
 from cellsight import load_cell
-from cellsight.camera import Camera
+from cellsight.camera import camera_from_lens
 from cellsight.experiments.scenario import scenario
 from cellsight.experiments.sensors import IdealExtractor, IdealView
 from cellsight.geometry.transforms import transform_points
@@ -603,9 +603,9 @@ def test_held_part_predictor_agrees_with_the_ray_truth_from_every_side():
     T = robot.tcp_pose(robot.home) @ invert_pose(World(base).grippers.grasp_pose("part"))
     rng = np.random.default_rng(0)
     eyes = rng.normal(size=(40, 3))
-    cams = [Camera.from_intrinsics(768, 576, look_at(T[:3, 3] + 1.2 * e / np.linalg.norm(e),
-                                                     T[:3, 3]), lens_mm=16, pixel_mm=0.0083,
-                                   name=f"c{i}") for i, e in enumerate(eyes)]
+    cams = [camera_from_lens(768, 576, look_at(T[:3, 3] + 1.2 * e / np.linalg.norm(e),
+                                               T[:3, 3]), 16, 0.0083, name=f"c{i}")
+            for i, e in enumerate(eyes)]
     cell = Cell(base.name, base.robots, base.workpieces, base.static, cams, base.source)
     world = World(cell)
     world.place_part("part", T)

@@ -18,7 +18,7 @@ import pytest
 
 from cellsight.rates import VISION_HZ
 from cellsight.report import overlay
-from cellsight.report.overlay import compose_views, draw_camera_overlay
+from cellsight.report.overlay import FeatureMarks, compose_views, draw_camera_overlay
 from cellsight.report.run_report import (
     Run,
     orientation_error_deg,
@@ -33,6 +33,14 @@ from cellsight.tracking.timing import STAGES
 
 F = 16
 CAMERAS = ("cam1", "cam2")
+
+
+def _overlay(image, inputs: dict, truth_visible=None, **extra) -> np.ndarray:
+    """:func:`draw_camera_overlay` of the inputs (the marks' fields and the rest)."""
+    names = ("pixels", "visible", "selected", "measured", "rejected")
+    marks = FeatureMarks(*(inputs[n] for n in names), truth_visible)
+    rest = {k: v for k, v in inputs.items() if k not in names}
+    return draw_camera_overlay(image, marks, **rest, **extra)
 
 
 def _overlay_inputs() -> dict:
@@ -51,7 +59,7 @@ def _overlay_inputs() -> dict:
 
 
 def test_overlay_colours_at_the_drawn_points():
-    img = draw_camera_overlay(None, size=(320, 240), **_overlay_inputs())
+    img = _overlay(None, _overlay_inputs(), size=(320, 240))
     assert img.shape == (240, 320, 3) and img.dtype == np.uint8
     assert tuple(img[60, 150]) == overlay.VISIBLE  # filled disc centre
     assert tuple(img[120, 250 + overlay.POINT_RADIUS]) == overlay.OCCLUDED  # ring
@@ -69,7 +77,7 @@ def test_overlay_marks_disagreement_with_truth_and_keeps_the_image():
     inputs = _overlay_inputs()
     inputs["measured"][3] = [np.nan, np.nan]
     truth = np.array([False, False, True, True])  # feature 1 predicted visible, truly hidden
-    img = draw_camera_overlay(gray, truth_visible=truth, **inputs)
+    img = _overlay(gray, inputs, truth)
     d = overlay.MISMATCH_HALF
     assert tuple(img[60 - d, 145]) == overlay.MISMATCH
     assert tuple(img[200 - d, 195]) != overlay.MISMATCH  # feature 4 agrees
@@ -78,7 +86,7 @@ def test_overlay_marks_disagreement_with_truth_and_keeps_the_image():
 
 def test_overlay_needs_a_size_without_an_image():
     with pytest.raises(ValueError):
-        draw_camera_overlay(None, **_overlay_inputs())
+        _overlay(None, _overlay_inputs())
 
 
 def test_compose_sizes_are_even():
@@ -229,7 +237,7 @@ METRICS = {
 
 def _write_keyframe(run_dir: Path) -> None:
     inputs = _overlay_inputs()
-    views = [draw_camera_overlay(None, size=(320, 240), **{**inputs, "title": cam})
+    views = [_overlay(None, {**inputs, "title": cam}, size=(320, 240))
              for cam in CAMERAS]
     rgb = compose_views(views, scale=0.5, caption="t = 1.00 s  grasp")
     (run_dir / "keyframes").mkdir()

@@ -1,6 +1,7 @@
-"""The run session (cellsight.session): the docs' own sink against frames.csv, a camera driver
-as a source against the simulator's truth, the built-in parts against the protocols, and a sink
-that fails."""
+"""The run session (cellsight.session) and docs/guides/sources-and-sinks.md: the guide's own
+sink against frames.csv, a camera driver as a source against the simulator's truth (the
+guide's driver, played by the world), the built-in parts against the protocols, and a sink that
+fails."""
 
 from __future__ import annotations
 
@@ -22,7 +23,7 @@ from cellsight.session import FrameSink, FrameSource
 from cellsight.session.driver import DriverFrame, DriverSource, track_driver
 from cellsight.world import World
 
-EXAMPLE = Path(__file__).resolve().parent.parent / "examples" / "sinks" / "estimates_csv.py"
+EXAMPLE = Path(__file__).resolve().parent.parent / "docs" / "guides" / "estimates_csv.py"
 
 
 def _example_sink():

@@ -12,7 +12,7 @@ from cellsight.cli import main
 from cellsight.errors import CellsightError
 from cellsight.sweep.command import run_sweep
 from cellsight.sweep.engine import map_jobs
-from cellsight.sweep.grid import RunSpec, sweep_grid
+from cellsight.sweep.grid import RunSpec, SweepAxes, sweep_grid
 
 DURATION = 0.6  # s of simulated time per run: a few frames, enough to compare
 COMPARED = ("frames", "position_rmse_mm", "max_position_error_mm", "visibility_accuracy",
@@ -32,8 +32,8 @@ def _crash(x: int) -> int:
 
 
 def test_grid_is_the_product_with_comparisons_on_the_first_seeds():
-    specs = sweep_grid(["dual-arm", "ur-cell"], [1, 3], ["ideal"], ["kinematic", "nopred"],
-                       [0, 1, 2], variant_seeds=1)
+    specs = sweep_grid(SweepAxes(["dual-arm", "ur-cell"], [1, 3], ["ideal"],
+                                 ["kinematic", "nopred"], [0, 1, 2]), variant_seeds=1)
     assert len(specs) == 2 * 2 * (3 + 1)
     assert {s.seed for s in specs if s.variant == "nopred"} == {0}
     assert len({s.folder for s in specs}) == len(specs)
@@ -48,8 +48,9 @@ def test_grid_is_the_product_with_comparisons_on_the_first_seeds():
 def test_grid_refuses_bad_values(kwargs, needle):
     args = {"cells": ["dual-arm"], "experiments": [1], "sensors": ["ideal"],
             "variants": ["kinematic"], "seeds": [0]} | kwargs
+    variant_seeds = args.pop("variant_seeds", None)
     with pytest.raises(CellsightError, match=needle):
-        sweep_grid(**args)
+        sweep_grid(SweepAxes(**args), variant_seeds)
 
 
 def test_engine_gives_every_result_once_in_process_and_on_a_pool():
@@ -79,7 +80,8 @@ def test_a_crashing_job_is_recorded_and_the_others_still_run():
 @pytest.fixture(scope="module")
 def local_sweep(tmp_path_factory):
     out = tmp_path_factory.mktemp("sweep")
-    specs = sweep_grid(["dual-arm"], [1, 3], ["ideal"], ["kinematic"], [0], duration=DURATION)
+    specs = sweep_grid(SweepAxes(["dual-arm"], [1, 3], ["ideal"], ["kinematic"], [0]),
+                       duration=DURATION)
     return out, specs, run_sweep(specs, out, jobs=2, progress=False)
 
 
@@ -138,7 +140,7 @@ def test_a_run_on_a_cell_file_changed_since_is_run_again(tmp_path):
 
     cell = tmp_path / "my_cell.yaml"
     cell.write_text(cell_path("dual-arm").read_text())
-    specs = sweep_grid([str(cell)], [1], ["ideal"], ["kinematic"], [0], duration=0.2)
+    specs = sweep_grid(SweepAxes([str(cell)], [1], ["ideal"], ["kinematic"], [0]), duration=0.2)
     run_sweep(specs, tmp_path / "out", jobs=1, progress=False)
     assert run_sweep(specs, tmp_path / "out", jobs=1, progress=False)[0].get("reused")
     cell.write_text(cell.read_text() + "\n# moved a camera\n")
@@ -212,7 +214,8 @@ def test_realism_and_structure_name_their_folders_and_bad_profiles_stop_the_grid
     bad = tmp_path / "bad.yaml"
     bad.write_text("timing: {latency_ms: -3}\n")
     with pytest.raises(CellsightError, match="timing.latency_ms"):
-        sweep_grid(["dual-arm"], [1], ["ideal"], ["kinematic"], [0], realisms=[str(bad)])
+        sweep_grid(SweepAxes(["dual-arm"], [1], ["ideal"], ["kinematic"], [0],
+                             realisms=[str(bad)]))
 
 
 def test_each_variant_sets_the_runs_options(tmp_path):

@@ -12,7 +12,7 @@ from cellsight.experiments import RunConfig
 from cellsight.experiments.identity import run_identity
 from cellsight.model.loader import cell_path
 from cellsight.sweep.command import run_sweep
-from cellsight.sweep.grid import RunSpec, sweep_grid
+from cellsight.sweep.grid import RunSpec, SweepAxes, sweep_grid
 
 PROFILE = "timing: {latency_ms: 30.0}\n"
 
@@ -20,8 +20,8 @@ PROFILE = "timing: {latency_ms: 30.0}\n"
 def _sweep(out: Path, **kwargs) -> dict:
     grid = {"cells": ["dual-arm"], "experiments": [1], "sensors": ["ideal"],
             "variants": ["kinematic"], "seeds": [0], "duration": 0.2, **kwargs}
-    specs = sweep_grid(grid.pop("cells"), grid.pop("experiments"), grid.pop("sensors"),
-                       grid.pop("variants"), grid.pop("seeds"), **grid)
+    axes = SweepAxes(**{k: grid.pop(k) for k in list(grid) if k in SweepAxes.__dataclass_fields__})
+    specs = sweep_grid(axes, **grid)
     (result,) = run_sweep(specs, out, jobs=1, progress=False)
     assert not result.get("error"), result.get("error")
     return result

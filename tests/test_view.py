@@ -38,6 +38,7 @@ from cellsight.occlusion.predictor import VisibilityPredictor
 from cellsight.runfolder.framelog import FrameLog, decode_corners, decode_windows
 from cellsight.view.app import ViewApp
 from cellsight.view.replay import RunReplay
+from cellsight.view.states import static_state
 
 GREEN, RED = (40, 210, 70), (235, 45, 45)  # the overlay's visible / occluded colours
 
@@ -165,7 +166,7 @@ CROSSING = {"R6AX": np.array([-0.129, 0.194, -0.046, 0.342, 1.641, -0.372])}
 
 @pytest.fixture(scope="module")
 def static_view(cell):
-    app = ViewApp(cell, joints=CROSSING, port=free_port())
+    app = ViewApp(cell, state=static_state(cell, CROSSING), port=free_port())
     client = SceneClient(app.port)
     client.pump()
     yield app, client

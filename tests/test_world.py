@@ -25,6 +25,7 @@ from cellsight.visibility import STATUS_BEHIND, STATUS_INSIDE, STATUS_OUTSIDE
 from cellsight.world import ConveyorPath, Waypoint, World
 from cellsight.world.imperfections import Imperfections
 from cellsight.world.mjcf import mjcf_camera
+from cellsight.world.world import Hands
 
 
 @pytest.fixture(scope="module")
@@ -476,7 +477,7 @@ def test_grasp_does_not_engage_out_of_tolerance(cell, offset):
 
 
 def test_jaws_move_at_finite_speed_and_close_fully_on_nothing(cell):
-    world = World(cell, jaw_speed=0.2)
+    world = World(cell, hands=Hands(jaw_speed=0.2))
     _run_until(world, 0.1, gripper={"R7AX": 0.0})
     assert world.jaw_openings()["R7AX"] == pytest.approx(0.09 - 0.02, abs=1e-9)
     assert not world.jaws_closed_on_part("R7AX")

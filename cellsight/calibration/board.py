@@ -43,6 +43,7 @@ from cellsight.model.schema import Count, Number, PoseSpec
 from cellsight.model.yaml_input import load_yaml, read_cell_text
 from cellsight.world import World
 from cellsight.world.board_plate import Plate
+from cellsight.world.world import Hands
 
 STANDOFF_M = 0.01  # m: the default mount's printed face out from the flange face
 PLATE_PX_PER_M = 20000.0  # texels per metre of the plate's texture in the world (20 per mm)
@@ -275,4 +276,4 @@ def board_world(cell: Cell, robot: str, board: Board, **world: Any) -> World:
     robots = [_presenter(r) if r.name == robot else r for r in cell.robots]
     bare = Cell(cell.name, robots, cell.workpieces, cell.static, cell.cameras, cell.source,
                 cell.experiments, cell.files)
-    return World(bare, plates={robot: board.plate()}, **world)
+    return World(bare, hands=Hands(plates={robot: board.plate()}), **world)

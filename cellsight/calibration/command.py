@@ -27,7 +27,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn
 from cellsight.calibration.board import Board, board_world
 from cellsight.calibration.folder import read_calibration
 from cellsight.calibration.output import is_calibration_output, write_calibration
-from cellsight.calibration.plan import plan_poses
+from cellsight.calibration.plan import BoardOnFlange, plan_poses
 from cellsight.calibration.record import MotionRecorder
 from cellsight.calibration.recorded import RecordedMotion, recorded_views
 from cellsight.calibration.score import score
@@ -115,7 +115,8 @@ def calibrate_world(cell_arg: str | Path | None, realism: str, seed: int, board:
     corners_flange = transform_points(board.T_flange_board, board.corners())
     normal = board.T_flange_board[:3, :3] @ board.face_normal
     outline = transform_points(board.T_flange_board, board.outline())
-    plans = [plan_poses(cell, r, corners_flange, normal, outline, per_camera=per_camera,
+    on_flange = BoardOnFlange.from_flange(corners_flange, normal, outline)
+    plans = [plan_poses(cell, r, on_flange, per_camera=per_camera,
                         seed=seed) for r in robots]
     views: list[View] = []
     with Progress(TextColumn("calibrating {task.description}"), BarColumn(),
@@ -182,15 +183,12 @@ def write_result(out: Path, result: CellCalibration, board: Board, stale: Sequen
 
 
 def write_world_calibration(out: Path, cell_arg: str | Path | None, realism: str, seed: int,
-                            board: Board, per_camera: int = 8, joint_offsets: bool = True,
-                            progress: bool = True,
-                            stale: Sequence[Path] = ()) -> CellCalibration:
-    """Calibrate the seed's world (:func:`calibrate_world`) and write the folder ``out``;
-    ``stale``: the earlier outputs there to clear (:func:`~cellsight.runfolder.
-    check_out_folder`), once the calibration is made."""
+                            board: Board, stale: Sequence[Path] = ()) -> CellCalibration:
+    """Calibrate the seed's world with the defaults, quietly (:func:`calibrate_world`), and
+    write the folder ``out``; ``stale``: the earlier outputs there to clear
+    (:func:`~cellsight.runfolder.check_out_folder`), once the calibration is made."""
     started = time.perf_counter()
-    result = calibrate_world(cell_arg, realism, seed, board, per_camera, joint_offsets,
-                             progress)
+    result = calibrate_world(cell_arg, realism, seed, board, progress=False)
     write_result(out, result, board, stale, time.perf_counter() - started)
     return result
 

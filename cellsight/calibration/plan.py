@@ -149,7 +149,7 @@ class Plan:
 
 
 @dataclass(frozen=True)
-class Board:
+class BoardOnFlange:
     """The board in the flange frame: ``corners`` (N, 3) m, unit ``normal`` (3,) out of the
     printed face, ``outline`` (k, 3) m of its plate's face. Derived: ``T_flange_board`` (the
     board frame: origin at the corners' centroid, z the normal, x their longest spread),
@@ -165,7 +165,7 @@ class Board:
 
     @classmethod
     def from_flange(cls, points_flange: ArrayLike, normal_flange: ArrayLike,
-                    outline_flange: ArrayLike) -> Board:
+                    outline_flange: ArrayLike) -> BoardOnFlange:
         """The board from its corners, normal and outline in the flange frame (checked)."""
         corners = _points("points_flange", points_flange, 4)
         outline = _points("outline_flange", outline_flange, 3)
@@ -207,7 +207,8 @@ def _points(name: str, value: ArrayLike, least: int) -> np.ndarray:
     return points
 
 
-def view_cameras(cameras: list[Camera], board: Board, T_base_flange: np.ndarray) -> list[int]:
+def view_cameras(cameras: list[Camera], board: BoardOnFlange,
+                 T_base_flange: np.ndarray) -> list[int]:
     """Indices of the cameras that see the whole board at ``T_base_flange`` by projection
     alone (occlusions aside): every corner in front and ``MARGIN_PX`` inside the image, the
     face within ``MAX_VIEW_DEG`` of the line of sight from the board's centre, neighbouring
@@ -232,7 +233,7 @@ def view_cameras(cameras: list[Camera], board: Board, T_base_flange: np.ndarray)
     return out
 
 
-def planning_cells(cell: Cell, robot: Robot, board: Board) -> tuple[Cell, Cell]:
+def planning_cells(cell: Cell, robot: Robot, board: BoardOnFlange) -> tuple[Cell, Cell]:
     """The cell for collisions: ``robot`` without its tool, the plate a workpiece (``BOARD``,
     at ``FAR``); and the cell for occlusion: the same with the plate's features at the corners
     and the flange link's solids left out (module docstring)."""
@@ -341,7 +342,7 @@ def work_centre(cell: Cell) -> np.ndarray:
     return np.mean([p.T_base_part[:3, 3] for p in cell.workpieces], axis=0)
 
 
-def depth_span(cam: Camera, board: Board, centre: np.ndarray) -> tuple[float, float]:
+def depth_span(cam: Camera, board: BoardOnFlange, centre: np.ndarray) -> tuple[float, float]:
     """The board centre's distances from ``cam`` (m, along its axis) for the candidates:
     ``DEPTH_SPAN`` times the work area ``centre``'s (base frame, m), no nearer than
     ``MIN_DEPTH_M`` nor than where the board, facing the camera, fits in its image with the
@@ -361,7 +362,7 @@ def _latin(rng: np.random.Generator, count: int, dims: int) -> np.ndarray:
     return (strata + rng.random((count, dims))) / count
 
 
-def designed_boards(cam: Camera, board: Board, span: tuple[float, float],
+def designed_boards(cam: Camera, board: BoardOnFlange, span: tuple[float, float],
                     rng: np.random.Generator, count: int = DESIGNED) -> list[np.ndarray]:
     """``count`` board poses ``T_base_board`` for ``cam`` (module docstring: a Latin
     hypercube over the pixel, the distance in ``span`` (m), the tilt's axis and angle)."""
@@ -428,7 +429,7 @@ class ReachMap:
     origin is at HOME: on a spherical wrist, the centre its three axes meet at, which the arm
     alone places, so that the samples near it are the arm's ways of getting there."""
 
-    def __init__(self, robot: Robot, board: Board, rng: np.random.Generator) -> None:
+    def __init__(self, robot: Robot, board: BoardOnFlange, rng: np.random.Generator) -> None:
         self.robot, self.rng = robot, rng
         frames = robot.chain.fkine(robot.home)
         self.T_board_flange = invert_pose(board.T_flange_board)
@@ -460,7 +461,7 @@ class ReachMap:
         shift = float(np.linalg.norm((self.boards[k] @ self.wrist)[:3] - wrist))
         return self.q[k], _chance(shift, math.acos(float(np.clip(cosines.max(), -1, 1))))
 
-    def in_view(self, cam: Camera, board: Board, span: tuple[float, float],
+    def in_view(self, cam: Camera, board: BoardOnFlange, span: tuple[float, float],
                 samples: range) -> np.ndarray:
         """Indices of ``samples`` whose board centre is in ``cam``'s image with room for the
         board and the margin, at a distance in ``span`` (m)."""
@@ -505,7 +506,7 @@ class _Pose:
 class _Planner:
     """The checks of the module docstring for one robot presenting one board."""
 
-    def __init__(self, cell: Cell, robot: Robot, board: Board, rng: np.random.Generator,
+    def __init__(self, cell: Cell, robot: Robot, board: BoardOnFlange, rng: np.random.Generator,
                  spans: list[tuple[float, float]], start: np.ndarray) -> None:
         """``spans``: each camera's :func:`depth_span`; ``start``: the joints the route
         starts from."""
@@ -651,17 +652,15 @@ class _Planner:
         return True
 
 
-def plan_poses(cell: Cell, robot: str, points_flange: ArrayLike, normal_flange: ArrayLike,
-               outline_flange: ArrayLike, *, per_camera: int = 8, min_poses: int = MIN_POSES,
-               seed: int = 0, cameras: Sequence[str] | None = None,
+def plan_poses(cell: Cell, robot: str, board: BoardOnFlange, *, per_camera: int = 8,
+               min_poses: int = MIN_POSES, seed: int = 0, cameras: Sequence[str] | None = None,
                start: ArrayLike | None = None) -> Plan:
-    """The poses in which ``robot`` presents the board (corners ``points_flange`` (N, 3) m,
-    face normal ``normal_flange`` (3,), plate outline ``outline_flange`` (k, 3) m, all in its
-    flange frame) to the cell's cameras (or to those named in ``cameras``), until each has
-    ``per_camera``, in visiting order from ``start`` (joints, rad or m; default HOME), where
-    the board is mounted (module docstring); ``seed`` draws the candidates. A
-    :class:`CellsightError` when a camera gets fewer than ``min_poses``, or the board is not
-    clear at the start."""
+    """The poses in which ``robot`` presents the ``board`` (its corners, face normal and
+    plate outline in its flange frame: :meth:`BoardOnFlange.from_flange`) to the cell's
+    cameras (or to those named in ``cameras``), until each has ``per_camera``, in visiting
+    order from ``start`` (joints, rad or m; default HOME), where the board is mounted (module
+    docstring); ``seed`` draws the candidates. A :class:`CellsightError` when a camera gets
+    fewer than ``min_poses``, or the board is not clear at the start."""
     try:
         presenter = cell.robot(robot)
         if cameras is not None:
@@ -675,7 +674,6 @@ def plan_poses(cell: Cell, robot: str, points_flange: ArrayLike, normal_flange: 
                              f"min_poses={min_poses}, per_camera={per_camera}")
     start = presenter.chain.check_q(presenter.home if start is None else start,
                                     check_limits=True)
-    board = Board.from_flange(points_flange, normal_flange, outline_flange)
     spans = _spans_or_refuse(cell, robot, board)
     planner = _Planner(cell, presenter, board, np.random.default_rng(seed), spans, start)
     clash = planner.collider.hit(start, presenter.link_poses(start)[-1])
@@ -694,7 +692,7 @@ def plan_poses(cell: Cell, robot: str, points_flange: ArrayLike, normal_flange: 
     return plan
 
 
-def _spans_or_refuse(cell: Cell, robot: str, board: Board) -> list[tuple[float, float]]:
+def _spans_or_refuse(cell: Cell, robot: str, board: BoardOnFlange) -> list[tuple[float, float]]:
     """Each camera's :func:`depth_span`, or a :class:`CellsightError` naming the cameras that
     cannot see the board around the work area."""
     centre = work_centre(cell)

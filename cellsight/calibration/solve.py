@@ -62,6 +62,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import cv2
 import numpy as np
@@ -498,6 +499,21 @@ class _State:
     joint_offsets: dict[str, np.ndarray]
 
 
+class _Corners(NamedTuple):
+    """Corners' Jacobian parts: ``G`` d pixel / d (corner in ref), ``R_base`` the base's
+    rotation, ``g`` their poses, ``y`` the corners in the robot's frame 0, ``turned`` the
+    board's points turned by the mount (one row per corner)."""
+
+    G: np.ndarray
+    R_base: np.ndarray
+    g: np.ndarray
+    y: np.ndarray
+    turned: np.ndarray
+
+    def of(self, mask: np.ndarray) -> _Corners:
+        return _Corners(*(a[mask] for a in self))
+
+
 def _skew(v: np.ndarray) -> np.ndarray:
     """The cross-product matrices ``[v]x`` (..., 3, 3) of vectors ``v`` (..., 3)."""
     out = np.zeros((*v.shape[:-1], 3, 3))
@@ -618,21 +634,19 @@ class _Model:
         if lay.free_intrinsics:
             out[:, :, at + 6:at + 10] = jac[:, :, 6:10]
             out[:, :, at + 10:at + 10 + len(FREE_LENS)] = jac[:, :, 10 + _LENS_AT]
+        corners = _Corners(G, base[:, :3, :3], g, y, turned)
         for index, robot in enumerate(self.problem.robots):
             mine = self.robot_of[g] == index
             if mine.any():
-                out[mine] = self._robot_columns(robot, x, G[mine], base[mine, :3, :3], frames,
-                                                g[mine], y[mine], turned[mine], out[mine])
+                out[mine] = self._robot_columns(robot, x, frames, corners.of(mine), out[mine])
         return out
 
-    def _robot_columns(self, robot: str, x: np.ndarray, G: np.ndarray, R_base: np.ndarray,
-                       frames: list[np.ndarray], g: np.ndarray, y: np.ndarray,
-                       turned: np.ndarray, out: np.ndarray) -> np.ndarray:
+    def _robot_columns(self, robot: str, x: np.ndarray, frames: list[np.ndarray],
+                       corners: _Corners, out: np.ndarray) -> np.ndarray:
         """``out`` with the columns of ``robot``'s base, board and offsets filled for its
-        corners: ``G`` d pixel / d (corner in ref), ``R_base`` the base's rotation, ``y`` the
-        corners in the robot's frame 0, ``g`` their poses, ``turned`` the board's points
-        turned by the mount."""
+        ``corners``."""
         lay = self.layout
+        G, R_base, g, y, turned = corners
         Gb = G @ R_base  # d pixel / d y
         if robot in lay.robot:
             at = lay.robot[robot].start

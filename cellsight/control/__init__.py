@@ -30,7 +30,14 @@ from cellsight.control.planner import (
     TrajectoryPlanner,
     min_jerk,
 )
-from cellsight.control.task import GraspTask, Phase, ServoLoop, TaskTiming, TaskTolerances
+from cellsight.control.task import (
+    GraspTask,
+    Phase,
+    ServoLoop,
+    TaskMoves,
+    TaskTiming,
+    TaskTolerances,
+)
 
 __all__ = [
     "Clik",
@@ -41,6 +48,7 @@ __all__ = [
     "Phase",
     "PoseGoal",
     "ServoLoop",
+    "TaskMoves",
     "TaskTiming",
     "TaskTolerances",
     "TrajectoryPlanner",

@@ -108,6 +108,19 @@ class TaskTolerances:
     opening: float = 0.005
 
 
+@dataclass(frozen=True)
+class TaskMoves:
+    """The task's moves: the ``approach_height`` (m, 5 cm as in the paper) over the part and
+    the ``lift_height`` (m) along base +z; the grasp check may fail ``max_attempts`` times;
+    ``retry_shift`` (m): how far a retry after a grasp caught off the part moves the grasp
+    along the jaws' width (module docstring; 0: not at all)."""
+
+    approach_height: float = 0.05
+    lift_height: float = 0.10
+    max_attempts: int = 3
+    retry_shift: float = 0.0035
+
+
 RETRY_SIDES = (1.0, -1.0)
 """Which way each retry after a grasp caught off the part moves the grasp, in turn."""
 
@@ -176,14 +189,12 @@ class GraspTask:
     """Phase machine + servo loop for one robot grasping one workpiece (paper, Section V).
 
     ``part`` gives the grasp geometry (:func:`~cellsight.model.grasp.grasp_pose`, with the
-    robot's tool). ``approach_height`` (m, default 5 cm as in the paper) and ``lift_height`` (m)
-    along base +z. ``planner``, ``clik`` and ``interpolator`` default to a
-    :class:`TrajectoryPlanner`, :class:`Clik` and :class:`InterpolatingFilter` with their
-    default parameters; the control period is the interpolator's ``dt``. Gripper commands:
+    robot's tool); ``moves``: the heights, attempts and retries (:class:`TaskMoves`).
+    ``planner`` and ``interpolator`` default to a :class:`TrajectoryPlanner` and an
+    :class:`InterpolatingFilter` with their default parameters, the CLIK is the robot's
+    :class:`Clik`; the control period is the interpolator's ``dt``. Gripper commands:
     ``robot.tool.max_opening`` open, 0 closed. ``grasp_opening`` (m): the jaws' opening when
-    closed on the part at its grasp (None: any opening counts); ``retry_shift`` (m): how far a
-    retry after a grasp caught off the part moves the grasp along the jaws' width (module
-    docstring; 0: not at all).
+    closed on the part at its grasp (None: any opening counts).
     """
 
     def __init__(
@@ -193,32 +204,29 @@ class GraspTask:
         *,
         timing: TaskTiming | None = None,
         tolerances: TaskTolerances | None = None,
-        approach_height: float = 0.05,
-        lift_height: float = 0.10,
-        max_attempts: int = 3,
+        moves: TaskMoves | None = None,
         planner: TrajectoryPlanner | None = None,
-        clik: Clik | None = None,
         interpolator: InterpolatingFilter | None = None,
         grasp_opening: float | None = None,
-        retry_shift: float = 0.0035,
     ) -> None:
         if robot.tool is None or robot.final is None:
             raise ValueError(f"GraspTask: robot {robot.name} needs a tool and a FINAL pose")
         self.robot = robot
         self.timing = timing or TaskTiming()
         self.tolerances = tolerances or TaskTolerances()
-        self.approach_height = float(approach_height)
-        self.lift_height = float(lift_height)
-        self.max_attempts = int(max_attempts)
+        moves = moves or TaskMoves()
+        self.approach_height = float(moves.approach_height)
+        self.lift_height = float(moves.lift_height)
+        self.max_attempts = int(moves.max_attempts)
         self.servo = ServoLoop(robot, planner or TrajectoryPlanner(grasp_pose(part, robot.tool)),
-                               clik or Clik(robot), interpolator or InterpolatingFilter())
+                               Clik(robot), interpolator or InterpolatingFilter())
         self.planner = self.servo.planner
         self.T_home = robot.tcp_pose(robot.home)
         self.T_final = robot.tcp_pose(robot.final)
         self.open_command = robot.tool.max_opening
         self.closed_command = 0.0
         self.grasp_opening = None if grasp_opening is None else float(grasp_opening)
-        self.retry_shift = float(retry_shift)
+        self.retry_shift = float(moves.retry_shift)
         self._first_grasp = self.planner.T_part_tcp.copy()
         self._shifts = 0
         self.phase = Phase.WAITING

@@ -13,7 +13,7 @@ import numpy as np
 
 from cellsight.camera import Camera
 from cellsight.control import Phase
-from cellsight.report.overlay import compose_views, draw_camera_overlay
+from cellsight.report.overlay import FeatureMarks, compose_views, draw_camera_overlay
 from cellsight.runfolder.writes import WriteError, write_file
 from cellsight.tracking.records import PartFrame, TrackerFrame
 from cellsight.tracking.unknown import UNKNOWN_LABEL
@@ -34,12 +34,11 @@ def draw_frame(images: Sequence[np.ndarray], frame: TrackerFrame, part: str,
     views = []
     for c, cam in enumerate(cameras):
         plan = rec.windows[c]
+        marks = FeatureMarks(rec.pixels[c], visible[c], rec.selected[c], rec.measured[c],
+                             rec.rejected[c], truth_visible[c])
         views.append(draw_camera_overlay(
-            images[c], pixels=rec.pixels[c], visible=visible[c],
-            selected=rec.selected[c], measured=rec.measured[c], rejected=rec.rejected[c],
-            boxes=np.zeros((0, 4), int) if plan is None else plan.boxes, title=cam.name,
-            truth_visible=truth_visible[c],
-            unknown=frame.unknown[c] if c < len(frame.unknown) else None))
+            images[c], marks, boxes=np.zeros((0, 4), int) if plan is None else plan.boxes,
+            title=cam.name, unknown=frame.unknown[c] if c < len(frame.unknown) else None))
     return compose_views(views, scale=scale, caption=caption)
 
 

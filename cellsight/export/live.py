@@ -41,7 +41,7 @@ from cellsight.export import frames as tf
 from cellsight.export.ros import topic_token
 from cellsight.geometry.transforms import transform_points
 from cellsight.model.cell import Cell
-from cellsight.report.overlay import draw_camera_overlay
+from cellsight.report.overlay import FeatureMarks, draw_camera_overlay
 from cellsight.session.frames import FrameRecord
 from cellsight.session.protocols import RunContext
 from cellsight.tracking.records import PartFrame
@@ -125,10 +125,10 @@ class _Painter:
                 if image is None:
                     continue
                 plan = rec.windows[c]
+                marks = FeatureMarks(rec.pixels[c], rec.predicted_visible[c], rec.selected[c],
+                                     rec.measured[c], rec.rejected[c])
                 picture = draw_camera_overlay(
-                    image, pixels=rec.pixels[c], visible=rec.predicted_visible[c],
-                    selected=rec.selected[c], measured=rec.measured[c],
-                    rejected=rec.rejected[c], title=self.names[c],
+                    image, marks, title=self.names[c],
                     boxes=np.zeros((0, 4), int) if plan is None else plan.boxes,
                     unknown=unknown[c] if c < len(unknown) else None)
                 small = cv2.resize(picture, None, fx=0.5, fy=0.5, interpolation=cv2.INTER_AREA)

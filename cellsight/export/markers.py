@@ -56,19 +56,22 @@ def rings(points: np.ndarray, eye: np.ndarray, radius: float) -> np.ndarray:
 
 
 def visibility_markers(ns: int, points: np.ndarray, names: tuple[str, ...], eye: np.ndarray,
-                       predicted: np.ndarray, pred_present: bool, truth: np.ndarray,
-                       true_present: bool, size: float) -> dict:
+                       predicted: np.ndarray | None, truth: np.ndarray | None,
+                       size: float) -> dict:
     """The ``MarkerArray`` of one camera in one frame (module docstring): ``points`` (F, 3) the
     features in the ``world`` frame, ``eye`` the camera's centre, ``predicted`` / ``truth`` (F,)
-    bool."""
-    ring_colours = [c for c in colours(truth, true_present) for _ in range(2 * RING_SEGMENTS)]
+    bool (None: the frame has none, drawn grey)."""
+    none, stamp = np.zeros(len(points), dtype=bool), ros.header(ns, ROOT)
+    ring_colours = [c for c in colours(none if truth is None else truth, truth is not None)
+                    for _ in range(2 * RING_SEGMENTS)]
     markers = [
-        ros.marker(ns, ROOT, "predicted", 0, ros.SPHERE_LIST, scale=(size, size, size),
-                   points=points, colors=colours(predicted, pred_present)),
-        ros.marker(ns, ROOT, "truth", 0, ros.LINE_LIST, scale=(0.2 * size, 0.0, 0.0),
+        ros.marker(stamp, ("predicted", 0), ros.SPHERE_LIST, scale=(size, size, size),
+                   points=points, colors=colours(none if predicted is None else predicted,
+                                                 predicted is not None)),
+        ros.marker(stamp, ("truth", 0), ros.LINE_LIST, scale=(0.2 * size, 0.0, 0.0),
                    points=rings(points, eye, 0.9 * size), colors=ring_colours),
     ]
-    markers += [ros.marker(ns, ROOT, "names", j, ros.TEXT_VIEW_FACING,
+    markers += [ros.marker(stamp, ("names", j), ros.TEXT_VIEW_FACING,
                            scale=(0.0, 0.0, 1.5 * size), text=name,
                            position=p + np.array([0.0, 0.0, 1.2 * size]))
                 for j, (name, p) in enumerate(zip(names, points, strict=True))]

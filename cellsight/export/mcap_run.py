@@ -379,10 +379,10 @@ class _Frames:
         run, out = self.run, []
         points = transform_points(T_part, run.part.feature_points)
         for c, (cam, token) in enumerate(zip(run.cell.cameras, self.cams, strict=True)):
+            predicted = run.vis_pred[c][k] if run.vis_pred_present[c][k] else None
+            truth = run.vis_true[c][k] if run.vis_true_present[c][k] else None
             out.append((f"/{token}/visibility", MARKERS, markers.visibility_markers(
-                ns, points, run.part.feature_names, cam.center, run.vis_pred[c][k],
-                bool(run.vis_pred_present[c][k]), run.vis_true[c][k],
-                bool(run.vis_true_present[c][k]), self.size)))
+                ns, points, run.part.feature_names, cam.center, predicted, truth, self.size)))
         return out
 
     def _diagnostics(self, k: int, ns: int) -> dict:

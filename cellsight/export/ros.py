@@ -121,15 +121,16 @@ def color(rgba) -> dict:
     return {"r": float(rgba[0]), "g": float(rgba[1]), "b": float(rgba[2]), "a": float(rgba[3])}
 
 
-def marker(ns: int, frame_id: str, namespace: str, marker_id: int, kind: int, *,
-           scale=(1.0, 1.0, 1.0), rgba=WHITE, points=(), colors=(), text: str = "",
-           position=(0.0, 0.0, 0.0)) -> dict:
-    """A ``visualization_msgs/Marker`` to add (lifetime 0: until replaced by the next one of
-    the same namespace and id)."""
-    return {"header": header(ns, frame_id), "ns": namespace, "id": marker_id, "type": kind,
+def marker(stamp: dict, key: tuple[str, int], kind: int, *, scale=(1.0, 1.0, 1.0),
+           points=(), colors=(), text: str = "", position=(0.0, 0.0, 0.0)) -> dict:
+    """A white ``visualization_msgs/Marker`` to add, ``stamp`` its :func:`header`, ``key`` its
+    namespace and id (lifetime 0: until replaced by the next one of the same key);
+    ``colors``: per point."""
+    namespace, marker_id = key
+    return {"header": stamp, "ns": namespace, "id": marker_id, "type": kind,
             "action": 0, "pose": {"position": point(position),
                                   "orientation": {"x": 0.0, "y": 0.0, "z": 0.0, "w": 1.0}},
             "scale": {"x": float(scale[0]), "y": float(scale[1]), "z": float(scale[2])},
-            "color": color(rgba), "lifetime": {"sec": 0, "nanosec": 0}, "frame_locked": False,
+            "color": color(WHITE), "lifetime": {"sec": 0, "nanosec": 0}, "frame_locked": False,
             "points": [point(p) for p in points], "colors": [color(c) for c in colors],
             "text": text}

@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 from pydantic import BaseModel
 
-from cellsight.camera import Camera
+from cellsight.camera import Camera, camera_from_lens
 from cellsight.errors import CellFileError, CellsightError
 from cellsight.geometry.meshes import load_mesh_solid
 from cellsight.geometry.polyhedron import Polyhedron, box, prism, segment_box
@@ -245,9 +245,11 @@ def _camera(cs: CameraSpec, at: str, file: str, folder: Path,
         except CalibrationError as exc:
             raise _calibration_error(file, f"{at}.calibration", exc) from exc
         return intrinsics.camera(T, cs.name)
-    return Camera.from_intrinsics(
-        cs.width, cs.height, T, fx=cs.fx, fy=cs.fy, lens_mm=cs.lens_mm, pixel_mm=cs.pixel_mm,
-        cx=cs.cx, cy=cs.cy, dist=cs.dist, name=cs.name)
+    if cs.lens_mm is not None:  # the schema: either a lens with its pixel pitch, or fx
+        return camera_from_lens(cs.width, cs.height, T, cs.lens_mm, cs.pixel_mm, dist=cs.dist,
+                                name=cs.name)
+    return Camera.from_intrinsics(cs.width, cs.height, T, (cs.fx, cs.fy or cs.fx),
+                                  principal=(cs.cx, cs.cy), dist=cs.dist, name=cs.name)
 
 
 def _cameras(spec: CellSpec, file: str, folder: Path,

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -43,13 +44,28 @@ def object_boxes(cell: Cell, task: TaskFrames, frames: Sequence[int]) -> np.ndar
     return np.hstack([lo, hi])
 
 
-def shell_candidates(cell: Cell, task: TaskFrames, template: Camera,
-                     radii: Sequence[float] = (1.4, 1.7, 2.0),
-                     elevations: Sequence[float] = (20, 35, 50, 65, 80),
-                     azimuth_step: float = 15.0, z_min: float = 0.3, z_max: float = 3.0,
-                     clearance: float = 0.15, box_frames: int = 60) -> list[Camera]:
-    """The candidate cameras (module docstring); the task's boxes are taken over
-    ``box_frames`` frames spread over it."""
+@dataclass(frozen=True)
+class Shell:
+    """Where candidates stand: at the ``radii`` (m) from the work area's centre, at the
+    ``elevations`` (degrees over the horizontal), every ``azimuth_step`` (degrees) around it,
+    between the heights ``z_min`` and ``z_max`` (m), ``clearance`` (m) off every object's box
+    over the task."""
+
+    radii: Sequence[float] = (1.4, 1.7, 2.0)
+    elevations: Sequence[float] = (20, 35, 50, 65, 80)
+    azimuth_step: float = 15.0
+    z_min: float = 0.3
+    z_max: float = 3.0
+    clearance: float = 0.15
+
+
+def shell_candidates(cell: Cell, task: TaskFrames, template: Camera, shell: Shell | None = None,
+                     box_frames: int = 60) -> list[Camera]:
+    """The candidate cameras (module docstring) on the ``shell``; the task's boxes are taken
+    over ``box_frames`` frames spread over it."""
+    shell = shell or Shell()
+    radii, elevations, azimuth_step = shell.radii, shell.elevations, shell.azimuth_step
+    z_min, z_max, clearance = shell.z_min, shell.z_max, shell.clearance
     lo, hi = work_area(task)
     target = 0.5 * (lo + hi)
     frames = np.unique(np.linspace(0, task.n - 1, min(box_frames, task.n)).astype(int))

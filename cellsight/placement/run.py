@@ -23,7 +23,7 @@ from cellsight.experiments import RunConfig, run_experiment
 from cellsight.experiments.identity import run_identity
 from cellsight.model.cell import Cell
 from cellsight.model.loader import cell_path, load_cell
-from cellsight.placement.candidates import shell_candidates
+from cellsight.placement.candidates import Shell, shell_candidates
 from cellsight.placement.cellfile import write_cell_file
 from cellsight.placement.choose import choose_cameras, placement_loss
 from cellsight.placement.report import plot_candidates, plot_task, set_figures, write_report
@@ -201,8 +201,8 @@ def place_cameras(args: argparse.Namespace) -> int:
     folder = run.folder
     task, cell = TaskFrames.of(run, args.every), run.cell
     k = len(cell.cameras) if args.cameras is None else args.cameras
-    candidates = shell_candidates(cell, task, _template(cell, args.template), args.radii,
-                                  args.elevations, args.azimuth_step)
+    candidates = shell_candidates(cell, task, _template(cell, args.template),
+                                  Shell(args.radii, args.elevations, args.azimuth_step))
     if not 1 <= k <= len(candidates):
         raise CellsightError(f"--cameras: expected 1..{len(candidates)} (the candidates), got {k}")
     _make_out(args.out)

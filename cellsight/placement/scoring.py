@@ -20,6 +20,7 @@ on a local pool or a Dask cluster).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -50,11 +51,27 @@ class CandidateScores:
         return self.visible.shape[0] * self.visible.shape[1]
 
 
-def frame_views(predictor: VisibilityPredictor, template: Camera, R_cb: np.ndarray,
-                t_cb: np.ndarray, centers: np.ndarray, joints: dict, part: str,
+class CandidateRig(NamedTuple):
+    """The candidates of one intrinsics ``template``: their ``R_cb`` = ``R_cam_base``
+    (C, 3, 3), ``t_cb`` = ``t_cam_base`` (C, 3) and optical ``centers`` (C, 3), base frame,
+    m."""
+
+    template: Camera
+    R_cb: np.ndarray
+    t_cb: np.ndarray
+    centers: np.ndarray
+
+    @classmethod
+    def of(cls, template: Camera, T_base_cams: np.ndarray) -> CandidateRig:
+        R_cb = np.ascontiguousarray(T_base_cams[:, :3, :3].transpose(0, 2, 1))
+        centers = np.ascontiguousarray(T_base_cams[:, :3, 3])
+        return cls(template, R_cb, -np.einsum("cij,cj->ci", R_cb, centers), centers)
+
+
+def frame_views(predictor: VisibilityPredictor, rig: CandidateRig, joints: dict, part: str,
                 T_part: np.ndarray, openings: dict, sigma_px: float):
-    """One frame: (C, F) visible and (C, 6, 6) information for the candidates whose
-    ``R_cam_base`` (C, 3, 3), ``t_cam_base`` (C, 3) and optical centres (C, 3) are given."""
+    """One frame: (C, F) visible and (C, 6, 6) information for the candidates of ``rig``."""
+    template, R_cb, t_cb, centers = rig
     cell = predictor.cell
     snapshot = cell.snapshot(joints, {part: T_part}, openings)
     points = cell.workpiece(part).feature_points @ T_part[:3, :3].T + T_part[:3, 3]
@@ -85,13 +102,11 @@ def score_chunk(job: tuple) -> tuple[np.ndarray, np.ndarray]:
     joints, part, part_poses, openings, sigma_px)`` -> visible (n, C, F), info (n, C, 6, 6)."""
     cell_file, template, T_base_cams, joints, part, poses, openings, sigma_px = job
     predictor = _predictor(cell_file)
-    R_cb = np.ascontiguousarray(T_base_cams[:, :3, :3].transpose(0, 2, 1))
-    centers = np.ascontiguousarray(T_base_cams[:, :3, 3])
-    t_cb = -np.einsum("cij,cj->ci", R_cb, centers)
+    rig = CandidateRig.of(template, T_base_cams)
     out_vis, out_info = [], []
     for k in range(len(poses)):
-        vis, info = frame_views(predictor, template, R_cb, t_cb, centers,
-                                {r: q[k] for r, q in joints.items()}, part, poses[k],
+        vis, info = frame_views(predictor, rig, {r: q[k] for r, q in joints.items()}, part,
+                                poses[k],
                                 {r: float(o[k]) for r, o in openings.items()
                                  if np.isfinite(o[k])}, sigma_px)
         out_vis.append(vis)

@@ -9,6 +9,8 @@ anti-aliased.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import cv2
 import numpy as np
 
@@ -123,30 +125,31 @@ def _legend_icon(img: np.ndarray, label: str, c: tuple[int, int]) -> None:
         cv2.rectangle(img, (u - 5, v - 5), (u + 5, v + 5), MISMATCH, 1, cv2.LINE_8)
 
 
-def draw_camera_overlay(
-    image: np.ndarray | None,
-    *,
-    pixels: np.ndarray,
-    visible: np.ndarray,
-    selected: np.ndarray,
-    measured: np.ndarray,
-    rejected: np.ndarray,
-    boxes: np.ndarray,
-    title: str,
-    truth_visible: np.ndarray | None = None,
-    size: tuple[int, int] | None = None,
-    unknown: Grid | None = None,
-) -> np.ndarray:
-    """One camera's view with the tracker's per-feature state drawn on it.
+@dataclass(frozen=True)
+class FeatureMarks:
+    """The tracker's per-feature state in one camera: ``pixels`` (F, 2) predicted projections
+    (u, v) in px, NaN rows skipped; ``visible``, ``selected``, ``rejected``: (F,) bool;
+    ``measured``: (F, 2) measured corners (u, v) in px, NaN where none; ``truth_visible``:
+    optional (F,) bool ray-cast truth."""
+
+    pixels: np.ndarray
+    visible: np.ndarray
+    selected: np.ndarray
+    measured: np.ndarray
+    rejected: np.ndarray
+    truth_visible: np.ndarray | None = None
+
+
+def draw_camera_overlay(image: np.ndarray | None, marks: FeatureMarks, *, boxes: np.ndarray,
+                        title: str, size: tuple[int, int] | None = None,
+                        unknown: Grid | None = None) -> np.ndarray:
+    """One camera's view with the tracker's per-feature state ``marks`` drawn on it.
 
     ``image``: (H, W) uint8 grayscale (an (H, W, 3) RGB image is also accepted), or None for a
-    mid-grey canvas of ``size=(W, H)`` px. ``pixels``: (F, 2) predicted projections (u, v) in
-    px, NaN rows skipped. ``visible``, ``selected``, ``rejected``: (F,) bool. ``measured``:
-    (F, 2) measured corners (u, v) in px, NaN where none. ``boxes``: (n, 4) int windows
-    ``(u0, v0, u1, v1)``, half-open. ``truth_visible``: optional (F,) bool ray-cast truth;
-    features whose predicted visibility disagrees with it get a magenta square. ``unknown``:
-    optional unknown-occluder map (:class:`~cellsight.tracking.unknown.Grid`), its cells shaded
-    orange.
+    mid-grey canvas of ``size=(W, H)`` px. ``boxes``: (n, 4) int windows ``(u0, v0, u1, v1)``,
+    half-open. Features whose predicted visibility disagrees with the marks' truth get a
+    magenta square. ``unknown``: optional unknown-occluder map
+    (:class:`~cellsight.tracking.unknown.Grid`), its cells shaded orange.
 
     Predicted-visible features are green filled discs, occluded ones red hollow rings, selected
     ones get a yellow outer ring; windows are blue rectangles, measured corners cyan crosses
@@ -156,8 +159,10 @@ def draw_camera_overlay(
     img = _canvas(image, size)
     if unknown is not None:
         _shade_cells(img, unknown)
-    pixels = np.asarray(pixels, dtype=float)
-    measured = np.asarray(measured, dtype=float)
+    pixels = np.asarray(marks.pixels, dtype=float)
+    measured = np.asarray(marks.measured, dtype=float)
+    visible, selected, rejected = marks.visible, marks.selected, marks.rejected
+    truth_visible = marks.truth_visible
     for u0, v0, u1, v1 in np.asarray(boxes, dtype=int).reshape(-1, 4):
         cv2.rectangle(img, (int(u0), int(v0)), (int(u1) - 1, int(v1) - 1), WINDOW, 1, cv2.LINE_8)
     for j in range(len(pixels)):

@@ -19,7 +19,7 @@ from pathlib import Path
 
 from cellsight.errors import CellsightError
 from cellsight.runfolder.writes import write_file
-from cellsight.sweep.grid import SENSORS, VARIANTS, RunSpec, sweep_grid
+from cellsight.sweep.grid import SENSORS, VARIANTS, RunSpec, SweepAxes, sweep_grid
 from cellsight.visibility import OBJECT_BVH, STRUCTURES
 
 
@@ -131,8 +131,9 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     from cellsight.sweep.engine import sigterm_interrupts, stop_status
 
     check_pool(args.jobs, args.scheduler_timeout)
-    specs = sweep_grid(args.cells, args.experiments, args.sensors, args.variants, args.seeds,
-                       args.variant_seeds, args.duration, args.realism, args.structure)
+    axes = SweepAxes(args.cells, args.experiments, args.sensors, args.variants, args.seeds,
+                     args.realism, args.structure)
+    specs = sweep_grid(axes, args.variant_seeds, args.duration)
     check_sweep_out(args.out, args.overwrite)
     console = Console()
     try:

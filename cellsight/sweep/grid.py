@@ -114,14 +114,32 @@ class RunSpec:
                          calibration=None if calibration is None else Path(out) / calibration)
 
 
-def sweep_grid(cells: Sequence[str], experiments: Sequence[int], sensors: Sequence[str],
-               variants: Sequence[str], seeds: Sequence[int], variant_seeds: int | None = None,
-               duration: float | None = None, realisms: Sequence[str] = ("exact",),
-               structures: Sequence[str] = (OBJECT_BVH,)) -> list[RunSpec]:
-    """Every combination, in that order; variants other than the first run on the first
-    ``variant_seeds`` seeds only (None: on all), as comparisons. Every value is checked, and
-    every cell and realism profile loaded, before anything runs."""
+@dataclass(frozen=True)
+class SweepAxes:
+    """The values a sweep goes over: built-in cells' names or cell files, experiments (1-3),
+    sensors, tracker variants (:data:`VARIANTS`; the first is the one compared against),
+    seeds, realism profiles and occlusion structures."""
+
+    cells: Sequence[str]
+    experiments: Sequence[int]
+    sensors: Sequence[str]
+    variants: Sequence[str]
+    seeds: Sequence[int]
+    realisms: Sequence[str] = ("exact",)
+    structures: Sequence[str] = (OBJECT_BVH,)
+
+
+def sweep_grid(axes: SweepAxes, variant_seeds: int | None = None,
+               duration: float | None = None) -> list[RunSpec]:
+    """Every combination of the ``axes``, in the order of their fields (cells first, seeds
+    last); variants other than the first run on the first ``variant_seeds`` seeds only (None:
+    on all), as comparisons; ``duration`` (s; None: until the task is done). Every value is
+    checked, and every cell and realism profile loaded, before anything runs."""
     from cellsight.realism import load_profile
+
+    cells, experiments, sensors, variants, seeds = (axes.cells, axes.experiments, axes.sensors,
+                                                    axes.variants, axes.seeds)
+    realisms, structures = axes.realisms, axes.structures
 
     if duration is not None and not (math.isfinite(duration) and duration > 0):
         raise CellsightError(f"--duration: expected a positive, finite number of seconds, got "
@@ -273,5 +291,4 @@ def _calibrate(spec: RunSpec, out: Path) -> None:
         if finished_calibration(folder, spec.cell, spec.realism, spec.seed):
             return
         stale = check_out_folder(folder, True, "calibration", "", is_calibration_output)
-        write_world_calibration(folder, spec.cell, spec.realism, spec.seed, Board(),
-                                progress=False, stale=stale)
+        write_world_calibration(folder, spec.cell, spec.realism, spec.seed, Board(), stale)

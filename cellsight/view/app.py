@@ -11,7 +11,7 @@ import io
 import math
 import sys
 import threading
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 
 import numpy as np
 import viser
@@ -42,8 +42,9 @@ def overview_camera(cell: Cell) -> tuple[np.ndarray, np.ndarray]:
 class ViewApp:
     """``cellsight view`` serving on ``host:port`` (0: any free port).
 
-    Without ``replay``: the cell at ``joints`` / ``part_poses`` / ``openings`` (robots, parts
-    and grippers left out at HOME, nominal and open), features coloured by the predictor. With
+    Without ``replay``: the cell in ``state`` (:func:`~cellsight.view.states.static_state`;
+    default: robots at HOME, parts nominal, grippers open), features coloured by the predictor.
+    With
     ``replay``: the run's frames, starting at the frame nearest ``start_time`` (s; default the
     first). Bad joints or part
     names and a busy port are :class:`~cellsight.errors.CellsightError` before anything is
@@ -51,9 +52,7 @@ class ViewApp:
     """
 
     def __init__(self, cell: Cell, *, replay: RunReplay | None = None,
-                 joints: Mapping[str, np.ndarray] | None = None,
-                 part_poses: Mapping[str, np.ndarray] | None = None,
-                 openings: Mapping[str, float] | None = None, host: str = "127.0.0.1",
+                 state: FrameState | None = None, host: str = "127.0.0.1",
                  port: int = 8080, start_time: float | None = None,
                  image_interval: float = IMAGE_INTERVAL_S) -> None:
         self.cell, self.replay = cell, replay
@@ -61,7 +60,7 @@ class ViewApp:
         self._last_images: Sequence[np.ndarray] | None = None
         start = 0 if replay is None or start_time is None else replay.frame_at(start_time)
         self.state = (replay.state(start) if replay
-                      else static_state(cell, joints, part_poses, openings=openings))
+                      else state if state is not None else static_state(cell))
         cell.snapshot(self.state.joints, self.state.part_poses, self.state.openings)  # checks
         check_port(host, port)
         with contextlib.redirect_stdout(io.StringIO()):  # viser's banner: we print the URL

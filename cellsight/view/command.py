@@ -64,15 +64,17 @@ def start_view(args: argparse.Namespace):
     from cellsight.model.loader import load_cell
     from cellsight.view.app import ViewApp
     from cellsight.view.replay import RunReplay
+    from cellsight.view.states import static_state
 
     _check(args)
     common = {"host": args.host, "port": args.port}
     if args.run_dir is not None:
         replay = RunReplay(args.run_dir, args.cell)
         return ViewApp(replay.cell, replay=replay, start_time=args.time, **common)
-    joints, part_poses = parse_joints(args.joints), parse_part_poses(args.part_pose)
-    return ViewApp(load_cell(args.cell), joints=joints, part_poses=part_poses,
-                   openings=parse_openings(args.openings), **common)
+    cell = load_cell(args.cell)
+    state = static_state(cell, parse_joints(args.joints), parse_part_poses(args.part_pose),
+                         openings=parse_openings(args.openings))
+    return ViewApp(cell, state=state, **common)
 
 
 def cmd_view(args: argparse.Namespace) -> int:

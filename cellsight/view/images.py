@@ -23,7 +23,7 @@ import numpy as np
 
 from cellsight.camera import Camera
 from cellsight.model.cell import Cell
-from cellsight.report.overlay import draw_camera_overlay
+from cellsight.report.overlay import FeatureMarks, draw_camera_overlay
 from cellsight.tracking.unknown import Grid
 from cellsight.tracking.windowing import plan_windows
 from cellsight.view.states import FeatureState, FrameState
@@ -60,13 +60,12 @@ def draw_view(image: np.ndarray, camera: Camera, c: int,
         measured = np.full((F, 2), np.nan)
         if feats.measured is not None and feats.measured_pixels is not None:
             measured[feats.measured[c]] = feats.measured_pixels[c][feats.measured[c]]
+        marks = FeatureMarks(feats.pixels[c], feats.visible[c], row(feats.selected), measured,
+                             row(feats.rejected), None if feats.truth is None else feats.truth[c])
         out = draw_camera_overlay(
-            out, pixels=feats.pixels[c], visible=feats.visible[c], selected=row(feats.selected),
-            measured=measured, rejected=row(feats.rejected),
-            boxes=(feats.windows[c] if feats.windows is not None else
-                   window_boxes(camera, feats.pixels[c], feats.visible[c], row(feats.selected))),
-            title=camera.name, truth_visible=None if feats.truth is None else feats.truth[c],
-            unknown=unknown)
+            out, marks, boxes=(feats.windows[c] if feats.windows is not None else window_boxes(
+                camera, feats.pixels[c], feats.visible[c], row(feats.selected))),
+            title=camera.name, unknown=unknown)
         unknown = None  # shaded once
     return out
 

@@ -34,7 +34,7 @@ from __future__ import annotations
 import copy
 import math
 from collections.abc import Mapping, Sequence
-from dataclasses import replace
+from dataclasses import dataclass, field, replace
 from functools import partial
 
 import mujoco
@@ -234,6 +234,21 @@ def _knock_camera(scene: Scene, truth: RayTruth, index: int, T_delta: np.ndarray
     scene.move_camera(camera.name, moved.T_base_cam)
 
 
+@dataclass(frozen=True)
+class Hands:
+    """What the robots' hands do in the world: ``grasp_poses``: workpiece name ->
+    ``T_part_tcp`` of its grasp (default: the cell file's ``grasp``, else
+    :func:`~cellsight.model.grasp.default_grasp_pose`); ``grasp_tolerance``: largest TCP
+    position (m) and rotation (rad) error for a grasp to engage; ``jaw_speed``: rate of change
+    of the jaw opening (m/s); ``plates``: robot name -> a printed plate on its flange (a
+    calibration board: :mod:`~cellsight.world.board_plate`; a robot without a tool)."""
+
+    grasp_poses: Mapping[str, np.ndarray] = field(default_factory=dict)
+    grasp_tolerance: tuple[float, float] = (0.01, math.radians(10.0))
+    jaw_speed: float = 0.2
+    plates: Mapping[str, Plate] = field(default_factory=dict)
+
+
 class World:
     """The simulated cell (see the module docstring).
 
@@ -243,12 +258,8 @@ class World:
     (:class:`~cellsight.world.imperfections.Imperfections`; its geometry's errors are in
     ``cell``, the world's own). ``render_size``: (width, height) of the
     rendered images (default: each camera's own size). ``initial_joints``: robot name -> joint
-    vector at t = 0 (default HOME). ``grasp_poses``: workpiece name -> ``T_part_tcp`` of its
-    grasp (default: the cell file's ``grasp``, else
-    :func:`~cellsight.model.grasp.default_grasp_pose`). ``grasp_tolerance``:
-    largest TCP position (m) and rotation (rad) error for a grasp to engage. ``jaw_speed``: rate
-    of change of the jaw opening (m/s). ``plates``: robot name -> a printed plate on its
-    flange (a calibration board: :mod:`~cellsight.world.board_plate`; a robot without a tool).
+    vector at t = 0 (default HOME). ``hands``: the grasps, how they engage, the jaws' speed and
+    the plates on tool-less flanges (:class:`Hands`).
 
     Its parts are attributes: ``scene``, ``robots``, ``parts``, ``grippers``, ``intruders``,
     ``faults``,
@@ -268,22 +279,20 @@ class World:
         errors: Imperfections = IDEAL,
         render_size: tuple[int, int] | None = None,
         initial_joints: Mapping[str, np.ndarray] | None = None,
-        grasp_poses: Mapping[str, np.ndarray] | None = None,
-        grasp_tolerance: tuple[float, float] = (0.01, math.radians(10.0)),
-        jaw_speed: float = 0.2,
-        plates: Mapping[str, Plate] | None = None,
+        hands: Hands | None = None,
     ) -> None:
         self.cell, self.errors = cell, errors
+        hands = hands or Hands()
         self._rng = np.random.default_rng(seed)
-        model = _model(cell, render_size, errors, initial_joints or {}, plates or {})
+        model = _model(cell, render_size, errors, initial_joints or {}, dict(hands.plates))
         self.scene = Scene(model, mujoco.MjData(model))
         self._jaws = _jaw_addresses(model, cell) if errors.servo.mujoco else None
         self.robots = RobotJoints(self.scene, cell, initial_joints or {}, tasks or {}, errors,
                                   self.dt_control)
         self.parts = PartMotion(self.scene, cell, conveyor or ConveyorPath.still(),
                                 errors.grasp_seat, errors.slip_m_s)
-        self.grippers = Grippers(self.scene, cell, self.parts, grasp_poses or {},
-                                 grasp_tolerance, jaw_speed, self.dt_control)
+        self.grippers = Grippers(self.scene, cell, self.parts, dict(hands.grasp_poses),
+                                 hands.grasp_tolerance, hands.jaw_speed, self.dt_control)
         self.intruders = Intruders(self.scene, errors.intruders)
         self.truth = RayTruth(self.scene, cell)
         self.faults = Faults(errors.kidnap, errors.knock,
