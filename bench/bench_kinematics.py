@@ -26,7 +26,8 @@ from pathlib import Path
 import numpy as np
 
 from cellsight import load_cell
-from cellsight.model.urdf import load_urdf_robot, resolve_uri
+from cellsight.model.urdf import load_urdf_robot
+from cellsight.model.urdf_files import resolve_uri
 
 URDF = "package://example-robot-data/robots/ur_description/urdf/ur5_robot.urdf"
 CALLS = 2000

@@ -31,7 +31,6 @@ from cellsight.commands.cameras import register, write_cameras
 from cellsight.errors import CellFileError, CellsightError
 from cellsight.geometry.transforms import look_at
 from cellsight.model.calibration import (
-    MAX_CALIBRATION_BYTES,
     read_hand_eye,
     read_intrinsics,
     write_easy_handeye,
@@ -39,6 +38,7 @@ from cellsight.model.calibration import (
     write_opencv_intrinsics,
     write_ros_camera_info,
 )
+from cellsight.model.calibration_text import MAX_CALIBRATION_BYTES
 from cellsight.model.loader import builtin_cell_path, load_cell, parse_cell_text
 from cellsight.model.yaml_input import read_cell_text
 from cellsight.occlusion.predictor import VisibilityPredictor

@@ -29,7 +29,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from cellsight.calibration.plan import SAME_POSE, BoardOnFlange, plan_poses
+from cellsight.calibration.plan import SAME_POSE, plan_poses
+from cellsight.calibration.presenting import BoardOnFlange
 from cellsight.camera import Camera
 from cellsight.errors import CellsightError
 from cellsight.geometry.polyhedron import Polyhedron

@@ -24,7 +24,8 @@ import pytest
 
 from cellsight.calibration.board import Board
 from cellsight.calibration.command import calibrate_recorded
-from cellsight.calibration.plan import BoardOnFlange, plan_poses
+from cellsight.calibration.plan import plan_poses
+from cellsight.calibration.presenting import BoardOnFlange
 from cellsight.calibration.recorded import recorded_views
 from cellsight.camera import Camera
 from cellsight.errors import CellsightError

@@ -32,7 +32,10 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from cellsight.calibration.solve import MIN_POSES, Start, View, calibrate, hand_eye
+from cellsight.calibration.first_estimate import hand_eye
+from cellsight.calibration.solution import Start, View
+from cellsight.calibration.solve import calibrate
+from cellsight.calibration.solve_checks import MIN_POSES
 from cellsight.camera import Camera
 from cellsight.errors import CellsightError
 from cellsight.geometry.transforms import invert_pose, look_at, make_pose

@@ -12,6 +12,8 @@ import pytest
 PACKAGE = Path(__file__).resolve().parent.parent / "cellsight"
 MAX_FUNCTION_LINES = 60  # outside the numba kernels, whose loops are written out
 MAX_CLASS_METHODS = 15  # a class stays below it: one at the cap has no room to grow
+MAX_CLASS_LINES = 250
+MAX_MODULE_LINES = 500  # outside the modules of compiled kernels, whose loops are written out
 
 # Lowest first: a module may import from its own layer and the ones before it, never after.
 LAYERS = [
@@ -58,6 +60,15 @@ def test_functions_and_classes_are_small(path: Path):
            if isinstance(node, ast.ClassDef)
            and (n := sum(isinstance(b, ast.FunctionDef) for b in node.body)) >= MAX_CLASS_METHODS]
     assert not long and not big, f"{path.name}: too long: {long}; too many methods: {big}"
+    tall = [f"{node.name} ({n} lines)" for node in ast.walk(tree)
+            if isinstance(node, ast.ClassDef)
+            and (n := node.end_lineno - node.lineno + 1) > MAX_CLASS_LINES]
+    kernels = any(_is_jitted(node) for node in ast.walk(tree)
+                  if isinstance(node, ast.FunctionDef))
+    lines = len(path.read_text().splitlines())
+    assert not tall, f"{path.name}: classes over {MAX_CLASS_LINES} lines: {tall}"
+    assert kernels or lines <= MAX_MODULE_LINES, \
+        f"{path.name}: {lines} lines, over {MAX_MODULE_LINES} (split it by idea)"
 
 
 @pytest.mark.parametrize("path", _sources(), ids=lambda p: str(p.relative_to(PACKAGE)))

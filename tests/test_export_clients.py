@@ -27,7 +27,8 @@ from cellsight.commands.export import register
 from cellsight.errors import CellsightError
 from cellsight.experiments import RunConfig, run_experiment
 from cellsight.export import ExportOptions, export_mcap
-from cellsight.export.mcap_run import robot_descriptions, start_time_ns
+from cellsight.export.mcap_run import robot_descriptions
+from cellsight.export.rosbag import start_time_ns
 from cellsight.model.registry import builtin_cell_path
 from cellsight.world.replay_images import ReplayImages
 

@@ -14,7 +14,7 @@ import yaml
 from cellsight import load_cell
 from cellsight.cli import main
 from cellsight.errors import CellFileError, GeometryError
-from cellsight.geometry import mesh_cache, meshes
+from cellsight.geometry import mesh_cache, mesh_merge, meshes
 from cellsight.geometry.polygon import check_polygon
 from cellsight.geometry.polyhedron import Polyhedron
 from cellsight.model.loader import builtin_cell_path
@@ -194,7 +194,7 @@ def test_vectorised_polygon_check_agrees_with_check_polygon(k) -> None:
             expected.append(True)
         except GeometryError:
             expected.append(False)
-    got = meshes._valid_polygons(np.array(polygons))
+    got = mesh_merge.valid_polygons(np.array(polygons))
     assert got.tolist() == expected
     assert 0 < sum(expected) < len(expected)
 
@@ -231,7 +231,7 @@ def test_a_finely_triangulated_box_merges_into_six_faces(tmp_path) -> None:
 
 
 def test_a_loop_longer_than_the_cap_keeps_its_triangles(tmp_path, monkeypatch) -> None:
-    monkeypatch.setattr(meshes, "MERGE_MAX_VERTICES", 47)
+    monkeypatch.setattr(mesh_merge, "MERGE_MAX_VERTICES", 47)
     path = tmp_path / "grid.stl"
     _grid_box(12).export(path)
     solid = meshes.load_mesh_solid(path)

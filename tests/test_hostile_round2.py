@@ -184,7 +184,7 @@ def test_the_api_names_the_robot_of_bad_joint_values(joints, message: str) -> No
 
 
 def test_export_refuses_a_link_to_the_runs_own_file(calibrated_run, tmp_path) -> None:
-    from cellsight.export.mcap_run import check_output
+    from cellsight.export.rosbag import check_output
 
     run, _ = calibrated_run
     link = tmp_path / "lnk.mcap"

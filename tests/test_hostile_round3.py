@@ -11,7 +11,7 @@ import pytest
 from cellsight.cli import main
 from cellsight.commands.ik import MAX_SEEDS
 from cellsight.errors import CellsightError
-from cellsight.export.mcap_run import check_output
+from cellsight.export.rosbag import check_output
 
 PART = '{"part": {"xyz": [0.6, -0.15, 0.79], "rpy": [0, 0, 0.15]}}'
 

@@ -20,7 +20,8 @@ from cellsight import load_cell
 from cellsight.cli import main
 from cellsight.errors import CellFileError
 from cellsight.export import frames as tf
-from cellsight.model.urdf import UrdfError, installed_package_folder, load_urdf_robot
+from cellsight.model.urdf import load_urdf_robot
+from cellsight.model.urdf_files import UrdfError, installed_package_folder
 from cellsight.recording.names import TopicMap, joint_positions
 from cellsight.recording.series import _targets
 from cellsight.runfolder import FrameLog

@@ -15,7 +15,8 @@ from cellsight.occlusion.predictor import VisibilityPredictor
 from cellsight.trackers import TrackerChoice
 from cellsight.tracking import Tracker
 from cellsight.tracking.camera_fit import corrected
-from cellsight.tracking.registration import RegistrationRule, vote_peaks
+from cellsight.tracking.offset_votes import vote_peaks
+from cellsight.tracking.registration import RegistrationRule
 
 REACH = 15
 

@@ -19,14 +19,14 @@ import pytest
 from cellsight.rates import VISION_HZ
 from cellsight.report import overlay
 from cellsight.report.overlay import FeatureMarks, compose_views, draw_camera_overlay
-from cellsight.report.run_report import (
+from cellsight.report.run_figures import (
     Run,
     orientation_error_deg,
     position_error_mm,
     report_inputs,
     runs_of,
-    write_report,
 )
+from cellsight.report.run_report import write_report
 from cellsight.report.video import VideoWriter
 from cellsight.runfolder.framelog import POSE, FrameLog
 from cellsight.tracking.timing import STAGES

@@ -16,7 +16,7 @@ from lxml import etree
 
 from cellsight import load_cell
 from cellsight.control.clik import REVOLUTE_SPEED, default_joint_velocity_limits
-from cellsight.model.urdf import resolve_uri
+from cellsight.model.urdf_files import resolve_uri
 from cellsight.world import World
 from cellsight.world.imperfections import Imperfections
 from cellsight.world.servo import ServoParams

@@ -37,9 +37,10 @@ from cellsight.tracking import (
     estimate_pose,
 )
 from cellsight.tracking.loss import LossRule
+from cellsight.tracking.prior.fusion import LYING_TOL, lies_on
 from cellsight.tracking.selection import SelectionConfig
 from cellsight.tracking.timing import STAGES
-from cellsight.tracking.tracker import LYING_TOL, UNREGISTERED, _lies_on
+from cellsight.tracking.tracker import UNREGISTERED
 
 HOLD_ERROR = pose_from_xyz_rpy([0.003, -0.002, 0.001], [0.0, 0.01, -0.02])  # the hold's error
 
@@ -679,7 +680,7 @@ def test_a_held_part_s_estimate_carried_off_comes_back_to_its_holder(held):
 @given(st.floats(-np.pi, np.pi), st.floats(-0.05, 0.05),
        st.tuples(*[st.floats(-1.0, 1.0)] * 3), st.floats(0.0, 0.4))
 def test_a_fix_lies_on_its_support_within_its_height_and_tilt(yaw, dz, axis, angle):
-    """``_lies_on`` against the angle between the fix's and the lying pose's up directions
+    """``lies_on`` against the angle between the fix's and the lying pose's up directions
     (SciPy's rotations): a fix turned about any axis and raised by ``dz`` lies on the support
     when both are within ``LYING_TOL``, whatever its turn about the vertical."""
     from scipy.spatial.transform import Rotation
@@ -693,10 +694,10 @@ def test_a_fix_lies_on_its_support_within_its_height_and_tilt(yaw, dz, axis, ang
     tilt = np.arccos(np.clip(up @ support_up, -1.0, 1.0))
     margin = 1e-9
     if abs(dz) < LYING_TOL[0] - margin and tilt < LYING_TOL[1] - margin:
-        assert _lies_on(lying, fix)
+        assert lies_on(lying, fix)
     elif abs(dz) > LYING_TOL[0] + margin or tilt > LYING_TOL[1] + margin:
-        assert not _lies_on(lying, fix)
-    assert _lies_on(None, fix)
+        assert not lies_on(lying, fix)
+    assert lies_on(None, fix)
 
 
 def test_a_part_let_go_while_the_cameras_are_blind_rests_where_it_was_let_go():

@@ -16,7 +16,8 @@ import pytest
 from cellsight import load_cell
 from cellsight.control.clik import Clik
 from cellsight.errors import CellFileError
-from cellsight.model.urdf import load_urdf_robot, resolve_uri
+from cellsight.model.urdf import load_urdf_robot
+from cellsight.model.urdf_files import resolve_uri
 from cellsight.occlusion.predictor import VisibilityPredictor
 from cellsight.world.world import World
 

@@ -39,7 +39,8 @@ from cellsight.fields import about
 from cellsight.geometry.transforms import is_rigid, make_pose
 from cellsight.model import Cell
 from cellsight.model.robot import Robot
-from cellsight.model.schema import Count, Number, PoseSpec
+from cellsight.model.schema import PoseSpec
+from cellsight.model.spec_types import Count, Number
 from cellsight.model.yaml_input import load_yaml, read_cell_text
 from cellsight.world import World
 from cellsight.world.board_plate import Plate

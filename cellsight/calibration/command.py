@@ -27,15 +27,17 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn
 from cellsight.calibration.board import Board, board_world
 from cellsight.calibration.folder import read_calibration
 from cellsight.calibration.output import is_calibration_output, write_calibration
-from cellsight.calibration.plan import BoardOnFlange, plan_poses
+from cellsight.calibration.plan import plan_poses
+from cellsight.calibration.presenting import BoardOnFlange
 from cellsight.calibration.record import MotionRecorder
 from cellsight.calibration.recorded import RecordedMotion, recorded_views
 from cellsight.calibration.score import score
 from cellsight.calibration.shoot import photograph
-from cellsight.calibration.solve import Solution, Start, View, calibrate
+from cellsight.calibration.solution import Solution, Start, View
+from cellsight.calibration.solve import calibrate
 from cellsight.camera import Camera
 from cellsight.errors import CellsightError
-from cellsight.export.mcap_run import check_jpeg, check_output
+from cellsight.export.rosbag import check_jpeg, check_output
 from cellsight.geometry.transforms import invert_pose, transform_points
 from cellsight.model import Cell
 from cellsight.model.loader import load_cell

@@ -27,7 +27,7 @@ import numpy as np  # noqa: E402
 import yaml  # noqa: E402
 
 from cellsight.calibration.folder import CALIBRATION_FILE, SCHEMA_VERSION  # noqa: E402
-from cellsight.calibration.solve import Solution, View  # noqa: E402
+from cellsight.calibration.solution import Solution, View  # noqa: E402
 from cellsight.geometry.transforms import xyz_rpy_from_pose  # noqa: E402
 from cellsight.model import Cell  # noqa: E402
 from cellsight.model.calibration import (  # noqa: E402

@@ -23,7 +23,7 @@ import numpy as np
 
 from cellsight.calibration.board import Board
 from cellsight.calibration.shoot import MIN_CORNERS
-from cellsight.calibration.solve import View
+from cellsight.calibration.solution import View
 from cellsight.model import Cell
 from cellsight.recording.frames import FrameGrouper, resolve_topics
 from cellsight.recording.names import TopicMap

@@ -18,7 +18,7 @@ from typing import Protocol
 
 import numpy as np
 
-from cellsight.calibration.solve import View
+from cellsight.calibration.solution import View
 from cellsight.world import World
 
 MIN_CORNERS = 6  # a view with fewer detected corners is dropped (solvePnP needs 4, with margin)

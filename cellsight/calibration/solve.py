@@ -70,15 +70,19 @@ from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 from threadpoolctl import threadpool_limits
 
+from cellsight.calibration.first_estimate import initial_estimate
+from cellsight.calibration.solution import CameraStd, PoseStd, Problem, Solution, Start, View
+from cellsight.calibration.solve_checks import (
+    MIN_CORNERS,
+    check_coverage,
+    check_motion,
+    check_view,
+    pose_joints,
+)
 from cellsight.camera import Camera
-from cellsight.errors import CellsightError, KinematicsError, short_repr
-from cellsight.geometry.transforms import invert_pose, make_pose
+from cellsight.errors import CellsightError
 from cellsight.kinematics import KinematicChain
 
-MIN_POSES = 6  # distinct poses a camera, a robot, or a camera-robot pair for hand-eye, needs
-MIN_CORNERS = 4  # corners a view needs (solvePnP's least)
-MIN_SPREAD_DEG = 5.0  # deg: least second singular value of the relative flange rotations
-IDENTIFIABLE_SINE = 1e-3  # least sine between an offset's column and the others' span
 LENS = ("k1", "k2", "p1", "p2")  # OpenCV's first four distortion coefficients, in order
 FREE_LENS = ("k1", "k2")
 """The distortion coefficients estimated: the radial ones. Tangential distortion moves a
@@ -87,126 +91,6 @@ the principal point wanders by tens of pixels on images that fit within 0.25 px.
 INTRINSICS = ("fx", "fy", "cx", "cy", *FREE_LENS)  # the free intrinsics, in order
 _LENS_AT = np.array([LENS.index(k) for k in FREE_LENS])
 POSE_SIZE = 6  # a pose increment: rotation vector (3, rad), then translation (3, m)
-_IDENTITY_TOL = 1e-9
-
-
-@dataclass(frozen=True)
-class View:
-    """One camera's image of the board at one robot pose.
-
-    ``camera``: index into the cameras; ``robot``: the robot holding the board; ``pose``: the
-    index of the robot's pose (several cameras see the same pose); ``joints`` (n,): the
-    encoder readings at that pose (rad, m); ``ids`` (m,): detected corner ids (rows of the
-    board points); ``pixels`` (m, 2): their image coordinates (px, distorted, as detected).
-    """
-
-    camera: int
-    robot: str
-    pose: int
-    joints: np.ndarray
-    ids: np.ndarray
-    pixels: np.ndarray
-
-
-@dataclass(frozen=True)
-class Start:
-    """Values to start from, all in ref (the reference robot's frame 0): ``cameras``
-    (:class:`cellsight.camera.Camera`, ``T_base_cam`` meaning ``T_ref_cam``), every robot's
-    base ``T_ref_robot`` (the reference robot's is the identity) and the board's mount on each
-    robot's flange ``T_flange_board``."""
-
-    cameras: list[Camera]
-    T_ref_robot: dict[str, np.ndarray]
-    T_flange_board: dict[str, np.ndarray]
-
-    @property
-    def reference(self) -> str:
-        """The reference robot: the one whose ``T_ref_robot`` is the identity."""
-        found = [name for name, T in self.T_ref_robot.items()
-                 if np.allclose(T, np.eye(4), rtol=0.0, atol=_IDENTITY_TOL)]
-        if len(found) != 1:
-            raise CellsightError(f"calibration start: exactly one robot's T_ref_robot must be "
-                                 f"the identity (the reference robot), got {found or 'none'}; "
-                                 f"give the others' bases in the reference robot's frame 0")
-        return found[0]
-
-
-@dataclass(frozen=True)
-class PoseStd:
-    """Standard deviations of a pose: ``position_mm`` (3,) of its origin along the axes of
-    the frame it is given in (mm); ``rotation_deg`` (3,) of its rotation about those axes
-    (the board's: about the flange's axes) (deg)."""
-
-    position_mm: np.ndarray
-    rotation_deg: np.ndarray
-
-
-@dataclass(frozen=True)
-class CameraStd:
-    """Standard deviations of a camera's estimates: ``pose`` (``T_ref_cam``'s, in ref);
-    ``focal_pct`` (2,) of fx, fy (% of the value); ``principal_px`` (2,) of cx, cy (px);
-    ``distortion`` (4,) of k1, k2, p1, p2. NaN where the intrinsics were held."""
-
-    pose: PoseStd
-    focal_pct: np.ndarray
-    principal_px: np.ndarray
-    distortion: np.ndarray
-
-
-@dataclass(frozen=True)
-class Solution:
-    """A calibration, in ref (the reference robot's frame 0).
-
-    ``cameras``: the calibrated cameras (same names and sizes as the start's; ``T_base_cam``
-    is ``T_ref_cam``); ``T_ref_robot`` (every robot, the reference's the identity);
-    ``T_flange_board``; ``joint_offsets`` (n,) per robot (rad, m; zeros when not estimated
-    or fixed by the gauge). ``residuals_px``: per view, in the views' order, the projected
-    minus the detected pixels (m, 2); ``view_rms_px`` and ``camera_rms_px``: the RMS of the
-    corners' reprojection distances per view and per camera; ``rms_px`` over all corners.
-    Standard deviations: ``camera_std``, ``robot_std`` (NaN for the reference),
-    ``board_std``, ``joint_offset_std`` (rad, m; NaN where not estimated).
-    ``joint_offset_sine``: per offset, the sine of the angle between its column of the
-    (column-normalised) Jacobian and the span of all the other columns: 1 when no other
-    estimate can mimic it, 0 when it is unobservable (NaN where not estimated).
-    ``initial``: OpenCV's first estimates the refinement started from.
-    """
-
-    cameras: list[Camera]
-    T_ref_robot: dict[str, np.ndarray]
-    T_flange_board: dict[str, np.ndarray]
-    joint_offsets: dict[str, np.ndarray]
-    residuals_px: list[np.ndarray]
-    view_rms_px: np.ndarray
-    camera_rms_px: np.ndarray
-    rms_px: float
-    camera_std: list[CameraStd]
-    robot_std: dict[str, PoseStd]
-    board_std: dict[str, PoseStd]
-    joint_offset_std: dict[str, np.ndarray]
-    joint_offset_sine: dict[str, np.ndarray]
-    initial: Start
-
-    @property
-    def joint_offsets_identifiable(self) -> dict[str, np.ndarray]:
-        """Per robot (n,) bool: the offset was estimated and its sine is at least
-        ``IDENTIFIABLE_SINE`` (the data pin it within 1000 times the precision they would
-        give were everything else known)."""
-        return {r: np.nan_to_num(s, nan=0.0) >= IDENTIFIABLE_SINE
-                for r, s in self.joint_offset_sine.items()}
-
-
-@dataclass(frozen=True)
-class _Problem:
-    """The checked input: ``robots`` (the reference first), ``poses`` (robot, pose) -> the
-    joints read there, ``flange`` (robot, pose) -> ``T_robot_flange`` at those readings."""
-
-    views: list[View]
-    points: np.ndarray
-    chains: dict[str, KinematicChain]
-    start: Start
-    robots: list[str]
-    poses: dict[tuple[str, int], np.ndarray]
-    flange: dict[tuple[str, int], np.ndarray]
 
 
 def calibrate(views: Sequence[View], board_points: np.ndarray,
@@ -222,7 +106,7 @@ def calibrate(views: Sequence[View], board_points: np.ndarray,
         raise CellsightError(f"calibration: pixel_sigma must be a positive number of pixels "
                              f"or None, got {pixel_sigma!r}")
     problem = _problem(list(views), board_points, chains, start)
-    initial = _initial_estimate(problem, free_intrinsics)
+    initial = initial_estimate(problem, free_intrinsics)
     model = _Model(problem, initial, free_intrinsics, joint_offsets)
     return model.solve(pixel_sigma)
 
@@ -231,7 +115,7 @@ def calibrate(views: Sequence[View], board_points: np.ndarray,
 
 
 def _problem(views: list[View], board_points: np.ndarray, chains: dict[str, KinematicChain],
-             start: Start) -> _Problem:
+             start: Start) -> Problem:
     """The input checked (module docstring, refusals) and indexed."""
     points = np.asarray(board_points, dtype=float)
     if points.ndim != 2 or points.shape[1] != 3 or len(points) < MIN_CORNERS:
@@ -239,216 +123,17 @@ def _problem(views: list[View], board_points: np.ndarray, chains: dict[str, Kine
                              f"metres in the board frame, got shape {points.shape}")
     reference = start.reference
     for view in views:
-        _check_view(view, len(points), start, chains)
-    poses = _pose_joints(views)
-    _check_coverage(views, start, reference)
+        check_view(view, len(points), start, chains)
+    poses = pose_joints(views)
+    check_coverage(views, start, reference)
     robots = [reference, *sorted({r for r, _ in poses} - {reference})]
     flange = {key: chains[key[0]].fkine(q)[-1] for key, q in poses.items()}
     for robot in robots:
-        _check_motion(robot, {p: T for (r, p), T in flange.items() if r == robot})
-    return _Problem(views, points, chains, start, robots, poses, flange)
-
-
-def _check_view(view: View, n_points: int, start: Start, chains: dict[str, KinematicChain]
-                ) -> None:
-    """One view's fields: a known camera and robot, joints, ids and pixels that agree."""
-    where = f"calibration: view of camera {view.camera}, robot {view.robot!r}, pose {view.pose}"
-    if not 0 <= view.camera < len(start.cameras):
-        raise CellsightError(f"{where}: no such camera (the start has {len(start.cameras)}); "
-                             f"number the cameras as the start lists them")
-    if view.robot not in chains.keys() & start.T_ref_robot.keys() & start.T_flange_board.keys():
-        raise CellsightError(f"{where}: the robot needs a chain, a start base and a start "
-                             f"board mount; give them")
-    ids, pixels = np.asarray(view.ids), np.asarray(view.pixels)
-    good = (ids.ndim == 1 and np.issubdtype(ids.dtype, np.integer) and len(ids) >= MIN_CORNERS
-            and len(np.unique(ids)) == len(ids) and pixels.shape == (len(ids), 2)
-            and bool(np.isfinite(pixels).all()))
-    if not good or not 0 <= ids.min() <= ids.max() < n_points:
-        raise CellsightError(f"{where}: needs at least {MIN_CORNERS} distinct integer corner "
-                             f"ids in [0, {n_points}) and finite (m, 2) pixels, got ids "
-                             f"{short_repr(ids)} and pixels of shape {pixels.shape}; drop the "
-                             f"view or fix its detections")
-    try:
-        chains[view.robot].check_q(view.joints)
-    except KinematicsError as exc:
-        raise CellsightError(f"{where}: {exc}; give the encoders' reading of every joint") \
-            from exc
-
-
-def _pose_joints(views: list[View]) -> dict[tuple[str, int], np.ndarray]:
-    """(robot, pose) -> the joints read there, the same in every view of that pose."""
-    poses: dict[tuple[str, int], np.ndarray] = {}
-    for view in views:
-        q = np.asarray(view.joints, dtype=float)
-        known = poses.setdefault((view.robot, view.pose), q)
-        if not np.array_equal(known, q):
-            raise CellsightError(f"calibration: robot {view.robot!r} pose {view.pose}: the "
-                                 f"views of camera {view.camera} and of an earlier one give "
-                                 f"different joints; number each pose once")
-    return poses
-
-
-def _check_coverage(views: list[View], start: Start, reference: str) -> None:
-    """Every camera sees the board in ``MIN_POSES`` distinct poses, every robot shows it in
-    as many."""
-    for c, camera in enumerate(start.cameras):
-        seen = sorted({(v.robot, v.pose) for v in views if v.camera == c})
-        if not seen:
-            raise CellsightError(f"calibration: camera {camera.name} has no view of the board; "
-                                 f"plan poses in its view, or remove it from the cell")
-        if len(seen) < MIN_POSES:
-            raise CellsightError(f"calibration: camera {camera.name} sees the board in "
-                                 f"{len(seen)} distinct poses ({_poses_text(seen)}), fewer than "
-                                 f"{MIN_POSES}; plan more poses in its view")
-    if not any(v.robot == reference for v in views):
-        raise CellsightError(f"calibration: the reference robot {reference!r} shows the board "
-                             f"to no camera: the frame of the calibration is its base; add its "
-                             f"poses")
-    for robot in sorted({v.robot for v in views}):
-        seen = sorted({(v.robot, v.pose) for v in views if v.robot == robot})
-        if len(seen) < MIN_POSES:
-            raise CellsightError(f"calibration: robot {robot!r} shows the board in "
-                                 f"{len(seen)} distinct poses ({_poses_text(seen)}), fewer than "
-                                 f"{MIN_POSES}; plan more poses of it in the cameras' view")
-
-
-def _poses_text(seen: list[tuple[str, int]]) -> str:
-    return ", ".join(f"{robot} pose {pose}" for robot, pose in seen)
-
-
-def rotation_spread_deg(T_base_flange: np.ndarray) -> float:
-    """How far the flange's rotations between poses turn about more than one axis (deg): the
-    second singular value, over the square root of their count, of the rotation vectors of
-    the relative rotations ``R_i^T R_j`` of every pair of poses (``T_base_flange``
-    (P, 4, 4)). Zero when every relative rotation is about one axis (or none); the RMS angle
-    about the second axis otherwise."""
-    R = np.asarray(T_base_flange, dtype=float)[:, :3, :3]
-    if len(R) < 3:  # one relative rotation at most: one axis
-        return 0.0
-    i, j = np.triu_indices(len(R), 1)
-    turns = Rotation.from_matrix(np.swapaxes(R[i], 1, 2) @ R[j]).as_rotvec()
-    sigma = np.linalg.svd(turns, compute_uv=False) / np.sqrt(len(turns))
-    return float(np.degrees(sigma[1]))
-
-
-def _check_motion(robot: str, flange: dict[int, np.ndarray]) -> None:
-    """Refuse a robot whose flange turns about one axis only between its poses."""
-    order = sorted(flange)
-    spread = rotation_spread_deg(np.array([flange[p] for p in order]))
-    if spread < MIN_SPREAD_DEG:
-        raise CellsightError(f"calibration: robot {robot!r}, poses {order}: the flange turns "
-                             f"about one axis only between them (spread {spread:.3g} deg < "
-                             f"{MIN_SPREAD_DEG:g} deg): the cameras' poses and the board's "
-                             f"mount are unobservable; add poses that tilt the board about "
-                             f"other axes")
+        check_motion(robot, {p: T for (r, p), T in flange.items() if r == robot})
+    return Problem(views, points, chains, start, robots, poses, flange)
 
 
 # --- OpenCV's first estimates -------------------------------------------------------------------
-
-
-def hand_eye(T_cam_board: np.ndarray, T_base_flange: np.ndarray
-             ) -> tuple[np.ndarray, np.ndarray]:
-    """Eye-to-hand calibration of one fixed camera and one robot from P poses: the board's
-    poses in the camera ``T_cam_board`` (P, 4, 4) and the flange's in the robot's base
-    ``T_base_flange`` (P, 4, 4); returns ``(T_base_cam, T_flange_board)``.
-
-    OpenCV's ``calibrateRobotWorldHandEye`` solves ``A_i X = Z B_i`` for ``A`` "world2cam"
-    (cTw), ``B`` "base2gripper" (gTb), ``X`` "base2world" (wTb) and ``Z`` "gripper2cam" (cTg).
-    Here ``T_cam_board T_board_flange = T_cam_base T_base_flange``: its world is the board,
-    its gripper the robot's base, its base the flange: ``A = T_cam_board``, ``B =
-    T_base_flange``, ``X = T_board_flange`` and ``Z = T_cam_base``."""
-    A, B = np.asarray(T_cam_board, dtype=float), np.asarray(T_base_flange, dtype=float)
-    R_x, t_x, R_z, t_z = cv2.calibrateRobotWorldHandEye(
-        list(A[:, :3, :3]), list(A[:, :3, 3]), list(B[:, :3, :3]), list(B[:, :3, 3]))
-    T_board_flange, T_cam_base = make_pose(R_x, t_x.ravel()), make_pose(R_z, t_z.ravel())
-    return invert_pose(T_cam_base), invert_pose(T_board_flange)
-
-
-def _mean_pose(poses: Sequence[np.ndarray]) -> np.ndarray:
-    """The mean of poses: chordal mean rotation, mean position."""
-    stack = np.asarray(poses, dtype=float)
-    R = Rotation.from_matrix(stack[:, :3, :3]).mean().as_matrix()
-    return make_pose(R, stack[:, :3, 3].mean(axis=0))
-
-
-def _intrinsics(camera: Camera, obj: list[np.ndarray], img: list[np.ndarray], free: bool
-                ) -> tuple[np.ndarray, np.ndarray]:
-    """K and the 5 distortion coefficients: OpenCV's over the camera's views (the start's K as
-    the guess, k3 fixed) when ``free``, else the start's."""
-    if not free:
-        return camera.K, camera.dist5
-    flags = cv2.CALIB_USE_INTRINSIC_GUESS | cv2.CALIB_FIX_K3 | cv2.CALIB_ZERO_TANGENT_DIST
-    _, K, dist, _, _ = cv2.calibrateCamera(
-        [o.astype(np.float32) for o in obj], [i.astype(np.float32) for i in img],
-        (camera.width, camera.height), camera.K.copy(), camera.dist5.copy(), flags=flags)
-    return K, dist.ravel()[:5]
-
-
-def _board_in_camera(obj: np.ndarray, img: np.ndarray, K: np.ndarray, dist: np.ndarray
-                     ) -> np.ndarray:
-    """``T_cam_board`` of one view by ``cv2.solvePnP``."""
-    ok, rvec, tvec = cv2.solvePnP(obj, img, K, dist)
-    if not ok:
-        raise CellsightError("calibration: solvePnP found no board pose in a view")
-    return make_pose(Rotation.from_rotvec(rvec.ravel()).as_matrix(), tvec.ravel())
-
-
-def _pairs(problem: _Problem, board: dict[int, np.ndarray], c: int
-           ) -> dict[str, tuple[np.ndarray, np.ndarray]]:
-    """Per robot, camera ``c``'s hand-eye ``(T_robot_cam, T_flange_board)`` where it sees
-    ``MIN_POSES`` poses of the robot whose flange turns about more than one axis."""
-    out: dict[str, tuple[np.ndarray, np.ndarray]] = {}
-    for robot in problem.robots:
-        index = {v.pose: i for i, v in enumerate(problem.views)
-                 if v.camera == c and v.robot == robot}
-        flange = np.array([problem.flange[robot, p] for p in index])
-        if len(index) >= MIN_POSES and rotation_spread_deg(flange) >= MIN_SPREAD_DEG:
-            out[robot] = hand_eye(np.array([board[i] for i in index.values()]), flange)
-    return out
-
-
-def _tie(pairs: dict[int, dict[str, tuple[np.ndarray, np.ndarray]]], reference: str
-        ) -> tuple[dict[int, np.ndarray], dict[str, np.ndarray]]:
-    """Cameras' poses in ref and robots' bases from the per-camera, per-robot hand-eye
-    ``pairs[c][robot] = (T_robot_cam, ...)``: a camera from the robots already placed that it
-    sees, a robot from the cameras already placed that see it (means), until nothing more is
-    placed. Returns ``(T_ref_cam by camera, T_ref_robot by robot)``; either may lack some."""
-    cams: dict[int, np.ndarray] = {}
-    bases = {reference: np.eye(4)}
-    robots = {robot for found in pairs.values() for robot in found}
-    while True:
-        new_cams = {c: _mean_pose([bases[r] @ T for r, (T, _) in found.items() if r in bases])
-                    for c, found in pairs.items()
-                    if c not in cams and any(r in bases for r in found)}
-        cams.update(new_cams)
-        new_bases = {r: _mean_pose([cams[c] @ invert_pose(pairs[c][r][0])
-                                   for c in cams if r in pairs[c]])
-                     for r in robots - bases.keys() if any(r in pairs[c] for c in cams)}
-        bases.update(new_bases)
-        if not new_cams and not new_bases:
-            return cams, bases
-
-
-def _initial_estimate(problem: _Problem, free_intrinsics: bool) -> Start:
-    """OpenCV's first estimates (module docstring, method (1)); the start's values where a
-    camera, a robot's base or a board's mount is not reached."""
-    start, views, points = problem.start, problem.views, problem.points
-    lenses, board, pairs = [], {}, {}
-    for c, camera in enumerate(start.cameras):
-        mine = [i for i, v in enumerate(views) if v.camera == c]
-        obj = [points[views[i].ids] for i in mine]
-        img = [np.asarray(views[i].pixels, dtype=float) for i in mine]
-        K, dist = _intrinsics(camera, obj, img, free_intrinsics)
-        lenses.append((K, dist))
-        board.update({i: _board_in_camera(o, p, K, dist) for i, o, p in zip(mine, obj, img,
-                                                                             strict=True)})
-        pairs[c] = _pairs(problem, board, c)
-    cams, bases = _tie(pairs, problem.robots[0])
-    mounts = {r: [found[r][1] for found in pairs.values() if r in found] for r in problem.robots}
-    cameras = [Camera(K, cam.width, cam.height, cams.get(c, cam.T_base_cam), dist, cam.name)
-               for c, (cam, (K, dist)) in enumerate(zip(start.cameras, lenses, strict=True))]
-    return Start(cameras, {r: bases.get(r, start.T_ref_robot[r]) for r in problem.robots},
-                 {r: _mean_pose(m) if m else start.T_flange_board[r] for r, m in mounts.items()})
 
 
 # --- the refinement -----------------------------------------------------------------------------
@@ -473,7 +158,7 @@ class _Layout:
     (free intrinsics) the ``INTRINSICS`` increments, per robot but the reference its base's
     increment, per robot its board's, then the free joint offsets."""
 
-    def __init__(self, problem: _Problem, free_intrinsics: bool, joint_offsets: bool) -> None:
+    def __init__(self, problem: Problem, free_intrinsics: bool, joint_offsets: bool) -> None:
         self.size, self.free_intrinsics = 0, free_intrinsics
         per_camera = POSE_SIZE + (len(INTRINSICS) if free_intrinsics else 0)
         self.camera = [self._take(per_camera) for _ in problem.start.cameras]
@@ -543,7 +228,7 @@ class _Model:
     ``initial``, zero there), and their Jacobian (rotations turned on the left: ``d(R v) /
     d rho = -[R v]x J_l(rho)``)."""
 
-    def __init__(self, problem: _Problem, initial: Start, free_intrinsics: bool,
+    def __init__(self, problem: Problem, initial: Start, free_intrinsics: bool,
                  joint_offsets: bool) -> None:
         self.problem, self.initial = problem, initial
         self.layout = _Layout(problem, free_intrinsics, joint_offsets)

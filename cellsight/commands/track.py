@@ -63,7 +63,8 @@ def cmd_track(args: argparse.Namespace) -> int:
     from rich.console import Console
     from rich.table import Table
 
-    from cellsight.export.mcap_run import ExportOptions, check_output, export_mcap
+    from cellsight.export.mcap_run import ExportOptions, export_mcap
+    from cellsight.export.rosbag import check_output
     from cellsight.recording.track import TrackOptions, track_recording
     from cellsight.report.run_report import format_value
 

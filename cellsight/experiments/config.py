@@ -9,7 +9,7 @@ from typing import Literal
 
 from cellsight.errors import CellsightError
 from cellsight.export.live import parse_address
-from cellsight.export.mcap_run import check_jpeg
+from cellsight.export.rosbag import check_jpeg
 from cellsight.occlusion.predictor import OBJECT_BVH, STRUCTURES
 from cellsight.realism import Profile
 from cellsight.trackers import DEFAULT_TRACKER, TrackerChoice

@@ -36,7 +36,7 @@ import numpy as np
 
 from cellsight.control.ik import IKError, solve_ik, tcp_frame
 from cellsight.errors import CellsightError
-from cellsight.experiments.cellcheck import least_distance, seen_with_and_without
+from cellsight.experiments.crossing_check import least_distance, seen_with_and_without
 from cellsight.experiments.task_path import TaskPath
 from cellsight.model.cell import Cell
 from cellsight.model.robot import Robot

@@ -34,7 +34,7 @@ from cellsight.experiments.sensors import IdealExtractor
 from cellsight.experiments.simulated import SimulatedRun, SimulatedSource
 from cellsight.experiments.sinks import KeyFramesSink, VideoSink
 from cellsight.export.live import LiveSink
-from cellsight.export.mcap_run import check_output
+from cellsight.export.rosbag import check_output
 from cellsight.geometry.transforms import transform_points
 from cellsight.model.cell import Cell
 from cellsight.model.loader import load_cell

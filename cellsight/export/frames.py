@@ -33,7 +33,8 @@ from cellsight.geometry.transforms import invert_pose
 from cellsight.model.cell import Cell
 from cellsight.model.loader import parse_cell_text
 from cellsight.model.robot import Robot
-from cellsight.model.urdf import fixed_frames, package_folder, resolve_uri
+from cellsight.model.urdf import fixed_frames
+from cellsight.model.urdf_files import package_folder, resolve_uri
 from cellsight.model.yaml_input import read_cell_text
 
 ROOT = "world"

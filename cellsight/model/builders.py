@@ -43,14 +43,11 @@ from cellsight.model.schema import (
     UrdfSpec,
 )
 from cellsight.model.urdf import (
-    UrdfError,
     UrdfRobot,
     finger_gripper,
     load_urdf_robot,
-    package_folder,
-    resolve_uri,
-    urdf_files,
 )
+from cellsight.model.urdf_files import UrdfError, package_folder, resolve_uri, urdf_files
 
 
 def _solid(spec: SolidSpec, name: str, where: str, file: str, folder: Path) -> Polyhedron:

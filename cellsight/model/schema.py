@@ -23,15 +23,12 @@ robot named elsewhere, joint vectors against the chain) is checked by
 from __future__ import annotations
 
 import math
-import re
 from typing import Annotated, Literal
 
 import numpy as np
 from pydantic import (
     AfterValidator,
-    BaseModel,
     BeforeValidator,
-    ConfigDict,
     Field,
     field_validator,
     model_validator,
@@ -39,41 +36,19 @@ from pydantic import (
 
 from cellsight.fields import about
 from cellsight.geometry.transforms import pose_from_xyz_rpy
-
-MIN_CONVEYOR_STEP_M = 1e-6  # m: the shortest leg of a conveyor path
-SAFE_NAME = re.compile(r"[A-Za-z0-9_-][A-Za-z0-9_.-]{0,63}")  # a camera name: part of file names
-
-
-def _no_bool(value: object) -> object:
-    """Refuse ``true``/``false`` where a number is expected (pydantic would read 1.0, 0.0)."""
-    if isinstance(value, bool):
-        raise ValueError("a number, not a boolean")
-    return value
-
-
-def _safe_name(value: str) -> str:
-    """Accept a camera name that is safe as part of a file name (:data:`SAFE_NAME`)."""
-    if not SAFE_NAME.fullmatch(value):
-        raise ValueError("a name of at most 64 letters, digits, '_', '-' and '.', not starting "
-                         "with '.' (it becomes part of output file names)")
-    return value
-
-
-Number = Annotated[float, BeforeValidator(_no_bool)]
-Finite = Annotated[Number, Field(allow_inf_nan=False)]
-Vec2 = Annotated[list[Finite], Field(min_length=2, max_length=2)]
-Vec3 = Annotated[list[Finite], Field(min_length=3, max_length=3)]
-Positive = Annotated[Number, Field(gt=0, allow_inf_nan=False)]
-Count = Annotated[int, Field(strict=True)]  # an integer: 2.0, "2" and true are refused
-Flag = Annotated[bool, Field(strict=True)]  # true or false: 1 and "yes" are refused
-JOINT_UNIT = "rad (m for a prismatic joint)"  # the unit of a joint value
-
-
-
-class _Strict(BaseModel):
-    """A spec that refuses unknown keys (a misspelt field is an error, not ignored)."""
-
-    model_config = ConfigDict(extra="forbid")
+from cellsight.model.spec_types import (
+    JOINT_UNIT,
+    MIN_CONVEYOR_STEP_M,
+    Count,
+    Finite,
+    Flag,
+    Number,
+    Positive,
+    Vec2,
+    Vec3,
+    _safe_name,
+    _Strict,
+)
 
 
 class PoseSpec(_Strict):

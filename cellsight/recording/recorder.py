@@ -13,7 +13,7 @@ Per vision frame at time ``t`` (log time ``t``; topics: :mod:`.names`):
 - ``/<part>/true_pose``: the part's true pose in the base frame (the simulator's truth),
   stamped ``t``;
 - once, ``/tf_static``: the cell's fixed frames (:mod:`cellsight.export.frames`), latched
-  (rosbag2's QoS metadata, written by :class:`cellsight.export.mcap_run.RosBag` as the export
+  (rosbag2's QoS metadata, written by :class:`cellsight.export.rosbag.RosBag` as the export
   writes it).
 
 ``cellsight track`` over the file gives the run's estimates again (the same images, joints,
@@ -32,7 +32,7 @@ import numpy as np
 
 from cellsight.export import frames as tf
 from cellsight.export import ros
-from cellsight.export.mcap_run import RosBag, check_jpeg, jpeg_image
+from cellsight.export.rosbag import RosBag, check_jpeg, jpeg_image
 from cellsight.model.cell import Cell
 from cellsight.recording import names
 from cellsight.runfolder.digest import cell_digest

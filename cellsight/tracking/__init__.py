@@ -34,6 +34,7 @@ from cellsight.tracking.interfaces import (
 from cellsight.tracking.loss import LossRule
 from cellsight.tracking.measurement import Observation, PinholeMeasurement
 from cellsight.tracking.motion import ConstantVelocity
+from cellsight.tracking.part_track import StepContext
 from cellsight.tracking.pnp import (
     PoseFix,
     estimate_pose,
@@ -51,7 +52,7 @@ from cellsight.tracking.selection import (
 )
 from cellsight.tracking.status import TrackStatus
 from cellsight.tracking.timing import STAGES
-from cellsight.tracking.tracker import StepContext, Tracker
+from cellsight.tracking.tracker import Tracker
 from cellsight.tracking.unknown import UNKNOWN_LABEL, Grid, UnknownOccluderRule, UnknownOccluders
 from cellsight.tracking.windowing import CovarianceWindows, WindowConfig, WindowPlan, plan_windows
 

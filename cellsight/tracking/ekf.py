@@ -15,7 +15,7 @@ Recursion, per vision frame:
   roll and yaw are wrapped to ``[-pi, pi)``;
 * check (beyond the paper): an update that moves the pose by 1 cm or 0.05 rad or more must put
   the accepted features in front of their cameras and reproject them no worse than the
-  prediction did, else it is refused (:meth:`PoseEKF._fits`): the linearisation, not the
+  prediction did, else it is refused (:func:`_fits`): the linearisation, not the
   features, would have moved it. Smaller steps are not checked: at a metre or more from the
   cameras the projection is then linear to a few hundredths of a pixel.
 
@@ -75,7 +75,7 @@ class UpdateReport:
     ``innovation`` (m, 2) px, ``mahalanobis2`` (m,), ``accepted`` (m,) bool; ``sigma_px`` is the
     pixel noise used for each camera index; ``refused``: the gate accepted features, but the
     update they gave fitted them worse than the prediction, and was not applied
-    (:meth:`PoseEKF._fits`; none is then ``accepted``).
+    (:func:`_fits`; none is then ``accepted``).
     """
 
     camera_index: np.ndarray
@@ -362,34 +362,35 @@ class PoseEKF:
         if accepted.any():
             state, P_new = _joseph_update(self._x, self._P, H, nu, sigma2, accepted)
             state[[3, 5]] = _wrapped(state[[3, 5]])  # roll and yaw
-            if _small_step(state, self._x) or self._fits(observations, state, nu, accepted):
+            if _small_step(state, self._x) or _fits(self, observations, state, nu, accepted):
                 self._x, self._P = state, P_new
             else:
                 report = replace(report, accepted=np.zeros_like(accepted), refused=True)
         return report
 
-    def _fits(self, observations: list[Observation], state: np.ndarray, nu: np.ndarray,
-              accepted: np.ndarray) -> bool:
-        """Whether an updated ``state`` (the augmented one) explains the accepted features at
-        least as well as the prediction did: every one in front of its camera, and the sum of
-        their squared residuals no larger than that of their innovations. A linear update
-        always passes (the residual is ``R S^-1 nu``, shorter than ``nu``); one that the
-        linearisation throws far (a wide covariance along a direction the features barely
-        see) does not, and is refused."""
-        part = state[:STATE_DIM]
-        R_part, rows, residual = rotation_of_state(part), 0, 0.0
-        for obs in observations:
-            n = len(obs.feature_ids)
-            if n == 0:
-                continue
-            pred, _ = self._offset(obs.camera_index, *obs.evaluate(part, R_part), state)
-            used = accepted[rows:rows + n]
-            points = obs.points_model[used] @ R_part.T + obs.exposed_state(part)[:3]
-            if np.any(obs.model.camera.depth(points) <= 0):
-                return False
-            residual += float(np.sum((np.asarray(obs.pixels)[used] - pred[used]) ** 2))
-            rows += n
-        return residual <= float(np.sum(nu[accepted] ** 2)) * (1 + 1e-9)
+
+def _fits(ekf: PoseEKF, observations: list[Observation], state: np.ndarray, nu: np.ndarray,
+          accepted: np.ndarray) -> bool:
+    """Whether an updated ``state`` of ``ekf`` (the augmented one) explains the accepted features at
+    least as well as the prediction did: every one in front of its camera, and the sum of
+    their squared residuals no larger than that of their innovations. A linear update
+    always passes (the residual is ``R S^-1 nu``, shorter than ``nu``); one that the
+    linearisation throws far (a wide covariance along a direction the features barely
+    see) does not, and is refused."""
+    part = state[:STATE_DIM]
+    R_part, rows, residual = rotation_of_state(part), 0, 0.0
+    for obs in observations:
+        n = len(obs.feature_ids)
+        if n == 0:
+            continue
+        pred, _ = ekf._offset(obs.camera_index, *obs.evaluate(part, R_part), state)
+        used = accepted[rows:rows + n]
+        points = obs.points_model[used] @ R_part.T + obs.exposed_state(part)[:3]
+        if np.any(obs.model.camera.depth(points) <= 0):
+            return False
+        residual += float(np.sum((np.asarray(obs.pixels)[used] - pred[used]) ** 2))
+        rows += n
+    return residual <= float(np.sum(nu[accepted] ** 2)) * (1 + 1e-9)
 
 
 def _wrapped(angles: np.ndarray) -> np.ndarray:
@@ -400,7 +401,7 @@ def _wrapped(angles: np.ndarray) -> np.ndarray:
 def _small_step(new: np.ndarray, old: np.ndarray) -> bool:
     """Whether an update moves the pose from ``old`` to ``new`` (states) by less than
     ``SMALL_STEP`` (m, rad): where the projection is that close to linear,
-    :meth:`PoseEKF._fits` need not look (it costs as much as the update)."""
+    :func:`_fits` need not look (it costs as much as the update)."""
     step = np.abs(new[:POSE_DIM] - old[:POSE_DIM])
     return bool(np.all(step[:3] < SMALL_STEP[0]) and np.all(step[3:] < SMALL_STEP[1]))
 

@@ -84,15 +84,15 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
-import cv2
 import numpy as np
 
 from cellsight.camera import Camera
 from cellsight.geometry.transforms import transform_points
 from cellsight.model.cell import Cell
 from cellsight.tracking.camera_fit import PoseFit, refit_pose
-from cellsight.tracking.extraction import ExtractionConfig, extract_corner
+from cellsight.tracking.extraction import extract_corner
 from cellsight.tracking.grabbing import grabbed
+from cellsight.tracking.offset_votes import corners_in, vote_peaks
 
 log = logging.getLogger(__name__)
 
@@ -188,7 +188,7 @@ class _Gathering:
         reach = self.reach
         box = np.concatenate([np.floor(pixels.min(axis=0)) - reach - 8,
                               np.ceil(pixels.max(axis=0)) + reach + 9]).astype(int)
-        corners = _corners_in(grabbed(observed, [box.tolist()]), box)
+        corners = corners_in(grabbed(observed, [box.tolist()]), box)
         if len(corners):
             gap = np.rint(corners[None, :, :] - pixels[:, None, :]).reshape(-1, 2).astype(int)
             gap = gap[(np.abs(gap) <= reach).all(axis=1)]
@@ -468,37 +468,3 @@ _HELD_M, _HELD_RAD = 1e-6, 1e-7  # a prior's sd that holds a position (m) or an 
 _PLACES = {"home": "at HOME", "part": "by the part", "release": "where the jaws opened again"}
 
 
-def _corners_in(image: np.ndarray, box: np.ndarray) -> np.ndarray:
-    """(N, 2) px: the Shi-Tomasi corners (whole pixels, image coordinates) of the region
-    ``box`` (u0, v0, u1, v1) of ``image``, with the extractor's window settings."""
-    cfg = ExtractionConfig()
-    h, w = image.shape[:2]
-    u0, v0 = max(int(box[0]), 0), max(int(box[1]), 0)
-    u1, v1 = min(int(box[2]), w), min(int(box[3]), h)
-    if u1 - u0 < 5 or v1 - v0 < 5:
-        return np.zeros((0, 2))
-    crop = np.ascontiguousarray(image[v0:v1, u0:u1], dtype=np.float32)
-    found = cv2.goodFeaturesToTrack(crop, maxCorners=200, qualityLevel=cfg.quality_level,
-                                    minDistance=cfg.min_distance_px, blockSize=cfg.block_size)
-    return np.zeros((0, 2)) if found is None else found.reshape(-1, 2) + [u0, v0]
-
-
-def vote_peaks(votes: np.ndarray, count: int, fraction: float = 1.0) -> list[np.ndarray]:
-    """Up to ``count`` offsets (2,) (u, v), px, of the peaks of ``votes`` ((2R+1, 2R+1), rows
-    v, columns u, offset -R at index 0): first the bin with the most votes in its 3x3
-    neighbourhood (the coarse offset), then the next such peaks, each more than 2 px from the
-    ones before (in u or v) and with at least ``fraction`` of the first's votes; the first
-    always."""
-    reach = votes.shape[0] // 2
-    padded = np.pad(votes, 1)
-    summed = sum(padded[1 + dv:1 + dv + votes.shape[0], 1 + du:1 + du + votes.shape[1]]
-                 for dv in (-1, 0, 1) for du in (-1, 0, 1))
-    v, u = np.unravel_index(int(np.argmax(summed)), summed.shape)
-    best = summed[v, u]
-    peaks: list[np.ndarray] = []
-    while not peaks or (len(peaks) < count and summed[v, u] > 0.0
-                        and summed[v, u] >= fraction * best):
-        peaks.append(np.array([u - reach, v - reach], dtype=float))
-        summed[max(v - 2, 0):v + 3, max(u - 2, 0):u + 3] = -np.inf
-        v, u = np.unravel_index(int(np.argmax(summed)), summed.shape)
-    return peaks

@@ -38,22 +38,18 @@ statuses: :mod:`.status`; records: :mod:`.records`.
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from cellsight.camera import Camera
-from cellsight.geometry.transforms import invert_pose, xyz_rpy_from_pose
-from cellsight.tracking.acquisition import rates_covariance, twin_turns
+from cellsight.geometry.transforms import xyz_rpy_from_pose
+from cellsight.tracking.acquire import Acquirer
+from cellsight.tracking.acquisition import twin_turns
 from cellsight.tracking.camera_check import CameraCheck, CheckFrame
 from cellsight.tracking.config import TrackerConfig, TrackerParts
 from cellsight.tracking.ekf import (
-    HELD,
-    RESTING,
-    STILL,
-    SUPPORT_RATES,
     AdaptiveNoise,
     PoseEKF,
     UpdateReport,
@@ -62,103 +58,29 @@ from cellsight.tracking.eligibility import NearOccluderHold
 from cellsight.tracking.extraction import CornerExtractor
 from cellsight.tracking.gate import SupportedGate
 from cellsight.tracking.grabbing import grabbed
-from cellsight.tracking.interfaces import Acquisition, Extractor, OccluderMap, TrackMonitor
-from cellsight.tracking.measurement import Observation
+from cellsight.tracking.interfaces import Extractor, OccluderMap
+from cellsight.tracking.measuring import Measurer
 from cellsight.tracking.motion import POSE_DIM
 from cellsight.tracking.offsets import CameraOffsets
-from cellsight.tracking.pnp import PoseFix
+from cellsight.tracking.part_track import (
+    PartTrack,
+    StepContext,
+    cameras_grabbed,
+    observed_of,
+    record_estimate,
+    visible_pixels,
+)
+from cellsight.tracking.prior.fusion import (
+    hold_along_sight,
+    off_holder,
+)
 from cellsight.tracking.records import PartFrame, TrackerFrame
 from cellsight.tracking.selection import camera_resolution
 from cellsight.tracking.status import TrackStatus
 from cellsight.tracking.timing import StageTimer
-from cellsight.visibility import CameraVisibility, Views, VisibilitySource
+from cellsight.visibility import Views, VisibilitySource
 
-TWIN_VERTICAL = np.cos(np.radians(10.0))  # a twin's turn axis this close to the vertical
-HOLD_SIGMAS = 3.0  # a held part's estimate this many holder sigmas off has left the grasp
-ACROSS_SIGHT = 1.0  # m: the sigma across a lone camera's sight line of the hold along it
-LYING_TOL = (0.015, 0.15)  # m, rad: a fix this far from its support's height and tilt is wrong
 UNREGISTERED = "cameras not registered yet"  # the reason while awaiting the registration
-Crowd = list[tuple[np.ndarray, dict[str, tuple[int, np.ndarray]]]]
-"""Per camera: (M, 2) predicted pixels of every visible feature of every part (what the windows
-must avoid), and each part's (first row, its visible feature indices) in them."""
-
-
-@dataclass
-class _Track:
-    """One workpiece's track: feature points (F, 3) in the part frame, the acquisition guess
-    (also the ``support`` pose of the whole-image search, until the kinematic prior gives the
-    support the part lies on), the near-occluder hold, the health monitor, the filter, the
-    last accepted measurement's time (s), the holder's pose of the
-    part (the last frame's, this frame's once predicted), where a gripper holds the part or
-    last held it since the filter last accepted a measurement (``held_at``, ``T_base_part``),
-    whether the last tracked frame accepted no measurement, or the filter has just started
-    (``coasted``: its next update needs the resume support, :mod:`.loss`), the last time (s)
-    enough were accepted to confirm the estimate for the unknown-occluder map (``confirmed``),
-    since when its features were looked for in vain (``unseen_since``, s; :mod:`.loss`) and
-    when it was last searched for in the whole images (``searched``, s); the part's ``twins``
-    (:func:`~cellsight.tracking.acquisition.twin_turns`); with the kinematic prior, the pose
-    of the part lying on its support this frame (``lying``, None: held, or not known) and
-    whether a holder let it go (``let_go``, until one holds it again)."""
-
-    points: np.ndarray
-    guess: np.ndarray | None
-    hold: NearOccluderHold
-    monitor: TrackMonitor
-    ekf: PoseEKF | None = None
-    base_guess: np.ndarray | None = None
-    attempts: int = 0
-    last_update: float = -np.inf
-    lost: bool = False
-    holder: np.ndarray | None = None
-    held_at: np.ndarray | None = None
-    coasted: bool = False
-    confirmed: float = -np.inf
-    unseen_since: float = np.inf
-    searched: float = -np.inf
-    support: np.ndarray | None = None
-    twins: list[np.ndarray] = field(default_factory=list)
-    lying: np.ndarray | None = None
-    let_go: bool = False
-
-    @property
-    def acquiring(self) -> bool:
-        """The part is to be acquired this frame: never acquired, or lost."""
-        return self.ekf is None or self.lost
-
-    def empty_record(self, name: str, status: TrackStatus, n_cameras: int) -> PartFrame:
-        """A record of this track with nothing predicted or measured (:meth:`PartFrame.empty`)."""
-        ekf = self.ekf
-        return PartFrame.empty(name, status, n_cameras, len(self.points),
-                               None if ekf is None else ekf.state,
-                               None if ekf is None else ekf.covariance,
-                               None if ekf is None else ekf.pose)
-
-    def search_on(self, acquisition: Acquisition) -> None:
-        """No fix this frame: a part never acquired is looked for at the next guess."""
-        if self.ekf is None and self.guess is not None:
-            if self.base_guess is None:
-                self.base_guess = self.guess
-            self.attempts += 1
-            self.guess = acquisition.guess(self.base_guess, self.attempts)
-
-
-@dataclass(frozen=True)
-class StepContext:
-    """One part's work in one :meth:`Tracker.step`: the frame's time ``t`` (s), what the
-    sensors took (``observed``, as given to the step), the ``crowd`` of predicted pixels
-    (:data:`Crowd`), the stage ``timer``, the part's ``track`` and its ``rec`` being filled;
-    ``look(name, T_base_part)``: the visibility source's answer with that part at that pose
-    (the others at their predictions); ``lags`` (C,) s: how long before ``t`` each camera was
-    exposed."""
-
-    t: float
-    observed: Any
-    crowd: Crowd
-    timer: StageTimer
-    track: _Track
-    rec: PartFrame
-    look: Callable[[str, np.ndarray], Views]
-    lags: np.ndarray
 
 
 class Tracker:
@@ -187,22 +109,33 @@ class Tracker:
         self.components = components or TrackerParts()
         self.cameras = list(cameras)
         self.predictor = predictor
-        self.extractor = extractor or CornerExtractor()
         self._models = [self.components.measurement(c, self.config.sigma_px)
                         for c in self.cameras]
         self.unknown = self.components.unknown.maps(self.cameras)
+        self.measurer = Measurer(self.cameras, self.components.windows,
+                                 extractor or CornerExtractor(), self._models, self.unknown)
         self.camera_check = self.components.cameras.check(self.cameras)
+        self.acquirer = Acquirer(self)
         self._registered = not self.config.awaiting_registration
         guesses = dict(initial_poses or {})
         names = [c.name for c in self.cameras]
         self.tracks = {
-            name: _Track(points, guesses.get(name),
+            name: PartTrack(points, guesses.get(name),
                          NearOccluderHold(self.config.near_occluder_hold_s),
                          self.components.health.monitor(names), support=guesses.get(name),
                          twins=twin_turns(points))
             for name, pts in parts.items()
             for points in [np.asarray(pts, dtype=float).reshape(-1, 3)]
         }
+
+    @property
+    def extractor(self) -> Extractor:
+        """The sensor (:class:`~.measuring.Measurer`'s): what extracts the features."""
+        return self.measurer.extractor
+
+    @extractor.setter
+    def extractor(self, extractor: Extractor) -> None:
+        self.measurer.extractor = extractor
 
     @classmethod
     def from_cell(
@@ -278,8 +211,9 @@ class Tracker:
         gripper closed on it: its TCP from the joint measurements times the grasp's
         ``T_tcp_part``); a part held at this frame and the last one is predicted by the holder's
         motion (:meth:`PoseEKF.predict_carried`) instead of its motion model, a held part's
-        estimate is kept with the holder's pose (:func:`_hold`, ``TrackerConfig.hold_std``; along a
-        lone camera's sight line, :func:`_hold_along_sight`) and is never lost, a held part never
+        estimate is kept with the holder's pose (:func:`~.prior.fusion.fuse_priors`,
+        ``TrackerConfig.hold_std``; along a lone camera's sight line,
+        :func:`~.prior.fusion.hold_along_sight`) and is never lost, a held part never
         tracked starts there (``TrackerConfig.held_std``), one let go comes to rest (its rates
         zeroed: it no longer moves with the holder, and stays still), and one let go while not
         tracked is looked for where it was let go; ``stamps`` (optional): each camera's exposure
@@ -290,8 +224,7 @@ class Tracker:
         kinematic prior, optional): part name -> ``T_base_part`` of the part lying on the level
         support it rests on this frame (a conveyor's belt, a table): a tracked part not held keeps
         that height, roll and pitch (:meth:`PoseEKF.fuse_prior`, ``TrackerConfig.rest_std``), and a
-        lost one is searched for on that support's plane (an acquisition off it is refused,
-        ``LYING_TOL``).
+        lost one is searched for on that support's plane (a fix off it refused, ``LYING_TOL``).
         """
         lags = _lags(stamps, self.cameras, t)
         timer = StageTimer()
@@ -301,7 +234,7 @@ class Tracker:
                 poses = self._predict(t, holders or {}, supports or {})
             with timer("occlusion"):
                 views = self.predictor.predict(joints, poses, openings) if poses else {}
-            crowd = _visible_pixels(views, len(self.cameras))
+            crowd = visible_pixels(views, len(self.cameras))
 
             def look(name: str, T_base_part: np.ndarray) -> Views:
                 with timer("occlusion"):
@@ -309,10 +242,10 @@ class Tracker:
 
             for name, track in self.tracks.items():
                 part_views = views.get(name)
-                rec = records[name] = self._record(name, track, part_views)
+                rec = records[name] = track.frame_record(name, part_views, len(self.cameras))
                 if part_views is not None:
                     context = StepContext(t, observed, crowd, timer, track, rec, look, lags)
-                    part_step = self._acquire if track.acquiring else self._track
+                    part_step = self.acquirer.acquire if track.acquiring else self._track
                     records[name] = _with_held_out(self.camera_check, part_step, context)
         masks = [self.unknown.mask(c, t) for c in range(len(self.cameras))]
         return TrackerFrame(float(t), records, timer.seconds, _grabbed(records, len(self.cameras)),
@@ -334,51 +267,15 @@ class Tracker:
 
     def _predict(self, t: float, holders: Mapping[str, np.ndarray],
                  supports: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
-        """Predict every tracked part to time ``t`` (on its support, if it rests on one); the
-        pose each is looked for at (the prediction, or the acquisition guess of a part never
-        acquired; for a part to be acquired that a holder holds or let go, where it holds it or
-        let it go)."""
+        """Predict every tracked part to time ``t`` (:meth:`~.part_track.PartTrack.predict_to`);
+        the pose each is looked for at."""
         poses = {}
-        loss = self.components.loss
         for name, track in self.tracks.items():
-            holder, lying = holders.get(name), supports.get(name)
-            track.lying = None if holder is not None or lying is None else np.asarray(
-                lying, dtype=float)
-            track.let_go = holder is None and (track.let_go or track.holder is not None)
-            if track.ekf is not None:
-                if holder is not None and track.holder is not None:
-                    track.ekf.predict_carried(t, holder @ invert_pose(track.holder),
-                                              self.config.carried_noise)
-                elif loss.coasts(t, track.last_update):
-                    track.ekf.predict(t, at_rest=track.holder is not None)  # let go: at rest
-                _fuse_priors(track, t, holder, self.config)
-                track.lost = loss.lost(t, track.last_update, track.unseen_since)
-                poses[name] = track.ekf.pose
-            elif track.guess is not None:
-                poses[name] = track.guess
-            if track.lying is not None:  # the whole-image search's plane
-                track.support = track.lying
-            track.holder = None if holder is None else np.asarray(holder, dtype=float)
-            if track.holder is not None:
-                track.held_at = track.holder
-            if track.acquiring and track.held_at is not None:
-                poses[name] = track.held_at
+            pose = track.predict_to(t, holders.get(name), supports.get(name),
+                                    self.components.loss, self.config)
+            if pose is not None:
+                poses[name] = pose
         return poses
-
-    def _record(self, name: str, track: _Track,
-                views: list[CameraVisibility] | None) -> PartFrame:
-        """One part's record before its measurements: waiting (nothing predicted), to be
-        acquired (waiting or lost) or coasting, with the visibility source's answer."""
-        C = len(self.cameras)
-        if views is None:
-            return track.empty_record(name, TrackStatus.WAITING, C)
-        if track.acquiring:
-            status = TrackStatus.LOST if track.ekf is not None else TrackStatus.WAITING
-        else:
-            status = TrackStatus.COASTING
-        rec = track.empty_record(name, status, C)
-        rec.set_views(views)
-        return rec
 
     def _track(self, context: StepContext) -> PartFrame:
         """Select, window, extract, gate and update (the paper's loop), then the health
@@ -387,7 +284,7 @@ class Tracker:
         ekf = track.ekf
         _shift_by_offsets(rec, ekf)
         with timer("selection"):
-            usable = self._usable(context, ekf.t)
+            usable = self.measurer.usable(context, ekf.t)
             resolution = _resolution(self.cameras, track)
             sel = self.components.selector.select(rec.pixels, usable, resolution)
             rec.selection, rec.selected = sel, sel.selected
@@ -395,8 +292,8 @@ class Tracker:
         def covariance(c: int, idx: np.ndarray) -> np.ndarray:
             return ekf.innovation_covariance(self._models[c], c, track.points[idx])[1]
 
-        obs = self._measure(context, covariance)
-        looked = rec.selected & _cameras_grabbed(context.observed, self.cameras)[:, None]
+        obs = self.measurer.measure(context, covariance)
+        looked = rec.selected & cameras_grabbed(context.observed, self.cameras)[:, None]
         check, loss = self.camera_check, self.components.loss
         in_filter = _in_filter(check)
         counted = looked & in_filter[:, None]
@@ -408,12 +305,12 @@ class Tracker:
             report = ekf.update([o for o in obs if in_filter[o.camera_index]], gate)
             track.coasted = report.n_accepted == 0
             if track.holder is not None:
-                _hold_along_sight(ekf, track.holder, self.cameras, report,
+                hold_along_sight(ekf, track.holder, self.cameras, report,
                                   self.config.hold_std[0])
             _record_update(rec, report)
             rec.health = track.monitor.update(context.t, rec.visible, counted, rec.measured,
                                               rec.rejected, rec.mahalanobis2, rec.unknown,
-                                              _off_holder(ekf, track.holder))
+                                              off_holder(ekf, track.holder))
             if not self._registered:
                 rec.health = replace(rec.health, reasons=(*rec.health.reasons, UNREGISTERED))
             unknown = self.components.unknown
@@ -429,172 +326,10 @@ class Tracker:
             track.last_update = ekf.t
             track.held_at = None  # the filter knows where it is
             rec.status = TrackStatus.DEGRADED if rec.health.reasons else TrackStatus.TRACKING
-        _record_estimate(rec, ekf)
+        record_estimate(rec, ekf)
         _check_cameras(self.camera_check, self.extractor, self.cameras, context, looked,
                        report.n_accepted > 0)
         return rec
-
-    def _usable(self, context: StepContext, t_hold: float | None) -> np.ndarray:
-        """(C, F) bool: the features that may be measured: predicted visible, not held back
-        next to an occluder at time ``t_hold`` (s; :mod:`.eligibility`; None, for a pose
-        acquisition tries: not flagged next to one at that pose) and not under an unknown
-        occluder (recorded in ``rec.unknown``)."""
-        rec = context.rec
-        for c in range(len(self.cameras)):
-            rec.unknown[c] = rec.visible[c] & self.unknown.covered(c, rec.pixels[c], context.t)
-        if t_hold is None:  # the track's hold is of its own predictions, not of a trial pose's
-            return rec.visible & ~rec.near_occluder & ~rec.unknown
-        return context.track.hold.usable(rec.visible, rec.near_occluder, t_hold) & ~rec.unknown
-
-    def _acquire(self, context: StepContext) -> PartFrame:
-        """A fix at the guess or the last prediction, else from the whole-image search (module
-        docstring); the filter starts from it. Returns the record of the windows that gave the
-        fix (or of the guess's, when there is none)."""
-        track, acquisition = context.track, self.components.acquisition
-        if track.holder is not None:  # held, not tracked: it is where the gripper holds it
-            rec = context.rec
-            self.initialise(rec.name, track.held_at, context.t, acquisition.covariance(
-                np.diag(np.repeat(np.square(self.config.held_std), 3))))
-            rec.status = TrackStatus.ACQUIRED
-            _record_estimate(rec, track.ekf)
-            return rec
-        fix = self._fix(context, acquisition.window_px, coarse=True)
-        verified = None if fix is None else self._verify(context, fix)
-        if verified is not None and not _lies_on(track.lying, verified[1].T_base_part):
-            verified = None  # off the support it lies on: a wrong pose the corners fit
-        searched = verified is None
-        if searched:
-            verified = self._search(context)
-        if verified is not None:
-            verified = _best_twin(lambda fix: self._verify(context, fix, searched), track.twins,
-                                  verified)
-        if verified is None:
-            track.search_on(acquisition)
-            return context.rec
-        context, fix = verified
-        rec = context.rec
-        covariance = acquisition.start(fix)
-        if track.lying is not None:  # on its support: as fast as a support moves it, at most
-            covariance[POSE_DIM:, POSE_DIM:] = rates_covariance(self.config.support_speed)
-        self.initialise(rec.name, fix.T_base_part, context.t, covariance, fix.offsets_px)
-        for c, f in fix.dropped:
-            rec.rejected[c, f] = True
-        rec.status = TrackStatus.ACQUIRED
-        _record_estimate(rec, track.ekf)
-        return rec
-
-    def _fix(self, context: StepContext, size_px: float, coarse: bool = False,
-             guess: np.ndarray | None = None, on_support: bool = False) -> PoseFix | None:
-        """Windows of ``size_px`` (px) on every usable feature of the record's prediction, then
-        a fix (:mod:`.acquisition`; ``coarse``: a first one, to be verified; ``guess``: the
-        pose of that prediction, to seed the fix where it is already near; ``on_support``: a
-        part lying on its support may be fitted there, the search's candidates and their
-        verification), or None. A camera the camera check holds out of the filter (dropped
-        as knocked, or awaiting its second look) is held out of the fix too."""
-        context.rec.selected = self._usable(context, None)
-
-        def covariance(c: int, idx: np.ndarray) -> np.ndarray:
-            return np.zeros((len(idx), 2, 2))
-
-        usable = self.camera_check.usable
-        obs = [o for o in self._measure(context, covariance, size_px) if usable(o.camera_index)]
-        lying = context.track.lying
-        support = None if lying is None or not on_support else (lying, self.config.rest_std)
-        with context.timer("ekf"):
-            return self.components.acquisition.fix(obs, self.config.sigma_px, coarse, guess,
-                                                   support)
-
-    def _verify(self, context: StepContext, fix: PoseFix,
-                on_support: bool = False) -> tuple[StepContext, PoseFix] | None:
-        """The fix checked against every feature it predicts (:mod:`.acquisition`): narrow
-        windows where it predicts them (moved by the cameras' offsets it estimated, if any), and
-        a second fix from what they find (``on_support``: as for :meth:`_fix`); that fix with
-        the context of its record, or None when it does not confirm the first."""
-        trial = _looked_at(context, fix.T_base_part, len(self.cameras))
-        for c, shift in (fix.offsets_px or {}).items():  # where each camera shows the part
-            trial.rec.pixels[c] += shift
-        again = self._fix(trial, self.components.acquisition.verify_window_px,
-                          guess=fix.T_base_part if on_support else None, on_support=on_support)
-        if again is None:
-            return None
-        rec = trial.rec
-        used = np.isfinite(rec.measured[..., 0])
-        for c, f in again.dropped:
-            used[c, f] = False
-        looked = rec.selected & _cameras_grabbed(context.observed, self.cameras)[:, None]
-        confirmed = self.components.acquisition.confirms(again, looked.sum(axis=1),
-                                                         used.sum(axis=1))
-        return (trial, again) if confirmed else None
-
-    def _search(self, context: StepContext) -> tuple[StepContext, PoseFix] | None:
-        """The whole-image search, when it is due (:mod:`.search`): of its best candidates
-        whose windows give a fix of at least ``min_points`` points (seeded by the candidate;
-        a part lying on its support may be fitted there, from fewer: :mod:`.acquisition`)
-        that verification confirms, the one whose verifying fix has the most points (the
-        fewest pixels of RMS among equals; a nearly symmetric part's turned twin fits fewer of
-        its features than the part), with the context of its record; None otherwise. A camera
-        held out of the filter (:meth:`_fix`) is not searched."""
-        search, track, t = self.components.search, context.track, context.t
-        acquisition = self.components.acquisition
-        detect = getattr(self.extractor, "detect", None)
-        observed = [_observed(context.observed, self.cameras, c)
-                    if self.camera_check.usable(c) else None for c in range(len(self.cameras))]
-        if (search is None or detect is None or track.support is None
-                or t - track.searched < search.every_s - 1e-9
-                or all(o is None for o in observed)):
-            return None
-        track.searched = t
-        with context.timer("grab"):
-            observed = [grabbed(o) for o in observed]
-        with context.timer("extraction"):
-            corners = [None if o is None else detect(o) for o in observed]
-            centres = [track.support[:2, 3]] + ([] if track.ekf is None else
-                                                [track.ekf.pose[:2, 3]])
-            candidates = search.candidates(self.cameras, track.points, track.support,
-                                           np.array(centres), corners)
-        confirmed = []
-        for candidate in candidates[:search.verify]:
-            trial = _looked_at(context, candidate.T_base_part, len(self.cameras))
-            fix = self._fix(trial, acquisition.window_px, coarse=True,
-                            guess=candidate.T_base_part, on_support=True)
-            enough = fix is not None and (acquisition.enough(fix) if fix.on_support
-                                          else fix.n_points >= search.min_points)
-            if enough:
-                verified = self._verify(trial, fix, on_support=True)
-                if verified is not None and _lies_on(track.lying, verified[1].T_base_part):
-                    confirmed.append(verified)
-        return max(confirmed, key=lambda c: (c[1].n_points, -c[1].rms_px), default=None)
-
-    def _measure(self, context: StepContext,
-                 covariance: Callable[[int, np.ndarray], np.ndarray],
-                 size_px: float | None = None) -> list[Observation]:
-        """Plan the windows of the selected features (``covariance(c, idx)``: their innovation
-        covariances (n, 2, 2) px^2 in camera ``c``; ``size_px``: fixed window size, px),
-        extract, build the observations."""
-        rec, timer, track = context.rec, context.timer, context.track
-        observations = []
-        for c, cam in enumerate(self.cameras):
-            idx = np.flatnonzero(rec.selected[c])
-            if len(idx) == 0:
-                continue
-            with timer("windowing"):
-                crowd, offsets = context.crowd[c]
-                own = _own_rows(*offsets[rec.name], idx)
-                plan = self.components.windows.plan(cam, rec.pixels[c, idx], idx,
-                                                    covariance(c, idx), crowd, own, size_px)
-                rec.windows[c] = plan
-            with timer("grab"):
-                seen = grabbed(_observed(context.observed, self.cameras, c), plan.boxes)
-            with timer("extraction"):
-                found = self.extractor.extract(c, seen, plan)
-            if not found:
-                continue
-            ids = np.array(sorted(found), dtype=np.int64)
-            px = np.array([found[i] for i in ids], dtype=float).reshape(-1, 2)
-            rec.measured[c, ids] = px
-            observations.append(Observation(self._models[c], c, ids, track.points[ids],
-                                            cam.undistort(px), float(context.lags[c])))
-        return observations
 
 
 def _learn_unknown(unknown: OccluderMap, t: float, rec: PartFrame, looked: np.ndarray) -> None:
@@ -608,130 +343,11 @@ def _learn_unknown(unknown: OccluderMap, t: float, rec: PartFrame, looked: np.nd
         unknown.learn(int(c), t, rec.pixels[c, failed[c]])
 
 
-def _fuse_priors(track: _Track, t: float, holder: np.ndarray | None,
-                 config: TrackerConfig) -> None:
-    """The kinematic prior's pseudo-measurements of a tracked part at time ``t`` (s;
-    :meth:`PoseEKF.fuse_prior`): held, it is kept with its ``holder`` (:func:`_hold`) and never
-    lost (the holder measures it); lying on a support, it keeps the support's height, roll and
-    pitch (``RESTING``); let go, it stays where it came to rest (``STILL``: every rate zero;
-    a wrong corner's update can no longer set it moving). ``config.rest_std`` gives the
-    sigmas of the height and the angles and of their rates per second."""
-    if holder is not None:
-        _hold(track.ekf, holder, config.hold_std)
-        track.last_update, track.unseen_since = float(t), np.inf
-        return
-    h, a = config.rest_std
-    if track.lying is not None:
-        track.ekf.fuse_prior(track.lying, RESTING, [h, a, a, h, a, a])
-        _keep_support_speed(track.ekf, config.support_speed)
-    if track.let_go:
-        track.ekf.fuse_prior(track.ekf.pose, STILL, [h, h, h, a, a, a])
-
-
-def _keep_support_speed(ekf: PoseEKF, speed: tuple[float, float]) -> None:
-    """A part lying on its support moves no faster than the support does (``speed``: m/s
-    across it, rad/s about its normal; ``TrackerConfig.support_speed``): where the filter's
-    rates go past that, they are fused at the bound (the nearest rates within it, a tenth of
-    the bound as sigma; an inequality constraint held by its active set). In ``harsh`` runs
-    re-acquired under the approaching gripper, the first update made 5 mm of disagreement a
-    velocity of 0.17 m/s, which carried the estimate 60 mm off while it coasted."""
-    lin, ang = speed
-    rates = ekf.state[POSE_DIM:].copy()
-    across, turn = float(np.hypot(rates[0], rates[1])), float(rates[5])
-    if across <= lin and abs(turn) <= ang:
-        return
-    rates[:2] *= min(1.0, lin / max(across, 1e-12))
-    rates[5] = np.clip(turn, -ang, ang)
-    ekf.fuse_prior(ekf.pose, SUPPORT_RATES, [0.1 * lin, 0.1 * lin, 0.1 * ang], rates=rates)
-
-
-def _lies_on(lying: np.ndarray | None, T_base_part: np.ndarray) -> bool:
-    """Whether a pose found for a part lies on the support the kinematic prior says it lies on
-    (``lying``: ``T_base_part`` there; None: nothing known): its height within
-    ``LYING_TOL[0]`` (m) and its tilt from the lying pose within ``LYING_TOL[1]`` (rad)."""
-    if lying is None:
-        return True
-    R = T_base_part[:3, :3] @ lying[:3, :3].T
-    tilt = float(np.arccos(np.clip(R[2, 2], -1.0, 1.0)))
-    return abs(T_base_part[2, 3] - lying[2, 3]) <= LYING_TOL[0] and tilt <= LYING_TOL[1]
-
-
-def _hold(ekf: PoseEKF, holder: np.ndarray, std: tuple[float, float]) -> None:
-    """Keep a held part's estimate with its holder's pose ``holder`` (the kinematic prior;
-    ``std``: its one sigma, m and rad): where the filter knows the pose less well than the
-    holder does, fuse the holder's pose; where the estimate is more than ``HOLD_SIGMAS`` of
-    them from it (wrong corners carried it off, or the cameras' shared calibration error
-    did), forget it and take the holder's. In between the images alone update it: a holder's
-    error is a bias, and fused every frame it would soon outweigh every camera."""
-    T = ekf.pose
-    moved = np.linalg.norm(T[:3, 3] - holder[:3, 3]) / std[0]
-    turned = Rotation.from_matrix(T[:3, :3].T @ holder[:3, :3]).magnitude() / std[1]
-    P = ekf.covariance
-    wide = (np.linalg.eigvalsh(P[:3, :3])[-1] > std[0] ** 2
-            or np.linalg.eigvalsh(P[3:6, 3:6])[-1] > std[1] ** 2)
-    off = max(moved, turned) > HOLD_SIGMAS
-    if wide or off:
-        ekf.fuse_prior(holder, HELD, np.repeat(std, 3), forget=off)
-
-
-def _hold_along_sight(ekf: PoseEKF, holder: np.ndarray, cameras: Sequence[Camera],
-                      report: UpdateReport, std: float) -> None:
-    """A held part that one camera alone updated (``report``): fuse its ``holder``'s position
-    along that camera's line of sight to it, with one sigma ``std`` (m; ``ACROSS_SIGHT``
-    across it: no prior there). One camera measures the part across its sight line well and
-    along it hardly at all: there the estimate drifted while carried (5-8 mm over 10 s with
-    a knocked camera dropped, the gripper exact), and the holder, fused only once the estimate
-    was ``HOLD_SIGMAS`` off (:func:`_hold`), let it. Along that line the holder is all there
-    is to know, so it is fused every such frame; across it the camera rules."""
-    seen = np.unique(report.camera_index[report.accepted])
-    if len(seen) != 1:
-        return
-    sight = ekf.state[:3] - cameras[int(seen[0])].center
-    along = np.outer(sight, sight) / float(sight @ sight)
-    covariance = std**2 * along + ACROSS_SIGHT**2 * (np.eye(3) - along)
-    ekf.fuse_prior(holder, HELD[:3], None, covariance=covariance)
-
-
-def _off_holder(ekf: PoseEKF, holder: np.ndarray | None) -> float | None:
-    """A held part's estimate's distance (m) from its ``holder``'s pose, for the health
-    monitor; None when it is not held."""
-    return None if holder is None else float(np.linalg.norm(ekf.pose[:3, 3] - holder[:3, 3]))
-
-
-def _best_twin(verify: Callable[[PoseFix], tuple[StepContext, PoseFix] | None],
-               twins: Sequence[np.ndarray],
-               verified: tuple[StepContext, PoseFix]) -> tuple[StepContext, PoseFix]:
-    """``verified``, or the confirmation (``verify``) of one of its fix's ``twins`` (the part
-    turned onto itself, :func:`~cellsight.tracking.acquisition.twin_turns`) with more points.
-    Only twins turned about an axis within ``TWIN_VERTICAL`` of the vertical are tried: they
-    keep a lying part the right way up (turned over, in ``harsh``, the twins' features above
-    the belt gave them more points than the part). An exact twin, whose features fall where
-    the fix's do, is as good, and not taken."""
-    best, T = verified, verified[1].T_base_part
-    for turn in twins:
-        axis = Rotation.from_matrix(turn[:3, :3]).as_rotvec()
-        if abs(T[:3, :3] @ axis)[2] < TWIN_VERTICAL * np.linalg.norm(axis):
-            continue  # it would turn the part over
-        other = verify(replace(verified[1], T_base_part=T @ turn))
-        if other is not None and other[1].n_points > best[1].n_points:
-            best = other
-    return best
-
-
-def _resolution(cameras: Sequence[Camera], track: _Track) -> np.ndarray:
+def _resolution(cameras: Sequence[Camera], track: PartTrack) -> np.ndarray:
     """Per camera: pixels per metre at the estimated part's centroid (focal / depth), the
     selection's weight of each camera."""
     T = track.ekf.pose
     return camera_resolution(cameras, track.points.mean(axis=0) @ T[:3, :3].T + T[:3, 3])
-
-
-def _looked_at(context: StepContext, T_base_part: np.ndarray, n_cameras: int) -> StepContext:
-    """``context`` with a fresh record of the part predicted at ``T_base_part``."""
-    name = context.rec.name
-    views = context.look(name, T_base_part)
-    rec = context.track.empty_record(name, context.rec.status, n_cameras)
-    rec.set_views(views[name])
-    return replace(context, rec=rec, crowd=_visible_pixels(views, n_cameras))
 
 
 def _shift_by_offsets(rec: PartFrame, ekf: PoseEKF) -> None:
@@ -750,22 +366,6 @@ def _record_update(rec: PartFrame, report: UpdateReport) -> None:
         rec.innovation[c, f] = report.innovation
         rec.mahalanobis2[c, f] = report.mahalanobis2
         rec.rejected[c, f] = ~report.accepted
-
-
-def _record_estimate(rec: PartFrame, ekf: PoseEKF) -> None:
-    """Record the filter's state, covariance and pose."""
-    rec.state, rec.covariance = ekf.state.copy(), ekf.covariance.copy()
-    rec.T_base_part = ekf.pose
-
-
-def _observed(observed: Any, cameras: Sequence[Camera], c: int) -> Any:
-    """Camera ``c``'s entry of what the sensors took: from a sequence in camera order or a
-    mapping by camera name (None when there is none)."""
-    if observed is None:
-        return None
-    if isinstance(observed, Mapping):
-        return observed.get(cameras[c].name)
-    return observed[c] if c < len(observed) else None
 
 
 def _in_filter(check: CameraCheck) -> np.ndarray:
@@ -794,7 +394,7 @@ def _check_cameras(check: CameraCheck, extractor: Extractor, cameras: Sequence[C
     detect = getattr(extractor, "detect", None)
 
     def corners(c: int) -> np.ndarray | None:
-        seen = _observed(context.observed, cameras, c)
+        seen = observed_of(context.observed, cameras, c)
         if detect is None or seen is None:
             return None
         with context.timer("grab"):
@@ -814,7 +414,7 @@ def _lags(stamps: Any, cameras: Sequence[Camera], t: float) -> np.ndarray:
     if stamps is None:
         return lags
     for c in range(len(cameras)):
-        stamp = _observed(stamps, cameras, c)
+        stamp = observed_of(stamps, cameras, c)
         if stamp is None:
             continue
         lag = float(t) - float(stamp)
@@ -825,22 +425,6 @@ def _lags(stamps: Any, cameras: Sequence[Camera], t: float) -> np.ndarray:
     return lags
 
 
-def _cameras_grabbed(observed: Any, cameras: Sequence[Camera]) -> np.ndarray:
-    """(C,) bool: the cameras that gave something this frame (a dropped frame's camera gave
-    nothing: its selected features are not counted as not found)."""
-    return np.array([_observed(observed, cameras, c) is not None for c in range(len(cameras))],
-                    dtype=bool)
-
-
-def _own_rows(start: int, visible: np.ndarray, idx: np.ndarray) -> np.ndarray:
-    """Rows of the crowd (:data:`Crowd`) of the features ``idx`` of a part whose rows start at
-    ``start`` for its visible features ``visible`` (sorted); -1 for a feature not among them."""
-    pos = np.searchsorted(visible, idx)
-    inside = pos < len(visible)
-    inside[inside] = visible[pos[inside]] == idx[inside]
-    return np.where(inside, start + pos, -1)
-
-
 def _grabbed(records: Mapping[str, PartFrame], n_cameras: int) -> np.ndarray:
     """Per camera, the fraction of its pixels grabbed by every part's windows."""
     grabbed = np.zeros(n_cameras)
@@ -849,21 +433,6 @@ def _grabbed(records: Mapping[str, PartFrame], n_cameras: int) -> np.ndarray:
             if plan is not None:
                 grabbed[c] += plan.fraction
     return grabbed
-
-
-def _visible_pixels(views: Views, n_cameras: int) -> Crowd:
-    """The crowd (:data:`Crowd`) of the visibility source's answer ``views``."""
-    out = []
-    for c in range(n_cameras):
-        rows, offsets, start = [], {}, 0
-        for name, per_cam in views.items():
-            v = per_cam[c]
-            idx = np.flatnonzero(v.visible)
-            offsets[name] = (start, idx)
-            rows.append(np.asarray(v.pixels, dtype=float)[idx])
-            start += len(idx)
-        out.append((np.concatenate(rows) if rows else np.zeros((0, 2)), offsets))
-    return out
 
 
 def _offset_prior(model: CameraOffsets, kept: tuple[np.ndarray, np.ndarray] | None,
