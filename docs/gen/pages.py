@@ -31,6 +31,8 @@ API = {
     "cellsight.control.ik": "inverse kinematics over every configuration branch",
     "cellsight.world": "the simulated cell (MuJoCo): the plant and the truth",
     "cellsight.realism": "realism profiles and what a seed draws",
+    "cellsight.session": "one run: a source of frames, the tracker, the sinks",
+    "cellsight.session.driver": "your cell's camera and robot drivers as a source",
     "cellsight.experiments": "the paper's experiments from Python",
     "cellsight.runfolder": "a run's folder: its files, written and read back",
     "cellsight.recording": "tracking recordings: the topic map",
