@@ -72,6 +72,26 @@ class Phase(str, Enum):
         return tuple(p for p in cls if p not in (cls.WAITING, cls.DONE, cls.FAILED))
 
 
+class Stage(str, Enum):
+    """The task's stages within its phases (module docstring). A stage equals, prints and
+    serialises as its name (``"descend"``), as ``frames.csv`` logs it."""
+
+    START = "start"
+    CLEAR = "clear"
+    OVER = "over"
+    DESCEND = "descend"
+    CLOSING = "closing"
+    HOLDING = "holding"
+    LIFT = "lift"
+    HOME = "home"
+    FINAL = "final"
+    OPENING = "opening"
+    HOLD = "hold"
+
+    def __str__(self) -> str:
+        return self.value
+
+
 @dataclass(frozen=True)
 class TaskTiming:
     """Durations of the task's steps (s). The defaults give the paper's timeline roughly: the
@@ -230,7 +250,7 @@ class GraspTask:
         self._first_grasp = self.planner.T_part_tcp.copy()
         self._shifts = 0
         self.phase = Phase.WAITING
-        self.stage = "start"
+        self.stage = Stage.START
         self.attempts = 0
         self.transitions: list[tuple[float, Phase, Phase, str]] = []
         self.events: list[tuple[float, Phase, str, str]] = []
@@ -291,14 +311,14 @@ class GraspTask:
             self._over(t, self.timing.over)
 
     def _approach(self, t: float, T_meas: np.ndarray, jaws_closed: bool) -> None:
-        if self._part_lost and self.stage != "clear":
-            self._set_stage(t, "clear", "part lost: back to the start pose, clear of the views")
+        if self._part_lost and self.stage is not Stage.CLEAR:
+            self._set_stage(t, Stage.CLEAR, "part lost: back to the start pose, clear of the views")
             log.info("t=%.3f s: %s/clear (part lost: back to the start pose, clear of the views)",
                      t, self.phase.value)
             self.planner.move_to(t, PoseGoal(self.servo.T_start, t), self.timing.retreat)
-        elif self.stage == "clear" and not self._part_lost:
+        elif self.stage is Stage.CLEAR and not self._part_lost:
             self._over(t, self.timing.over)
-        elif self.stage == "over" and t >= self.planner.segment_end():
+        elif self.stage is Stage.OVER and t >= self.planner.segment_end():
             goal, _ = self.planner.goal_at(self.planner.goal, t)
             error = float(np.linalg.norm(goal[:2, 3] - T_meas[:2, 3]))
             if error > self.tolerances.horizontal:
@@ -311,23 +331,23 @@ class GraspTask:
                 if t - self._stable_since < self.timing.stable:
                     return
                 note = f"horizontal error {1e3 * error:.1f} mm stable"
-            self._set_stage(t, "descend", note)
+            self._set_stage(t, Stage.DESCEND, note)
             self.planner.move_to(t, PartGoal(0.0), self.timing.descend)
-        elif self.stage == "descend" and (note := self._arrived(t, T_meas)):
+        elif self.stage is Stage.DESCEND and (note := self._arrived(t, T_meas)):
             self._go(t, Phase.GRASP, f"grasp pose {note}")
             self._gripper = self.closed_command
             T, twist, _ = self.planner.target(t)
-            self._set_stage(t, "closing", "jaws closing, following the part's last velocity")
+            self._set_stage(t, Stage.CLOSING, "jaws closing, following the part's last velocity")
             # horizontally only: a part rides its conveyor level; a vertical velocity is the
             # estimator's noise, and following it would push the held part into the conveyor
             self.planner.move_to(t, PoseGoal(T, t, twist[:3] * (1.0, 1.0, 0.0)), 0.0)
 
     def _grasp(self, t: float, T_meas: np.ndarray, jaws_closed: bool) -> None:
-        if self.stage == "closing" and t - self._stage_t >= self.timing.close:
+        if self.stage is Stage.CLOSING and t - self._stage_t >= self.timing.close:
             miss = grasp_miss(jaws_closed, self._jaw_opening, self.grasp_opening,
                               self.tolerances.opening)
             if miss is None:
-                self._set_stage(t, "holding", "jaws closed on the part")
+                self._set_stage(t, Stage.HOLDING, "jaws closed on the part")
                 self.planner.move_to(t, PoseGoal(self.planner.target(t)[0], t), 0.0)
                 return
             self.attempts += 1
@@ -340,48 +360,48 @@ class GraspTask:
                 reason += f"; the next grasp {1e3 * shift:+.1f} mm along the jaws' width"
             if self.attempts >= self.max_attempts:
                 self._go(t, Phase.FAILED, f"{reason}; giving up")
-                self._set_stage(t, "home", "returning HOME")
+                self._set_stage(t, Stage.HOME, "returning HOME")
                 self.planner.move_to(t, PoseGoal(self.T_home), self.timing.to_home)
             else:
                 self._go(t, Phase.APPROACH, reason)
                 self._over(t, self.timing.retreat)
-        elif self.stage == "holding" and t - self._stage_t >= self.timing.hold:
+        elif self.stage is Stage.HOLDING and t - self._stage_t >= self.timing.hold:
             self._go(t, Phase.MANIPULATE, "part held")
-            self._set_stage(t, "lift", f"lifting {1e2 * self.lift_height:.0f} cm")
+            self._set_stage(t, Stage.LIFT, f"lifting {1e2 * self.lift_height:.0f} cm")
             T = self.planner.target(t)[0]
             T[2, 3] += self.lift_height
             self.planner.move_to(t, PoseGoal(T), self.timing.lift)
 
     def _manipulate(self, t: float, T_meas: np.ndarray, jaws_closed: bool) -> None:
-        if self.stage == "lift" and t >= self.planner.segment_end():
-            self._set_stage(t, "home", "returning HOME with the part")
+        if self.stage is Stage.LIFT and t >= self.planner.segment_end():
+            self._set_stage(t, Stage.HOME, "returning HOME with the part")
             self.planner.move_to(t, PoseGoal(self.T_home), self.timing.to_home)
-        elif self.stage == "home" and (note := self._arrived(t, T_meas)):
+        elif self.stage is Stage.HOME and (note := self._arrived(t, T_meas)):
             self._go(t, Phase.RELEASE, f"HOME {note}")
-            self._set_stage(t, "final", "going to FINAL")
+            self._set_stage(t, Stage.FINAL, "going to FINAL")
             self.planner.move_to(t, PoseGoal(self.T_final), self.timing.to_final)
 
     def _release(self, t: float, T_meas: np.ndarray, jaws_closed: bool) -> None:
-        if self.stage == "final" and (note := self._arrived(t, T_meas)):
-            self._set_stage(t, "opening", f"FINAL {note}; opening the jaws")
+        if self.stage is Stage.FINAL and (note := self._arrived(t, T_meas)):
+            self._set_stage(t, Stage.OPENING, f"FINAL {note}; opening the jaws")
             self._gripper = self.open_command
-        elif self.stage == "opening" and t - self._stage_t >= self.timing.open:
-            self._set_stage(t, "home", "returning HOME")
+        elif self.stage is Stage.OPENING and t - self._stage_t >= self.timing.open:
+            self._set_stage(t, Stage.HOME, "returning HOME")
             self.planner.move_to(t, PoseGoal(self.T_home), self.timing.to_home)
-        elif self.stage == "home" and (note := self._arrived(t, T_meas)):
+        elif self.stage is Stage.HOME and (note := self._arrived(t, T_meas)):
             self._go(t, Phase.DONE, f"HOME {note}")
-            self._set_stage(t, "hold", "task complete")
+            self._set_stage(t, Stage.HOLD, "task complete")
 
     def _failed(self, t: float, T_meas: np.ndarray, jaws_closed: bool) -> None:
         """Grasp given up: the robot returns HOME with the jaws open and stays there."""
-        if self.stage == "home" and (note := self._arrived(t, T_meas)):
-            self._set_stage(t, "hold", f"HOME {note}; task failed")
+        if self.stage is Stage.HOME and (note := self._arrived(t, T_meas)):
+            self._set_stage(t, Stage.HOLD, f"HOME {note}; task failed")
 
     # ---- helpers -----------------------------------------------------------------------------
 
     def _over(self, t: float, duration: float) -> None:
         self._stable_since = None
-        self._set_stage(t, "over", f"{1e2 * self.approach_height:.0f} cm over the part")
+        self._set_stage(t, Stage.OVER, f"{1e2 * self.approach_height:.0f} cm over the part")
         self.planner.move_to(t, PartGoal(self.approach_height), duration)
 
     def _arrived(self, t: float, T_meas: np.ndarray) -> str | None:
@@ -404,7 +424,7 @@ class GraspTask:
         log.info("t=%.3f s: %s -> %s (%s)", t, self.phase.value, to.value, reason)
         self.phase = to
 
-    def _set_stage(self, t: float, stage: str, note: str) -> None:
+    def _set_stage(self, t: float, stage: Stage, note: str) -> None:
         self.stage = stage
         self._stage_t = t
         self.events.append((t, self.phase, stage, note))

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from enum import Enum
 from pathlib import Path
-from typing import Literal
 
 from cellsight.errors import CellsightError
 from cellsight.export.live import parse_address
@@ -14,7 +14,22 @@ from cellsight.occlusion.predictor import OBJECT_BVH, STRUCTURES
 from cellsight.realism import Profile
 from cellsight.trackers import DEFAULT_TRACKER, TrackerChoice
 
-Sensor = Literal["rendered", "ideal"]
+
+class Sensor(str, Enum):
+    """What the simulated cameras give the tracker: ``rendered`` (MuJoCo's images, corners
+    extracted by OpenCV) or ``ideal`` (the true projections with Gaussian pixel noise). A
+    sensor equals, prints and serialises as its name."""
+
+    RENDERED = "rendered"
+    IDEAL = "ideal"
+
+    def __str__(self) -> str:
+        return self.value
+
+    @property
+    def takes_images(self) -> bool:
+        """Its cameras take images (to extract corners from, record, draw)."""
+        return self is Sensor.RENDERED
 
 
 @dataclass(frozen=True)
@@ -49,7 +64,7 @@ class RunConfig:
     out: Path
     cell: Path | None = None
     seed: int = 0
-    sensor: Sensor = "rendered"
+    sensor: Sensor | str = Sensor.RENDERED
     tracker: TrackerChoice = DEFAULT_TRACKER
     duration: float | None = None
     max_duration: float = 80.0
@@ -70,7 +85,13 @@ class RunConfig:
         check_jpeg(self.record_jpeg, "--record-jpeg")
         if self.live is not None:
             parse_address(self.live)
-        if self.record is not None and self.sensor != "rendered":
+        try:
+            object.__setattr__(self, "sensor", Sensor(self.sensor))
+        except ValueError:
+            raise CellsightError(f"RunConfig.sensor: expected one of "
+                                 f"{', '.join(s.value for s in Sensor)}, got {self.sensor!r}")\
+                from None
+        if self.record is not None and not self.sensor.takes_images:
             raise CellsightError("--record: the ideal sensor takes no images to record; use the "
                                  "rendered sensor")
         duration = self.duration

@@ -54,7 +54,7 @@ def run_identity(config: RunConfig) -> dict:
     """The identity of the run ``config`` describes (module docstring)."""
     calibration = None if config.calibration is None else Path(config.calibration)
     return {"experiment": config.experiment, "seed": config.seed, "sensor": config.sensor,
-            "ideal_sigma_px": config.ideal_sigma_px if config.sensor == "ideal" else None,
+            "ideal_sigma_px": None if config.sensor.takes_images else config.ideal_sigma_px,
             **tracker_facts(config.tracker), "structure": config.structure,
             "duration_s": config.duration, "max_duration_s": config.max_duration,
             "tail_s": config.tail_s, "cell_sha256": cell_digest(load_cell(config.cell)),

@@ -80,7 +80,7 @@ class ExperimentRun:
             world if world is not None
             else World(self.draws.cell, seed=config.seed, conveyor=sc.conveyor, tasks=sc.tasks,
                        errors=self.draws.errors))
-        ideal = config.sensor == "ideal"
+        ideal = not config.sensor.takes_images
         exposures = Exposures(self.world, self.draws.trigger_skew_s, ideal, self.part.name,
                               config.full_frames or config.record is not None)
         end = config.duration if config.duration is not None else config.max_duration
@@ -104,14 +104,14 @@ class ExperimentRun:
         cfg = self.config
         sinks: list[FrameSink] = [
             OcclusionEvents(),
-            FramesCsv(FrameRows(self.robot, len(self.cell.cameras), cfg.sensor == "rendered"),
+            FramesCsv(FrameRows(self.robot, len(self.cell.cameras), cfg.sensor.takes_images),
                       PnPBaseline.of(self.tracker, self.part.feature_points))]
         if cfg.live is not None:
             sinks.append(LiveSink(cfg.live))
         if cfg.record is not None:
             sinks.append(RecordingSink(cfg.record, cfg.record_jpeg))
         sinks.append(KeyFramesSink(next(iter(self.scenario.tasks), None)))
-        if cfg.sensor == "rendered" and cfg.video_every > 0:
+        if cfg.sensor.takes_images and cfg.video_every > 0:
             sinks.append(VideoSink(cfg.video_every))
         return sinks + self.own_sinks
 

@@ -168,7 +168,7 @@ class SimulatedSource:
                                                 - truth.T_base_part[:3, 3])))
             self.kidnap.update(frame.t, str(part.status), error,
                                int(truth.visible.sum(axis=1).max(initial=0)))
-        return str(self.task.phase), self.task.stage
+        return str(self.task.phase), str(self.task.stage)
 
     def _control_until(self, t_next: float) -> None:
         """Control steps until the world's time reaches ``t_next`` (s); estimates reach the

@@ -18,7 +18,7 @@ from cellsight.tracking.acquisition import rates_covariance
 from cellsight.tracking.camera_check import CameraCheck
 from cellsight.tracking.config import TrackerConfig, TrackerParts
 from cellsight.tracking.grabbing import grabbed
-from cellsight.tracking.interfaces import Extractor
+from cellsight.tracking.interfaces import CornerDetector, Extractor
 from cellsight.tracking.measuring import Measurer
 from cellsight.tracking.motion import POSE_DIM
 from cellsight.tracking.part_track import (
@@ -159,7 +159,8 @@ class Acquirer:
         held out of the filter (:meth:`fix`) is not searched."""
         search, track, t = self.tracker.components.search, context.track, context.t
         acquisition = self.tracker.components.acquisition
-        detect = getattr(self.tracker.extractor, "detect", None)
+        extractor = self.tracker.extractor
+        detect = extractor.detect if isinstance(extractor, CornerDetector) else None
         cameras, check = self.tracker.cameras, self.tracker.camera_check
         observed = [observed_of(context.observed, cameras, c) if check.usable(c) else None
                     for c in range(len(cameras))]

@@ -30,7 +30,7 @@ as in the image (with distortion) unless said otherwise, times in s; state layou
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Any, Protocol
+from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
@@ -79,6 +79,7 @@ class Extractor(Protocol):
         ...
 
 
+@runtime_checkable
 class CornerDetector(Protocol):
     """A sensor that can also find corners in a camera's whole image (an extractor with a
     ``detect`` method): what the whole-image search (:mod:`cellsight.tracking.search`)

@@ -58,7 +58,7 @@ from cellsight.tracking.eligibility import NearOccluderHold
 from cellsight.tracking.extraction import CornerExtractor
 from cellsight.tracking.gate import SupportedGate
 from cellsight.tracking.grabbing import grabbed
-from cellsight.tracking.interfaces import Extractor, OccluderMap
+from cellsight.tracking.interfaces import CornerDetector, Extractor, OccluderMap
 from cellsight.tracking.measuring import Measurer
 from cellsight.tracking.motion import POSE_DIM
 from cellsight.tracking.offsets import CameraOffsets
@@ -391,7 +391,7 @@ def _check_cameras(check: CameraCheck, extractor: Extractor, cameras: Sequence[C
     """Feed the camera check (:mod:`.camera_check`) this frame of the part (``looked``: the
     (C, F) features looked for; ``updated``: the usable cameras updated the estimate)."""
     rec, T = context.rec, context.track.ekf.pose
-    detect = getattr(extractor, "detect", None)
+    detect = extractor.detect if isinstance(extractor, CornerDetector) else None
 
     def corners(c: int) -> np.ndarray | None:
         seen = observed_of(context.observed, cameras, c)
