@@ -29,8 +29,10 @@ import time
 import numpy as np
 
 from cellsight import load_cell
-from cellsight.occlusion.predictor import FRAME_BSP, VisibilityPredictor
+from cellsight.occlusion.backends import visibility_predictor
+from cellsight.occlusion.predictor import VisibilityPredictor
 from cellsight.occlusion.scenarios import random_snapshots
+from cellsight.visibility import FRAME_BSP
 
 FRAMES = 300
 PEER_TOLERANCE = 1e-4  # m: about where the peers' rays end short of a feature 1.7 m away
@@ -73,7 +75,7 @@ def run(frames: int = FRAMES) -> list[dict]:
     snapshots = random_snapshots(cell, frames, seed=7)
     n_cam = len(cell.cameras)
     rows = []
-    ours_all = VisibilityPredictor(cell)
+    ours_all = visibility_predictor(cell)
     tris = _triangles(ours_all)
 
     def ours(predictor):
@@ -118,18 +120,18 @@ def run(frames: int = FRAMES) -> list[dict]:
         # like their ray's end short of the feature (the tracker's 2 mm would differ on points
         # resting on a surface)
         same = {"cameras": cams, "surface_tolerance": PEER_TOLERANCE}
-        base_ms, base = _median_ms(ours(VisibilityPredictor(cell, near_px=0.0, **same)),
+        base_ms, base = _median_ms(ours(visibility_predictor(cell, near_px=0.0, **same)),
                                    snapshots)
         rows.append({"method": "cellsight object-bvh (default)", "cameras": label,
                      "ms": base_ms, "ratio": 1.0, "disagree": 0,
                      "checked": int(sum(m.sum() for m in masks))})
         bsp = {"near_px": 0.0, "structure": FRAME_BSP, **same}
         for name, fn in [
-            ("cellsight frame-bsp (paper's, culled)", ours(VisibilityPredictor(cell, **bsp))),
-            ("cellsight frame-bsp, no culling", ours(VisibilityPredictor(cell, cull=False,
+            ("cellsight frame-bsp (paper's, culled)", ours(visibility_predictor(cell, **bsp))),
+            ("cellsight frame-bsp, no culling", ours(visibility_predictor(cell, cull=False,
                                                                          **bsp))),
             ("cellsight object-bvh + near-occluder ring (tracker's)",
-             ours(VisibilityPredictor(cell, **same))),
+             ours(visibility_predictor(cell, **same))),
             ("Open3D RaycastingScene", open3d_fn(cams)),
             ("trimesh + embreex", embree_fn(cams)),
         ]:

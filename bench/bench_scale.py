@@ -39,9 +39,10 @@ from bench_ur_cell import (
     timed,
 )
 
-from cellsight.occlusion.predictor import FRAME_BSP, VisibilityPredictor
+from cellsight.occlusion.backends import visibility_predictor
 from cellsight.occlusion.scale_cells import scale_cell
 from cellsight.occlusion.scenarios import random_snapshots
+from cellsight.visibility import FRAME_BSP
 
 FRAMES = 100
 TARGET = (6, 4, 3)  # cameras, arms, parts
@@ -69,12 +70,12 @@ def measure(size: tuple[int, int, int], frames: int = FRAMES) -> dict:
     cell = scale_cell(*size)
     snapshots = random_snapshots(cell, frames, seed=7)
     same = {"surface_tolerance": PEER_TOLERANCE}
-    base = VisibilityPredictor(cell, near_px=0.0, **same)
+    base = visibility_predictor(cell, near_px=0.0, **same)
     fns = {
         "cellsight object-bvh": cellsight_fn(base),
-        "cellsight frame-bsp": cellsight_fn(VisibilityPredictor(cell, near_px=0.0,
+        "cellsight frame-bsp": cellsight_fn(visibility_predictor(cell, near_px=0.0,
                                                                 structure=FRAME_BSP, **same)),
-        "cellsight object-bvh + ring": cellsight_fn(VisibilityPredictor(cell, **same)),
+        "cellsight object-bvh + ring": cellsight_fn(visibility_predictor(cell, **same)),
         "Open3D (rebuilt)": open3d_fn(base),
         "MuJoCo mj_multiRay": mujoco_fn(base),
     }

@@ -25,7 +25,7 @@ import numpy as np
 
 from cellsight import load_cell
 from cellsight.geometry.transforms import pose_from_xyz_rpy, xyz_rpy_from_pose
-from cellsight.occlusion.predictor import VisibilityPredictor
+from cellsight.occlusion.backends import visibility_predictor
 from cellsight.rates import VISION_HZ
 from cellsight.tracking import (
     ChiSquareGate,
@@ -57,7 +57,7 @@ def _scenario(all_visible: bool, seed: int = 0) -> dict[str, list[float]]:
     part = cell.workpieces[0]
     cams = cell.cameras
     models = [PinholeMeasurement(c, 0.5) for c in cams]
-    predictor = VisibilityPredictor(cell)
+    predictor = visibility_predictor(cell)
     rng = np.random.default_rng(seed)
     pts = part.feature_points
     T0 = _trajectory(0.0, part.T_base_part)

@@ -36,8 +36,10 @@ import numpy as np
 
 import cellsight
 from cellsight import load_cell
-from cellsight.occlusion.predictor import FRAME_BSP, VisibilityPredictor
+from cellsight.occlusion.backends import visibility_predictor
+from cellsight.occlusion.predictor import VisibilityPredictor
 from cellsight.occlusion.scenarios import random_snapshots
+from cellsight.visibility import FRAME_BSP
 
 FRAMES = 300
 REPEATS = 3
@@ -186,13 +188,13 @@ def run(frames: int = FRAMES, path: Path | None = None) -> tuple[list[dict], dic
     cell, path = ur_cell(path)
     snapshots = random_snapshots(cell, frames, seed=7, in_gripper=0.0)
     same = {"surface_tolerance": PEER_TOLERANCE}
-    base = VisibilityPredictor(cell, near_px=0.0, **same)
+    base = visibility_predictor(cell, near_px=0.0, **same)
     methods = {
         "cellsight object-bvh (default)": cellsight_fn(base),
         "cellsight frame-bsp (paper's, culled)": cellsight_fn(
-            VisibilityPredictor(cell, near_px=0.0, structure=FRAME_BSP, **same)),
+            visibility_predictor(cell, near_px=0.0, structure=FRAME_BSP, **same)),
         "cellsight object-bvh + near-occluder ring (tracker's)": cellsight_fn(
-            VisibilityPredictor(cell, **same)),
+            visibility_predictor(cell, **same)),
         "Open3D RaycastingScene (rebuilt)": open3d_fn(base),
         "MuJoCo mj_multiRay (mj_kinematics)": mujoco_fn(base),
     }
@@ -201,7 +203,7 @@ def run(frames: int = FRAMES, path: Path | None = None) -> tuple[list[dict], dic
     rows = [{"method": name, **figures, "checked": int(sum(m.sum() for m in masks))}
             for name, figures in compared(results, "cellsight object-bvh (default)",
                                           masks).items()]
-    paper = VisibilityPredictor(cell, near_px=0.0, structure=FRAME_BSP, **same)
+    paper = visibility_predictor(cell, near_px=0.0, structure=FRAME_BSP, **same)
     facts = {"cell": path.name, "surfaces": len(base.surfaces.poly_owner),
              "cameras": len(cell.cameras), "features": len(_features(base, snapshots[0])),
              "stages": stages(paper, snapshots)}

@@ -33,10 +33,10 @@ def box_scene_polygons() -> tuple[list[np.ndarray], np.ndarray, np.ndarray]:
 def ur_scene_polygons() -> tuple[list[np.ndarray], np.ndarray, np.ndarray]:
     """The ur-cell's triangles at HOME, 16 random points in the robots' box, camera 0."""
     import cellsight
-    from cellsight.occlusion.predictor import VisibilityPredictor
+    from cellsight.occlusion.backends import visibility_predictor
 
     cell = cellsight.load_cell("ur-cell")
-    surfaces = VisibilityPredictor(cell).surfaces
+    surfaces = visibility_predictor(cell).surfaces
     vertices = surfaces.world_vertices(cell.snapshot())
     triangles = np.concatenate([
         surfaces.offsets[k] + cell.objects[obj].solid.face_triangles(face)

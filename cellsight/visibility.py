@@ -6,7 +6,7 @@ These sources give this answer, one class each, behind one interface
 
 - the occlusion predictor's back-ends, one per structure (:data:`STRUCTURES`), on a shared
   base that projects the features, tests the near-occluder ring and labels the answers
-  (:class:`cellsight.occlusion.predictor.VisibilityPredictor`; ``VisibilityPredictor(cell,
+  (:class:`cellsight.occlusion.predictor.VisibilityPredictor`; ``visibility_predictor(cell,
   structure=name)`` builds the one of that name): per-object hierarchies
   (:class:`cellsight.occlusion.object_bvh.ObjectBVH`) and the paper's per-frame BSP tree
   (:class:`cellsight.occlusion.frame_bsp.FrameBSP`);
@@ -21,6 +21,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass
+from enum import Enum
 from typing import Protocol
 
 import numpy as np
@@ -31,8 +32,21 @@ BEHIND, OUTSIDE, SELF = "behind", "outside", "self"
 #: built once in each object's frame (the default), or the paper's one BSP tree of the culled
 #: surfaces per frame. Here, so that the command line can name them without importing the
 #: predictor.
-OBJECT_BVH, FRAME_BSP = "object-bvh", "frame-bsp"
-STRUCTURES = (OBJECT_BVH, FRAME_BSP)
+class Structure(str, Enum):
+    """The occlusion predictor's back-ends
+    (:func:`cellsight.occlusion.backends.visibility_predictor` builds one): per-object
+    hierarchies built once (the default) or the paper's per-frame BSP tree. A structure
+    equals, prints and serialises as its name."""
+
+    OBJECT_BVH = "object-bvh"
+    FRAME_BSP = "frame-bsp"
+
+    def __str__(self) -> str:
+        return self.value
+
+
+OBJECT_BVH, FRAME_BSP = Structure.OBJECT_BVH, Structure.FRAME_BSP
+STRUCTURES = tuple(s.value for s in Structure)
 STATUS_INSIDE, STATUS_BEHIND, STATUS_OUTSIDE = 0, 1, 2  # codes of CameraVisibility.status
 
 

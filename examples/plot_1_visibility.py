@@ -28,7 +28,7 @@ from cellsight import load_cell
 from cellsight.control.ik import solve_ik
 from cellsight.geometry.transforms import pose_from_xyz_rpy
 from cellsight.model.grasp import grasp_pose
-from cellsight.occlusion.predictor import VisibilityPredictor
+from cellsight.occlusion.backends import visibility_predictor
 from cellsight.world import World
 
 cell = load_cell()
@@ -59,7 +59,7 @@ print(f"{len(solutions)} IK branches reach the grasp; nearest HOME: {np.round(q_
 # %%
 # ## What the predictor says
 #
-# `VisibilityPredictor(cell)` builds the cell's occlusion structures once; `predict(joints,
+# `visibility_predictor(cell)` builds the cell's occlusion structures once; `predict(joints,
 # part_poses)` answers per workpiece, one `CameraVisibility` per camera: `visible` (one flag
 # per feature), `pixels` (where each feature projects), `reason` (`''` when visible, else
 # `self` for a point behind its own part's faces, `behind` or `outside` for one out of the
@@ -67,7 +67,7 @@ print(f"{len(solutions)} IK branches reach the grasp; nearest HOME: {np.round(q_
 # but another object's silhouette passes within a few pixels of it: its image corner is not
 # a clean corner, so the tracker does not pick it).
 
-predictor = VisibilityPredictor(cell)
+predictor = visibility_predictor(cell)
 joints = {grasper.name: q_grasp}
 views = predictor.predict(joints, {part.name: T_base_part})[part.name]
 

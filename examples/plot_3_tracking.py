@@ -20,7 +20,7 @@ the part's true pose, so the estimate's error can be plotted frame by frame.
 # along the cell file's experiment path, faster than the cell file's speed so that a short run
 # shows something, and the second robot runs its own task: from one of the cell file's
 # crossing waypoints to the next, which puts its forearm above the conveyor, between the first
-# camera and the part's path. `Tracker.from_cell(cell, VisibilityPredictor(cell))` tracks
+# camera and the part's path. `Tracker.from_cell(cell, visibility_predictor(cell))` tracks
 # every workpiece of the cell, acquiring it (a PnP fix) around its nominal pose.
 
 import matplotlib.pyplot as plt
@@ -28,7 +28,7 @@ import numpy as np
 
 from cellsight import load_cell
 from cellsight.geometry.transforms import rotation_angle
-from cellsight.occlusion.predictor import VisibilityPredictor
+from cellsight.occlusion.backends import visibility_predictor
 from cellsight.rates import VISION_HZ
 from cellsight.report.overlay import FeatureMarks, draw_camera_overlay
 from cellsight.tracking import Tracker
@@ -42,7 +42,7 @@ move_s = 0.8  # s: the crossing robot's move
 world = World(cell, conveyor=conveyor,
               initial_joints={setup.crossing_robot: crossing[19.3]},
               tasks={setup.crossing_robot: [Waypoint(move_s, crossing[20.5])]})
-tracker = Tracker.from_cell(cell, VisibilityPredictor(cell))
+tracker = Tracker.from_cell(cell, visibility_predictor(cell))
 part = cell.workpiece(setup.workpiece)
 print(f"conveyor speed {conveyor.speed} m/s ({conveyor.speed / setup.conveyor_speed:g} x the "
       f"cell file's); {setup.crossing_robot} moves from its 19.3 s crossing waypoint to its "

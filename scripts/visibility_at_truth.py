@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import argparse
 
-from cellsight.occlusion.predictor import VisibilityPredictor
+from cellsight.occlusion.backends import visibility_predictor
 from cellsight.runfolder import load_run
 from cellsight.runfolder.figures import _per_camera, in_image
 
@@ -20,7 +20,7 @@ from cellsight.runfolder.figures import _per_camera, in_image
 def accuracies(folder: str, every: int = 3) -> tuple[float, float]:
     """(accuracy at the true pose, the run's accuracy) over in-view labels."""
     run = load_run(folder)
-    predictor = VisibilityPredictor(run.cell)
+    predictor = visibility_predictor(run.cell)
     inside = in_image(run.frames)
     true = _per_camera(run.frames, "vis_true", "bits")
     logged = _per_camera(run.frames, "vis_pred", "bits")

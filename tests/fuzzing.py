@@ -252,13 +252,13 @@ def _get(data, path):
 def _load_and_predict(text: bytes, case: int, tally: Tally, folder: Path) -> None:
     """Load a cell file's bytes and predict at the nominal state: a result or a clear error."""
     from cellsight import load_cell
-    from cellsight.occlusion.predictor import VisibilityPredictor
+    from cellsight.occlusion.backends import visibility_predictor
 
     path = folder / f"cell{case % 8}.yaml"
     path.write_bytes(text)
     try:
         cell = load_cell(path)
-        VisibilityPredictor(cell).predict()
+        visibility_predictor(cell).predict()
     except CellsightError as exc:
         tally.refused += 1
         message = str(exc)

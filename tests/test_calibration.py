@@ -41,7 +41,7 @@ from cellsight.model.calibration import (
 from cellsight.model.calibration_text import MAX_CALIBRATION_BYTES
 from cellsight.model.loader import builtin_cell_path, load_cell, parse_cell_text
 from cellsight.model.yaml_input import read_cell_text
-from cellsight.occlusion.predictor import VisibilityPredictor
+from cellsight.occlusion.backends import visibility_predictor
 
 DATA = Path(__file__).resolve().parent / "data" / "calibration"
 BUILTIN = yaml.safe_load(builtin_cell_path().read_text())
@@ -322,8 +322,8 @@ def test_the_builtin_cell_rewritten_through_its_calibration_files(tmp_path, fmt,
     r7ax = original.robot("R7AX")
     for joints in ({}, {"R7AX": r7ax.final},
                    {"R6AX": np.array([0.6, -0.2, 0.4, 0.3, 1.2, 0.1])}):
-        _same_answers(VisibilityPredictor(original).predict(joints),
-                      VisibilityPredictor(again).predict(joints))
+        _same_answers(visibility_predictor(original).predict(joints),
+                      visibility_predictor(again).predict(joints))
 
 
 def test_a_cell_with_files_of_its_own_loads_from_the_written_folder(tmp_path) -> None:

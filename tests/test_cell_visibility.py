@@ -9,8 +9,9 @@ from oracle import cell_scene, segment_oracle
 from cellsight import load_cell
 from cellsight.errors import CellsightError
 from cellsight.geometry.transforms import pose_from_xyz_rpy
-from cellsight.occlusion.predictor import FRAME_BSP, OBJECT_BVH, VisibilityPredictor
+from cellsight.occlusion.backends import visibility_predictor
 from cellsight.occlusion.scenarios import random_snapshots
+from cellsight.visibility import FRAME_BSP, OBJECT_BVH
 
 SNAPSHOTS = 250
 
@@ -24,7 +25,7 @@ def cell():
                                                   (FRAME_BSP, False)])
 def test_builtin_cell_matches_oracle_at_random_configurations(cell, structure, cull) -> None:
     options = {"cull": cull} if structure == FRAME_BSP else {}  # culling is frame-bsp's
-    predictor = VisibilityPredictor(cell, structure=structure, **options)
+    predictor = visibility_predictor(cell, structure=structure, **options)
     snapshots = random_snapshots(cell, SNAPSHOTS if cull else SNAPSHOTS // 5, seed=11)
     checked = left_out = hidden_by_others = 0
     mismatches = []
@@ -79,7 +80,7 @@ def test_the_pruned_oracle_answers_as_the_whole_one(cell) -> None:
 
 
 def test_labels_behind_outside_self_and_gripper(cell) -> None:
-    predictor = VisibilityPredictor(cell)
+    predictor = visibility_predictor(cell)
     r7 = cell.robot("R7AX")
     # The part far to the side: outside both images; under the floor: hidden by the table.
     result = predictor.predict(part_poses={"part": pose_from_xyz_rpy([3.0, -3.0, 0.6], [0, 0, 0])})
@@ -112,8 +113,8 @@ def test_features_resting_on_a_support_stay_visible(cell) -> None:
     corners; within the predictor's surface tolerance (2 mm) they rest on it, visible."""
     T = cell.workpieces[0].T_base_part.copy()
     T[2, 3] -= 0.001
-    loose = VisibilityPredictor(cell).predict(part_poses={"part": T})["part"]
-    exact = VisibilityPredictor(cell, surface_tolerance=0.0).predict(part_poses={"part": T})
+    loose = visibility_predictor(cell).predict(part_poses={"part": T})["part"]
+    exact = visibility_predictor(cell, surface_tolerance=0.0).predict(part_poses={"part": T})
     for lo, ex in zip(loose, exact["part"], strict=True):
         assert "conveyor" in ex.reason and "conveyor" not in lo.reason
         assert np.all(lo.visible >= ex.visible)
@@ -127,8 +128,8 @@ def test_near_occluder_flags_match_the_oracle_on_the_ring(cell) -> None:
     or an object and nothing): the ring rebuilt here and checked with the segment oracle. Exact
     with the unculled BSP; with the default hierarchies a ring point that ends inside another
     solid can be missed (back faces are skipped), rarely."""
-    predictor = VisibilityPredictor(cell, near_px=5.0, cull=False, structure=FRAME_BSP)
-    culled = VisibilityPredictor(cell, near_px=5.0)
+    predictor = visibility_predictor(cell, near_px=5.0, cull=False, structure=FRAME_BSP)
+    culled = visibility_predictor(cell, near_px=5.0)
     robots = {o.label for o in cell.objects if o.robot is not None}
     checked = flagged = culled_misses = by_background = 0
     mismatches = []
@@ -172,8 +173,8 @@ def test_near_occluder_flags_match_the_oracle_on_the_ring(cell) -> None:
 def test_camera_indices_are_checked(cell, cameras) -> None:
     """``cameras=[]`` used to mean all cameras, ``[-1]`` the last, ``[5]`` a traceback."""
     with pytest.raises(CellsightError, match=r"cameras must be indices 0\.\.1 of cell\.cameras"):
-        VisibilityPredictor(cell, cameras=cameras)
-    assert [c.name for c in VisibilityPredictor(cell, cameras=[1]).cameras] == ["cam2"]
+        visibility_predictor(cell, cameras=cameras)
+    assert [c.name for c in visibility_predictor(cell, cameras=[1]).cameras] == ["cam2"]
 
 
 def test_unknown_names_list_the_valid_ones(cell) -> None:

@@ -16,11 +16,13 @@ import pytest
 
 from cellsight import load_cell
 from cellsight.errors import GeometryError
+from cellsight.occlusion.backends import visibility_predictor
 from cellsight.occlusion.bsp import BSPTree
 from cellsight.occlusion.frame_bsp import CLUSTER_SIZE, camera_bit, polygon_clusters
-from cellsight.occlusion.predictor import FRAME_BSP, VisibilityPredictor
+from cellsight.occlusion.predictor import VisibilityPredictor
 from cellsight.occlusion.scenarios import random_snapshots
 from cellsight.occlusion.soup import PolygonSoup
+from cellsight.visibility import FRAME_BSP
 
 ROOT = Path(__file__).resolve().parents[1]
 CELLS = {"one UR5": ROOT / "tests" / "data" / "ur5_cell.yaml",
@@ -65,7 +67,7 @@ def _crossed(a, b, c, view, points) -> np.ndarray:
 @pytest.mark.slow
 @pytest.mark.parametrize("near_px", [0.0, 5.0])
 def test_every_polygon_that_can_hide_a_feature_is_kept(cell, near_px) -> None:
-    predictor = VisibilityPredictor(cell, near_px=near_px, structure=FRAME_BSP)
+    predictor = visibility_predictor(cell, near_px=near_px, structure=FRAME_BSP)
     tris, tri_poly = _triangles(predictor)
     closed = predictor.surfaces.object_closed[predictor.surfaces.poly_owner[tri_poly]]
     checked = needed = 0
@@ -90,8 +92,8 @@ def test_every_polygon_that_can_hide_a_feature_is_kept(cell, near_px) -> None:
 
 
 def test_culled_answers_equal_unculled_ones(cell) -> None:
-    culled = VisibilityPredictor(cell, structure=FRAME_BSP)
-    full = VisibilityPredictor(cell, cull=False, structure=FRAME_BSP)
+    culled = visibility_predictor(cell, structure=FRAME_BSP)
+    full = visibility_predictor(cell, cull=False, structure=FRAME_BSP)
     hidden = 0
     for snapshot in random_snapshots(cell, 8, seed=9):
         fast, slow = culled.predict_snapshot(snapshot), full.predict_snapshot(snapshot)
@@ -103,7 +105,7 @@ def test_culled_answers_equal_unculled_ones(cell) -> None:
 
 
 def test_clusters_partition_each_object_within_their_boxes(cell) -> None:
-    surfaces = VisibilityPredictor(cell).surfaces
+    surfaces = visibility_predictor(cell).surfaces
     polys, start, box, object_clusters, object_box = polygon_clusters(
         surfaces.local_vertices, surfaces.offsets, surfaces.object_polys, CLUSTER_SIZE)
     assert np.array_equal(np.sort(polys), np.arange(len(surfaces)))

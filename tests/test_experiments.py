@@ -20,7 +20,7 @@ from cellsight.experiments.plant import SimulatedCell
 from cellsight.experiments.runner import ExperimentRun
 from cellsight.experiments.sensors import IdealExtractor, IdealView
 from cellsight.model.loader import builtin_cell_path
-from cellsight.occlusion.predictor import VisibilityPredictor
+from cellsight.occlusion.backends import visibility_predictor
 from cellsight.occlusion.projection import ProjectionOnly
 from cellsight.rates import CONTROL_HZ, VISION_HZ
 from cellsight.runfolder.framelog import columns
@@ -233,7 +233,7 @@ def test_projection_only_sees_through_occluders() -> None:
     """Without occlusion prediction, every feature inside the image counts as visible: a
     superset of the BSP's answer that includes the self-occluded features."""
     cell = load_cell()
-    bsp = VisibilityPredictor(cell).predict()["part"]
+    bsp = visibility_predictor(cell).predict()["part"]
     plain = ProjectionOnly(cell).predict()["part"]
     for b, p in zip(bsp, plain, strict=True):
         assert np.all(p.visible >= b.visible) and p.count > b.count

@@ -96,11 +96,11 @@ def test_cameras_that_disagree_do_not_make_a_still_part_move():
 
 
 def test_stamps_after_the_frame_are_refused():
-    from cellsight.occlusion.predictor import VisibilityPredictor
+    from cellsight.occlusion.backends import visibility_predictor
     from cellsight.tracking import Tracker
 
     cell = load_cell()
-    tracker = Tracker.from_cell(cell, VisibilityPredictor(cell))
+    tracker = Tracker.from_cell(cell, visibility_predictor(cell))
     with pytest.raises(ValueError, match="cam2.*at or before"):
         tracker.step(None, None, 1.0, stamps={cell.cameras[1].name: 1.5})
     with pytest.raises(ValueError, match="finite"):

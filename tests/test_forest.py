@@ -24,10 +24,11 @@ from oracle import (
 from cellsight import load_cell
 from cellsight.errors import CellsightError
 from cellsight.geometry.transforms import pose_from_xyz_rpy
+from cellsight.occlusion.backends import visibility_predictor
 from cellsight.occlusion.forest import LEAF_SIZE, ObjectForest
-from cellsight.occlusion.predictor import FRAME_BSP, STRUCTURES, VisibilityPredictor
 from cellsight.occlusion.scale_cells import scale_cell
 from cellsight.occlusion.scenarios import random_snapshots
+from cellsight.visibility import FRAME_BSP, STRUCTURES
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -67,7 +68,7 @@ def test_forest_matches_the_oracle_on_random_objects_in_random_poses(seed) -> No
 
 def test_every_node_box_holds_its_polygons_and_leaves_partition_each_object() -> None:
     cell = load_cell(ROOT / "bench" / "ur2_cell.yaml")
-    predictor = VisibilityPredictor(cell)
+    predictor = visibility_predictor(cell)
     forest, surfaces = predictor.forest, predictor.surfaces
     verts, offsets = surfaces.local_vertices, surfaces.offsets
     for k, root in enumerate(forest.object_root):
@@ -100,8 +101,8 @@ CELLS = {"dual-arm": lambda: load_cell(),
 def test_object_bvh_answers_equal_the_per_frame_bsp(name) -> None:
     """Labels, pixels and near-occluder flags of every feature of every part in every camera."""
     cell = CELLS[name]()
-    bsp = VisibilityPredictor(cell, structure=FRAME_BSP)
-    bvh = VisibilityPredictor(cell)
+    bsp = visibility_predictor(cell, structure=FRAME_BSP)
+    bvh = visibility_predictor(cell)
     hidden = near = 0
     for snapshot in random_snapshots(cell, 60, seed=21):
         a, b = bsp.predict_snapshot(snapshot), bvh.predict_snapshot(snapshot)
@@ -133,7 +134,7 @@ def three_parts(tmp_path_factory):
 def test_several_workpieces_against_the_oracle(three_parts, structure) -> None:
     """Every part's features in every camera, one call per frame; parts hide each other."""
     cell = three_parts
-    predictor = VisibilityPredictor(cell, structure=structure)
+    predictor = visibility_predictor(cell, structure=structure)
     checked = by_parts = 0
     mismatches = []
     parts = {p.name for p in cell.workpieces}
@@ -172,4 +173,4 @@ def _stacked(cell):
 def test_unknown_structure_is_refused() -> None:
     with pytest.raises(CellsightError,
                        match=r"structure must be one of object-bvh, frame-bsp, got .octree."):
-        VisibilityPredictor(load_cell(), structure="octree")
+        visibility_predictor(load_cell(), structure="octree")

@@ -16,7 +16,7 @@ from cellsight.cli import main
 from cellsight.errors import CellsightError
 from cellsight.experiments import RunConfig, run_experiment
 from cellsight.model.loader import load_cell
-from cellsight.occlusion.predictor import VisibilityPredictor
+from cellsight.occlusion.backends import visibility_predictor
 from cellsight.runfolder import RunDataError, load_run
 
 CELL = load_cell()
@@ -30,7 +30,7 @@ T_PART = CELL.workpiece("part").T_base_part
     ("sheared", T_PART @ np.array([[1, 0.1, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1.0]])),
 ])
 def test_the_api_refuses_a_part_pose_that_is_not_rigid(name: str, pose: np.ndarray) -> None:
-    predictor = VisibilityPredictor(CELL)
+    predictor = visibility_predictor(CELL)
     with pytest.raises(CellsightError, match="workpiece part: pose must be a rigid transform"):
         predictor.predict(None, {"part": pose})
     with pytest.raises(CellsightError, match="rigid transform"):
@@ -39,7 +39,7 @@ def test_the_api_refuses_a_part_pose_that_is_not_rigid(name: str, pose: np.ndarr
 
 def test_a_rigid_pose_within_rounding_is_taken() -> None:
     rounded = T_PART.round(9)
-    assert VisibilityPredictor(CELL).predict(None, {"part": rounded})["part"][0].count > 0
+    assert visibility_predictor(CELL).predict(None, {"part": rounded})["part"][0].count > 0
 
 
 @pytest.mark.parametrize("args", [
@@ -180,7 +180,7 @@ def test_joints_on_the_command_line_refuse_booleans_and_repeated_robots(
 ])
 def test_the_api_names_the_robot_of_bad_joint_values(joints, message: str) -> None:
     with pytest.raises(CellsightError, match=message):
-        VisibilityPredictor(CELL).predict(joints)
+        visibility_predictor(CELL).predict(joints)
 
 
 def test_export_refuses_a_link_to_the_runs_own_file(calibrated_run, tmp_path) -> None:

@@ -20,8 +20,9 @@ from cellsight.errors import CellsightError
 from cellsight.geometry.polyhedron import box, prism
 from cellsight.model.cell import Cell, StaticObject
 from cellsight.occlusion import BSPTree, PolygonSoup
-from cellsight.occlusion.predictor import FRAME_BSP, STRUCTURES, VisibilityPredictor
+from cellsight.occlusion.backends import visibility_predictor
 from cellsight.occlusion.scenarios import random_snapshots
+from cellsight.visibility import FRAME_BSP, STRUCTURES
 
 L_SHAPE = [(-0.05, -0.05), (0.2, -0.05), (0.2, 0.05), (0.05, 0.05), (0.05, 0.2), (-0.05, 0.2)]
 # housing solids in cam1's frame (z forward, optical centre at the origin), m
@@ -54,8 +55,8 @@ def test_camera_in_or_on_a_closed_solid(cell, case, structure) -> None:
     at HOME and at random configurations; the housing really hides the features it should."""
     solid, expect = HOUSINGS[case]
     housed = _with_housing(cell, solid)
-    culled = VisibilityPredictor(housed, structure=structure)
-    full = VisibilityPredictor(housed, cull=False, structure=FRAME_BSP)
+    culled = visibility_predictor(housed, structure=structure)
+    full = visibility_predictor(housed, cull=False, structure=FRAME_BSP)
     snapshots = [housed.snapshot()] + random_snapshots(housed, 12, seed=3)
     checked = by_housing = seen_total = 0
     for snapshot in snapshots:
@@ -181,17 +182,17 @@ def test_adding_far_polygons_changes_nothing(seed, n_far, first) -> None:
 def test_bad_tolerances_are_refused(cell, name, value) -> None:
     with pytest.raises(CellsightError, match=rf"{name} must be a finite number >= 0 .*"
                                              rf"got {value!r}".replace("(", r"\(")):
-        VisibilityPredictor(cell, **{name: value})
+        visibility_predictor(cell, **{name: value})
 
 
 def test_zero_tolerances_are_accepted(cell) -> None:
-    predictor = VisibilityPredictor(cell, surface_tolerance=0, near_px=0.0)
+    predictor = visibility_predictor(cell, surface_tolerance=0, near_px=0.0)
     assert predictor.surface_tolerance == 0.0 and predictor.near_px == 0.0
 
 
 def test_negative_or_nan_jaw_opening_is_refused(cell) -> None:
     """Checked by ``Cell.snapshot`` (it used to be clipped to 0 by ``Tool.jaw_poses``)."""
-    predictor = VisibilityPredictor(cell)
+    predictor = visibility_predictor(cell)
     for bad in (-0.01, float("nan")):
         with pytest.raises(CellsightError, match=r"R7AX.*jaw opening"):
             predictor.predict(openings={"R7AX": bad})

@@ -13,6 +13,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from cellsight import load_cell
+from cellsight.occlusion.backends import visibility_predictor
 from cellsight.tracking.acquisition import TWIN_TOL, twin_turns
 from cellsight.tracking.extraction import CornerExtractor
 from cellsight.tracking.loss import LossRule
@@ -93,14 +94,13 @@ def test_tracker_started_far_from_the_part_finds_it_from_the_whole_image(cell):
     64 px windows at the nominal pose): the whole-image search finds it in the first frame,
     and the acquired pose is within 1 mm of the simulator's; without the search it is never
     found."""
-    from cellsight.occlusion.predictor import VisibilityPredictor
     from cellsight.rates import VISION_HZ
     from cellsight.tracking import Tracker, TrackerParts
 
     part = cell.workpieces[0]
     world = World(cell, seed=1)
     world.place_part(part.name, _moved(part.T_base_part, [-0.12, -0.18], math.radians(30)))
-    predictor = VisibilityPredictor(cell)
+    predictor = visibility_predictor(cell)
     tracker = Tracker.from_cell(cell, predictor)
     blind = Tracker.from_cell(cell, predictor, components=TrackerParts(search=None))
     try:
@@ -123,7 +123,6 @@ def test_a_part_let_go_onto_the_table_is_searched_for_on_the_table(cell):
     go (5 cm and 20 deg from where it came to rest), the whole-image search finds it within
     1 mm of the simulator's pose in the first frame; searched for on the belt's plane, as
     before the prior, it is not found there."""
-    from cellsight.occlusion.predictor import VisibilityPredictor
     from cellsight.tracking import Tracker
 
     part = cell.workpieces[0]
@@ -136,7 +135,7 @@ def test_a_part_let_go_onto_the_table_is_searched_for_on_the_table(cell):
     on_table[2, 3] += table_top - bottom
     world.place_part(part.name, on_table)
     let_go = _moved(on_table, [0.04, -0.03], math.radians(20))
-    predictor = VisibilityPredictor(cell)
+    predictor = visibility_predictor(cell)
     told, untold = Tracker.from_cell(cell, predictor), Tracker.from_cell(cell, predictor)
     try:
         world.step({}, {})

@@ -19,7 +19,7 @@ from cellsight.camera import camera_from_lens
 from cellsight.experiments.scenario import scenario
 from cellsight.experiments.sensors import IdealExtractor, IdealView
 from cellsight.geometry.transforms import transform_points
-from cellsight.occlusion.predictor import VisibilityPredictor
+from cellsight.occlusion.backends import visibility_predictor
 from cellsight.realism import FrameClock, ProfileError, draw_world, load_profile
 from cellsight.realism.profile import Profile, TimingKnobs
 from cellsight.world import World
@@ -220,7 +220,7 @@ def test_unknown_forearm_hides_features_the_predictor_thinks_visible(cell, tmp_p
     truth = world.true_views()["part"]
     blamed = [v for v in truth if "unknown.forearm" in v.reason]
     assert blamed, "the forearm hides nothing"
-    predicted = VisibilityPredictor(cell).predict(world.true_joints(), world.true_part_poses())
+    predicted = visibility_predictor(cell).predict(world.true_joints(), world.true_part_poses())
     c = next(i for i, v in enumerate(truth) if "unknown.forearm" in v.reason)
     hidden = np.array([r == "unknown.forearm" for r in truth[c].reason])
     assert predicted["part"][c].visible[hidden].any()
@@ -612,7 +612,7 @@ def test_held_part_predictor_agrees_with_the_ray_truth_from_every_side():
     while world.time < 0.4:
         world.step({"R7AX": robot.home}, {"R7AX": 0.0})
     assert world.grasp("R7AX") is not None
-    predictor = VisibilityPredictor(cell)
+    predictor = visibility_predictor(cell)
     checked = 0
     for k in range(8):
         q = robot.home + 0.03 * np.sin(np.arange(robot.n_joints) + k)
@@ -763,7 +763,7 @@ def test_mujoco_rays_agree_with_the_predictor_on_random_held_and_placed_parts():
     tol = 1e-4
     cell = scale_cell(3, 3, 2)
     snapshots = random_snapshots(cell, 40, seed=7)
-    predictor = VisibilityPredictor(cell, near_px=0.0, surface_tolerance=tol)
+    predictor = visibility_predictor(cell, near_px=0.0, surface_tolerance=tol)
     world = ReplayWorld(cell)
     model, data = world.scene.model, world.scene.data
     floor = model.geom("floor").id

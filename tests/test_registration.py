@@ -11,7 +11,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from cellsight import load_cell
-from cellsight.occlusion.predictor import VisibilityPredictor
+from cellsight.occlusion.backends import visibility_predictor
 from cellsight.trackers import TrackerChoice
 from cellsight.tracking import Tracker
 from cellsight.tracking.camera_fit import corrected
@@ -45,7 +45,7 @@ def test_the_tracker_and_its_predictor_take_a_recalibrated_camera():
     projectPoints) in that camera and unchanged in the other, what it sees is unchanged, and
     the measurement model projects with the new camera."""
     cell = load_cell()
-    predictor = VisibilityPredictor(cell)
+    predictor = visibility_predictor(cell)
     tracker = Tracker.from_cell(cell, predictor)
     before = predictor.predict()
     moved = corrected(cell.cameras[1], np.array([0.002, -0.002, 0.001, 0.003, 0.0, -0.001]))

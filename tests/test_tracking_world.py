@@ -7,7 +7,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from cellsight import load_cell
-from cellsight.occlusion.predictor import VisibilityPredictor
+from cellsight.occlusion.backends import visibility_predictor
 from cellsight.rates import VISION_HZ
 from cellsight.tracking import Tracker
 from cellsight.world import ConveyorPath, World
@@ -19,7 +19,7 @@ def test_tracker_follows_a_moving_part_in_rendered_images() -> None:
     start = part.T_base_part[:2, 3]
     conveyor = ConveyorPath([start, start + [0.3, 0.05]], speed=0.03)
     world = World(cell, seed=3, conveyor=conveyor)
-    predictor = VisibilityPredictor(cell)
+    predictor = visibility_predictor(cell)
     tracker = Tracker.from_cell(cell, predictor)
     errors, agreement = [], []
     try:

@@ -24,7 +24,7 @@ import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 
 from cellsight.geometry.transforms import transform_points  # noqa: E402
-from cellsight.occlusion.predictor import VisibilityPredictor  # noqa: E402
+from cellsight.occlusion.backends import visibility_predictor
 from cellsight.realism import draw_world  # noqa: E402
 
 EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
@@ -92,7 +92,7 @@ def test_visibility_matches_the_other_back_end_and_the_ray_casts(runs) -> None:
     grasper = scope["grasper"]
     # The IK solution puts the TCP at the grasp.
     assert np.allclose(grasper.tcp_pose(scope["q_grasp"]), scope["T_base_tcp"], atol=1e-5)
-    other = VisibilityPredictor(cell, structure="frame-bsp")  # the script uses object-bvh
+    other = visibility_predictor(cell, structure="frame-bsp")  # the script uses object-bvh
     printed = _printed_views(out)
     assert len(printed) == 2
     for joints, lines in zip((scope["joints"], scope["joints_cross"]), printed, strict=True):

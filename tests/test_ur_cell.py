@@ -14,7 +14,7 @@ from cellsight.control.clik import Clik
 from cellsight.errors import CellFileError
 from cellsight.experiments.scenario import scenario
 from cellsight.model.loader import BUILTIN_CELLS, builtin_cell_path
-from cellsight.occlusion.predictor import VisibilityPredictor
+from cellsight.occlusion.backends import visibility_predictor
 from cellsight.world.paths import JointTask
 from cellsight.world.world import World
 
@@ -62,7 +62,7 @@ def test_home_and_final_hold_the_part_in_every_view(cell):
     """HOME: the held part 17 cm over the conveyor's near edge; FINAL: 3 mm over the table; in
     both, every camera sees at least 6 of its points; the still part too."""
     robot, part = cell.robot("UR5A"), cell.workpiece("part")
-    predictor = VisibilityPredictor(cell)
+    predictor = visibility_predictor(cell)
     for q, z in ((robot.home, 0.62 + 0.17), (robot.final, 0.553)):
         robot.chain.check_q(q, check_limits=True)
         T_part = robot.tcp_pose(q) @ np.linalg.inv(part.T_part_grasp)
@@ -85,7 +85,7 @@ def test_crossing_hides_the_part_during_approach_and_manipulate(cell, exp3):
     """The predictor along UR5B's waypoints: UR5B hides points from some camera during the
     approach and grasp, and again while UR5A lifts the part; never from every camera."""
     task = JointTask(cell.robot("UR5B").home, exp3.tasks["UR5B"])
-    predictor = VisibilityPredictor(cell)
+    predictor = visibility_predictor(cell)
     hidden_at = []
     for t in np.arange(6.0, 27.0, 0.5):
         views = predictor.predict({"UR5B": task.at(t)}, {"part": _part_pose(exp3, t)},

@@ -18,7 +18,7 @@ from cellsight.control.clik import Clik
 from cellsight.errors import CellFileError
 from cellsight.model.urdf import load_urdf_robot
 from cellsight.model.urdf_files import resolve_uri
-from cellsight.occlusion.predictor import VisibilityPredictor
+from cellsight.occlusion.backends import visibility_predictor
 from cellsight.world.world import World
 
 pin = pytest.importorskip("pinocchio")
@@ -122,7 +122,7 @@ def test_predictor_agrees_with_mujoco_ray_casts(cell):
     MuJoCo's ray-cast truth for every feature in view, except near another object's silhouette
     (``near_occluder``: a ray grazing an edge, decided by float32 mesh vertices in MuJoCo)."""
     robot = cell.robot("UR5")
-    world, predictor = World(cell), VisibilityPredictor(cell)
+    world, predictor = World(cell), visibility_predictor(cell)
     part = cell.workpiece("part")
     rng = np.random.default_rng(2)
     compared, disagree, hidden_by_arm = 0, 0, 0

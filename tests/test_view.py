@@ -34,7 +34,7 @@ from cellsight.errors import CellsightError
 from cellsight.experiments import RunConfig, run_experiment
 from cellsight.geometry.transforms import pose_from_xyz_rpy, transform_points
 from cellsight.model.loader import load_cell
-from cellsight.occlusion.predictor import VisibilityPredictor
+from cellsight.occlusion.backends import visibility_predictor
 from cellsight.runfolder.framelog import FrameLog, decode_corners, decode_windows
 from cellsight.view.app import ViewApp
 from cellsight.view.replay import RunReplay
@@ -217,7 +217,7 @@ def test_one_frustum_per_camera_at_its_extrinsics(static_view, cell):
 def test_features_coloured_by_the_predictor_per_camera(static_view, cell):
     _, client = static_view
     part = cell.workpieces[0]
-    views = VisibilityPredictor(cell).predict(CROSSING)[part.name]
+    views = visibility_predictor(cell).predict(CROSSING)[part.name]
     assert not np.array_equal(views[0].visible, views[1].visible)  # the choice matters
     name = f"/features/{part.name}"
     np.testing.assert_allclose(

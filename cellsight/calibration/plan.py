@@ -99,7 +99,7 @@ from cellsight.errors import CellsightError
 from cellsight.geometry.transforms import make_pose
 from cellsight.model.cell import Cell
 from cellsight.model.robot import Robot
-from cellsight.occlusion.predictor import VisibilityPredictor
+from cellsight.occlusion.backends import visibility_predictor
 
 MIN_POSES = 6  # poses per camera below which the plan is refused
 TILT_DEG = (15.0, 40.0)  # deg: the board's tilt away from facing the camera
@@ -261,7 +261,7 @@ class _Planner:
         self.robot = replace(robot, tool=None)  # its TCP is its flange
         collision_cell, view_cell = planning_cells(cell, robot, board)
         self.collider = Collider(collision_cell, robot.name)
-        self.predictor = VisibilityPredictor(view_cell, near_px=0.0)
+        self.predictor = visibility_predictor(view_cell, near_px=0.0)
         self.reach = ReachMap(self.robot, board, rng)
 
     def candidates(self, samples: range, designed: bool) -> tuple[list[_Candidate], Counter]:

@@ -95,10 +95,10 @@ def _views(cell, robot, q, part) -> list[dict]:
     if part is None:
         return []
     from cellsight.camera import border_distance
-    from cellsight.occlusion.predictor import VisibilityPredictor
+    from cellsight.occlusion.backends import visibility_predictor
 
     workpiece, T = part
-    views = VisibilityPredictor(cell).predict({robot.name: q}, {workpiece.name: T},
+    views = visibility_predictor(cell).predict({robot.name: q}, {workpiece.name: T},
                                               {robot.name: 0.0})[workpiece.name]
     out = []
     for cam, view in zip(cell.cameras, views, strict=True):

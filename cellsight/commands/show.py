@@ -25,7 +25,7 @@ def cmd_show(args: argparse.Namespace) -> int:
     from rich.console import Console
 
     from cellsight.model.loader import load_cell
-    from cellsight.occlusion.predictor import VisibilityPredictor
+    from cellsight.occlusion.backends import visibility_predictor
     from cellsight.report.show import show_cell, show_files
     from cellsight.runfolder.folder import check_new_files
     from cellsight.runfolder.writes import WriteError
@@ -35,7 +35,7 @@ def cmd_show(args: argparse.Namespace) -> int:
                              parse_openings(args.openings))
     out = Path(args.out)
     check_new_files(out, show_files(cell), args.overwrite, "--out")
-    visibility = VisibilityPredictor(cell).predict_snapshot(snapshot)
+    visibility = visibility_predictor(cell).predict_snapshot(snapshot)
     try:
         paths = show_cell(snapshot, out, visibility)
     except (OSError, WriteError) as exc:  # a WriteError names the staged file: say why only

@@ -25,10 +25,10 @@ def cmd_visibility(args: argparse.Namespace) -> int:
     from rich.table import Table
 
     from cellsight.model.loader import load_cell
-    from cellsight.occlusion.predictor import VisibilityPredictor
+    from cellsight.occlusion.backends import visibility_predictor
 
     cell = load_cell(args.cell)
-    result = VisibilityPredictor(cell).predict(parse_joints(args.joints),
+    result = visibility_predictor(cell).predict(parse_joints(args.joints),
                                                parse_part_poses(args.part_pose),
                                                parse_openings(args.openings))
     if args.json:

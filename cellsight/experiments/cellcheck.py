@@ -57,7 +57,7 @@ from cellsight.experiments.crossing_check import Finding, crossing_findings
 from cellsight.model.cell import Cell, Workpiece
 from cellsight.model.grasp import HALF_TURN_Z, grasp_opening, grasp_pose
 from cellsight.model.robot import Robot
-from cellsight.occlusion.predictor import VisibilityPredictor
+from cellsight.occlusion.backends import visibility_predictor
 from cellsight.world import ReplayWorld
 from cellsight.world.contacts import mount_pairs
 from cellsight.world.paths import ConveyorPath
@@ -244,7 +244,7 @@ def _idle_robots(cell: Cell) -> list[Finding]:
         return []
     part = _workpiece(cell)
     states = _key_states(cell, part)
-    predictor = VisibilityPredictor(cell)
+    predictor = visibility_predictor(cell)
     out = []
     for robot in others:
         hidden: dict[str, list[str]] = {}

@@ -10,9 +10,9 @@ from pathlib import Path
 from cellsight.errors import CellsightError
 from cellsight.export.live import parse_address
 from cellsight.export.rosbag import check_jpeg
-from cellsight.occlusion.predictor import OBJECT_BVH, STRUCTURES
 from cellsight.realism import Profile
 from cellsight.trackers import DEFAULT_TRACKER, TrackerChoice
+from cellsight.visibility import OBJECT_BVH, STRUCTURES
 
 
 class Sensor(str, Enum):

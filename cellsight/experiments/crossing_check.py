@@ -12,6 +12,7 @@ import numpy as np
 
 from cellsight.model.cell import Cell, Workpiece
 from cellsight.model.robot import Robot
+from cellsight.occlusion.backends import visibility_predictor
 from cellsight.occlusion.predictor import VisibilityPredictor
 from cellsight.world import ReplayWorld
 from cellsight.world.paths import ConveyorPath, JointTask, Waypoint
@@ -44,7 +45,7 @@ def crossing_findings(cell: Cell, part: Workpiece, step_s: float,
                                    "cannot run")]
     crosser = cell.robot(setup.crossing_robot)
     task = JointTask(crosser.home, [Waypoint(t, q) for t, q in setup.crossing_waypoints])
-    predictor = VisibilityPredictor(cell)
+    predictor = visibility_predictor(cell)
     times = np.arange(0.0, setup.crossing_waypoints[-1][0] + step_s, step_s)
     states = list(_states(cell, part.name, crosser.name, times, path))
     seen = np.zeros((2, len(times), len(cell.cameras)), dtype=int)

@@ -40,6 +40,7 @@ from cellsight.experiments.crossing_check import least_distance, seen_with_and_w
 from cellsight.experiments.task_path import TaskPath
 from cellsight.model.cell import Cell
 from cellsight.model.robot import Robot
+from cellsight.occlusion.backends import visibility_predictor
 from cellsight.occlusion.predictor import VisibilityPredictor
 from cellsight.world.paths import JointTask, Waypoint
 
@@ -94,7 +95,7 @@ def design_crossing(cell: Cell, blocks: Sequence[Block], path: TaskPath, *,
     setup = cell.experiments
     crosser = _crossing_robot(cell)
     part = cell.workpiece(setup.workpiece) if setup.workpiece else cell.workpieces[0]
-    designs, predictor = [], VisibilityPredictor(cell)
+    designs, predictor = [], visibility_predictor(cell)
     for fraction in FRACTIONS:
         try:
             waypoints = _waypoints(cell, crosser, part.feature_points, blocks, path, fraction)

@@ -2,10 +2,9 @@
 
 ``PolygonSoup`` holds the polygons in flat arrays, ``BSPTree`` builds the tree and answers
 ``visibility(points, viewpoint)``; ``visible_mask`` does all three in one call. The cell-level
-back-ends (:mod:`.predictor`) register themselves when their modules are imported, here.
+predictor of a structure: :func:`~cellsight.occlusion.backends.visibility_predictor`.
 """
 
-from cellsight.occlusion import frame_bsp, object_bvh  # noqa: F401 - registers the back-ends
 from cellsight.occlusion.bsp import BSPTree, visible_mask
 from cellsight.occlusion.soup import PolygonSoup
 

@@ -49,7 +49,7 @@ CULL_MARGIN_PX = 2.0  # safety margin of the image-box overlap test, pixels
 CLUSTER_SIZE = 16  # polygons: most per cluster (a box culled as a whole before its polygons)
 
 
-class FrameBSP(VisibilityPredictor, structure=FRAME_BSP):
+class FrameBSP(VisibilityPredictor):
     """Visibility by one BSP tree of the (culled) surfaces per frame; options: those of
     :class:`~cellsight.occlusion.predictor.VisibilityPredictor`, and ``cull`` (False: every
     surface goes into the tree; the answers are the same).
@@ -57,6 +57,8 @@ class FrameBSP(VisibilityPredictor, structure=FRAME_BSP):
     Offline (constructor): clusters of nearby surfaces with their boxes. Per frame: cull,
     moving only the surfaces looked at into a buffer reused from frame to frame, build, visit.
     """
+
+    structure = FRAME_BSP
 
     def __init__(self, cell: Cell, *, cull: bool = True, **options: Any) -> None:
         super().__init__(cell, **options)

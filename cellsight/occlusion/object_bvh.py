@@ -17,12 +17,14 @@ from cellsight.occlusion.predictor import CONTAIN_MARGIN, Projection, Visibility
 from cellsight.visibility import OBJECT_BVH
 
 
-class ObjectBVH(VisibilityPredictor, structure=OBJECT_BVH):
+class ObjectBVH(VisibilityPredictor):
     """Visibility by each object's bounding-volume hierarchy (``forest``); options: those of
     :class:`~cellsight.occlusion.predictor.VisibilityPredictor`. Robots and static objects that
     are closed solids skip their back faces when the camera is outside them: a ring point that
     ends inside another solid can then be missed, rare, and only ever a missed
     ``near_occluder`` flag."""
+
+    structure = OBJECT_BVH
 
     def __init__(self, cell: Cell, **options: Any) -> None:
         super().__init__(cell, **options)

@@ -15,10 +15,10 @@ back-end's business, one class per structure (same answers, tests/test_forest.py
   by the poses, and one BSP tree of them is built and visited back to front from each
   camera's optical centre.
 
-``VisibilityPredictor(cell, structure=...)`` builds the back-end registered for that name.
-Adding a back-end is one module: a subclass declared with ``structure="name"`` (it registers
-itself), its name in :data:`cellsight.visibility.STRUCTURES` and its import in
-:mod:`cellsight.occlusion`.
+:func:`~cellsight.occlusion.backends.visibility_predictor` ``(cell, structure=...)`` builds the
+back-end of a :class:`~cellsight.visibility.Structure`. Adding a back-end is one module (a
+subclass with its ``structure``), a member of ``Structure`` and one line in
+:mod:`cellsight.occlusion.backends`.
 
 The labels:
 
@@ -43,12 +43,10 @@ from cellsight.errors import CellsightError
 from cellsight.model.cell import Cell, Snapshot
 from cellsight.occlusion._frame_kernel import Answer, label_answers, project_points
 from cellsight.occlusion.surfaces import CellSurfaces
-from cellsight.visibility import (  # noqa: F401 - the structures, also named from here
-    FRAME_BSP,
-    OBJECT_BVH,
+from cellsight.visibility import (
     STATUS_INSIDE,
-    STRUCTURES,
     CameraVisibility,
+    Structure,
     Views,
 )
 
@@ -59,18 +57,17 @@ CONTAIN_MARGIN = 1e-3  # m: growth of a solid's box in the camera-inside test (a
 
 #: Per camera: the features' pixels (N, 2) and projection status (N,) (``STATUS_*``).
 Projection = list[tuple[np.ndarray, np.ndarray]]
-_BACKENDS: dict[str, type[VisibilityPredictor]] = {}  # structure name -> back-end class
 
 
 class VisibilityPredictor(ABC):
     """Predicts, for a cell snapshot, which workpiece features each camera sees.
 
-    The base of the cell-level back-ends (module doc); ``VisibilityPredictor(cell,
-    structure=name, **options)`` builds the back-end of that name (:data:`STRUCTURES`; default
-    ``"object-bvh"``) with its options. Per frame (:meth:`predict`): project the features,
-    then the back-end's answers for the features in each image and their rings, then labels
-    (:meth:`stage_times` times each stage). ``cameras`` restricts the prediction to some
-    cameras (a non-empty list of indices into ``cell.cameras``; None: all).
+    The base of the cell-level back-ends (module doc);
+    :func:`~cellsight.occlusion.backends.visibility_predictor` ``(cell, structure, **options)``
+    builds one (default ``"object-bvh"``) with its options. Per frame (:meth:`predict`):
+    project the features, then the back-end's answers for the features in each image and their
+    rings, then labels (:meth:`stage_times` times each stage). ``cameras`` restricts the
+    prediction to some cameras (a non-empty list of indices into ``cell.cameras``; None: all).
     ``surface_tolerance`` (m): a feature within this distance of a surface's plane is not hidden
     by it, so that features resting on a support (the part's bottom corners on the conveyor)
     stay visible although the tracker's pose is off by a fraction of a millimetre.
@@ -87,33 +84,12 @@ class VisibilityPredictor(ABC):
     reuse buffers from frame to frame).
     """
 
-    #: The back-end's name (:data:`STRUCTURES`), given in its class statement.
-    structure: ClassVar[str]
-
-    def __new__(cls, *args: object, **options: object) -> VisibilityPredictor:
-        if cls is VisibilityPredictor:
-            structure = options.get("structure", OBJECT_BVH)
-            if structure not in _BACKENDS:
-                raise CellsightError(f"VisibilityPredictor: structure must be one of "
-                                     f"{', '.join(STRUCTURES)}, got {structure!r}")
-            cls = _BACKENDS[structure]
-        return super().__new__(cls)
-
-    def __init_subclass__(cls, *, structure: str, **kwargs: object) -> None:
-        super().__init_subclass__(**kwargs)
-        if structure not in STRUCTURES:
-            raise ValueError(f"back-end {cls.__name__}: {structure!r} is not in STRUCTURES")
-        cls.structure = structure
-        _BACKENDS[structure] = cls
+    #: The back-end's structure, given in its class statement.
+    structure: ClassVar[Structure]
 
     def __init__(self, cell: Cell, *, cameras: list[int] | None = None,
-                 surface_tolerance: float = 2e-3, near_px: float = 5.0,
-                 structure: str | None = None) -> None:
-        """``structure``: None or the back-end's own name (given when built through
-        ``VisibilityPredictor(cell, structure=...)``); the other options: class doc."""
-        if structure not in (None, self.structure):
-            raise CellsightError(f"{type(self).__name__}: structure is {self.structure!r}, "
-                                 f"got {structure!r}")
+                 surface_tolerance: float = 2e-3, near_px: float = 5.0) -> None:
+        """The options: class doc."""
         self.cell = cell
         self.surface_tolerance = _non_negative("surface_tolerance", surface_tolerance, "m")
         self.near_px = _non_negative("near_px", near_px, "px")

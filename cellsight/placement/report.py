@@ -14,7 +14,7 @@ import numpy as np  # noqa: E402
 
 from cellsight.control import Phase  # noqa: E402
 from cellsight.model.cell import Cell  # noqa: E402
-from cellsight.occlusion.predictor import VisibilityPredictor  # noqa: E402
+from cellsight.occlusion.backends import visibility_predictor
 from cellsight.placement.candidates import work_area  # noqa: E402
 from cellsight.placement.choose import MIN_POINTS, Placement  # noqa: E402
 from cellsight.placement.scoring import CandidateScores  # noqa: E402
@@ -39,7 +39,7 @@ class SetFigures:
 
 def set_figures(name: str, cell: Cell, task: TaskFrames, placement: Placement) -> SetFigures:
     """The figures of the cell's cameras (:class:`SetFigures`); ``placement``: their scores."""
-    predictor = VisibilityPredictor(cell)
+    predictor = visibility_predictor(cell)
     points, quality = np.zeros(task.n, dtype=int), np.zeros(task.n)
     for k in range(task.n):
         views = predictor.predict(*task.state(k))[task.part]

@@ -27,6 +27,7 @@ import numpy as np
 from cellsight.camera import Camera
 from cellsight.model.cell import Cell
 from cellsight.model.loader import load_cell
+from cellsight.occlusion.backends import visibility_predictor
 from cellsight.occlusion.predictor import VisibilityPredictor
 from cellsight.placement._information_kernel import pose_information
 from cellsight.placement.task import TaskFrames
@@ -93,7 +94,7 @@ def frame_views(predictor: VisibilityPredictor, rig: CandidateRig, joints: dict,
 def _predictor(cell_file: str) -> VisibilityPredictor:
     if cell_file not in _LOADED:
         cell = load_cell(cell_file)
-        _LOADED[cell_file] = (cell, VisibilityPredictor(cell))
+        _LOADED[cell_file] = (cell, visibility_predictor(cell))
     return _LOADED[cell_file][1]
 
 

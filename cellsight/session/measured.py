@@ -19,7 +19,7 @@ from cellsight.model.cell import Cell, Workpiece
 from cellsight.model.grasp import grasp_opening, grasp_pose
 from cellsight.model.landing import Landing
 from cellsight.model.robot import Robot
-from cellsight.occlusion.predictor import VisibilityPredictor
+from cellsight.occlusion.backends import visibility_predictor
 from cellsight.runfolder import FrameLog
 from cellsight.session.baseline import PnPBaseline
 from cellsight.session.events import OcclusionEvents
@@ -46,7 +46,7 @@ class MeasuredCell:
         self.robot = next((r for r in cell.robots if r.tool is not None), cell.robots[0])
         self.prior = _grasp_prior(cell, self.robot, part) if kinematic else None
         self.registers = kinematic and self.robot.tool is not None
-        self._views = VisibilityPredictor(cell)
+        self._views = visibility_predictor(cell)
 
     def truth(self, joints: dict[str, np.ndarray], openings: dict[str, float],
               T_base_part: np.ndarray | None) -> FrameTruth:

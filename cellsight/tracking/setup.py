@@ -19,13 +19,14 @@ from __future__ import annotations
 from dataclasses import replace
 
 from cellsight.model.cell import Cell
-from cellsight.occlusion.predictor import OBJECT_BVH, VisibilityPredictor
+from cellsight.occlusion.backends import visibility_predictor
 from cellsight.occlusion.projection import ProjectionOnly
 from cellsight.trackers import DEFAULT_TRACKER, TrackerChoice
 from cellsight.tracking.config import TrackerConfig, TrackerParts
 from cellsight.tracking.interfaces import Extractor
 from cellsight.tracking.tracker import Tracker
 from cellsight.tracking.unknown import UnknownOccluderRule
+from cellsight.visibility import OBJECT_BVH
 
 
 def tracker_facts(choice: TrackerChoice) -> dict[str, object]:
@@ -41,7 +42,7 @@ def build_tracker(cell: Cell, choice: TrackerChoice = DEFAULT_TRACKER, *,
     """The tracker of the cell's workpieces (module docstring) as ``choice`` has it;
     ``extractor``: the sensor (default: corners in images); ``awaiting_registration``: the
     caller registers the cameras to an arm (the kinematic tracker with images)."""
-    predictor = (VisibilityPredictor(cell, structure=structure) if choice.occlusion_prediction
+    predictor = (visibility_predictor(cell, structure=structure) if choice.occlusion_prediction
                  else ProjectionOnly(cell))
     speed = 2.0 * cell.experiments.conveyor_speed + 0.01
     config = TrackerConfig(camera_offsets_px=choice.camera_offsets_px,

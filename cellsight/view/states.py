@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from cellsight.model.cell import Cell
+from cellsight.occlusion.backends import visibility_predictor
 from cellsight.occlusion.predictor import VisibilityPredictor
 from cellsight.tracking.unknown import Grid
 
@@ -71,7 +72,7 @@ def static_state(cell: Cell, joints: Mapping[str, np.ndarray] | None = None,
     workpiece's features coloured by the predictor's answer.
     Joints are checked (length, limits) and part names too: errors name the robot or part."""
     snapshot = cell.snapshot(joints or {}, part_poses or {}, openings or {})
-    views = (predictor or VisibilityPredictor(cell)).predict_snapshot(snapshot)
+    views = (predictor or visibility_predictor(cell)).predict_snapshot(snapshot)
     features = {
         part: FeatureState(visible=np.array([v.visible for v in per_camera], dtype=bool),
                            pixels=np.array([v.pixels for v in per_camera], dtype=float))
