@@ -88,3 +88,28 @@ def test_run_folders_stay_under_the_output_folder_whatever_the_cell_is_named(
     assert where.is_relative_to(out.resolve()) and where != out.resolve()
     assert all(part not in ("..", ".") and not part.startswith((".", "-"))
                for part in spec.folder.parts), spec.folder
+
+
+def test_a_change_to_cellsights_code_is_another_run(tmp_path: Path):
+    """The identity's code digest: a copy of the package is the same code; one module changed
+    by one byte, or a data file, is another (so a resumed sweep runs again what the code
+    changed); compiled caches do not count."""
+    import shutil
+
+    from cellsight.experiments.identity import PACKAGE, code_digest
+
+    copy = tmp_path / "cellsight"
+    shutil.copytree(PACKAGE, copy, ignore=shutil.ignore_patterns("__pycache__"))
+    same = code_digest(copy)
+    assert same == code_digest(PACKAGE)
+    (copy / "__pycache__").mkdir(exist_ok=True)
+    (copy / "__pycache__" / "x.pyc").write_bytes(b"cache")
+    assert code_digest.__wrapped__(copy) == same
+    world = copy / "world" / "servo.py"
+    world.write_text(world.read_text() + "\n")
+    assert code_digest.__wrapped__(copy) != same
+    world.write_text(world.read_text()[:-1])
+    assert code_digest.__wrapped__(copy) == same
+    data = copy / "data" / "realism.yaml"
+    data.write_text(data.read_text() + "# edited\n")
+    assert code_digest.__wrapped__(copy) != same

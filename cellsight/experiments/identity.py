@@ -6,12 +6,15 @@ The identity holds the experiment, the seed, the sensor (and the ideal sensor's 
 tracker's options, the predictor's structure, the duration and its limits, the cell (the
 SHA-256 of its file and every file it points to), the realism profile (the SHA-256 of its
 knobs as loaded, so that an edited profile file is another profile), the calibration folder
-(the SHA-256 of its ``calibration.json``, None without one) and cellsight's version. What
-only shows a run (the output folder, progress, video, recording, live stream) is not in it.
+(the SHA-256 of its ``calibration.json``, None without one), cellsight's version and the
+SHA-256 of cellsight's own code (every module and data file of the package: a change to the
+world, the tracker or the task is another run, even under the same version). What only shows a
+run (the output folder, progress, video, recording, live stream) is not in it.
 """
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 from pathlib import Path
@@ -50,6 +53,21 @@ def calibration_digest(folder: Path | None) -> str | None:
         raise CellsightError(f"--calibration: {folder}: {exc.strerror or exc}") from None
 
 
+PACKAGE = Path(cellsight.__file__).resolve().parent
+
+
+@functools.cache
+def code_digest(package: Path = PACKAGE) -> str:
+    """The SHA-256 of the code in ``package``: every ``.py`` module and every file of its
+    ``data`` folder, by path and content (compiled caches aside)."""
+    digest = hashlib.sha256()
+    files = [*package.rglob("*.py"), *(package / "data").rglob("*")]
+    for path in sorted(f for f in files if f.is_file() and "__pycache__" not in f.parts):
+        digest.update(str(path.relative_to(package)).encode() + b"\0")
+        digest.update(hashlib.sha256(path.read_bytes()).digest())
+    return digest.hexdigest()
+
+
 def run_identity(config: RunConfig) -> dict:
     """The identity of the run ``config`` describes (module docstring)."""
     calibration = None if config.calibration is None else Path(config.calibration)
@@ -60,4 +78,4 @@ def run_identity(config: RunConfig) -> dict:
             "tail_s": config.tail_s, "cell_sha256": cell_digest(load_cell(config.cell)),
             "realism_sha256": profile_digest(config.realism),
             "calibration_sha256": calibration_digest(calibration),
-            "cellsight": cellsight.__version__}
+            "cellsight": cellsight.__version__, "code_sha256": code_digest()}
