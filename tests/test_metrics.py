@@ -117,3 +117,18 @@ def test_metrics_of_an_empty_log(tmp_path: Path):
     assert m["frames"] == 0 and m["position_rmse_mm"] is None
     assert m["visibility_accuracy"] is None and m["pixels_grabbed_fraction"] is None
     assert m["timing_ms"] == dict.fromkeys(STAGES)
+
+
+def test_the_metrics_sections_cover_every_field_once_and_keep_the_json_flat():
+    """``metrics.json``'s typed sections: every field of RunMetrics in exactly one section,
+    and a section read from a flat metrics object holds the very values of its keys."""
+    from cellsight.runfolder.metric_sections import SECTIONS, AccuracyMetrics, RunMetrics
+
+    owners = [name for section in SECTIONS for name in section.model_fields]
+    assert sorted(owners) == sorted(RunMetrics.model_fields) and len(set(owners)) == len(owners)
+    flat = {"metrics_version": 1, "seed": 4, "position_rmse_mm": 0.7, "phases": {},
+            "wall_s": 3.0, "extra_key": "kept"}
+    metrics = RunMetrics.model_validate(flat)
+    accuracy = metrics.section(AccuracyMetrics)
+    assert accuracy.position_rmse_mm == 0.7 and accuracy.phases == {}
+    assert metrics.model_dump(exclude_unset=True) == flat

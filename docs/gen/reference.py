@@ -141,10 +141,14 @@ def _default(field: FieldInfo) -> str:
     return f"`{value}`" if value not in (None, [], {}) else ""
 
 
-def schema_page(title: str, intro: str, root: type[BaseModel]) -> str:
+def schema_page(title: str, intro: str, root: type[BaseModel],
+                sections: tuple[type[BaseModel], ...] = ()) -> str:
     """A schema's reference: one table per model, every field with its type, default, unit
-    and description, and links from a field to the model it holds."""
-    models = models_of(root)
+    and description, and links from a field to the model it holds; a ``root`` made of
+    ``sections`` (its bases) gets a table per section instead of one of its own."""
+    models = [m for root_or_section in (sections or (root,))
+              for m in models_of(root_or_section)]
+    models = list(dict.fromkeys(models))
     anchors = {m: m.__name__.lower() for m in models}
     lines = [f"# {title}", "", intro, "",
              SCHEMA_NOTE.format(module=root.__module__), ""]
@@ -166,6 +170,7 @@ def run_folder_page() -> str:
     """The run folder: its files, ``frames.csv``'s columns and ``metrics.json``'s fields."""
     from cellsight.runfolder import framelog
     from cellsight.runfolder.folder import RUN_FILE_DOCS
+    from cellsight.runfolder.metric_sections import SECTIONS
     from cellsight.runfolder.metrics import RunMetrics
 
     header = framelog.columns(2, {"R7AX": 7, "R6AX": 6})
@@ -182,7 +187,9 @@ def run_folder_page() -> str:
               "| column | unit | meaning |", "|---|---|---|"]
     lines += [f"| `{family}` | {_cell(unit)} | {_cell(text)} |"
               for family, (unit, text) in framelog.COLUMN_DOCS.items()]
-    lines += ["", schema_page("metrics.json", "One JSON object a run, written last.", RunMetrics)
+    lines += ["", schema_page("metrics.json", "One JSON object a run, written last, its fields "
+                              "in sections (`cellsight.runfolder.metric_sections`).",
+                              RunMetrics, SECTIONS)
               .replace("# metrics.json", "## metrics.json", 1).replace("\n## ", "\n### ")]
     return "\n".join(lines)
 
