@@ -19,7 +19,7 @@ Topics (``<cam>``, ``<part>``: the camera's and the workpiece's names as ROS nam
   and, in frames where the tracker has one, ``<part>_est``;
 - ``/joint_states`` (``sensor_msgs/msg/JointState``, one per frame): every robot's logged
   (true) joints (rad, m), named ``<robot>/<joint>`` (the chain's joint names: the URDF's,
-  ``joint1`` .. for DH robots; :func:`cellsight.recording.names.joint_name`), and the grasping
+  ``joint1`` .. for DH robots; :func:`cellsight.export.topics.joint_name`), and the grasping
   robot's jaw opening (m) as ``<robot>/jaw_opening`` in frames that log it: the convention
   ``cellsight track`` reads (:mod:`cellsight.recording.names`);
 - ``/<part>/true_pose``, ``/<part>/est_pose`` (``geometry_msgs/msg/PoseStamped``, frame

@@ -13,7 +13,7 @@ per coordinate::
     I_kc = sum_{f visible} J_f^T J_f / sigma_px^2,  J_f = d pixel_f / d (t, theta)  (2 x 6)
 
 (the pinhole Jacobian of the projection times ``R_cam_base [I, -[p_f - t_part]x]``). Frames
-are scored in chunks on the sweep engine (:func:`cellsight.sweep.map_jobs`: in this process,
+are scored in chunks on the sweep engine (:func:`cellsight.sweep.engine.map_jobs`: in this process,
 on a local pool or a Dask cluster).
 """
 

@@ -2,7 +2,7 @@
 frame's record goes (:mod:`cellsight.session.run`).
 
 A source is the simulated world with its task (:mod:`cellsight.experiments.simulated`), a
-recording (:mod:`cellsight.recording.source`) or a camera driver (:mod:`.driver`); a sink is
+recording (:mod:`cellsight.recording.track`) or a camera driver (:mod:`.driver`); a sink is
 ``frames.csv`` (:mod:`.rows`), the key frames, the video, the monitors
 (:mod:`cellsight.experiments.sinks`), the recorder (:mod:`cellsight.recording.recorder`), the
 live stream (:mod:`cellsight.export.live`) or a user's own (the guide's example).
