@@ -21,10 +21,11 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass
-from enum import Enum
 from typing import Protocol
 
 import numpy as np
+
+from cellsight.fields import NamedEnum
 
 BEHIND, OUTSIDE, SELF = "behind", "outside", "self"
 #: The predictor's structures, one back-end class each
@@ -32,7 +33,7 @@ BEHIND, OUTSIDE, SELF = "behind", "outside", "self"
 #: built once in each object's frame (the default), or the paper's one BSP tree of the culled
 #: surfaces per frame. Here, so that the command line can name them without importing the
 #: predictor.
-class Structure(str, Enum):
+class Structure(NamedEnum):
     """The occlusion predictor's back-ends
     (:func:`cellsight.occlusion.backends.visibility_predictor` builds one): per-object
     hierarchies built once (the default) or the paper's per-frame BSP tree. A structure
@@ -40,9 +41,6 @@ class Structure(str, Enum):
 
     OBJECT_BVH = "object-bvh"
     FRAME_BSP = "frame-bsp"
-
-    def __str__(self) -> str:
-        return self.value
 
 
 OBJECT_BVH, FRAME_BSP = Structure.OBJECT_BVH, Structure.FRAME_BSP

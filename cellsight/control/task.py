@@ -37,13 +37,13 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass, fields, replace
-from enum import Enum
 
 import numpy as np
 
 from cellsight.control.clik import Clik, rotation_error
 from cellsight.control.interpolator import InterpolatingFilter
 from cellsight.control.planner import PartGoal, PoseGoal, TrajectoryPlanner
+from cellsight.fields import NamedEnum
 from cellsight.model.cell import Workpiece
 from cellsight.model.grasp import grasp_pose
 from cellsight.model.robot import Robot
@@ -51,7 +51,7 @@ from cellsight.model.robot import Robot
 log = logging.getLogger(__name__)
 
 
-class Phase(str, Enum):
+class Phase(NamedEnum):
     """Task phases. A phase equals, prints and serialises as its name (``"approach"``)."""
 
     WAITING = "waiting"
@@ -62,9 +62,6 @@ class Phase(str, Enum):
     DONE = "done"
     FAILED = "failed"
 
-    def __str__(self) -> str:
-        return self.value
-
     @classmethod
     def working(cls) -> tuple[Phase, ...]:
         """The phases in which the robot works on the part, in task order (not ``waiting``,
@@ -72,7 +69,7 @@ class Phase(str, Enum):
         return tuple(p for p in cls if p not in (cls.WAITING, cls.DONE, cls.FAILED))
 
 
-class Stage(str, Enum):
+class Stage(NamedEnum):
     """The task's stages within its phases (module docstring). A stage equals, prints and
     serialises as its name (``"descend"``), as ``frames.csv`` logs it."""
 
@@ -87,9 +84,6 @@ class Stage(str, Enum):
     FINAL = "final"
     OPENING = "opening"
     HOLD = "hold"
-
-    def __str__(self) -> str:
-        return self.value
 
 
 @dataclass(frozen=True)

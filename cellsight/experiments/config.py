@@ -4,18 +4,18 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from enum import Enum
 from pathlib import Path
 
 from cellsight.errors import CellsightError
 from cellsight.export.live import parse_address
 from cellsight.export.rosbag import check_jpeg
+from cellsight.fields import NamedEnum
 from cellsight.realism import Profile
 from cellsight.trackers import DEFAULT_TRACKER, TrackerChoice
 from cellsight.visibility import OBJECT_BVH, STRUCTURES
 
 
-class Sensor(str, Enum):
+class Sensor(NamedEnum):
     """What the simulated cameras give the tracker: ``rendered`` (MuJoCo's images, corners
     extracted by OpenCV) or ``ideal`` (the true projections with Gaussian pixel noise). A
     sensor equals, prints and serialises as its name."""
@@ -23,8 +23,6 @@ class Sensor(str, Enum):
     RENDERED = "rendered"
     IDEAL = "ideal"
 
-    def __str__(self) -> str:
-        return self.value
 
     @property
     def takes_images(self) -> bool:
