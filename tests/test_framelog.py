@@ -195,3 +195,29 @@ def test_a_value_that_is_not_a_number_names_the_file_column_and_row(tmp_path: Pa
         log.floats("true_x")
     assert str(e.value) == (f"{path}: column 'true_x', row 2: {bad!r} is not a number (edited "
                             f"by hand, or not a cellsight run's frames.csv?)")
+
+
+def test_a_header_that_cannot_be_written_leaves_no_file_open(tmp_path: Path, monkeypatch):
+    """A full disk at the header: one WriteError naming frames.csv, and the file it opened is
+    closed (no writer exists to close it; the fuzz run's write failures kept such files open)."""
+    import csv
+    import errno
+
+    from cellsight.runfolder.framelog import FrameWriter
+    from cellsight.runfolder.writes import WriteError
+
+    opened = []
+    real_open = Path.open
+
+    def tracked(self, *args, **kwargs):
+        opened.append(real_open(self, *args, **kwargs))
+        return opened[-1]
+
+    def full(self):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(Path, "open", tracked)
+    monkeypatch.setattr(csv.DictWriter, "writeheader", full)
+    with pytest.raises(WriteError, match="frames.csv"):
+        FrameWriter(tmp_path / "frames.csv", 2)
+    assert len(opened) == 1 and opened[0].closed

@@ -15,6 +15,7 @@ from __future__ import annotations
 import csv
 import re
 from collections.abc import Callable, Mapping, Sequence
+from contextlib import suppress
 from dataclasses import dataclass
 from pathlib import Path
 from types import TracebackType
@@ -25,7 +26,7 @@ import numpy as np
 from cellsight.errors import CellsightError
 from cellsight.geometry.transforms import xyz_rpy_from_pose
 from cellsight.runfolder.digest import is_regular_file
-from cellsight.runfolder.writes import write_error
+from cellsight.runfolder.writes import WriteError, write_error
 from cellsight.tracking.timing import STAGES
 from cellsight.tracking.unknown import Grid
 
@@ -245,7 +246,12 @@ class FrameWriter:
         except OSError as exc:
             raise write_error(self.path, exc) from exc
         self._writer = csv.DictWriter(self._file, self.columns, quoting=csv.QUOTE_NONNUMERIC)
-        self._written(self._writer.writeheader)
+        try:
+            self._written(self._writer.writeheader)
+        except WriteError:  # no writer to close it: the file is closed here, what it can
+            with suppress(OSError):
+                self._file.close()
+            raise
 
     def _written(self, write: Callable[[], object]) -> None:
         """``write`` then flush; an OSError is a WriteError naming the file."""
