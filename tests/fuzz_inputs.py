@@ -804,6 +804,8 @@ def _stamps(items: list[Item], rng: random.Random) -> str:
 def _truth(items: list[Item], rng: random.Random) -> str:
     how = rng.choice(("nan", "zero quaternion", "long quaternion", "huge"))
     for it in _some(_of(items, rng, "/true_pose"), rng):
+        if not hasattr(it[3], "pose"):  # another mutation gave the topic another type
+            continue
         pose = it[3].pose
         if how == "nan":
             pose.position.x = math.nan
