@@ -106,7 +106,6 @@ class RecordingSource:
         self.origin_ns = start - start % 1_000_000_000  # the whole second of the first message
         self.grouper = FrameGrouper(recording, list(self.cell.cameras), self.topics,
                                     options.tolerance_s, self.origin_ns)
-        self.frames_read = 0
         self.held_s = 0.0
         self._t = 0.0
 
@@ -131,7 +130,6 @@ class RecordingSource:
         for k, frame in enumerate(self.grouper.frames()):
             self._t = frame.t
             yield self._frame(k, frame)
-            self.frames_read += 1
 
     def _frame(self, k: int, frame: Frame) -> SourceFrame:
         joints, held = self.signals.joints_at(frame.ns)
@@ -172,7 +170,7 @@ class RecordingSource:
                 "recording_topics": {
                     "images": [t for t, _ in self.topics.images],
                     "camera_info": self.topics.camera_info, "truth": self.topics.truth},
-                "time_origin_ns": self.origin_ns, "frames_tracked": self.frames_read,
+                "time_origin_ns": self.origin_ns, "frames_tracked": frames.n,
                 "gaps": [[round(g.t_from, 4), round(g.t_to, 4), g.frames]
                          for g in self.grouper.gaps],
                 "frames_dropped": sum(g.frames for g in self.grouper.gaps),

@@ -105,7 +105,7 @@ class DriverSource:
 
     def facts(self, frames: FrameLog) -> dict:
         return {"description": "tracked from a camera driver", "sensor": "driver",
-                "frames_tracked": self.frames_read}
+                "frames_tracked": frames.n}
 
     def close(self) -> None:
         """The driver is the caller's to close."""
