@@ -18,7 +18,7 @@ from cellsight.tracking.acquisition import rates_covariance
 from cellsight.tracking.camera_check import CameraCheck
 from cellsight.tracking.config import TrackerConfig, TrackerParts
 from cellsight.tracking.grabbing import grabbed
-from cellsight.tracking.interfaces import CornerDetector, Extractor
+from cellsight.tracking.interfaces import CornerDetector
 from cellsight.tracking.measuring import Measurer
 from cellsight.tracking.motion import POSE_DIM
 from cellsight.tracking.part_track import (
@@ -37,14 +37,13 @@ TWIN_VERTICAL = np.cos(np.radians(10.0))  # a twin's turn axis this close to the
 
 
 class Measuring(Protocol):
-    """What acquisition uses of the tracker: its cameras, parts, numbers, camera check and
-    extractor, and its :class:`~.measuring.Measurer`."""
+    """What acquisition uses of the tracker: its cameras, parts, numbers, camera check and its
+    :class:`~.measuring.Measurer` (which holds the extractor)."""
 
     cameras: list[Camera]
     components: TrackerParts
     config: TrackerConfig
     camera_check: CameraCheck
-    extractor: Extractor
     measurer: Measurer
 
     def initialise(self, name: str, T_base_part: np.ndarray, t: float,
@@ -159,7 +158,7 @@ class Acquirer:
         held out of the filter (:meth:`fix`) is not searched."""
         search, track, t = self.tracker.components.search, context.track, context.t
         acquisition = self.tracker.components.acquisition
-        extractor = self.tracker.extractor
+        extractor = self.tracker.measurer.extractor
         detect = extractor.detect if isinstance(extractor, CornerDetector) else None
         cameras, check = self.tracker.cameras, self.tracker.camera_check
         observed = [observed_of(context.observed, cameras, c) if check.usable(c) else None
