@@ -9,7 +9,7 @@ core), with a progress bar; every failure is appended to
 ``out/fuzz/failures.txt`` as it is found, and the summary to ``out/fuzz/summary.json``.
 Exit status 1 when any case failed.
 
-    python scripts/fuzz.py [--scale 1.0] [--seed 0] [--jobs 2] [--out out/fuzz]
+    python scripts/fuzz.py [--scale 1.0] [--seed 0] [--jobs 2] [--out out/fuzz] [--kinds a,b]
 """
 
 from __future__ import annotations
@@ -62,12 +62,18 @@ def main() -> int:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--jobs", type=int, default=2, help="worker processes")
     parser.add_argument("--out", default="out/fuzz", help="folder of the failures and summary")
+    parser.add_argument("--kinds", default=",".join(CASES),
+                        help="comma-separated case kinds to run (default: all)")
     args = parser.parse_args()
+    kinds = [k.strip() for k in args.kinds.split(",") if k.strip()]
+    unknown = [k for k in kinds if k not in CASES]
+    if unknown:
+        parser.error(f"--kinds: unknown kind(s) {', '.join(unknown)}; known: {', '.join(CASES)}")
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     failures = out / "failures.txt"
     failures.write_text("")
-    counts = {k: max(1, round(n * args.scale)) for k, n in CASES.items()}
+    counts = {k: max(1, round(CASES[k] * args.scale)) for k in kinds}
     with Manager() as manager, ProcessPoolExecutor(args.jobs) as pool, Progress(
             TextColumn("{task.description:>12}"), BarColumn(), MofNCompleteColumn(),
             TimeElapsedColumn()) as progress:
