@@ -15,6 +15,7 @@ from cellsight.runfolder.figures import (
     position_rmse_in_arm_frame_mm,
 )
 from cellsight.runfolder.framelog import FrameLog, FrameWriter, pose_fields, timing_fields
+from cellsight.runfolder.metrics import RunDataError, checked_metrics
 from cellsight.tracking.timing import STAGES
 
 PERIOD = 0.04  # s
@@ -132,3 +133,18 @@ def test_the_metrics_sections_cover_every_field_once_and_keep_the_json_flat():
     accuracy = metrics.section(AccuracyMetrics)
     assert accuracy.position_rmse_mm == 0.7 and accuracy.phases == {}
     assert metrics.model_dump(exclude_unset=True) == flat
+
+
+def test_each_phase_is_typed_like_the_whole_task(tmp_path: Path) -> None:
+    """``phases``: phase -> the whole task's estimation figures (PhaseAccuracy); a wrong type
+    inside one phase is refused naming the phase and the field."""
+    from cellsight.runfolder.metric_sections import AccuracyMetrics, PhaseAccuracy, RunMetrics
+
+    whole = set(PhaseAccuracy.model_fields)
+    assert whole < set(AccuracyMetrics.model_fields)
+    flat = {"phases": {"grasp": {"position_rmse_mm": 0.4, "evaluated_frames": 12}}}
+    phase = RunMetrics.model_validate(flat).section(AccuracyMetrics).phases["grasp"]
+    assert phase.position_rmse_mm == 0.4 and phase.evaluated_frames == 12
+    bad = {"phases": {"grasp": {"position_rmse_mm": "small"}}}
+    with pytest.raises(RunDataError, match=r"phases\.grasp\.position_rmse_mm.*expected a number"):
+        checked_metrics(tmp_path, bad)

@@ -11,9 +11,11 @@ from dataclasses import replace
 
 import numpy as np
 
+from cellsight.camera import Camera
 from cellsight.control import Phase
 from cellsight.experiments.plant import GroundTruth
 from cellsight.geometry.transforms import rotation_angle
+from cellsight.world.faults import Knock
 
 log = logging.getLogger(__name__)
 
@@ -117,30 +119,26 @@ class KidnapMonitor:
                 "before_mm": error("before"), "settled_mm": error("settled")}
 
 
-def knock_record(knock, dropped: dict[int, float], recovered: dict[int, np.ndarray],
-                 cameras: Sequence, true_cameras: Sequence | None,
-                 points: np.ndarray | None = None) -> dict:
+def knock_record(knock: Knock, dropped: dict[int, float], recovered: dict[int, np.ndarray],
+                 cameras: Sequence[Camera], true_cameras: Sequence[Camera],
+                 points: np.ndarray) -> dict:
     """How the tracker met a knocked camera (:class:`~cellsight.world.faults.Knock`), for
     ``metrics.json``: the fault; ``detected_s``, from the knock until the tracker dropped that
     camera (None: never; negative: dropped before it was knocked); ``recovered``: the re-estimated
-    pose's move from the cell file's (mm, deg) and, where the world's true camera is known
-    (``true_cameras``), its error against it (mm, deg) and, given ``points`` (N, 3), base
-    frame, the median distance (px) between the true camera's pixels of them and the
-    re-estimated camera's (``error_px``)."""
+    pose's move from the cell file's (mm, deg), its error against the world's true camera
+    (``true_cameras``; mm, deg) and the median distance (px) between the true camera's pixels of
+    ``points`` (N, 3), base frame, and the re-estimated camera's (``error_px``)."""
     c = knock.camera
     out = {**knock.record(cameras[c].name), "detected_s": None, "recovered": None}
     if c in dropped:
         out["detected_s"] = round(dropped[c] - knock.t, 4)
     if c in recovered:
         T = recovered[c]
-        out["recovered"] = {"moved": _pose_gap(cameras[c].T_base_cam, T)}
-        if true_cameras is not None:
-            out["recovered"]["error"] = _pose_gap(true_cameras[c].T_base_cam, T)
-            if points is not None:
-                fitted = replace(cameras[c], T_base_cam=T)
-                gap = fitted.project(points) - true_cameras[c].project(points)
-                out["recovered"]["error_px"] = round(
-                    float(np.median(np.linalg.norm(gap, axis=1))), 3)
+        fitted = replace(cameras[c], T_base_cam=T)
+        gap = fitted.project(points) - true_cameras[c].project(points)
+        out["recovered"] = {"moved": _pose_gap(cameras[c].T_base_cam, T),
+                            "error": _pose_gap(true_cameras[c].T_base_cam, T),
+                            "error_px": round(float(np.median(np.linalg.norm(gap, axis=1))), 3)}
     return out
 
 

@@ -19,6 +19,7 @@ from cellsight.session.frames import FrameTruth, PartTruth
 from cellsight.visibility import Views
 
 if TYPE_CHECKING:
+    from cellsight.camera import Camera
     from cellsight.world.grasp import Grasp
 
 
@@ -78,6 +79,15 @@ class GroundTruth(Protocol):
     def true_corners(self) -> list[np.ndarray]:
         """Per camera, the pixels (N, 2) of the corners of everything in front of it (where a
         corner extractor could latch on)."""
+        ...
+
+    def true_cameras(self) -> list[Camera]:
+        """The cameras where they truly are now, in the cell's camera order (the cell file's
+        moved by the world's calibration errors and faults)."""
+        ...
+
+    def part_kidnapped(self) -> bool | None:
+        """Whether a kidnapping moved its workpiece (None until one was due, or with none)."""
         ...
 
     def collisions(self) -> list[dict]:

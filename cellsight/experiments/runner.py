@@ -155,26 +155,23 @@ class ExperimentRun:
         if knock is None:
             return None
         check = self.tracker.camera_check
-        truth = getattr(self.world, "truth", None)
         points = transform_points(self.part.T_base_part, self.part.feature_points)
         return knock_record(knock, check.dropped, check.recovered, self.cell.cameras,
-                            None if truth is None else truth.cell.cameras, points)
+                            self.world.true_cameras(), points)
 
     def _registration(self) -> dict | None:
         """Each camera's registration to the gripper (:mod:`cellsight.tracking.registration`),
         for ``metrics.json``: its latest offset, its corners, when and where it was made
-        (``home``, ``part``), its offset at HOME and, where the world's true camera is known,
-        the true camera's offset at the part's nominal pose (the median, over its feature
-        points, of the true camera's pixel less the cell file's camera's, px)."""
+        (``home``, ``part``), its offset at HOME and the true camera's offset at the part's
+        nominal pose (the median, over its feature points, of the true camera's pixel less the
+        cell file's camera's, px)."""
         if self.registration is None:
             return None
-        truth = getattr(self.world, "truth", None)
         out = self.registration.record()
-        if truth is not None:
-            points = transform_points(self.part.T_base_part, self.part.feature_points)
-            for cam, true_cam in zip(self.cell.cameras, truth.cell.cameras, strict=True):
-                gap = true_cam.project(points) - cam.project(points)
-                out[cam.name]["true_offset_px"] = np.round(np.median(gap, axis=0), 3).tolist()
+        points = transform_points(self.part.T_base_part, self.part.feature_points)
+        for cam, true_cam in zip(self.cell.cameras, self.world.true_cameras(), strict=True):
+            gap = true_cam.project(points) - cam.project(points)
+            out[cam.name]["true_offset_px"] = np.round(np.median(gap, axis=0), 3).tolist()
         return out
 
 

@@ -112,16 +112,15 @@ class TaskMetrics(BaseModel):
     collision_count: int | None = about(None, "How many collisions there were.", "-")
 
 
-class AccuracyMetrics(BaseModel):
-    """How well the part was known: errors against the truth, over the run, per phase and in
-    the arm's frame, and the PnP baseline's."""
+class PhaseAccuracy(BaseModel):
+    """The estimation figures over a span of evaluated frames (the whole task, or one of its
+    phases): errors against the truth, the PnP baseline's, and the time lost in view."""
 
     model_config = ConfigDict(extra="allow", strict=True)
 
-    frames: int | None = about(None, "The vision frames logged (rows of frames.csv).", "-")
     evaluated_frames: int | None = about(
-        None, "The evaluated frames: part in some camera's image, from the first estimate on, "
-        "whole task.", "-")
+        None, "The evaluated frames of the span: part in some camera's image, from the first "
+        "estimate on.", "-")
     position_rmse_mm: Number = about(
         None, "RMS distance between the estimated and true part-frame origin (base frame) over "
         "the evaluated frames with an estimate.", "mm")
@@ -138,12 +137,21 @@ class AccuracyMetrics(BaseModel):
         "has a pose.", "deg")
     lost_in_view_s: Number = about(
         None, "Time of evaluated frames without an estimate (one vision period each).", "s")
+
+
+class AccuracyMetrics(PhaseAccuracy):
+    """How well the part was known: errors against the truth, over the run, per phase
+    (:class:`PhaseAccuracy` each) and in the arm's frame, and the PnP baseline's."""
+
+    model_config = ConfigDict(extra="allow", strict=True)
+
+    frames: int | None = about(None, "The vision frames logged (rows of frames.csv).", "-")
     first_estimate_s: Number = about(
         None, "The time of the first frame with an estimate; none: never.", "s")
     in_view_fraction: Number = about(
         None, "Fraction of the frames from the first estimate on in which the part is in "
         "view.", "-")
-    phases: dict[str, dict[str, Any]] | None = about(
+    phases: dict[str, PhaseAccuracy] | None = about(
         None, "Per task phase (approach, grasp, manipulate, release): the estimation figures over "
         "its evaluated frames.", "-")
     arm_home_error_mm: list[float] | None = about(
