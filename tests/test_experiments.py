@@ -192,7 +192,8 @@ class _OnlyThePlant:
         self.calls: set[str] = set()
 
     def __getattr__(self, name: str):
-        if name.startswith("_") or not hasattr(SimulatedCell, name):
+        declared = any(name in vars(k).get("__annotations__", {}) for k in SimulatedCell.__mro__)
+        if name.startswith("_") or not (hasattr(SimulatedCell, name) or declared):
             raise AttributeError(f"the run loop used World.{name}, not in SimulatedCell")
         self.calls.add(name)
         return getattr(self._world, name)

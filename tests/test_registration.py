@@ -62,7 +62,7 @@ def test_the_tracker_and_its_predictor_take_a_recalibrated_camera():
         assert np.abs(after[name][1].pixels - views[1].pixels).max() > 1.0
         for a, b in zip(after[name], views, strict=True):
             np.testing.assert_array_equal(a.visible, b.visible)
-    assert tracker.cameras[1] is moved and tracker._models[1].camera is moved
+    assert tracker.cameras[1] is moved and tracker.models[1].camera is moved
 
 
 def test_a_rendered_run_registers_each_camera_to_the_gripper_as_the_true_camera_is(tmp_path):
@@ -231,7 +231,7 @@ def _gathered_at_home(shift_px, reach_px, false_peak=None, false_votes=1000.0):
     median (px)."""
     from dataclasses import replace
 
-    from cellsight.tracking.registration import _Gathering
+    from cellsight.tracking.offset_votes import OffsetGathering
 
     cell = load_cell()
     rule = RegistrationRule()
@@ -243,7 +243,7 @@ def _gathered_at_home(shift_px, reach_px, false_peak=None, false_votes=1000.0):
     K[:2, 2] += shift_px
     image = _drawn(replace(cell.cameras[0], K=K), cell, poses, registration.objects)
     points, pixels = registration._predicted(poses, cell.cameras[0])
-    gathering = _Gathering(rule, reach_px)
+    gathering = OffsetGathering(rule, reach_px)
     if false_peak is not None:
         gathering.votes[reach_px + false_peak[1], reach_px + false_peak[0]] = false_votes
     coarse = []

@@ -40,7 +40,7 @@ from cellsight.tracking.loss import LossRule
 from cellsight.tracking.prior.fusion import LYING_TOL, lies_on
 from cellsight.tracking.selection import SelectionConfig
 from cellsight.tracking.timing import STAGES
-from cellsight.tracking.tracker import UNREGISTERED
+from cellsight.tracking.update import UNREGISTERED
 
 HOLD_ERROR = pose_from_xyz_rpy([0.003, -0.002, 0.001], [0.0, 0.01, -0.02])  # the hold's error
 

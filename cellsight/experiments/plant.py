@@ -19,8 +19,9 @@ from cellsight.session.frames import FrameTruth, PartTruth
 from cellsight.visibility import Views
 
 if TYPE_CHECKING:
-    from cellsight.camera import Camera
+    from cellsight.world.faults import Faults
     from cellsight.world.grasp import Grasp
+    from cellsight.world.truth import RayTruth
 
 
 class Plant(Protocol):
@@ -62,7 +63,13 @@ class Plant(Protocol):
 
 
 class GroundTruth(Protocol):
-    """What a simulator knows that the tracker must estimate."""
+    """What a simulator knows that the tracker must estimate; ``faults``: the faults it plays
+    (:class:`~cellsight.world.faults.Faults`: whether a kidnapping moved its part, and a
+    knock); ``truth``: its ray-cast truth, whose ``cell.cameras`` are the cameras where they
+    truly are (the cell file's moved by the world's calibration errors and a knock)."""
+
+    faults: Faults
+    truth: RayTruth
 
     def true_joints(self) -> dict[str, np.ndarray]:
         """Robot name -> true joint vector (rad, m)."""
@@ -79,15 +86,6 @@ class GroundTruth(Protocol):
     def true_corners(self) -> list[np.ndarray]:
         """Per camera, the pixels (N, 2) of the corners of everything in front of it (where a
         corner extractor could latch on)."""
-        ...
-
-    def true_cameras(self) -> list[Camera]:
-        """The cameras where they truly are now, in the cell's camera order (the cell file's
-        moved by the world's calibration errors and faults)."""
-        ...
-
-    def part_kidnapped(self) -> bool | None:
-        """Whether a kidnapping moved its workpiece (None until one was due, or with none)."""
         ...
 
     def collisions(self) -> list[dict]:

@@ -157,7 +157,7 @@ class ExperimentRun:
         check = self.tracker.camera_check
         points = transform_points(self.part.T_base_part, self.part.feature_points)
         return knock_record(knock, check.dropped, check.recovered, self.cell.cameras,
-                            self.world.true_cameras(), points)
+                            self.world.truth.cell.cameras, points)
 
     def _registration(self) -> dict | None:
         """Each camera's registration to the gripper (:mod:`cellsight.tracking.registration`),
@@ -169,7 +169,7 @@ class ExperimentRun:
             return None
         out = self.registration.record()
         points = transform_points(self.part.T_base_part, self.part.feature_points)
-        for cam, true_cam in zip(self.cell.cameras, self.world.true_cameras(), strict=True):
+        for cam, true_cam in zip(self.cell.cameras, self.world.truth.cell.cameras, strict=True):
             gap = true_cam.project(points) - cam.project(points)
             out[cam.name]["true_offset_px"] = np.round(np.median(gap, axis=0), 3).tolist()
         return out

@@ -203,7 +203,7 @@ class SimulatedSource:
             "collision_count": len(collisions),
             "frames_dropped": self.frames_dropped,
             "kidnap": None if self.kidnap is None else self.kidnap.record(
-                VISION_HZ, self.world.part_kidnapped()),
+                VISION_HZ, self.world.faults.moved),
             "grasp_success": bool(self.grasp.held_at_manipulate),
             "grasp_position_error_mm": self.grasp.error_mm,
             "ended_by": self.ended_by,

@@ -12,8 +12,9 @@ apart (:mod:`.config`).
 """
 
 from cellsight.tracking.acquisition import PnPAcquisition
+from cellsight.tracking.adaptive_noise import AdaptiveNoise
 from cellsight.tracking.config import TrackerConfig, TrackerParts
-from cellsight.tracking.ekf import AdaptiveNoise, PoseEKF, UpdateReport
+from cellsight.tracking.ekf import PoseEKF, UpdateReport
 from cellsight.tracking.extraction import CornerExtractor, ExtractionConfig, extract_corner
 from cellsight.tracking.gate import ChiSquareGate
 from cellsight.tracking.health import HealthMonitor, HealthRule, TrackHealthReport

@@ -71,7 +71,7 @@ class TrackerConfig:
 
     ``sigma_px``: pixel noise of the measurement model and of acquisition's fix;
     ``adaptive_noise``: re-estimate it per camera from the innovations
-    (:class:`~cellsight.tracking.ekf.AdaptiveNoise`); ``carried_noise``: random-walk densities of
+    (:class:`~cellsight.tracking.adaptive_noise.AdaptiveNoise`); ``carried_noise``: random-walk densities of
     a held part's pose relative to its holder, with the kinematic prior (``holders`` in
     :meth:`Tracker.step`); ``near_occluder_hold_s``: how long a feature stays unusable after it
     was last flagged ``near_occluder`` (:mod:`.eligibility`); ``resume_support``: how many
@@ -96,7 +96,7 @@ class TrackerConfig:
     (one sigma) and the bound its rates are held to (:func:`~.tracker._keep_support_speed`);
     ``awaiting_registration``: the cameras are to be registered to an arm
     (:mod:`.registration`): until the first :meth:`Tracker.recalibrate`, a tracked part is
-    ``degraded`` with the reason :data:`~.tracker.UNREGISTERED` (the calibration's error the
+    ``degraded`` with the reason :data:`~.update.UNREGISTERED` (the calibration's error the
     cameras share is in the estimate and not in its covariance: in ``harsh`` cells the first
     fix is up to 11 mm off with a sigma of 0.4 mm).
     """

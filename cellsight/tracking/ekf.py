@@ -35,7 +35,8 @@ camera's rays into the support. A part a holder let go lies still: :data:`STILL`
 rates are zero.
 
 Adaptive noise (optional, beyond the paper): a scalar pixel variance per camera re-estimated by
-robust covariance matching over a sliding window of the last innovations (:class:`AdaptiveNoise`).
+robust covariance matching over a sliding window of the last innovations
+(:class:`~cellsight.tracking.adaptive_noise.AdaptiveNoise`).
 
 Camera offsets (optional, beyond the paper: :mod:`cellsight.tracking.offsets`): two more states per
 camera, its calibration error as an image offset added to every pixel it predicts; the filter
@@ -45,13 +46,13 @@ part's block of it.
 
 from __future__ import annotations
 
-from collections import deque
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 
-import numba
 import numpy as np
 
 from cellsight.geometry.transforms import make_pose, xyz_rpy_from_pose
+from cellsight.tracking._ekf_kernel import innovation_blocks, joseph_update
+from cellsight.tracking.adaptive_noise import AdaptiveNoise
 from cellsight.tracking.gate import mahalanobis2
 from cellsight.tracking.interfaces import Gate, MotionModel
 from cellsight.tracking.measurement import Observation, PinholeMeasurement, rotation_of_state
@@ -90,40 +91,6 @@ class UpdateReport:
     def n_accepted(self) -> int:
         """Number of features used by the update."""
         return int(self.accepted.sum())
-
-
-@dataclass
-class AdaptiveNoise:
-    """Robust covariance-matching estimate of a scalar pixel noise per camera.
-
-    For a feature's innovation ``nu`` (2,) with ``C P- C^T`` of trace ``tr``, in the isotropic
-    approximation ``|nu|^2 ~ (sigma^2 + tr / 2) chi2_2``, whose median is
-    ``(sigma^2 + tr / 2) 2 ln 2``. Each feature gives ``y = |nu|^2 / (2 ln 2) - tr / 2`` and
-    ``sigma^2 = median(y)`` over the last ``window`` features of the camera: the median keeps
-    outliers out, so every innovation, gated or not, is used (gating with a too small sigma
-    would otherwise keep only the small innovations and drive the estimate down).
-    ``min_samples`` are needed before the estimate replaces the model's default sigma; the
-    result is clamped to ``[sigma_min, sigma_max]`` (px).
-    """
-
-    window: int = 200
-    min_samples: int = 20
-    sigma_min: float = 0.1
-    sigma_max: float = 5.0
-    _samples: dict[int, deque] = field(default_factory=dict, init=False, repr=False)
-
-    def sigma(self, camera_index: int, default: float) -> float:
-        """Current pixel sigma (px) for a camera, ``default`` until enough samples."""
-        samples = self._samples.get(camera_index)
-        if samples is None or len(samples) < self.min_samples:
-            return default
-        var = float(np.median(samples))
-        return float(np.clip(np.sqrt(max(var, 0.0)), self.sigma_min, self.sigma_max))
-
-    def add(self, camera_index: int, innovation: np.ndarray, predicted_trace: np.ndarray) -> None:
-        """Add innovations (m, 2) and the traces of their ``C_j P- C_j^T`` (m,)."""
-        samples = self._samples.setdefault(camera_index, deque(maxlen=self.window))
-        samples.extend(np.sum(innovation**2, axis=1) / (2 * np.log(2)) - 0.5 * predicted_trace)
 
 
 class PoseEKF:
@@ -284,7 +251,7 @@ class PoseEKF:
         state, for the windows of the features ``points_model`` (n, 3) in one camera."""
         pixels, H = self._offset(camera_index, *model.evaluate(self.state, points_model))
         sigma2 = np.full(len(pixels), self.sigma_px(model, camera_index) ** 2)
-        return pixels, _blocks(H, self._P, sigma2)
+        return pixels, innovation_blocks(H, self._P, sigma2)
 
     def _offset_free_d2(self, cam: np.ndarray, nu: np.ndarray, H: np.ndarray,
                         sigma2: np.ndarray, S: np.ndarray) -> np.ndarray:
@@ -306,7 +273,7 @@ class PoseEKF:
                 continue
             Hc = H.reshape(-1, 2, H.shape[1])[rows]
             D = (Hc - Hc.mean(axis=0)).reshape(2 * n, -1)
-            S_diff = _blocks(D, self._P, sigma2[rows] * (1 + 1 / n))
+            S_diff = innovation_blocks(D, self._P, sigma2[rows] * (1 + 1 / n))
             d2[rows] = mahalanobis2(nu[rows] - np.median(nu[rows], axis=0), S_diff)
         return d2
 
@@ -347,7 +314,7 @@ class PoseEKF:
             empty = np.zeros(0, dtype=int)
             return UpdateReport(empty, empty, np.zeros((0, 2)), np.zeros(0), np.zeros(0, bool), {})
         cam, nu, H, sigma2 = (np.concatenate(x) for x in (cams, nus, Hs, s2))
-        S = _blocks(H, self._P, sigma2)
+        S = innovation_blocks(H, self._P, sigma2)
         if self.camera_offsets is None:
             d2 = mahalanobis2(nu, S)
         else:
@@ -360,7 +327,7 @@ class PoseEKF:
                 rows = cam == c
                 self.adaptive.add(int(c), nu[rows], trace[rows])
         if accepted.any():
-            state, P_new = _joseph_update(self._x, self._P, H, nu, sigma2, accepted)
+            state, P_new = joseph_update(self._x, self._P, H, nu, sigma2, accepted)
             state[[3, 5]] = _wrapped(state[[3, 5]])  # roll and yaw
             if _small_step(state, self._x) or _fits(self, observations, state, nu, accepted):
                 self._x, self._P = state, P_new
@@ -404,46 +371,3 @@ def _small_step(new: np.ndarray, old: np.ndarray) -> bool:
     :func:`_fits` need not look (it costs as much as the update)."""
     step = np.abs(new[:POSE_DIM] - old[:POSE_DIM])
     return bool(np.all(step[:3] < SMALL_STEP[0]) and np.all(step[3:] < SMALL_STEP[1]))
-
-
-@numba.njit(cache=True)
-def _blocks(H, P, sigma2):
-    """Per-feature innovation covariances ``S_j = C_j P C_j^T + sigma_j^2 I`` (m, 2, 2)."""
-    m = len(sigma2)
-    HP = H @ P
-    S = np.empty((m, 2, 2))
-    for j in range(m):
-        for a in range(2):
-            for b in range(2):
-                S[j, a, b] = np.dot(HP[2 * j + a], H[2 * j + b])
-        S[j, 0, 0] += sigma2[j]
-        S[j, 1, 1] += sigma2[j]
-    return S
-
-
-@numba.njit(cache=True)
-def _joseph_update(x, P, H, nu, sigma2, accepted):
-    """State and covariance updated with the accepted features' rows of ``H`` (2m, n),
-    innovations ``nu`` (m, 2) and pixel variances ``sigma2`` (m,): Joseph form."""
-    n_acc = int(accepted.sum())
-    rows = np.empty(2 * n_acc, dtype=np.int64)
-    r = np.empty(2 * n_acc)
-    z = np.empty(2 * n_acc)
-    i = 0
-    for j in range(len(nu)):
-        if accepted[j]:
-            for a in range(2):
-                rows[i] = 2 * j + a
-                r[i] = sigma2[j]
-                z[i] = nu[j, a]
-                i += 1
-    Ha = H[rows]
-    HP = Ha @ P
-    Sa = HP @ Ha.T
-    for i in range(len(r)):
-        Sa[i, i] += r[i]
-    K = np.linalg.solve(Sa, HP).T  # P H^T S^-1 (S and P symmetric)
-    x_new = x + K @ z
-    IKH = np.eye(len(x)) - K @ Ha
-    P_new = IKH @ P @ IKH.T + (K * r) @ K.T
-    return x_new, 0.5 * (P_new + P_new.T)

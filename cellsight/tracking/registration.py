@@ -90,9 +90,7 @@ from cellsight.camera import Camera
 from cellsight.geometry.transforms import transform_points
 from cellsight.model.cell import Cell
 from cellsight.tracking.camera_fit import PoseFit, refit_pose
-from cellsight.tracking.extraction import extract_corner
-from cellsight.tracking.grabbing import grabbed
-from cellsight.tracking.offset_votes import corners_in, vote_peaks
+from cellsight.tracking.offset_votes import OffsetGathering
 
 log = logging.getLogger(__name__)
 
@@ -148,107 +146,6 @@ class Registered:
     rms_px: float
 
 
-class _Gathering:
-    """One camera's votes (stage 1) and residuals (stage 2) of the module docstring."""
-
-    def __init__(self, rule: RegistrationRule, reach_px: int) -> None:
-        self.rule = rule
-        self.coarse: np.ndarray | None = None
-        self.measured = 0  # frames measured at the coarse offset
-        self.points: list[np.ndarray] = []  # the corners found, base frame (m)
-        self.found: list[np.ndarray] = []  # where they were found (px)
-        self.gaps: list[np.ndarray] = []  # found less predicted (px)
-        # the votes' other peaks, measured beside the coarse offset until one is chosen:
-        # (offset (2,) px, and its points, found and gaps)
-        self.rivals: list[tuple[np.ndarray, list, list, list]] = []
-        self._start_votes(reach_px)
-
-    def _start_votes(self, reach_px: int) -> None:
-        """No votes yet, within ``reach_px`` (px)."""
-        self.reach = reach_px
-        side = 2 * reach_px + 1
-        self.votes = np.zeros((side, side))
-        self.voted = 0
-
-    @property
-    def ready(self) -> bool:
-        """Whether it has the residuals an offset is made of."""
-        return not self.rivals and len(self.points) >= self.rule.min_corners
-
-    def add(self, observed: Any, points: np.ndarray, pixels: np.ndarray) -> None:
-        """This frame's image (or what grabs from it) and the gripper's corners (N, 3) m, base
-        frame, predicted at (N, 2) px in it: votes until the coarse offset is known, residuals
-        after."""
-        if self.coarse is None:
-            self._vote(observed, pixels)
-        else:
-            self._measure(observed, points, pixels)
-
-    def _vote(self, observed: Any, pixels: np.ndarray) -> None:
-        reach = self.reach
-        box = np.concatenate([np.floor(pixels.min(axis=0)) - reach - 8,
-                              np.ceil(pixels.max(axis=0)) + reach + 9]).astype(int)
-        corners = corners_in(grabbed(observed, [box.tolist()]), box)
-        if len(corners):
-            gap = np.rint(corners[None, :, :] - pixels[:, None, :]).reshape(-1, 2).astype(int)
-            gap = gap[(np.abs(gap) <= reach).all(axis=1)]
-            np.add.at(self.votes, (gap[:, 1] + reach, gap[:, 0] + reach), 1.0)
-        self.voted += 1
-        if self.voted >= self.rule.vote_frames:
-            near = self.reach < self.rule.reach_px  # around a camera registered already
-            peaks = vote_peaks(self.votes, self.rule.rivals + 1 if near else 1,
-                               self.rule.rival_fraction)
-            self.coarse = peaks[0]
-            self.rivals = [(peak, [], [], []) for peak in peaks[1:]]
-            self.measured = 0
-
-    def _measure(self, observed: Any, points: np.ndarray, pixels: np.ndarray) -> None:
-        tallies = [(self.coarse, self.points, self.found, self.gaps), *self.rivals]
-        half = self.rule.window_px // 2
-        starts = [np.floor(pixels + offset).astype(int) for offset, *_ in tallies]
-        every = np.concatenate(starts)
-        image = grabbed(observed, np.column_stack([every - half, every + half + 1]).tolist())
-        for (offset, kept, found, gaps), start in zip(tallies, starts, strict=True):
-            for pixel, corner, point in zip(pixels, start, points, strict=True):
-                at = extract_corner(image, np.concatenate([corner - half, corner + half + 1]),
-                                    pixel + offset)
-                if at is not None and np.linalg.norm(at - pixel - offset) <= self.rule.agree_px:
-                    kept.append(point)
-                    found.append(at)
-                    gaps.append(at - pixel)
-        self.measured += 1
-        if self.measured == self.rule.vote_frames:
-            self._choose()
-            if len(self.points) < self.rule.vote_frames:
-                self._strike_out()
-
-    def _choose(self) -> None:
-        """The coarse offset becomes whichever of it and its rivals found the most residuals
-        over the first ``vote_frames`` frames (votes nearly tied between two peaks, as the
-        pairs of neighbouring corners can make them, are settled by the corners found), moved
-        to the nearest whole pixel of its residuals' median (the votes' 1 px bins and 3x3 sums
-        leave it up to 2 px off, where fewer corners come within ``agree_px``)."""
-        best = max(self.rivals, key=lambda rival: len(rival[1]), default=None)
-        if best is not None and len(best[1]) > len(self.points):
-            self.coarse, self.points, self.found, self.gaps = best
-        self.rivals = []
-        if self.gaps:
-            self.coarse = np.rint(np.median(self.gaps, axis=0))
-
-    def _strike_out(self) -> None:
-        """The coarse offset found too few residuals. Votes of a reach short of the rule's
-        ``reach_px`` start again with that reach (the camera as registered so far is further
-        off here than the reach allowed for); otherwise the offset's votes (3x3 bins) are
-        struck out, and the next frame's votes with the rest give another."""
-        u, v = (self.coarse + self.reach).astype(int)
-        self.coarse, self.points, self.found, self.gaps = None, [], [], []
-        if self.reach < self.rule.reach_px:
-            self._start_votes(self.rule.reach_px)
-            return
-        self.votes[max(v - 1, 0):v + 2, max(u - 1, 0):u + 2] = 0.0
-        self.voted = self.rule.vote_frames - 1
-
-
 class GripperRegistration:
     """The votes and residuals gathered per camera, and the registrations once made (module
     docstring). ``registered``: camera index -> its latest :class:`Registered`; ``at_home``:
@@ -261,7 +158,7 @@ class GripperRegistration:
         self.robot = robot
         self.objects = [i for i, f in enumerate(cell.frames)
                         if f.kind in ("palm", "jaw") and f.owner == robot]
-        self._gathering = [_Gathering(rule, rule.reach_px) for _ in cell.cameras]
+        self._gathering = [OffsetGathering(rule, rule.reach_px) for _ in cell.cameras]
         self.cameras = list(cell.cameras)  # as registered so far
         self._gathered: list[list[tuple[np.ndarray, np.ndarray]]] = [[] for _ in cell.cameras]
         self._site = SITES[0]
@@ -370,7 +267,7 @@ class GripperRegistration:
         """Every camera to be registered at the next place, looked for with its registered
         camera within ``reach_px`` (``reach_px`` of the rule where it has no place yet)."""
         self._waiting = set(range(len(self.cell.cameras)))
-        self._gathering = [_Gathering(self.rule, reach_px if self._gathered[c]
+        self._gathering = [OffsetGathering(self.rule, reach_px if self._gathered[c]
                                       else self.rule.reach_px)
                            for c in range(len(self.cell.cameras))]
 
@@ -426,7 +323,7 @@ class GripperRegistration:
         points, found = np.array(gathering.points), np.array(gathering.found)
         places = [*self._gathered[c], (points, found)]
         fit = self._fit(cam, places)
-        self._gathering[c] = _Gathering(self.rule, gathering.reach)
+        self._gathering[c] = OffsetGathering(self.rule, gathering.reach)
         offset = np.median(found - cam.project(points), axis=0)
         ends = np.cumsum([len(p) for p, _ in places])
         agree = min(float(part.mean()) for part in np.split(fit.inlier, ends[:-1]))

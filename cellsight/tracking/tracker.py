@@ -16,7 +16,7 @@ protocol of :mod:`.interfaces` with its default in its own module):
    whole-image search over its support plane, :mod:`.search`, each of its best candidates
    tried with the same windows and PnP, the confirmed fix of the most points taken; a fix
    stands only when narrow windows where it predicts the part's features confirm it);
-   otherwise
+   otherwise (:mod:`.update`)
    the selector chooses among the usable features (:mod:`.eligibility`, :mod:`.selection`),
    the window planner places their windows (:mod:`.windowing`), the extractor finds them in
    what the sensors took (:mod:`.extraction`), the gate (:mod:`.gate`) screens the innovations
@@ -38,7 +38,6 @@ statuses: :mod:`.status`; records: :mod:`.records`.
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -47,40 +46,26 @@ from cellsight.camera import Camera
 from cellsight.geometry.transforms import xyz_rpy_from_pose
 from cellsight.tracking.acquire import Acquirer
 from cellsight.tracking.acquisition import twin_turns
-from cellsight.tracking.camera_check import CameraCheck, CheckFrame
+from cellsight.tracking.adaptive_noise import AdaptiveNoise
+from cellsight.tracking.camera_check import CameraCheck
 from cellsight.tracking.config import TrackerConfig, TrackerParts
-from cellsight.tracking.ekf import (
-    AdaptiveNoise,
-    PoseEKF,
-    UpdateReport,
-)
+from cellsight.tracking.ekf import PoseEKF
 from cellsight.tracking.eligibility import NearOccluderHold
 from cellsight.tracking.extraction import CornerExtractor
-from cellsight.tracking.gate import SupportedGate
-from cellsight.tracking.grabbing import grabbed
-from cellsight.tracking.interfaces import CornerDetector, Extractor, OccluderMap
+from cellsight.tracking.interfaces import Extractor
 from cellsight.tracking.measuring import Measurer
 from cellsight.tracking.motion import POSE_DIM
 from cellsight.tracking.offsets import CameraOffsets
 from cellsight.tracking.part_track import (
     PartTrack,
     StepContext,
-    cameras_grabbed,
     observed_of,
-    record_estimate,
     visible_pixels,
 )
-from cellsight.tracking.prior.fusion import (
-    hold_along_sight,
-    off_holder,
-)
 from cellsight.tracking.records import PartFrame, TrackerFrame
-from cellsight.tracking.selection import camera_resolution
-from cellsight.tracking.status import TrackStatus
 from cellsight.tracking.timing import StageTimer
+from cellsight.tracking.update import Updater, in_filter
 from cellsight.visibility import Views, VisibilitySource
-
-UNREGISTERED = "cameras not registered yet"  # the reason while awaiting the registration
 
 
 class Tracker:
@@ -109,14 +94,15 @@ class Tracker:
         self.components = components or TrackerParts()
         self.cameras = list(cameras)
         self.predictor = predictor
-        self._models = [self.components.measurement(c, self.config.sigma_px)
+        self.models = [self.components.measurement(c, self.config.sigma_px)
                         for c in self.cameras]
         self.unknown = self.components.unknown.maps(self.cameras)
         self.measurer = Measurer(self.cameras, self.components.windows,
-                                 extractor or CornerExtractor(), self._models, self.unknown)
+                                 extractor or CornerExtractor(), self.models, self.unknown)
         self.camera_check = self.components.cameras.check(self.cameras)
         self.acquirer = Acquirer(self)
-        self._registered = not self.config.awaiting_registration
+        self.updater = Updater(self)
+        self.registered = not self.config.awaiting_registration
         guesses = dict(initial_poses or {})
         names = [c.name for c in self.cameras]
         self.tracks = {
@@ -245,7 +231,7 @@ class Tracker:
                 rec = records[name] = track.frame_record(name, part_views, len(self.cameras))
                 if part_views is not None:
                     context = StepContext(t, observed, crowd, timer, track, rec, look, lags)
-                    part_step = self.acquirer.acquire if track.acquiring else self._track
+                    part_step = self.acquirer.acquire if track.acquiring else self.updater.step
                     records[name] = _with_held_out(self.camera_check, part_step, context)
         masks = [self.unknown.mask(c, t) for c in range(len(self.cameras))]
         return TrackerFrame(float(t), records, timer.seconds, _grabbed(records, len(self.cameras)),
@@ -258,9 +244,9 @@ class Tracker:
         the BSP predictors and the projection baseline have one). The cameras then count as
         registered (``TrackerConfig.awaiting_registration``)."""
         self.cameras[index] = camera
-        self._registered = True
+        self.registered = True
         self.camera_check.cameras[index] = camera
-        self._models[index] = self.components.measurement(camera, self.config.sigma_px)
+        self.models[index] = self.components.measurement(camera, self.config.sigma_px)
         move = getattr(self.predictor, "recalibrate", None)
         if move is not None:
             move(index, camera)
@@ -277,133 +263,15 @@ class Tracker:
                 poses[name] = pose
         return poses
 
-    def _track(self, context: StepContext) -> PartFrame:
-        """Select, window, extract, gate and update (the paper's loop), then the health
-        monitor: tracking, or degraded when it finds reasons. Returns the part's record."""
-        rec, track, timer = context.rec, context.track, context.timer
-        ekf = track.ekf
-        _shift_by_offsets(rec, ekf)
-        with timer("selection"):
-            usable = self.measurer.usable(context, ekf.t)
-            resolution = _resolution(self.cameras, track)
-            sel = self.components.selector.select(rec.pixels, usable, resolution)
-            rec.selection, rec.selected = sel, sel.selected
-
-        def covariance(c: int, idx: np.ndarray) -> np.ndarray:
-            return ekf.innovation_covariance(self._models[c], c, track.points[idx])[1]
-
-        obs = self.measurer.measure(context, covariance)
-        looked = rec.selected & cameras_grabbed(context.observed, self.cameras)[:, None]
-        check, loss = self.camera_check, self.components.loss
-        in_filter = _in_filter(check)
-        counted = looked & in_filter[:, None]
-        with timer("ekf"):
-            gate = self.components.gate
-            if track.coasted:
-                support = loss.resume_support(int(counted.sum()))
-                gate = SupportedGate(gate, max(self.config.resume_support, support))
-            report = ekf.update([o for o in obs if in_filter[o.camera_index]], gate)
-            track.coasted = report.n_accepted == 0
-            if track.holder is not None:
-                hold_along_sight(ekf, track.holder, self.cameras, report,
-                                  self.config.hold_std[0])
-            _record_update(rec, report)
-            rec.health = track.monitor.update(context.t, rec.visible, counted, rec.measured,
-                                              rec.rejected, rec.mahalanobis2, rec.unknown,
-                                              off_holder(ekf, track.holder))
-            if not self._registered:
-                rec.health = replace(rec.health, reasons=(*rec.health.reasons, UNREGISTERED))
-            unknown = self.components.unknown
-            if report.n_accepted >= unknown.min_accepted:
-                track.confirmed = context.t
-            if context.t - track.confirmed <= unknown.trust_s:
-                _learn_unknown(self.unknown, context.t, rec, counted)
-        in_view = any(cam.in_image(rec.pixels[c]).any() for c, cam in enumerate(self.cameras))
-        in_vain = loss.in_vain(int(counted.sum()), report.n_accepted, in_view)
-        if in_vain is not None:
-            track.unseen_since = min(track.unseen_since, context.t) if in_vain else np.inf
-        if report.n_accepted:
-            track.last_update = ekf.t
-            track.held_at = None  # the filter knows where it is
-            rec.status = TrackStatus.DEGRADED if rec.health.reasons else TrackStatus.TRACKING
-        record_estimate(rec, ekf)
-        _check_cameras(self.camera_check, self.extractor, self.cameras, context, looked,
-                       report.n_accepted > 0)
-        return rec
-
-
-def _learn_unknown(unknown: OccluderMap, t: float, rec: PartFrame, looked: np.ndarray) -> None:
-    """Teach the ``unknown``-occluder map this frame's failures: per camera, the predicted
-    pixels of the looked-for features not found, or rejected where the camera had none of
-    the part's corners accepted (:mod:`.unknown`)."""
-    found = np.isfinite(rec.measured[..., 0])
-    blinded = ~(found & ~rec.rejected).any(axis=1, keepdims=True)
-    failed = looked & (~found | (rec.rejected & blinded))
-    for c in np.flatnonzero(failed.any(axis=1)):
-        unknown.learn(int(c), t, rec.pixels[c, failed[c]])
-
-
-def _resolution(cameras: Sequence[Camera], track: PartTrack) -> np.ndarray:
-    """Per camera: pixels per metre at the estimated part's centroid (focal / depth), the
-    selection's weight of each camera."""
-    T = track.ekf.pose
-    return camera_resolution(cameras, track.points.mean(axis=0) @ T[:3, :3].T + T[:3, 3])
-
-
-def _shift_by_offsets(rec: PartFrame, ekf: PoseEKF) -> None:
-    """With camera offsets (:mod:`.offsets`), move each camera's predicted pixels by the
-    filter's estimate of its offset, so that the windows are centred where the camera shows the
-    features, not where its calibration says they are."""
-    offsets = ekf.offsets
-    if offsets is not None:
-        rec.pixels += offsets[0].reshape(-1, 1, 2)
-
-
-def _record_update(rec: PartFrame, report: UpdateReport) -> None:
-    """Record an update's per-feature innovations, distances and rejections."""
-    if len(report.accepted):
-        c, f = report.camera_index, report.feature_ids
-        rec.innovation[c, f] = report.innovation
-        rec.mahalanobis2[c, f] = report.mahalanobis2
-        rec.rejected[c, f] = ~report.accepted
-
-
-def _in_filter(check: CameraCheck) -> np.ndarray:
-    """(C,) bool: the cameras whose measurements the filter takes (:meth:`CameraCheck.usable`):
-    only their features count as looked for in the health figures, the first update's support,
-    the unknown-occluder map and the loss rule (a dropped camera's features, not found where
-    the estimate predicts them, would keep a track coasting that the other camera holds)."""
-    return np.array([check.usable(c) for c in range(len(check.cameras))], dtype=bool)
-
 
 def _with_held_out(check: CameraCheck, step: Callable[[StepContext], PartFrame],
                    context: StepContext) -> PartFrame:
     """``step(context)``'s record, with the cameras the camera check held out of the filter as
     the step began (``PartFrame.held_out``; the check moves on at the step's end)."""
-    held_out = ~_in_filter(check)
+    held_out = ~in_filter(check)
     rec = step(context)
     rec.held_out = held_out
     return rec
-
-
-def _check_cameras(check: CameraCheck, extractor: Extractor, cameras: Sequence[Camera],
-                   context: StepContext, looked: np.ndarray, updated: bool) -> None:
-    """Feed the camera check (:mod:`.camera_check`) this frame of the part (``looked``: the
-    (C, F) features looked for; ``updated``: the usable cameras updated the estimate)."""
-    rec, T = context.rec, context.track.ekf.pose
-    detect = extractor.detect if isinstance(extractor, CornerDetector) else None
-
-    def corners(c: int) -> np.ndarray | None:
-        seen = observed_of(context.observed, cameras, c)
-        if detect is None or seen is None:
-            return None
-        with context.timer("grab"):
-            seen = grabbed(seen)
-        return detect(seen)
-
-    check.update(context.t, CheckFrame(
-        rec.innovation, rec.measured, rec.pixels, rec.visible, looked, updated,
-        context.track.points @ T[:3, :3].T + T[:3, 3], corners))
 
 
 def _lags(stamps: Any, cameras: Sequence[Camera], t: float) -> np.ndarray:

@@ -40,7 +40,6 @@ from functools import partial
 import mujoco
 import numpy as np
 
-from cellsight.camera import Camera
 from cellsight.model import Cell
 from cellsight.rates import CONTROL_HZ, VISION_HZ
 from cellsight.visibility import Views
@@ -386,16 +385,6 @@ class World:
         front of it, as it truly sees them: where a corner extractor could latch on
         (:meth:`RayTruth.corner_pixels <cellsight.world.truth.RayTruth.corner_pixels>`)."""
         return self.truth.corner_pixels(self.intruders)
-
-    def true_cameras(self) -> list[Camera]:
-        """The cameras where they truly are now, in ``cell.cameras`` order: the cell file's
-        moved by the world's calibration errors and by a knock, if one happened."""
-        return list(self.truth.cell.cameras)
-
-    def part_kidnapped(self) -> bool | None:
-        """Whether the kidnapping fault moved its workpiece (None until it was due, and in a
-        world with no kidnapping)."""
-        return self.faults.moved
 
     def collisions(self) -> list[dict]:
         """Every collision so far (:mod:`cellsight.world.contacts`), as plain data."""
