@@ -71,8 +71,8 @@ class TrackerConfig:
 
     ``sigma_px``: pixel noise of the measurement model and of acquisition's fix;
     ``adaptive_noise``: re-estimate it per camera from the innovations
-    (:class:`~cellsight.tracking.adaptive_noise.AdaptiveNoise`); ``carried_noise``: random-walk densities of
-    a held part's pose relative to its holder, with the kinematic prior (``holders`` in
+    (:class:`~cellsight.tracking.adaptive_noise.AdaptiveNoise`); ``carried_noise``: random-walk
+    densities of a held part's pose relative to its holder, with the kinematic prior (``holders`` in
     :meth:`Tracker.step`); ``near_occluder_hold_s``: how long a feature stays unusable after it
     was last flagged ``near_occluder`` (:mod:`.eligibility`); ``resume_support``: how many
     features the gate must accept together in the first update after a tracked frame without

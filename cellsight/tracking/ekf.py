@@ -56,7 +56,7 @@ from cellsight.tracking.adaptive_noise import AdaptiveNoise
 from cellsight.tracking.gate import mahalanobis2
 from cellsight.tracking.interfaces import Gate, MotionModel
 from cellsight.tracking.measurement import Observation, PinholeMeasurement, rotation_of_state
-from cellsight.tracking.motion import POSE_DIM, STATE_DIM
+from cellsight.tracking.motion import POSE_DIM, POSITION, STATE_DIM
 from cellsight.tracking.offsets import CameraOffsets, with_offset
 
 MIN_FOR_MEDIAN = 3  # features for a camera's median innovation to stand for its offset
@@ -154,7 +154,7 @@ class PoseEKF:
     @property
     def pose(self) -> np.ndarray:
         """Current pose estimate ``T_base_part`` (4x4)."""
-        return make_pose(rotation_of_state(self.state), self.state[:3])
+        return make_pose(rotation_of_state(self.state), self.state[POSITION])
 
     def predict(self, t: float, at_rest: bool = False) -> None:
         """Propagate state and covariance to time ``t`` (s), ``t >= self.t``; the camera

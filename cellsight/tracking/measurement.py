@@ -37,7 +37,7 @@ import numpy as np
 
 from cellsight._camera_kernel import pinhole_jacobian
 from cellsight.camera import Camera
-from cellsight.tracking.motion import POSE_DIM
+from cellsight.tracking.motion import POSE_DIM, POSITION
 
 
 def rotation_of_state(state: np.ndarray) -> np.ndarray:
@@ -103,7 +103,7 @@ class PinholeMeasurement:
         return _evaluate(
             np.ascontiguousarray(points_model, dtype=np.float64).reshape(-1, 3),
             np.ascontiguousarray(R, dtype=np.float64),
-            state[:3].copy(),
+            state[POSITION].copy(),
             self.camera.T_cam_base,
             self.camera.K,
             euler_rate_matrix(state[4], state[5]),

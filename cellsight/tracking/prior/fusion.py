@@ -21,7 +21,7 @@ from cellsight.tracking.ekf import (
     PoseEKF,
     UpdateReport,
 )
-from cellsight.tracking.motion import POSE_DIM
+from cellsight.tracking.motion import POSE_DIM, POSITION
 
 HOLD_SIGMAS = 3.0  # a held part's estimate this many holder sigmas off has left the grasp
 ACROSS_SIGHT = 1.0  # m: the sigma across a lone camera's sight line of the hold along it
@@ -118,7 +118,7 @@ def hold_along_sight(ekf: PoseEKF, holder: np.ndarray, cameras: Sequence[Camera]
     seen = np.unique(report.camera_index[report.accepted])
     if len(seen) != 1:
         return
-    sight = ekf.state[:3] - cameras[int(seen[0])].center
+    sight = ekf.state[POSITION] - cameras[int(seen[0])].center
     along = np.outer(sight, sight) / float(sight @ sight)
     covariance = std**2 * along + ACROSS_SIGHT**2 * (np.eye(3) - along)
     ekf.fuse_prior(holder, HELD[:3], None, covariance=covariance)
