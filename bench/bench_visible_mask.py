@@ -8,7 +8,10 @@ medians in milliseconds per call, for three inputs: the list of (k, 3) polygons 
 call), the same polygons as one (P, k, 3) array (quads, triangles), and the list joined once
 into a ``PolygonSoup`` (its planes and checks done once), the last two prepared outside the
 timing like Open3D's flat vertex and triangle arrays. Open3D tests occlusion
-of the rays viewpoint->point up to ``1 - 1e-4`` of their length (its peer tolerance).
+of the rays viewpoint->point up to ``1 - 1e-4`` of their length (its peer tolerance). On the UR5
+scene, MuJoCo's ``mj_multiRay`` casts the same rays in the world's model of ``ur-cell`` (the
+same meshes; its bodies placed by ``mj_kinematics`` in each call, as a moving cell needs, its
+meshes' trees built once when the model compiled), to the same tolerance.
 """
 
 from __future__ import annotations
@@ -28,6 +31,29 @@ def box_scene_polygons() -> tuple[list[np.ndarray], np.ndarray, np.ndarray]:
     vertices, offsets, points, viewpoint = box_scene(240)
     polygons = [vertices[offsets[i]:offsets[i + 1]] for i in range(len(offsets) - 1)]
     return polygons, points[:32], viewpoint
+
+
+def mujoco_mask():
+    """MuJoCo: ``(points, viewpoint) -> visible`` by ``mj_kinematics`` then ``mj_multiRay`` in
+    the world's model of ``ur-cell`` (at HOME, as :func:`ur_scene_polygons` poses it)."""
+    import mujoco
+
+    import cellsight
+    from cellsight.world.world import World
+
+    world = World(cellsight.load_cell("ur-cell"))
+    model, data = world.scene.model, world.scene.data
+
+    def mask(points: np.ndarray, viewpoint: np.ndarray) -> np.ndarray:
+        mujoco.mj_kinematics(model, data)
+        vec = points - viewpoint
+        length = np.linalg.norm(vec, axis=1)
+        n = len(points)
+        geomid, dist = np.empty(n, np.int32), np.empty(n)
+        mujoco.mj_multiRay(model, data, viewpoint, (vec / length[:, None]).ravel(), None, 1, -1,
+                           geomid, dist, None, n, float(length.max()) + 1.0)
+        return ~((dist >= 0) & (dist < length * (1.0 - PEER_TOLERANCE)))
+    return mask
 
 
 def ur_scene_polygons() -> tuple[list[np.ndarray], np.ndarray, np.ndarray]:
@@ -102,6 +128,10 @@ def run() -> list[dict]:
         mesh = fan_triangles(polygons)
         row["open3d"] = _median_ms(lambda: open3d_mask(mesh, points, viewpoint))  # noqa: B023
         row["open3d_same"] = int((open3d_mask(mesh, points, viewpoint) == answer).sum())
+        if name == "two UR5":
+            mj = mujoco_mask()
+            row["mujoco"] = _median_ms(lambda: mj(points, viewpoint))  # noqa: B023
+            row["mujoco_same"] = int((mj(points, viewpoint) == answer).sum())
         rows.append(row)
     return rows
 
@@ -118,6 +148,11 @@ def main() -> None:
               f" | same as the BSP of all: {r['after_same'] and r['array_same'] and r['soup_same']}"
               f", Open3D agrees on "
               f"{r['open3d_same']}/{r['points']}")
+        if "mujoco" in r:
+            print(f"  MuJoCo mj_kinematics + mj_multiRay {r['mujoco']:.3f} ms | array/MuJoCo "
+                  f"{r['array'] / r['mujoco']:.2f}, joined once/MuJoCo "
+                  f"{r['soup'] / r['mujoco']:.2f} | MuJoCo agrees on "
+                  f"{r['mujoco_same']}/{r['points']}")
 
 
 if __name__ == "__main__":
