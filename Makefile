@@ -4,7 +4,7 @@ STAMP   := .venv/.installed
 DEV     := .venv/.installed-dev
 export MUJOCO_GL ?= egl
 
-.PHONY: venv dev test test-slow demo experiments results docs recordings bench fuzz lint clean
+.PHONY: venv dev test test-slow demo experiments results docs recordings bench bench-docs fuzz lint clean
 
 # `venv`: what cellsight needs to run; `dev`: plus the test tools and the benchmark peers.
 venv: $(STAMP)
@@ -74,6 +74,11 @@ fuzz: dev
 bench: dev
 	@ldconfig -p | grep -q libusb-1.0 || (apt-get update -qq && apt-get install -y -qq libusb-1.0-0)
 	$(PY) bench/run_all.py
+
+# The benchmarks' tables saved for the docs' Benchmarks page (run it on a quiet machine).
+bench-docs: dev
+	@ldconfig -p | grep -q libusb-1.0 || (apt-get update -qq && apt-get install -y -qq libusb-1.0-0)
+	$(PY) bench/run_all.py --save docs/results/bench
 
 clean:
 	rm -rf .venv out build docs/tutorials .pytest_cache .ruff_cache

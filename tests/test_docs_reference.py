@@ -180,9 +180,23 @@ def test_a_table_older_than_the_code_says_so() -> None:
         pytest.skip("not a git checkout")
     changed = results.code_changes_since(REPO, first.stdout.split()[0])
     assert changed and all(c.startswith("cellsight/") for c in changed)
-    table = results.Table("t", REPO, [], {"command": "c", "version": "v",
-                                         "commit": first.stdout.split()[0], "made": "d"})
-    assert "Older than the code" in results.provenance(REPO, table)
+    meta = {"command": "c", "version": "v", "commit": first.stdout.split()[0], "made": "d"}
+    assert "Older than the code" in results.provenance(REPO, meta)
+
+
+def test_the_benchmarks_page_shows_each_saved_bench_with_its_command(tmp_path: Path) -> None:
+    """``bench/run_all.py --save`` output, as the docs' Benchmarks page shows it."""
+    folder = tmp_path / results.BENCH
+    assert "No benchmark has been saved" in results.bench_page(tmp_path)
+    folder.mkdir(parents=True)
+    (folder / "bench_x.txt").write_text("visible_mask 0.5 ms | Open3D 1.0 ms | ratio 0.50\n")
+    (folder / "bench_x.json").write_text(json.dumps({
+        "command": "python bench/run_all.py --only bench_x", "version": "0.1.0",
+        "commit": "0" * 40, "made": "2026-11-29", "cores": 2, "machine": "x86_64, Linux",
+        "busy": "nothing else"}))
+    page = results.bench_page(tmp_path)
+    assert "## `bench_x`" in page and "ratio 0.50" in page
+    assert "`python bench/run_all.py --only bench_x`" in page and "On 2 cores" in page
 
 
 def test_the_readme_tables_are_the_generated_ones() -> None:

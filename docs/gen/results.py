@@ -19,6 +19,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 DATA = Path("docs") / "results" / "data"
+BENCH = Path("docs") / "results" / "bench"
 PHASES = ("approach", "grasp", "manipulate", "release")
 FIGURES = (  # summary.csv column, header, decimals
     ("position_rmse_arm_mm", "pos. RMSE, arm frame mm", 2),
@@ -131,9 +132,9 @@ def code_changes_since(root: Path, commit: str) -> list[str] | None:
     return out.stdout.split() if out.returncode == 0 else None
 
 
-def provenance(root: Path, table: Table) -> str:
-    """Which command and version made the table, and whether the code changed since."""
-    meta = table.meta
+def provenance(root: Path, meta: dict[str, str]) -> str:
+    """Which command and version made a table (its ``meta``), and whether the code changed
+    since."""
     text = (f"Made by `{meta['command']}` with cellsight {meta['version']} at commit "
             f"`{meta['commit'][:12]}` on {meta['made']}.")
     changed = code_changes_since(root, meta["commit"])
@@ -153,7 +154,7 @@ def table_page(root: Path, table: Table) -> str:
     """One sweep's page: provenance, the spread per group, per phase, the plot, every run."""
     meta = table.meta
     lines = [f"# {meta['title']}", "", meta.get("description", ""), "",
-             provenance(root, table), "",
+             provenance(root, table.meta), "",
              "Each line is a group of runs over its seeds: mean ± standard deviation "
              "(smallest–largest). RMSE and max are over every frame with the part in view "
              "of the whole task.", "", summary_table(table.rows), "",
@@ -172,7 +173,8 @@ def index_page(root: Path, found: list[Table]) -> str:
              "Every table here is made by a script (`docs/gen/results.py`) from the summaries "
              "of `cellsight sweep` (`make experiments`, then `make results`); none is typed "
              "by hand. Each says which command and which version made it, and warns when the "
-             "code has changed since.", "", "## Headline figures", "", headline(found), "",
+             "code has changed since. The speed of each part against its peers: "
+             "[Benchmarks](benchmarks.md).", "", "## Headline figures", "", headline(found), "",
              "## Tables", "", "| table | runs | what it measures |", "|---|---|---|"]
     lines += [f"| [{t.meta['title']}]({t.name}.md) | {len(t.rows)} | "
               f"{t.meta.get('description', '')} |" for t in found]
@@ -209,9 +211,29 @@ def headline(found: list[Table]) -> str:
     return "\n".join(lines) + "\n"
 
 
+def bench_page(root: Path) -> str:
+    """The benchmarks' page: each benchmark's printed tables as ``bench/run_all.py --save``
+    wrote them (``docs/results/bench/<bench>.txt``), with the command, the commit and what else
+    ran, and a warning when the code changed since."""
+    lines = ["# Benchmarks", "",
+             "Each benchmark of `bench/` prints its peers' times measured in the same run, and "
+             "the ratios; these are its tables as `python bench/run_all.py --save "
+             "docs/results/bench` printed them (`make bench` prints them without saving). "
+             "Times are wall-clock medians unless a column says otherwise.", ""]
+    found = sorted((root / BENCH).glob("*.txt"))
+    if not found:
+        return "\n".join(lines + ["No benchmark has been saved here yet.", ""])
+    for text_file in found:
+        meta = json.loads(text_file.with_suffix(".json").read_text())
+        lines += [f"## `{text_file.stem}`", "", provenance(root, meta), "",
+                  f"On {meta['cores']} cores ({meta['machine']}), {meta['busy']} running "
+                  "beside it.", "", "```text", text_file.read_text().strip(), "```", ""]
+    return "\n".join(lines)
+
+
 def pages(root: Path) -> dict[str, str]:
     """Every results page by its path in the site."""
     found = tables(root)
-    out = {"results/index.md": index_page(root, found)}
+    out = {"results/index.md": index_page(root, found), "results/benchmarks.md": bench_page(root)}
     out.update({f"results/{t.name}.md": table_page(root, t) for t in found})
     return out
