@@ -59,6 +59,21 @@ def test_aliases_of_a_reasonable_size_still_load(tmp_path) -> None:
     assert [r.name for r in cell.robots] == ["R7AX", "R6AX"]
 
 
+def test_yaml_merge_keys_load_as_pyyaml_loads_them(tmp_path) -> None:
+    """``<<: *anchor`` (a camera like another, but for its name): the keys merged, the
+    mapping's own winning, as ``yaml.safe_load`` reads them; a key repeated in one mapping is
+    still refused."""
+    text = builtin_cell_path().read_text().replace(
+        "  - name: cam2\n    width: 768\n", "  - <<: *cam1\n    name: cam2\n    width: 768\n"
+    ).replace("  - name: cam1\n", "  - &cam1\n    name: cam1\n")
+    assert yaml.safe_load(text)["cameras"][1]["name"] == "cam2"
+    cell = load_cell(_write(tmp_path, text))
+    assert [c.name for c in cell.cameras] == ["cam1", "cam2"]
+    assert not np.allclose(cell.cameras[0].T_base_cam, cell.cameras[1].T_base_cam)
+    merged = text.replace("    name: cam2\n", "    name: cam2\n    name: cam3\n")
+    _refused(_write(tmp_path, merged, "twice.yaml"), "duplicate key 'name'")
+
+
 @pytest.mark.parametrize(("text", "pattern"), [
     ("name: " + "[" * 20000 + "]" * 20000 + "\n",
      f"got 'deeper nesting'; expected collections nested at most {MAX_YAML_DEPTH} levels"),

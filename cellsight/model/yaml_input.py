@@ -50,8 +50,12 @@ class _CellLoader(yaml.SafeLoader):
 
 
 def _unique_mapping(loader: _CellLoader, node: yaml.MappingNode, deep: bool = False):
+    """The mapping of ``node``, a key repeated in it refused; YAML merge keys (``<<: *anchor``)
+    are taken as PyYAML's safe loader takes them, the mapping's own keys winning."""
     seen = set()
     for key_node, _ in node.value:
+        if key_node.tag == "tag:yaml.org,2002:merge":
+            continue
         key = loader.construct_object(key_node, deep=deep)
         try:
             repeated = key in seen
