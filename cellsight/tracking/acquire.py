@@ -18,7 +18,6 @@ from cellsight.tracking.acquisition import rates_covariance
 from cellsight.tracking.camera_check import CameraCheck
 from cellsight.tracking.config import TrackerConfig, TrackerParts
 from cellsight.tracking.grabbing import grabbed
-from cellsight.tracking.interfaces import CornerDetector
 from cellsight.tracking.measuring import Measurer
 from cellsight.tracking.motion import POSE_DIM
 from cellsight.tracking.part_track import (
@@ -158,8 +157,7 @@ class Acquirer:
         held out of the filter (:meth:`fix`) is not searched."""
         search, track, t = self.tracker.components.search, context.track, context.t
         acquisition = self.tracker.components.acquisition
-        extractor = self.tracker.measurer.extractor
-        detect = extractor.detect if isinstance(extractor, CornerDetector) else None
+        detect = self.tracker.measurer.detect
         cameras, check = self.tracker.cameras, self.tracker.camera_check
         observed = [observed_of(context.observed, cameras, c) if check.usable(c) else None
                     for c in range(len(cameras))]

@@ -136,16 +136,17 @@ class CameraCheck:
                 found = int((frame.looked[c] & np.isfinite(frame.measured[c, :, 0])).sum())
                 _slide(self._found[c], t, [(t, looked, found)], self.rule.window_s)
         biased = [self._biased(c) for c in range(len(self.cameras))]
+        shares = [self._share(c) for c in range(len(self.cameras))]
         self._first = t if self._first is None else self._first
         if t - self._first >= self.rule.window_s - 1e-9:
-            self._agreed |= np.array([b == 0.0 and (self._share(c) or 0.0) >= 2 / 3
+            self._agreed |= np.array([b == 0.0 and (shares[c] or 0.0) >= 2 / 3
                                       for c, b in enumerate(biased)])
         for c, bias in enumerate(biased):
             others = [b for o, b in enumerate(biased) if o != c and o not in self.dropped]
             if self._judged(c) and bias is not None and bias > 0 and 0.0 in others:
                 self._drop(t, c, f"its innovations are {bias:.1f} px off on average")
         for c in range(len(self.cameras)):
-            if self._judged(c) and self._lost_features(c):
+            if self._judged(c) and self._lost_features(c, shares):
                 self._look_for_offset(t, c, frame)
             else:
                 self._pending.pop(c, None)
@@ -171,11 +172,12 @@ class CameraCheck:
         looked = sum(r[1] for r in rows)
         return None if looked < self.rule.min_points else sum(r[2] for r in rows) / looked
 
-    def _lost_features(self, c: int) -> bool:
+    def _lost_features(self, c: int, shares: list[float | None]) -> bool:
         """Camera ``c`` found fewer than half of what it looked for over the window while
-        another camera found two thirds of its own."""
-        mine = self._share(c)
-        others = [self._share(o) for o in range(len(self.cameras))
+        another camera found two thirds of its own (``shares``: each camera's,
+        :meth:`_share`)."""
+        mine = shares[c]
+        others = [shares[o] for o in range(len(self.cameras))
                   if o != c and o not in self.dropped]
         return mine is not None and mine < 0.5 and any(x is not None and x >= 2 / 3
                                                        for x in others)

@@ -6,12 +6,19 @@ the image regions grabbed, the corners extracted and the observations built."""
 from __future__ import annotations
 
 from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 
 from cellsight.camera import Camera
 from cellsight.tracking.grabbing import grabbed
-from cellsight.tracking.interfaces import Extractor, MeasurementModel, OccluderMap, WindowPlanner
+from cellsight.tracking.interfaces import (
+    CornerDetector,
+    Extractor,
+    MeasurementModel,
+    OccluderMap,
+    WindowPlanner,
+)
 from cellsight.tracking.measurement import Observation
 from cellsight.tracking.part_track import StepContext, observed_of
 
@@ -20,12 +27,24 @@ class Measurer:
     """The measurement of a part's features by ``cameras`` (shared with the tracker: a camera
     recalibrated there is measured with here), windows planned by ``windows``, features
     extracted by ``extractor``, observations of the cameras' measurement ``models``; the
-    ``unknown``-occluder maps mask what may be measured."""
+    ``unknown``-occluder maps mask what may be measured. ``detect``: the extractor's
+    whole-image corner detector (:class:`~.interfaces.CornerDetector`), None when it has none."""
 
     def __init__(self, cameras: list[Camera], windows: WindowPlanner, extractor: Extractor,
                  models: list[MeasurementModel], unknown: OccluderMap) -> None:
         self.cameras, self.windows, self.extractor = cameras, windows, extractor
         self.models, self.unknown = models, unknown
+
+    @property
+    def extractor(self) -> Extractor:
+        """What extracts the features (its detector checked once, when it is set)."""
+        return self._extractor
+
+    @extractor.setter
+    def extractor(self, extractor: Extractor) -> None:
+        self._extractor = extractor
+        self.detect: Callable[[Any], np.ndarray] | None = (
+            extractor.detect if isinstance(extractor, CornerDetector) else None)
 
     def usable(self, context: StepContext, t_hold: float | None) -> np.ndarray:
         """(C, F) bool: the features that may be measured: predicted visible, not held back

@@ -6,9 +6,9 @@ outcome."""
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import replace
-from typing import Protocol
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -18,7 +18,7 @@ from cellsight.tracking.camera_check import CameraCheck, CheckFrame
 from cellsight.tracking.ekf import PoseEKF, UpdateReport
 from cellsight.tracking.gate import SupportedGate
 from cellsight.tracking.grabbing import grabbed
-from cellsight.tracking.interfaces import CornerDetector, Extractor, MeasurementModel, OccluderMap
+from cellsight.tracking.interfaces import MeasurementModel, OccluderMap
 from cellsight.tracking.part_track import (
     PartTrack,
     StepContext,
@@ -100,7 +100,7 @@ class Updater:
             track.held_at = None  # the filter knows where it is
             rec.status = TrackStatus.DEGRADED if rec.health.reasons else TrackStatus.TRACKING
         record_estimate(rec, ekf)
-        _check_cameras(check, tracker.measurer.extractor, tracker.cameras, context, looked,
+        _check_cameras(check, tracker.measurer.detect, tracker.cameras, context, looked,
                        report.n_accepted > 0)
         return rec
 
@@ -149,12 +149,13 @@ def in_filter(check: CameraCheck) -> np.ndarray:
     return np.array([check.usable(c) for c in range(len(check.cameras))], dtype=bool)
 
 
-def _check_cameras(check: CameraCheck, extractor: Extractor, cameras: Sequence[Camera],
-                   context: StepContext, looked: np.ndarray, updated: bool) -> None:
-    """Feed the camera check (:mod:`.camera_check`) this frame of the part (``looked``: the
-    (C, F) features looked for; ``updated``: the usable cameras updated the estimate)."""
+def _check_cameras(check: CameraCheck, detect: Callable[[Any], np.ndarray] | None,
+                   cameras: Sequence[Camera], context: StepContext, looked: np.ndarray,
+                   updated: bool) -> None:
+    """Feed the camera check (:mod:`.camera_check`) this frame of the part (``detect``: the
+    whole-image corner detector, None: none; ``looked``: the (C, F) features looked for;
+    ``updated``: the usable cameras updated the estimate)."""
     rec, T = context.rec, context.track.ekf.pose
-    detect = extractor.detect if isinstance(extractor, CornerDetector) else None
 
     def corners(c: int) -> np.ndarray | None:
         seen = observed_of(context.observed, cameras, c)
