@@ -35,6 +35,8 @@ class OnDemandImage(Protocol):
 def grabbed(observed: Any, boxes: Sequence[Sequence[int]] | None = None) -> Any:
     """What a camera took, read for the windows ``boxes`` (None: the whole image) when it is
     an :class:`OnDemandImage`; anything else as it is."""
+    if observed is None or isinstance(observed, np.ndarray):  # before the protocol's slow check
+        return observed
     if not isinstance(observed, OnDemandImage):
         return observed
     return observed.whole() if boxes is None else observed.grab(boxes)
