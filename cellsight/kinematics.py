@@ -75,9 +75,10 @@ def check_joint_vector(name: str, qlim: np.ndarray, q, check_limits: bool = Fals
     (not words, not complex), length n, finite, and (if asked) inside the limits within
     ``tol``; a :class:`KinematicsError` naming the chain."""
     n = len(qlim)
-    if (not check_limits and type(q) is np.ndarray and q.dtype == np.float64
-            and q.shape == (n,) and np.isfinite(q).all()):
-        return q  # the control rate's case: a float vector, all finite
+    if (type(q) is np.ndarray and q.dtype == np.float64 and q.shape == (n,)
+            and np.isfinite(q).all() and (not check_limits or (
+                (q >= qlim[:, 0] - tol).all() and (q <= qlim[:, 1] + tol).all()))):
+        return q  # the control and vision rates' case: a float vector, finite, within limits
     if np.iscomplexobj(q):
         raise KinematicsError(f"{name}: joint values must be real numbers, got complex "
                               f"{short_repr(q)}")
