@@ -12,13 +12,12 @@ protocol of :mod:`.interfaces` with its default in its own module):
 3. per part: a part not tracked yet, or lost, is acquired (:mod:`.acquisition`: windows at
    the guess or the last prediction, or where it was let go by a gripper; a part that a
    gripper holds starts where the gripper holds it, ``holders`` of :meth:`Tracker.step`;
-   failing that, at most every ``search.every_s``, the
-   whole-image search over its support plane, :mod:`.search`, each of its best candidates
-   tried with the same windows and PnP, the confirmed fix of the most points taken; a fix
-   stands only when narrow windows where it predicts the part's features confirm it);
-   otherwise (:mod:`.update`)
-   the selector chooses among the usable features (:mod:`.eligibility`, :mod:`.selection`),
-   the window planner places their windows (:mod:`.windowing`), the extractor finds them in
+   failing that, at most every ``search.every_s``, the whole-image search over its support
+   plane, :mod:`.search`, each of its best candidates tried with the same windows and PnP,
+   the confirmed fix of the most points taken; a fix stands only when narrow windows where
+   it predicts the part's features confirm it); otherwise (:mod:`.update`) the selector
+   chooses among the usable features (:mod:`.eligibility`, :mod:`.selection`), the window
+   planner places their windows (:mod:`.windowing`), the extractor finds them in
    what the sensors took (:mod:`.extraction`), the gate (:mod:`.gate`) screens the innovations
    and the EKF updates with the accepted ones (:mod:`.measurement`, :mod:`.ekf`); the track's
    health monitor (:mod:`.health`) takes the frame's outcome, and a tracked part whose figures
@@ -95,7 +94,7 @@ class Tracker:
         self.cameras = list(cameras)
         self.predictor = predictor
         self.models = [self.components.measurement(c, self.config.sigma_px)
-                        for c in self.cameras]
+                       for c in self.cameras]
         self.unknown = self.components.unknown.maps(self.cameras)
         self.measurer = Measurer(self.cameras, self.components.windows,
                                  extractor or CornerExtractor(), self.models, self.unknown)
