@@ -7,7 +7,10 @@ at its ends; each camera sees about four parts, each part two to four cameras. F
 parts, the cell keeps the first ``K``. In the simulated world (``exact``), every part moves
 along the line at ``SPEED`` m/s; each frame MuJoCo renders the six cameras and the tracker
 (:class:`~cellsight.tracking.Tracker`, its defaults, acquiring each part at its nominal pose)
-takes the images. Per frame, from the ``SETTLE``-th on (every part acquired): the tracker's time
+takes the images, with the kinematic prior's supports as the default tracker has them (each
+part lying on the belt: its height, roll and pitch; without them, one part of eight drifted off
+within four frames of its acquisition, its windows wide enough for a neighbour's corner). Per
+frame, from the ``SETTLE``-th on (every part acquired): the tracker's time
 (every stage, extraction included; the grab not) as its median and p99, per part, and per part
 and camera in view; the median of each stage; the parts tracked, and the RMS of the position
 error against the poses the world was given, over every part and frame.
@@ -63,7 +66,8 @@ def measure(parts: int, frames: int = FRAMES) -> dict:
                 T[0, 3] += SPEED * t
                 world.place_part(name, T)
             world.step()
-            frame = tracker.step(world.render(), joints, t, world.jaw_openings())
+            frame = tracker.step(world.render(), joints, t, world.jaw_openings(),
+                                 supports=start)
             if n < SETTLE:
                 continue
             totals.append(frame.timings["total"])
