@@ -715,3 +715,33 @@ def test_a_part_let_go_while_the_cameras_are_blind_rests_where_it_was_let_go():
     assert run.frames[release - 1].status == "tracking"
     assert {str(run.frames[k].status) for k in range(release, stop)} == {"coasting"}
     assert run.errors(stop - 1)[0] < 5e-3  # 2.6 mm; 100 mm without the rates zeroed
+
+
+def test_features_too_near_the_image_edge_are_not_measured() -> None:
+    """A feature predicted within ``edge_margin_px`` of the image's edge is not usable (the
+    corner extractor cannot refine it there); one just farther in is, as before."""
+    from cellsight.camera import border_distance
+    from cellsight.occlusion.backends import visibility_predictor
+    from cellsight.tracking.part_track import StepContext
+    from cellsight.tracking.timing import StageTimer
+
+    cell = load_cell()
+    part = cell.workpieces[0]
+    predictor = visibility_predictor(cell)
+    views = predictor.predict(None, {part.name: part.T_base_part}, None)[part.name]
+    cam = cell.cameras[0]
+    u = views[0].pixels[views[0].visible, 0]
+    # the image cut just right of the third feature from the right: two within the margin
+    cut = int(np.sort(u)[-3] + 0.5 + 4.0)
+    narrow = dataclasses.replace(cam, width=cut)
+    tracker = Tracker([narrow, cell.cameras[1]], {part.name: part.feature_points}, predictor,
+                      initial_poses={part.name: part.T_base_part})
+    track = tracker.tracks[part.name]
+    rec = track.frame_record(part.name, views, 2)
+    context = StepContext(0.0, None, [], StageTimer(), track, rec, None, np.zeros(2))
+    usable = tracker.measurer.usable(context, None)
+    margin = TrackerConfig().edge_margin_px
+    inside = border_distance(narrow, rec.pixels[0]) >= margin
+    assert (rec.visible[0] & ~inside).sum() >= 2  # the case is there
+    assert np.array_equal(usable[0], rec.visible[0] & inside & ~rec.near_occluder[0])
+    assert np.array_equal(usable[1], rec.visible[1] & ~rec.near_occluder[1])

@@ -87,18 +87,22 @@ class TrackerConfig:
     seat, the joints' errors), with which a held part that is not tracked starts there;
     ``hold_std``: one sigma (m, rad) of where a holder puts a part once the jaws' opening has
     confirmed the grasp, with which its estimate is kept with the holder (tighter than
-    ``held_std``: the part is within its seat's error of the chosen grasp; :mod:`.tracker`);
+    ``held_std``: the part is within its seat's error of the chosen grasp; :mod:`.prior`);
     ``rest_std``: one sigma (m, rad) of the height and the roll and pitch of a part lying on its
     support, with the kinematic prior (``supports`` in :meth:`Tracker.step`; the support's
     height and flatness as the cell file knows them); ``support_speed``: how fast (m/s across
     the support, rad/s about its normal) a support moves a part lying on it at most (a
     conveyor's belt), with the kinematic prior: the rates a lying part's filter starts with
-    (one sigma) and the bound its rates are held to (:func:`~.tracker._keep_support_speed`);
+    (one sigma) and the bound its rates are held to (:func:`~.prior.fusion._keep_support_speed`);
     ``awaiting_registration``: the cameras are to be registered to an arm
     (:mod:`.registration`): until the first :meth:`Tracker.recalibrate`, a tracked part is
     ``degraded`` with the reason :data:`~.update.UNREGISTERED` (the calibration's error the
     cameras share is in the estimate and not in its covariance: in ``harsh`` cells the first
-    fix is up to 11 mm off with a sigma of 0.4 mm).
+    fix is up to 11 mm off with a sigma of 0.4 mm); ``edge_margin_px``: a feature predicted
+    nearer the image's edge than this is not measured there (the corner extractor cannot
+    refine a corner whose window the edge cuts: on a line of parts, the features of a part
+    leaving a camera's view went unfound within 6 px of the edge, and the track was degraded
+    for them).
     """
 
     sigma_px: float = 0.5
@@ -113,3 +117,4 @@ class TrackerConfig:
     rest_std: tuple[float, float] = (0.002, 0.01)
     support_speed: tuple[float, float] = (0.1, 0.1)
     awaiting_registration: bool = False
+    edge_margin_px: float = 8.0

@@ -27,13 +27,16 @@ class Measurer:
     """The measurement of a part's features by ``cameras`` (shared with the tracker: a camera
     recalibrated there is measured with here), windows planned by ``windows``, features
     extracted by ``extractor``, observations of the cameras' measurement ``models``; the
-    ``unknown``-occluder maps mask what may be measured. ``detect``: the extractor's
-    whole-image corner detector (:class:`~.interfaces.CornerDetector`), None when it has none."""
+    ``unknown``-occluder maps mask what may be measured, and so does the image's edge (within
+    ``edge_margin_px``, px). ``detect``: the extractor's whole-image corner detector
+    (:class:`~.interfaces.CornerDetector`), None when it has none."""
 
     def __init__(self, cameras: list[Camera], windows: WindowPlanner, extractor: Extractor,
-                 models: list[MeasurementModel], unknown: OccluderMap) -> None:
+                 models: list[MeasurementModel], unknown: OccluderMap,
+                 edge_margin_px: float = 0.0) -> None:
         self.cameras, self.windows, self.extractor = cameras, windows, extractor
         self.models, self.unknown = models, unknown
+        self.edge_margin_px = float(edge_margin_px)
 
     @property
     def extractor(self) -> Extractor:
@@ -47,16 +50,20 @@ class Measurer:
             extractor.detect if isinstance(extractor, CornerDetector) else None)
 
     def usable(self, context: StepContext, t_hold: float | None) -> np.ndarray:
-        """(C, F) bool: the features that may be measured: predicted visible, not held back
-        next to an occluder at time ``t_hold`` (s; :mod:`.eligibility`; None, for a pose
-        acquisition tries: not flagged next to one at that pose) and not under an unknown
-        occluder (recorded in ``rec.unknown``)."""
+        """(C, F) bool: the features that may be measured: predicted visible, at least
+        ``edge_margin_px`` inside the image, not held back next to an occluder at time
+        ``t_hold`` (s; :mod:`.eligibility`; None, for a pose acquisition tries: not flagged
+        next to one at that pose) and not under an unknown occluder (recorded in
+        ``rec.unknown``)."""
         rec = context.rec
-        for c in range(len(self.cameras)):
+        inside = np.empty_like(rec.visible)
+        for c, cam in enumerate(self.cameras):
             rec.unknown[c] = rec.visible[c] & self.unknown.covered(c, rec.pixels[c], context.t)
+            inside[c] = cam.in_image(rec.pixels[c], self.edge_margin_px)
         if t_hold is None:  # the track's hold is of its own predictions, not of a trial pose's
-            return rec.visible & ~rec.near_occluder & ~rec.unknown
-        return context.track.hold.usable(rec.visible, rec.near_occluder, t_hold) & ~rec.unknown
+            return rec.visible & inside & ~rec.near_occluder & ~rec.unknown
+        held = context.track.hold.usable(rec.visible, rec.near_occluder, t_hold)
+        return held & inside & ~rec.unknown
 
     def measure(self, context: StepContext,
                  covariance: Callable[[int, np.ndarray], np.ndarray],

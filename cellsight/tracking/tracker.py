@@ -97,7 +97,8 @@ class Tracker:
                        for c in self.cameras]
         self.unknown = self.components.unknown.maps(self.cameras)
         self.measurer = Measurer(self.cameras, self.components.windows,
-                                 extractor or CornerExtractor(), self.models, self.unknown)
+                                 extractor or CornerExtractor(), self.models, self.unknown,
+                                 self.config.edge_margin_px)
         self.camera_check = self.components.cameras.check(self.cameras)
         self.acquirer = Acquirer(self)
         self.updater = Updater(self)
