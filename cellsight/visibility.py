@@ -21,11 +21,14 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Protocol
+from typing import TYPE_CHECKING, Protocol, runtime_checkable
 
 import numpy as np
 
 from cellsight.fields import NamedEnum
+
+if TYPE_CHECKING:
+    from cellsight.camera import Camera
 
 BEHIND, OUTSIDE, SELF = "behind", "outside", "self"
 #: The predictor's structures, one back-end class each
@@ -112,3 +115,13 @@ class VisibilitySource(Protocol):
         part_poses: Mapping[str, np.ndarray] | None = None,
         openings: Mapping[str, float] | None = None,
     ) -> Views: ...
+
+
+@runtime_checkable
+class Recalibrating(Protocol):
+    """A visibility source that takes a camera's refined calibration from then on (the BSP
+    predictors and the projection baseline do)."""
+
+    def recalibrate(self, index: int, camera: Camera) -> None:
+        """Use ``camera`` for camera ``index`` (the source's camera order) from now on."""
+        ...

@@ -64,7 +64,7 @@ from cellsight.tracking.part_track import (
 from cellsight.tracking.records import PartFrame, TrackerFrame
 from cellsight.tracking.timing import StageTimer
 from cellsight.tracking.update import Updater, in_filter
-from cellsight.visibility import Views, VisibilitySource
+from cellsight.visibility import Recalibrating, Views, VisibilitySource
 
 
 class Tracker:
@@ -240,16 +240,16 @@ class Tracker:
     def recalibrate(self, index: int, camera: Camera) -> None:
         """Take ``camera`` for camera ``index`` from now on (its calibration refined, e.g. by
         :mod:`.registration`): in the measurement model, the windows, the search and the camera
-        check, and in the visibility source where it can (its ``recalibrate(index, camera)``:
-        the BSP predictors and the projection baseline have one). The cameras then count as
-        registered (``TrackerConfig.awaiting_registration``)."""
+        check, and in the visibility source where it can
+        (:class:`~cellsight.visibility.Recalibrating`: the BSP predictors and the projection
+        baseline). The cameras then count as registered
+        (``TrackerConfig.awaiting_registration``)."""
         self.cameras[index] = camera
         self.registered = True
         self.camera_check.cameras[index] = camera
         self.models[index] = self.components.measurement(camera, self.config.sigma_px)
-        move = getattr(self.predictor, "recalibrate", None)
-        if move is not None:
-            move(index, camera)
+        if isinstance(self.predictor, Recalibrating):
+            self.predictor.recalibrate(index, camera)
 
     def _predict(self, t: float, holders: Mapping[str, np.ndarray],
                  supports: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
