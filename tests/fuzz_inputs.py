@@ -1076,6 +1076,8 @@ def _damage_run(rng: random.Random, run: Path, other: Path, case_dir: Path) -> s
                       "metrics of the other seed", "frames removed", "frames edited",
                       "folder removed", "folder emptied", "folder a file", "stranger",
                       "link to a copy"))
+    if how == "metrics of the other seed" and not (other / "metrics.json").is_file():
+        how = "metrics removed"  # the other run's own damage took its metrics away
     raw = metrics.read_bytes()
     data = json.loads(raw)
     edits = {"metrics identity seed": ("identity", {**data["identity"], "seed": 7}),
