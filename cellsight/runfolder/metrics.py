@@ -35,7 +35,8 @@ class RunDataError(CellsightError, ValueError):
 
 _EXPECTED = {"dict_type": "expected an object", "int_type": "expected a whole number",
              "float_type": "expected a number", "string_type": "expected text",
-             "bool_type": "expected true or false", "list_type": "expected a list"}
+             "bool_type": "expected true or false", "list_type": "expected a list",
+             "model_type": "expected an object"}
 """What a pydantic error type expects, in the words of a JSON file."""
 
 
