@@ -13,7 +13,11 @@ CASES = {"soup": 150, "hostile_soup": 500, "cell_file": 150, "cell_text": 150, "
          "sweep_resume": 6}
 
 
-@pytest.mark.parametrize("kind", fuzzing.KINDS)
+SLOW = {"write_failure", "recording", "sweep_resume"}  # 15-20 s each: in make test-slow
+
+
+@pytest.mark.parametrize("kind", [pytest.param(k, marks=pytest.mark.slow) if k in SLOW else k
+                                  for k in fuzzing.KINDS])
 def test_fuzz(kind: str):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)  # overflow from the hostile values

@@ -61,6 +61,7 @@ def test_sweep_refuses_an_out_that_is_or_lies_under_a_file(tmp_path, capsys):
     assert file.read_text() == "mine"
 
 
+@pytest.mark.slow  # about a minute: two sweeps (make test-slow)
 def test_sweep_keeps_a_summary_that_is_not_a_sweeps_unless_overwrite(tmp_path, capsys):
     out = tmp_path / "sweep"
     out.mkdir()
