@@ -23,7 +23,6 @@ class Sensor(NamedEnum):
     RENDERED = "rendered"
     IDEAL = "ideal"
 
-
     @property
     def takes_images(self) -> bool:
         """Its cameras take images (to extract corners from, record, draw)."""

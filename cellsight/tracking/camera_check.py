@@ -123,6 +123,13 @@ class CameraCheck:
         towards them in between, and the offset would seem to move)."""
         return camera_index not in self.dropped and camera_index not in self._pending
 
+    def in_filter(self) -> np.ndarray:
+        """(C,) bool: each camera :meth:`usable`. Only their features count as looked for in
+        the health figures, the first update's support, the unknown-occluder map and the loss
+        rule (a dropped camera's features, not found where the estimate predicts them, would
+        keep a track coasting that the other camera holds)."""
+        return np.array([self.usable(c) for c in range(len(self.cameras))], dtype=bool)
+
     def update(self, t: float, frame: CheckFrame) -> None:
         """One tracked frame at ``t`` (s) (:class:`CheckFrame`)."""
         if not self.rule.enabled:

@@ -33,7 +33,7 @@ class Measurer:
 
     def __init__(self, cameras: list[Camera], windows: WindowPlanner, extractor: Extractor,
                  models: list[MeasurementModel], unknown: OccluderMap,
-                 edge_margin_px: float = 0.0) -> None:
+                 edge_margin_px: float) -> None:
         self.cameras, self.windows, self.extractor = cameras, windows, extractor
         self.models, self.unknown = models, unknown
         self.edge_margin_px = float(edge_margin_px)

@@ -63,7 +63,7 @@ from cellsight.tracking.part_track import (
 )
 from cellsight.tracking.records import PartFrame, TrackerFrame
 from cellsight.tracking.timing import StageTimer
-from cellsight.tracking.update import Updater, in_filter
+from cellsight.tracking.update import Updater
 from cellsight.visibility import Recalibrating, Views, VisibilitySource
 
 
@@ -268,7 +268,7 @@ def _with_held_out(check: CameraCheck, step: Callable[[StepContext], PartFrame],
                    context: StepContext) -> PartFrame:
     """``step(context)``'s record, with the cameras the camera check held out of the filter as
     the step began (``PartFrame.held_out``; the check moves on at the step's end)."""
-    held_out = ~in_filter(check)
+    held_out = ~check.in_filter()
     rec = step(context)
     rec.held_out = held_out
     return rec

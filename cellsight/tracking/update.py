@@ -68,7 +68,7 @@ class Updater:
         obs = tracker.measurer.measure(context, covariance)
         looked = rec.selected & cameras_grabbed(context.observed, tracker.cameras)[:, None]
         check, loss = tracker.camera_check, tracker.components.loss
-        filtered = in_filter(check)
+        filtered = check.in_filter()
         counted = looked & filtered[:, None]
         with timer("ekf"):
             gate = tracker.components.gate
@@ -139,14 +139,6 @@ def _record_update(rec: PartFrame, report: UpdateReport) -> None:
         rec.innovation[c, f] = report.innovation
         rec.mahalanobis2[c, f] = report.mahalanobis2
         rec.rejected[c, f] = ~report.accepted
-
-
-def in_filter(check: CameraCheck) -> np.ndarray:
-    """(C,) bool: the cameras whose measurements the filter takes (:meth:`CameraCheck.usable`):
-    only their features count as looked for in the health figures, the first update's support,
-    the unknown-occluder map and the loss rule (a dropped camera's features, not found where
-    the estimate predicts them, would keep a track coasting that the other camera holds)."""
-    return np.array([check.usable(c) for c in range(len(check.cameras))], dtype=bool)
 
 
 def _check_cameras(check: CameraCheck, detect: Callable[[Any], np.ndarray] | None,
