@@ -50,7 +50,7 @@ from cellsight.realism.profile import (
     UnmodelledKnobs,
     load_profile,
 )
-from cellsight.runfolder.metric_sections import PhaseAccuracy
+from cellsight.runfolder.metric_sections import PhaseAccuracy, PickFigures
 from cellsight.runfolder.metrics import RunMetrics
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "docs" / "gen"))
@@ -88,7 +88,7 @@ def test_the_walk_reaches_every_model_of_the_three_schemas():
                UnmodelledKnobs, FaultKnobs, ImageKnobs, TimingKnobs, ScenarioKnobs}
     assert set(models_of(CellSpec)) == cell
     assert set(models_of(Profile)) == profile
-    assert models_of(RunMetrics) == [RunMetrics, PhaseAccuracy]  # a phase's figures nested
+    assert models_of(RunMetrics) == [RunMetrics, PhaseAccuracy, PickFigures]  # nested ones
 
 
 @pytest.mark.parametrize(("model", "name"), _fields(),

@@ -40,16 +40,16 @@ def test_ur_cell_loads_by_name(cell):
     assert cell.experiments.robot == "UR5A" and cell.experiments.crossing_robot == "UR5B"
     assert cell.source == str(builtin_cell_path("ur-cell"))
     assert load_cell("dual-arm").source == load_cell().source == str(builtin_cell_path())
-    with pytest.raises(CellFileError,
-                       match=r"built-in cell \(dual-arm, ur-cell, kr16-cell, iiwa-cell\)"):
+    names = r"built-in cell \(dual-arm, ur-cell, kr16-cell, iiwa-cell, line-cell\)"
+    with pytest.raises(CellFileError, match=names):
         load_cell("no-such-cell")
 
 
 def test_cells_command_lists_both(capsys):
     assert main(["cells"]) == 0
     lines = capsys.readouterr().out.splitlines()
-    assert [line.split()[0] for line in lines] == list(BUILTIN_CELLS) == ["dual-arm", "ur-cell",
-                                                                   "kr16-cell", "iiwa-cell"]
+    assert [line.split()[0] for line in lines] == list(BUILTIN_CELLS) == [
+        "dual-arm", "ur-cell", "kr16-cell", "iiwa-cell", "line-cell"]
     assert "UR5A, UR5B" in lines[1] and "cam1, cam2, cam3" in lines[1]
     assert "R7AX, R6AX" in lines[0] and "dual_arm_cell.yaml" in lines[0]
     assert main(["visibility", "--cell", "ur-cell", "--json"]) == 0

@@ -6,8 +6,8 @@ from __future__ import annotations
 import argparse
 import os
 
-CELL_HELP = ("a built-in cell's name (dual-arm, the default; ur-cell, kr16-cell, iiwa-cell: see "
-             "'cellsight cells') or a YAML cell file")
+CELL_HELP = ("a built-in cell's name (dual-arm, the default; ur-cell, kr16-cell, iiwa-cell, "
+             "line-cell: see 'cellsight cells') or a YAML cell file")
 
 
 def debug() -> bool:

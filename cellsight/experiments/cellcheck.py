@@ -16,9 +16,12 @@
 - **Joint limits:** HOME, FINAL and the crossing's waypoints inside every joint's limits by at
   least ``LIMIT_MARGIN`` (rad or m): a joint on its limit passes the loader and stops the run
   at its first control step.
-- **Key poses in view:** the part at its start, at the conveyor's end, and held at the grasping
-  robot's HOME and FINAL (by its grasp): every feature point inside each camera's image by
-  ``margin_px``; an error when outside, a warning when within the margin.
+- **Key poses in view:** the part (each of a line's picks) at its start, at the conveyor's
+  end, and held at the grasping robot's HOME and FINAL (by its grasp): every feature point
+  inside each camera's image by ``margin_px``; an error when outside, a warning when within
+  the margin; but outside or within the margin of a camera while at least
+  :data:`MIN_WHOLE_VIEWS` others hold it whole (a line's cameras each see a stretch of it):
+  ok, saying so.
 - **The other robots out of the views:** each robot but the grasping one, at HOME, with the
   part at those key poses (the grasping robot at HOME, or at FINAL for the part held there):
   a warning for every camera from which it hides features (in experiments 1 and 2 it stays
@@ -67,6 +70,7 @@ if TYPE_CHECKING:
 
 REACH_M = (0.2, 4.0)  # m: the reach of industrial and collaborative arms, with room
 PART_M = (0.005, 2.0)  # m: a workpiece's bounding-box diagonal
+MIN_WHOLE_VIEWS = 2  # cameras holding a key pose whole, beyond which another may not see it
 REACH_SAMPLES = 400
 LIMIT_MARGIN = 1e-6  # rad or m
 MOUNT_M = 0.05  # m: how far the flange link may end from the tool frame along its approach
@@ -207,8 +211,10 @@ def _key_states(cell: Cell, part: Workpiece) -> list[tuple[str, dict, np.ndarray
     setup = cell.experiments
     states = [("at its start", {}, part.T_base_part)]
     if setup.conveyor_points is not None and len(setup.conveyor_points):
+        first = cell.picked_workpieces()[0]  # the path is its; the others keep their places
         end = part.T_base_part.copy()
-        end[:2, 3] = setup.conveyor_points[-1]
+        end[:2, 3] = (setup.conveyor_points[-1] + part.T_base_part[:2, 3]
+                      - first.T_base_part[:2, 3])
         states.append(("at the conveyor's end", {}, end))
     robot = _grasping(cell)
     if robot is not None and robot.tool is not None:
@@ -223,16 +229,22 @@ def _key_states(cell: Cell, part: Workpiece) -> list[tuple[str, dict, np.ndarray
 def _key_poses(cell: Cell, margin_px: float) -> list[Finding]:
     if not cell.workpieces or not cell.cameras:
         return []
-    part = _workpiece(cell)
+    picks = cell.picked_workpieces()
     out = []
-    for what, _, T in _key_states(cell, part):
-        points = part.feature_points @ T[:3, :3].T + T[:3, 3]
-        for cam in cell.cameras:
-            worst = float(border_distance(cam, cam.project(points)).min())
-            level = "error" if worst < 0 else "warning" if worst < margin_px else "ok"
-            text = (f"{-worst:.0f} px out of" if worst < 0 else f"{worst:.0f} px inside")
-            out.append(Finding(level, f"part {what}: {text} {cam.name}'s image"
-                                      + (f" (margin {margin_px:g} px)" if level != "ok" else "")))
+    for part in picks:
+        name = "part" if len(picks) == 1 else part.name
+        for what, _, T in _key_states(cell, part):
+            points = part.feature_points @ T[:3, :3].T + T[:3, 3]
+            worst = [float(border_distance(cam, cam.project(points)).min())
+                     for cam in cell.cameras]
+            whole = sum(w >= margin_px for w in worst)
+            for cam, w in zip(cell.cameras, worst, strict=True):
+                level = "error" if w < 0 else "warning" if w < margin_px else "ok"
+                text = f"{-w:.0f} px out of" if w < 0 else f"{w:.0f} px inside"
+                note = f" (margin {margin_px:g} px)" if level != "ok" else ""
+                if level != "ok" and whole >= MIN_WHOLE_VIEWS:
+                    level, note = "ok", f" ({whole} other cameras hold it whole)"
+                out.append(Finding(level, f"{name} {what}: {text} {cam.name}'s image{note}"))
     return out
 
 

@@ -23,13 +23,14 @@ log = logging.getLogger(__name__)
 class GraspMonitor:
     """The grasping robot's grasp: the TCP's error from the grasp pose when the grasp first
     engages (the world's own figure, :meth:`GroundTruth.grasp`), and whether the part is
-    really held when the task enters Manipulate (the grasp's success)."""
+    really held each time the task enters Manipulate (``held``: one entry a pick, in order;
+    the grasp's success)."""
 
     def __init__(self, world: GroundTruth, robot: str) -> None:
         self.world = world
         self.robot = robot
         self.error_mm: float | None = None
-        self.held_at_manipulate = False
+        self.held: list[bool] = []
 
     def after_control_step(self, t: float) -> None:
         """Call after each control step (``t``: the world's time, s): logs the engagement."""
@@ -43,7 +44,7 @@ class GraspMonitor:
     def after_vision(self, before: Phase, after: Phase) -> None:
         """Call after the task's vision update, with its phase before and after."""
         if before == Phase.GRASP and after == Phase.MANIPULATE:
-            self.held_at_manipulate = self.world.grasp(self.robot) is not None
+            self.held.append(self.world.grasp(self.robot) is not None)
 
 
 class KidnapMonitor:

@@ -108,7 +108,11 @@ def part_truth(world: GroundTruth, part: str) -> PartTruth:
     return PartTruth(world.true_part_poses()[part], world.true_views()[part])
 
 
-def frame_truth(world: SimulatedCell, part: str, robot: str) -> FrameTruth:
-    """The world's truth now about workpiece ``part`` and robot ``robot``."""
-    return FrameTruth(part_truth(world, part), world.true_joints(), world.jaw_openings()[robot],
-                      world.jaws_closed_on_part(robot), world.grasp(robot) is not None)
+def frame_truth(world: SimulatedCell, part: str, robot: str,
+                others: Sequence[str] = ()) -> FrameTruth:
+    """The world's truth now about workpiece ``part`` and robot ``robot``, and about the
+    workpieces ``others`` (a line's other picks)."""
+    poses, views = world.true_part_poses(), world.true_views()
+    truths = {name: PartTruth(poses[name], views[name]) for name in {part, *others}}
+    return FrameTruth(truths.pop(part), world.true_joints(), world.jaw_openings()[robot],
+                      world.jaws_closed_on_part(robot), world.grasp(robot) is not None, truths)

@@ -24,6 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from cellsight.calibration.folder import calibrated_cell, read_calibration
+from cellsight.errors import CellsightError
 from cellsight.experiments.config import RunConfig
 from cellsight.experiments.exposure import Exposures
 from cellsight.experiments.identity import run_identity
@@ -44,6 +45,7 @@ from cellsight.realism.draws import WorldDraws
 from cellsight.recording.recorder import RecordingSink
 from cellsight.runfolder import FrameLog
 from cellsight.runfolder.figures import position_rmse_in_arm_frame_mm
+from cellsight.runfolder.picks import part_log_name, pick_figures
 from cellsight.session.baseline import PnPBaseline
 from cellsight.session.events import OcclusionEvents
 from cellsight.session.protocols import FrameSink
@@ -78,12 +80,17 @@ class ExperimentRun:
         self.robot, self.part = sc.robot, sc.workpiece
         self.world: SimulatedCell = (
             world if world is not None
-            else World(self.draws.cell, seed=config.seed, conveyor=sc.conveyor, tasks=sc.tasks,
+            else World(self.draws.cell, seed=config.seed, conveyor=sc.conveyors, tasks=sc.tasks,
                        errors=self.draws.errors))
         ideal = not config.sensor.takes_images
+        if ideal and len(sc.picks) > 1:
+            raise CellsightError(f"{cell.source}: the ideal sensor sees one part, and this "
+                                 f"cell is a line ({len(sc.picks)} picks, experiments.picks); "
+                                 f"run it with --sensor rendered")
         exposures = Exposures(self.world, self.draws.trigger_skew_s, ideal, self.part.name,
                               config.full_frames or config.record is not None)
-        end = config.duration if config.duration is not None else config.max_duration
+        end = (config.duration if config.duration is not None
+               else config.max_duration * len(sc.picks))
         self.source = SimulatedSource(
             cell, sc, self.world, exposures, self.draws,
             SimulatedRun(end, config.duration is not None, config.tail_s, config.experiment,
@@ -102,10 +109,15 @@ class ExperimentRun:
         """The run's sinks, in the order each frame's record reaches them; the caller's
         last."""
         cfg = self.config
-        sinks: list[FrameSink] = [
-            OcclusionEvents(),
-            FramesCsv(FrameRows(self.robot, len(self.cell.cameras), cfg.sensor.takes_images),
-                      PnPBaseline.of(self.tracker, self.part.feature_points))]
+        rows = FrameRows(self.robot, len(self.cell.cameras), cfg.sensor.takes_images)
+        picks = self.scenario.picks
+        sinks: list[FrameSink] = [OcclusionEvents()]
+        if len(picks) == 1:
+            sinks.append(FramesCsv(rows, PnPBaseline.of(self.tracker, self.part.feature_points)))
+        else:  # a line: each pick's log, the first's as the run's frames.csv
+            names = [p.name for p in picks]
+            sinks += [FramesCsv(rows, PnPBaseline.of(self.tracker, p.feature_points), p.name,
+                                part_log_name(names, p.name), names) for p in picks]
         if cfg.live is not None:
             sinks.append(LiveSink(cfg.live))
         if cfg.record is not None:
@@ -147,7 +159,19 @@ class ExperimentRun:
             "knock": self._knock(),
             "registration": self._registration(),
             **_arm_error(self.draws, self.robot, frames, self.registration is not None),
+            "picks": self._picks(),
         }
+
+    def _picks(self) -> list[dict] | None:
+        """A line's picks (None for one part): each part, whether it was picked, and its
+        figures from its own frame log (:func:`~cellsight.runfolder.picks.pick_figures`)."""
+        picks = [p.name for p in self.scenario.picks]
+        if len(picks) == 1:
+            return None
+        error = (self.draws.tcp_error(self.robot, self.robot.home)
+                 if self.registration is not None and self.robot.home is not None else None)
+        figures = pick_figures(Path(self.config.out), picks, error)
+        return [{**pick, **figures[pick["part"]]} for pick in self.source.picks()]
 
     def _knock(self) -> dict | None:
         """The knocked camera's figures (:func:`~.monitors.knock_record`), if any."""

@@ -5,7 +5,10 @@
 3. As 2, and a second robot runs its own task that crosses the cameras' views.
 
 The grasping robot defaults to the first robot with a tool and a FINAL pose, the workpiece to
-the cell's first one. A realism profile's seed may shift the scenario
+the cell's first one. On a line (the cell file's ``experiments.picks``) the robot picks several
+parts in turn; in experiments 2 and 3 the conveyor carries them all, the first along the cell
+file's path and each other one along the same path moved to its own place on the belt (so
+that they all keep their spacing). A realism profile's seed may shift the scenario
 (:class:`~cellsight.realism.ScenarioShift`): the conveyor's path moves with the part's start and
 turns about it, its speed scales, and the crossing robot's waypoints move in time and in joint
 space, all together (so that the crossing keeps its meaning).
@@ -32,17 +35,29 @@ DESCRIPTIONS = {
 
 @dataclass(frozen=True)
 class Scenario:
-    """One experiment on one cell: who grasps what, how the part moves, who else moves."""
+    """One experiment on one cell: who grasps what (``picks``, in turn; one part but on a
+    line), how the parts move (``conveyors``, one per carried part; none in experiment 1),
+    who else moves (``tasks``)."""
 
     number: int
     robot: Robot
-    workpiece: Workpiece
-    conveyor: ConveyorPath
+    picks: tuple[Workpiece, ...]
+    conveyors: tuple[ConveyorPath, ...]
     tasks: dict[str, list[Waypoint]] = field(default_factory=dict)
 
     @property
     def description(self) -> str:
         return DESCRIPTIONS[self.number]
+
+    @property
+    def workpiece(self) -> Workpiece:
+        """The first part picked (the only one but on a line)."""
+        return self.picks[0]
+
+    @property
+    def conveyor(self) -> ConveyorPath:
+        """The first part's conveyor path (still in experiment 1)."""
+        return self.conveyors[0] if self.conveyors else ConveyorPath.still(self.picks[0].name)
 
 
 def scenario(cell: Cell, number: int, shift: ScenarioShift | None = None) -> Scenario:
@@ -55,8 +70,8 @@ def scenario(cell: Cell, number: int, shift: ScenarioShift | None = None) -> Sce
     robot = _grasping_robot(cell)
     if not cell.workpieces:
         raise CellFileError(setup.source, "workpieces", [], "at least one workpiece")
-    part = cell.workpiece(setup.workpiece) if setup.workpiece else cell.workpieces[0]
-    conveyor = ConveyorPath.still(part.name)
+    picks = cell.picked_workpieces()
+    conveyors: tuple[ConveyorPath, ...] = ()
     if number >= 2:
         if setup.conveyor_points is None:
             raise CellFileError(setup.source, "experiments.conveyor", None,
@@ -64,7 +79,9 @@ def scenario(cell: Cell, number: int, shift: ScenarioShift | None = None) -> Sce
         points, speed = setup.conveyor_points, setup.conveyor_speed
         if shift is not None:
             points, speed = _shifted_path(points, shift), speed * shift.speed_scale
-        conveyor = ConveyorPath(points, speed, setup.conveyor_t_start, workpiece=part.name)
+        conveyors = tuple(
+            ConveyorPath(points + _belt_place(picks[0], part, shift), speed,
+                         setup.conveyor_t_start, workpiece=part.name) for part in picks)
     tasks = {}
     if number == 3:
         if not setup.crossing_waypoints:
@@ -74,7 +91,21 @@ def scenario(cell: Cell, number: int, shift: ScenarioShift | None = None) -> Sce
         dq = 0.0 if dq is None else dq
         tasks[setup.crossing_robot] = [Waypoint(t + dt, q + dq)
                                        for t, q in setup.crossing_waypoints]
-    return Scenario(number, robot, part, conveyor, tasks)
+    return Scenario(number, robot, picks, conveyors, tasks)
+
+
+def _belt_place(first: Workpiece, part: Workpiece, shift: ScenarioShift | None) -> np.ndarray:
+    """Where ``part`` lies on the belt from the ``first`` pick (x, y, m, base frame): their
+    nominal places' difference, turned with the path by ``shift.turn``, and moved by the
+    difference of their start shifts (the spacing the seed draws; zero for the first)."""
+    if part is first:
+        return np.zeros(2)
+    gap = part.T_base_part[:2, 3] - first.T_base_part[:2, 3]
+    if shift is None:
+        return gap
+    c, s = np.cos(shift.turn), np.sin(shift.turn)
+    moved = shift.part_shifts.get(part.name, shift.shift) - shift.shift
+    return gap @ np.array([[c, s], [-s, c]]) + moved
 
 
 def _shifted_path(points: np.ndarray, shift: ScenarioShift) -> np.ndarray:

@@ -4,11 +4,14 @@ Per vision frame (``VISION_HZ``): the world's images (or, for the ideal sensor, 
 projections), joint measurements and jaw openings, with the simulator's truth; once the
 tracker has stepped (:class:`~cellsight.session.run.RunSession`), its estimate goes to the
 grasping task's planner; between frames, the ``CONTROL_HZ`` control loop (interpolating filter
-+ CLIK) drives the world. The world departs from the cell file by the run's realism profile
-(:mod:`cellsight.realism`): a camera may be exposed before the frame's time (its trigger skew,
-:mod:`.exposure`), a frame may be dropped (no images), and its estimate reaches the planner
-after the frame's latency (:mod:`.latency`), stamped with its exposure time. The frames end at
-the duration, the time limit, or ``tail_s`` after the task's end.
++ CLIK) drives the world. On a line the grasping robot picks the scenario's parts in turn
+(:class:`~cellsight.control.sequence.PickSequence`): the tracked ``part`` is the one picked
+now, and each frame's truth holds the other picks' too. The world departs from the cell file
+by the run's realism profile (:mod:`cellsight.realism`): a camera may be exposed before the
+frame's time (its trigger skew, :mod:`.exposure`), a frame may be dropped (no images), and its
+estimate reaches the planner after the frame's latency (:mod:`.latency`), stamped with its
+exposure time. The frames end at the duration, the time limit, or ``tail_s`` after the task's
+end.
 """
 
 from __future__ import annotations
@@ -20,6 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from cellsight.control import GraspTask, Phase
+from cellsight.control.sequence import PickSequence
 from cellsight.control.task import grasp_miss, last_setback
 from cellsight.experiments.exposure import Exposures
 from cellsight.experiments.latency import Deliveries, Estimate
@@ -27,7 +31,7 @@ from cellsight.experiments.monitors import GraspMonitor, KidnapMonitor
 from cellsight.experiments.plant import SimulatedCell, frame_truth
 from cellsight.experiments.scenario import Scenario
 from cellsight.geometry.transforms import invert_pose
-from cellsight.model.cell import Cell
+from cellsight.model.cell import Cell, Workpiece
 from cellsight.model.grasp import grasp_opening, grasp_pose
 from cellsight.model.landing import Landing
 from cellsight.rates import VISION_HZ
@@ -65,19 +69,30 @@ class SimulatedSource:
                  exposures: Exposures, draws: WorldDraws, run: SimulatedRun,
                  kinematic: bool, seed: int) -> None:
         self.cell, self.scenario, self.world, self.exposures = cell, scenario, world, exposures
-        self.robot, self.part, self.run = scenario.robot, scenario.workpiece, run
+        self.robot, self.run = scenario.robot, run
         self.clock = FrameClock(draws.profile.timing, seed)
         self.deliveries = Deliveries()
         self.frames_dropped = 0
-        self.prior = KinematicPrior(self.part, Landing(cell.static)) if kinematic else None
+        landing = Landing(cell.static)
+        self.priors_of = ({p.name: KinematicPrior(p, landing) for p in scenario.picks}
+                          if kinematic else None)
         kidnap = draws.errors.kidnap
         self.kidnap = None if kidnap is None else KidnapMonitor(kidnap)
-        tool = self.robot.tool  # GraspTask names a robot without one
-        self.task = GraspTask(self.robot, self.part, grasp_opening=None if tool is None else
-                              grasp_opening(self.part.solid, tool, grasp_pose(self.part, tool)))
+        self.task = PickSequence(scenario.picks, self._grasp_task)
         self.grasp = GraspMonitor(world, self.robot.name)
         self.ended_by: str | None = None
         self._fate_latency_s = 0.0
+
+    @property
+    def part(self) -> Workpiece:
+        """The part picked now (the tracked part of each frame's record)."""
+        return self.task.part
+
+    def _grasp_task(self, part: Workpiece) -> GraspTask:
+        """The grasping task of ``part``, with the opening its grasp closes the jaws to."""
+        tool = self.robot.tool  # GraspTask names a robot without one
+        return GraspTask(self.robot, part, grasp_opening=None if tool is None else
+                         grasp_opening(part.solid, tool, grasp_pose(part, tool)))
 
     def begin(self) -> None:
         log.info("%s", self.run.heading)
@@ -114,7 +129,9 @@ class SimulatedSource:
         world, name = self.world, self.robot.name
         fate = self.clock.next()
         self._fate_latency_s = fate.latency_s
-        truth = frame_truth(world, self.part.name, name)
+        picks = self.scenario.picks
+        truth = frame_truth(world, self.part.name, name,
+                            [p.name for p in picks] if len(picks) > 1 else ())
         dropped = fate.dropped or (self.kidnap is not None and self.kidnap.kidnap.blind(t))
         observed = self._grab(dropped, truth.part)
         ideal = self.exposures.ideal
@@ -140,18 +157,25 @@ class SimulatedSource:
     def priors(self, frame: SourceFrame, estimate: np.ndarray | None) -> Priors:
         """The kinematic prior's ``holders`` and ``supports`` (None without it;
         :mod:`cellsight.tracking.prior`), from the robot's measured joints and jaw opening:
-        the part is held while the jaws are closed on it at the opening of its grasp (the
-        task's own check, :func:`~cellsight.control.task.grasp_miss`; closed at another, they
-        caught it off its grasp, and it is not where the task's grasp puts it), at the grasp
-        the task chose."""
-        if self.prior is None:
+        the part picked now is held while the jaws are closed on it at the opening of its
+        grasp (the task's own check, :func:`~cellsight.control.task.grasp_miss`; closed at
+        another, they caught it off its grasp, and it is not where the task's grasp puts it),
+        at the grasp the task chose; a line's other picks are not held."""
+        if self.priors_of is None:
             return None, None
         name, task = self.robot.name, self.task
         closed = self.world.jaws_closed_on_part(name)
         held = grasp_miss(closed, frame.openings[name], task.grasp_opening,
                           task.tolerances.opening) is None
-        return self.prior.update(self.robot.tcp_pose(frame.joints[name])
-                                 @ invert_pose(task.planner.chosen_grasp) if held else None)
+        held_at = (self.robot.tcp_pose(frame.joints[name]) @ invert_pose(task.planner.chosen_grasp)
+                   if held else None)
+        holders: dict = {}
+        supports: dict = {}
+        for part, prior in self.priors_of.items():
+            held_by, lying_on = prior.update(held_at if part == self.part.name else None)
+            holders.update(held_by or {})
+            supports.update(lying_on or {})
+        return holders or None, supports or None
 
     def tracked(self, frame: SourceFrame, part: PartFrame) -> tuple[str, str]:
         """The estimate to the planner: now (an ideal frame clock) or after the frame's
@@ -185,12 +209,14 @@ class SimulatedSource:
     def _plan(self, t: float, estimate: Estimate, joints: np.ndarray) -> None:
         """The task's vision update at time ``t`` with the tracker's ``estimate`` (pose and
         linear velocity, of its exposure time)."""
-        before = self.task.phase
+        before, pick = self.task.phase, self.task.index
         self.task.update_vision(t, estimate.pose, joints,
                                 self.world.jaws_closed_on_part(self.robot.name),
                                 estimate.velocity, stamp=estimate.t, part_lost=estimate.lost,
                                 jaw_opening=self.world.jaw_openings()[self.robot.name])
         self.grasp.after_vision(before, self.task.phase)
+        if self.task.index != pick:  # the next pick: the estimates on their way are the last's
+            self.deliveries = Deliveries()
 
     def facts(self, frames: FrameLog) -> dict:
         """The world's and the task's facts: the scenario, the collisions, the dropped frames,
@@ -204,7 +230,7 @@ class SimulatedSource:
             "frames_dropped": self.frames_dropped,
             "kidnap": None if self.kidnap is None else self.kidnap.record(
                 VISION_HZ, self.world.faults.moved),
-            "grasp_success": bool(self.grasp.held_at_manipulate),
+            "grasp_success": self.grasp.held == [True] * len(self.scenario.picks),
             "grasp_position_error_mm": self.grasp.error_mm,
             "ended_by": self.ended_by,
             "last_setback": last_setback(self.task),
@@ -214,6 +240,14 @@ class SimulatedSource:
             "phase_intervals": [[str(p), round(a, 3), round(b, 3)]
                                 for p, a, b in self.task.phase_intervals(t_end)],
         }
+
+    def picks(self) -> list[dict]:
+        """A line's picks, in order: each part, whether it was held when its Manipulate began
+        (None: its turn never came that far) and its failed grasp checks."""
+        held, tasks = self.grasp.held, self.task.tasks
+        return [{"part": part.name, "picked": held[k] if k < len(held) else None,
+                 "failed_grasp_checks": tasks[k].attempts if k < len(tasks) else 0}
+                for k, part in enumerate(self.scenario.picks)]
 
     def close(self) -> None:
         self.world.close()

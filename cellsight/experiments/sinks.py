@@ -37,7 +37,7 @@ class KeyFramesSink:
 
         def draw(caption: str) -> np.ndarray:
             return draw_frame([grabbed(o) for o in record.shown()], record.result,
-                              run.part.name, record.frame.truth.part.visible, run.cell.cameras,
+                              record.part.name, record.frame.truth.part.visible, run.cell.cameras,
                               caption, 1.0)
 
         with suppress(WriteError), run.writes.guard(run.out / "keyframes.json"):
@@ -58,8 +58,7 @@ class VideoSink:
 
     def start(self, run: RunContext) -> None:
         self.writes = run.writes
-        self.video = ViewsVideo(run.out / "views.mp4", VISION_HZ / self.every, run.cell.cameras,
-                                run.part.name)
+        self.video = ViewsVideo(run.out / "views.mp4", VISION_HZ / self.every, run.cell.cameras)
 
     def frame(self, record: FrameRecord) -> None:
         if record.frame.k % self.every:
@@ -67,8 +66,8 @@ class VideoSink:
         caption = (f"t = {record.t:5.2f} s   {record.phase}   tracker: "
                    f"{record.part.status_text}")
         with self.writes.guard(self.video.path):
-            self.video.add(record.shown(), record.result, record.frame.truth.part.visible,
-                           caption)
+            self.video.add(record.shown(), record.result, record.part.name,
+                           record.frame.truth.part.visible, caption)
 
     def close(self, completed: bool) -> None:
         self.writes.close(self.video.path, self.video.close)

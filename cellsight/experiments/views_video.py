@@ -43,37 +43,39 @@ from cellsight.world.shots import Shot
 @dataclass(frozen=True)
 class _Picture:
     """One video frame to draw: per camera a :class:`Shot` or an image, the tracker's frame,
-    the truth's visibility (C, F), the caption."""
+    the workpiece drawn and the truth's visibility of it (C, F), the caption."""
 
     shown: list[Any]
     frame: TrackerFrame
+    part: str
     truth_visible: np.ndarray
     caption: str
 
 
 class ViewsVideo:
     """``views.mp4`` of the cameras' views, drawn at ``scale`` of their resolution on a thread
-    of its own (module docstring): ``part`` the workpiece drawn, ``fps`` the video's frame
-    rate, ``depth`` the most frames waiting."""
+    of its own (module docstring): ``fps`` the video's frame rate, ``depth`` the most frames
+    waiting."""
 
-    def __init__(self, path: str | Path, fps: float, cameras: Sequence[Camera], part: str,
+    def __init__(self, path: str | Path, fps: float, cameras: Sequence[Camera],
                  scale: float = 0.5, depth: int = 4) -> None:
         self.writer = VideoWriter(path, fps=fps)
         self.path = self.writer.path
-        self._cameras, self._part, self._scale = list(cameras), part, float(scale)
+        self._cameras, self._scale = list(cameras), float(scale)
         self._jobs: queue.Queue[_Picture | None] = queue.Queue(maxsize=max(1, int(depth)))
         self._error: BaseException | None = None  # the thread's failure, not yet raised
         self._failed = False  # the thread failed: it drops what is queued
         self._thread = threading.Thread(target=self._work, name="views-video", daemon=True)
         self._thread.start()
 
-    def add(self, shown: list[Any], frame: TrackerFrame, truth_visible: np.ndarray,
+    def add(self, shown: list[Any], frame: TrackerFrame, part: str, truth_visible: np.ndarray,
             caption: str) -> None:
         """Queue a frame: ``shown`` per camera a :class:`Shot` (rendered whole at the
         video's scale, or its whole image if the tracker rendered it) or an image (H, W)
-        uint8. Raises the thread's failure, if any."""
+        uint8; ``part`` the workpiece drawn, ``truth_visible`` its true visibility (C, F).
+        Raises the thread's failure, if any."""
         self._raise()
-        self._jobs.put(_Picture(list(shown), frame, np.array(truth_visible), caption))
+        self._jobs.put(_Picture(list(shown), frame, part, np.array(truth_visible), caption))
 
     def close(self) -> None:
         """Draw what is queued, finish the file, end the thread; raises the thread's failure,
@@ -109,5 +111,5 @@ class ViewsVideo:
     def _draw(self, job: _Picture, renderer: GrayRenderer | None) -> np.ndarray:
         images = [s.preview(self._scale, renderer) if isinstance(s, Shot) else grabbed(s)
                   for s in job.shown]
-        return draw_frame(images, job.frame, self._part, job.truth_visible, self._cameras,
+        return draw_frame(images, job.frame, job.part, job.truth_visible, self._cameras,
                           job.caption, self._scale)

@@ -359,6 +359,28 @@ def _check_occluder_names(robots: list[Robot], parts: list[Workpiece],
                                 f"already named {name!r}")
 
 
+def _picks(spec: ExperimentsSpec, parts: list[Workpiece], file: str) -> tuple[str, ...]:
+    """The ``experiments.picks`` of a line: workpieces of the cell, each once, each with a
+    grasp, and not beside ``experiments.workpiece``."""
+    if spec.picks is None:
+        return ()
+    if spec.workpiece is not None:
+        raise CellFileError(file, "experiments.picks", spec.picks,
+                            f"picks or workpiece ({spec.workpiece!r}), not both: a line's "
+                            "robot picks the parts that picks lists")
+    by_name = {w.name: w for w in parts}
+    for k, name in enumerate(spec.picks):
+        if name not in by_name:
+            raise CellFileError(file, f"experiments.picks[{k}]", name,
+                                f"one of the workpieces {sorted(by_name)}")
+        if name in spec.picks[:k]:
+            raise CellFileError(file, f"experiments.picks[{k}]", name,
+                                "a workpiece not picked before: each part is picked once")
+    if not spec.picks:
+        raise CellFileError(file, "experiments.picks", [], "at least one workpiece")
+    return tuple(spec.picks)
+
+
 def _experiments(spec: ExperimentsSpec | None, robots: list[Robot], parts: list[Workpiece],
                  file: str) -> ExperimentSetup:
     """Check the ``experiments`` section against the cell's robots and workpieces."""
@@ -375,7 +397,8 @@ def _experiments(spec: ExperimentsSpec | None, robots: list[Robot], parts: list[
                             "a robot with a tool and a FINAL pose (robots[].tool, "
                             f"robots[].final) to grasp the part; {spec.robot} has no "
                             f"{'tool' if grasping.tool is None else 'final'}")
-    setup = ExperimentSetup(robot=spec.robot, workpiece=spec.workpiece, source=file)
+    setup = ExperimentSetup(robot=spec.robot, workpiece=spec.workpiece,
+                            picks=_picks(spec, parts, file), source=file)
     if spec.conveyor is not None:
         setup = replace(setup, conveyor_points=np.array(spec.conveyor.points),
                         conveyor_speed=spec.conveyor.speed,

@@ -54,14 +54,17 @@ class Workpiece:
 class ExperimentSetup:
     """What the cell file says about the paper's experiments (Section V), all optional.
 
-    ``robot`` grasps ``workpiece``; ``conveyor_points`` (k, 2) x, y (m, base frame) and
-    ``conveyor_speed`` (m/s, from ``conveyor_t_start`` s) move the part in experiments 2 and 3;
+    ``robot`` grasps ``workpiece``, or on a line each of ``picks`` in turn;
+    ``conveyor_points`` (k, 2) x, y (m, base frame) and ``conveyor_speed`` (m/s, from
+    ``conveyor_t_start`` s) move the part in experiments 2 and 3 (on a line the first pick
+    follows the path and the others move with it, keeping their places on the belt);
     ``crossing_robot`` follows ``crossing_waypoints`` ((t s, q) pairs, absolute times) in
     experiment 3. ``source`` is the cell file, for error messages.
     """
 
     robot: str | None = None
     workpiece: str | None = None
+    picks: tuple[str, ...] = ()
     conveyor_points: np.ndarray | None = None
     conveyor_speed: float = 0.0
     conveyor_t_start: float = 0.0
@@ -245,6 +248,17 @@ class Cell:
         except KeyError:
             raise KeyError(f"cell {self.name} has no workpiece {name!r}; its workpieces: "
                            f"{sorted(self._part)}") from None
+
+    def picked_workpieces(self) -> tuple[Workpiece, ...]:
+        """The parts the experiments' robot picks, in turn: the cell file's
+        ``experiments.picks`` (a line), else its ``experiments.workpiece``, else the first
+        workpiece (empty when the cell has none)."""
+        setup = self.experiments
+        if setup.picks:
+            return tuple(self.workpiece(name) for name in setup.picks)
+        if setup.workpiece:
+            return (self.workpiece(setup.workpiece),)
+        return tuple(self.workpieces[:1])
 
     def camera(self, camera: int | str) -> Camera:
         if isinstance(camera, str):

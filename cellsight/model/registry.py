@@ -35,6 +35,9 @@ BUILTIN_CELLS: dict[str, BuiltinCell] = {cell.name: cell for cell in (
     BuiltinCell("iiwa-cell", "iiwa_cell.yaml",
                 "two KUKA LBR iiwa 14 R820, 7 axes (rtb-data URDF, collision meshes), three "
                 "cameras, a conveyor"),
+    BuiltinCell("line-cell", "line_cell.yaml",
+                "a line: the dual-arm cell's arms, a conveyor carrying four parts of two shapes "
+                "that R7AX picks in turn, six cameras"),
 )}
 DEFAULT_CELL = "dual-arm"
 

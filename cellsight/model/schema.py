@@ -455,6 +455,11 @@ class ExperimentsSpec(_Strict):
                               "default: the first robot with both.", "-")
     workpiece: str | None = about(None, "The part to grasp; default: the cell's first "
                                   "workpiece.", "-")
+    picks: list[Annotated[str, Field(min_length=1)]] | None = about(
+        None, "A line: the parts the robot picks in turn, each through Approach, Grasp, "
+        "Manipulate and Release (instead of one workpiece); in experiments 2 and 3 the conveyor "
+        "carries them all, the first along its path and the others keeping their places on "
+        "the belt.", "-")
     conveyor: ConveyorSpec | None = about(None, "The conveyor moving the part in experiments 2 "
                                           "and 3 (needed for them).", "-")
     crossing: CrossingSpec | None = about(None, "The robot crossing the cameras' views in "

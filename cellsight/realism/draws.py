@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 import zlib
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -40,7 +40,8 @@ class ScenarioShift:
     """What the seed changes in an experiment: the part's start ``shift`` (2,) m and ``yaw``
     (rad), the conveyor's ``speed_scale`` and ``turn`` (rad, its path turned about its first
     point), the crossing robot's waypoints' ``crossing_dt`` (s) and ``crossing_dq`` (rad per
-    joint, None: no crossing robot)."""
+    joint, None: no crossing robot); ``part_shifts``: every workpiece's start shift (2,) m, by
+    name (a line's spacing)."""
 
     shift: np.ndarray
     yaw: float = 0.0
@@ -48,6 +49,7 @@ class ScenarioShift:
     turn: float = 0.0
     crossing_dt: float = 0.0
     crossing_dq: np.ndarray | None = None
+    part_shifts: dict[str, np.ndarray] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -256,7 +258,8 @@ def _intruders(k: _Knobs, p: Profile, cell: Cell) -> tuple:
 def _scenario(k: _Knobs, p: Profile, cell: Cell, parts: dict[str, PartError]) -> ScenarioShift:
     s = p.scenario
     setup = cell.experiments
-    moved = parts.get(setup.workpiece or (cell.workpieces[0].name if cell.workpieces else ""))
+    picks = cell.picked_workpieces()
+    moved = parts.get(picks[0].name) if picks else None
     dq = None
     if setup.crossing_robot is not None:
         n = cell.robot(setup.crossing_robot).n_joints
@@ -269,4 +272,5 @@ def _scenario(k: _Knobs, p: Profile, cell: Cell, parts: dict[str, PartError]) ->
         turn=float(k.draw("scenario.conveyor_direction_deg", s.conveyor_direction_deg, (),
                           math.pi / 180)),
         crossing_dt=float(k.draw("scenario.crossing_time_s", s.crossing_time_s)),
-        crossing_dq=dq)
+        crossing_dq=dq,
+        part_shifts={name: error.shift for name, error in parts.items()})

@@ -25,6 +25,8 @@ RUN_FILE_DOCS = {
     "run_cell.yaml": "the run's cell, kept so that the run replays without the original file "
                      "(:mod:`.cell_copy`)",
     "keyframes/*.png": "camera images at the key frames, features and windows drawn",
+    "parts/*/frames.csv": "on a line, each pick's frame log but the first's (which is "
+                          "frames.csv; :mod:`.picks`)",
     "fig_*.png": "the report's figures",
 }
 """Every file a run writes into its folder, and what it holds."""
@@ -44,10 +46,13 @@ def _run_file_name(name: str) -> bool:
 def is_run_output(path: Path) -> bool:
     """``path`` (in a run folder) is something a run writes: a file of :data:`RUN_FILES`, a
     ``fig_*.png``, the temporary file of one left by a killed run (``.<name>.<random>.tmp``,
-    :mod:`cellsight.runfolder.writes`), or the ``keyframes`` folder holding only ``*.png``
-    files (no links)."""
+    :mod:`cellsight.runfolder.writes`), the ``keyframes`` folder holding only ``*.png``
+    files, or a line's ``parts`` folder holding only folders of a ``frames.csv`` (no links)."""
     if path.is_symlink():
         return False
+    if path.is_dir() and path.name == "parts":
+        return all(part.is_dir() and not part.is_symlink() and all(
+            _frame_log(f) for f in part.iterdir()) for part in path.iterdir())
     if path.is_dir():
         return path.name == "keyframes" and all(
             p.suffix == ".png" and p.is_file() and not p.is_symlink() for p in path.iterdir())
@@ -55,6 +60,14 @@ def is_run_output(path: Path) -> bool:
     if name.startswith(".") and name.endswith(TEMP_SUFFIX):
         name = name[1:].removesuffix(TEMP_SUFFIX).rpartition(".")[0]
     return path.is_file() and _run_file_name(name)
+
+
+def _frame_log(path: Path) -> bool:
+    """``path`` is a pick's ``frames.csv`` or a killed run's temporary file of one."""
+    name = path.name
+    if name.startswith(".") and name.endswith(TEMP_SUFFIX):
+        name = name[1:].removesuffix(TEMP_SUFFIX).rpartition(".")[0]
+    return name == "frames.csv" and path.is_file() and not path.is_symlink()
 
 
 def _shown(out: Path) -> str:

@@ -84,6 +84,30 @@ class RunFacts(BaseModel):
         None, "The robot crossing the cameras' views (experiment 3); none in the others.", "-")
 
 
+class PickFigures(BaseModel):
+    """One part of a line (the cell file's ``experiments.picks``): whether it was picked, and
+    its figures from its own frame log (:mod:`cellsight.runfolder.picks`)."""
+
+    model_config = ConfigDict(extra="allow", strict=True)
+
+    part: str = about(..., "The workpiece.", "-")
+    picked: bool | None = about(
+        None, "Whether it was truly held when its Manipulate began (none: its turn never came "
+        "that far).", "-")
+    failed_grasp_checks: int = about(0, "Its failed grasp checks.", "-")
+    position_rmse_mm: Number = about(
+        None, "Its position RMSE over its evaluated frames, the whole run.", "mm")
+    position_rmse_arm_mm: Number = about(
+        None, "The same in the grasping arm's frame (with the cameras registered to it).", "mm")
+    max_error_tracking_mm: Number = about(
+        None, "Its largest error while its status said tracking.", "mm")
+    confident_wrong_frames: int | None = about(
+        None, "Its evaluated frames more than 10 mm off while its status said tracking.", "-")
+    identity_swaps: int | None = about(
+        None, "Its frames with the estimate nearer another pick's true position than its own, "
+        "and more than 10 mm from its own.", "-")
+
+
 class TaskMetrics(BaseModel):
     """How the grasping task went: the grasp, the phases, the checks, the collisions and what
     ended the run."""
@@ -110,6 +134,8 @@ class TaskMetrics(BaseModel):
     collisions: list[dict[str, Any]] | None = about(
         None, "Every collision: bodies, t_start_s and t_end_s (s), depth_mm (mm).", "-")
     collision_count: int | None = about(None, "How many collisions there were.", "-")
+    picks: list[PickFigures] | None = about(
+        None, "A line's picks, in order, each with its own figures (none: one part).", "-")
 
 
 class PhaseAccuracy(BaseModel):

@@ -10,7 +10,7 @@ the tracker and the task, each :class:`~cellsight.session.protocols.FrameSink` g
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -42,13 +42,21 @@ class FrameTruth:
     """The truth at one vision frame, read once: the workpiece's (``part``; None where nothing
     knows it, e.g. a recording without the part's pose), every robot's ``joints`` (rad, m), and
     of the grasping robot: its jaw opening (m), its jaws closed on the part, the grasp
-    engaged."""
+    engaged; on a line, ``others``: the truth of the other picked parts, by name."""
 
     part: PartTruth | None
     joints: dict[str, np.ndarray]
     jaw_opening: float
     jaws_closed: bool
     grasped: bool
+    others: dict[str, PartTruth] = field(default_factory=dict)
+
+    def about(self, name: str, current: str) -> FrameTruth:
+        """This truth with workpiece ``name`` as its ``part`` (``current``: the part that
+        ``part`` is about now; another's from ``others``, None where it is not known)."""
+        if name == current:
+            return self
+        return replace(self, part=self.others.get(name))
 
 
 @dataclass(frozen=True)

@@ -4,6 +4,8 @@ from what the run session has at hand: the tracker's record, what the source kno
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 
 from cellsight.model.robot import Robot
@@ -106,22 +108,37 @@ def _health_fields(health: TrackHealthReport | None, c: int) -> dict[str, float 
 
 class FramesCsv:
     """The sink of ``frames.csv``: one row a frame (:class:`FrameRows`), with the pose the
-    PnP ``baseline`` finds from the same corners."""
+    PnP ``baseline`` finds from the same corners. On a line, one for each of the ``picks``
+    (names, in order): ``part`` names the pick it logs, into ``name`` (in the run folder); its
+    phase and stage are the task's while it is picked now, ``waiting`` before its turn and
+    ``done`` after it (None: the record's part, ``frames.csv``)."""
 
-    def __init__(self, rows: FrameRows, baseline: PnPBaseline) -> None:
+    def __init__(self, rows: FrameRows, baseline: PnPBaseline, part: str | None = None,
+                 name: str = "frames.csv", picks: Sequence[str] = ()) -> None:
         self.rows, self.baseline = rows, baseline
+        self.part, self.name, self.picks = part, name, list(picks)
         self.writer: FrameWriter | None = None
         self.writes: RunWrites | None = None
 
     def start(self, run: RunContext) -> None:
         self.writes = run.writes
-        self.writer = FrameWriter(run.out / "frames.csv", len(run.cell.cameras),
+        path = run.out / self.name
+        with self.writes.guard(path):
+            path.parent.mkdir(parents=True, exist_ok=True)
+        self.writer = FrameWriter(path, len(run.cell.cameras),
                                   {r.name: r.n_joints for r in run.cell.robots})
 
     def frame(self, record: FrameRecord) -> None:
-        pnp = self.baseline.update(record.t, record.part.measured)
-        row = self.rows.row(record.t, record.phase, record.stage, record.result, record.part,
-                            record.frame.truth, pnp)
+        current = record.part.name
+        name = current if self.part is None else self.part
+        part = record.result.parts[name]
+        phase, stage = record.phase, record.stage
+        if name != current:
+            before = self.picks.index(name) < self.picks.index(current)
+            phase, stage = ("done", "") if before else ("waiting", "")
+        pnp = self.baseline.update(record.t, part.measured)
+        row = self.rows.row(record.t, phase, stage, record.result, part,
+                            record.frame.truth.about(name, current), pnp)
         with self.writes.guard(self.writer.path):
             self.writer.write(row)
 

@@ -36,6 +36,7 @@ from pathlib import Path
 import numpy as np
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
+from cellsight.model.cell import Workpiece
 from cellsight.report.run_report import write_report
 from cellsight.runfolder import (
     FrameLog,
@@ -88,6 +89,7 @@ class RunSession:
         self.metrics: dict | None = None  # made after the loop, written last (:meth:`_finish`)
         self.frames = 0  # frames tracked
         self._estimate: np.ndarray | None = None  # the part's last estimated T_base_part
+        self._logged_part: Workpiece | None = None  # the part of frames.csv, once started
 
     def run(self, parts: RunParts) -> dict:
         """Run ``parts`` into the folder; write everything; return the metrics. A failure
@@ -109,6 +111,7 @@ class RunSession:
         source = parts.source
         source.begin()
         context = RunContext(self.out, self.writes, source.cell, source.part, source.robot)
+        self._logged_part = source.part  # frames.csv's (a line's first pick)
         started: list[FrameSink] = []
         wall = time.perf_counter()
         ending: dict = {"interrupted": True}
@@ -192,9 +195,9 @@ class RunSession:
             **ending,
             "t_end_s": round(t_end, 3),
             "cameras": [c.name for c in cell.cameras],
-            "features": len(source.part.feature_points),
+            "features": len(self._logged_part.feature_points),
             "robot": source.robot.name,
-            "workpiece": source.part.name,
+            "workpiece": self._logged_part.name,
         }
         if error := self.writes.error(metrics.get("error")):
             metrics["error"] = error

@@ -144,19 +144,18 @@ class _Part:
 class PartMotion:
     """The workpieces' poses, written into MuJoCo's mocap bodies as they move.
 
-    A workpiece rests at its nominal pose, except the one the ``conveyor`` carries (until it
-    is first grasped). One that is held follows its holder's TCP at the relative pose of the
-    grasp, settled in the jaws by ``seat`` (a pose in the TCP frame applied when the grasp
-    engages) and sliding along the tool's approach axis (+z) at ``slip`` (m/s). One that is
-    released falls straight down (gravity, no rotation) onto whatever lies below it (static
-    objects, other workpieces: ray casts) and rests there.
+    A workpiece rests at its nominal pose, except those the ``conveyors`` carry (one path per
+    carried part, until it is first grasped). One that is held follows its holder's TCP at the
+    relative pose of the grasp, settled in the jaws by ``seat`` (a pose in the TCP frame
+    applied when the grasp engages) and sliding along the tool's approach axis (+z) at
+    ``slip`` (m/s). One that is released falls straight down (gravity, no rotation) onto
+    whatever lies below it (static objects, other workpieces: ray casts) and rests there.
     """
 
-    def __init__(self, scene: Scene, cell: Cell, conveyor: ConveyorPath,
+    def __init__(self, scene: Scene, cell: Cell, conveyors: Sequence[ConveyorPath],
                  seat: np.ndarray | None = None, slip: float = 0.0) -> None:
         self.scene = scene
         self.cell = cell
-        self.conveyor = conveyor
         self.seat = np.eye(4) if seat is None else np.asarray(seat, dtype=float)
         self.slip = float(slip)
         self._dt = 0.0
@@ -165,11 +164,15 @@ class PartMotion:
         self._mocap = {name: model.body_mocapid[b] for name, b in self._body.items()}
         self._parts = {p.name: _Part("resting", p.T_base_part.copy()) for p in cell.workpieces}
         self._nominal = {p.name: p.T_base_part for p in cell.workpieces}
-        self._carried: str | None = None
-        if cell.workpieces and not conveyor.is_still:
-            self._carried = cell.workpiece(conveyor.workpiece or cell.workpieces[0].name).name
-            self._parts[self._carried].mode = "conveyor"
-            self._parts[self._carried].pose = self._conveyor_pose(0.0)
+        self._paths: dict[str, ConveyorPath] = {}  # carried part -> its path
+        for path in conveyors:
+            if cell.workpieces and not path.is_still:
+                name = cell.workpiece(path.workpiece or cell.workpieces[0].name).name
+                if name in self._paths:
+                    raise ValueError(f"PartMotion: two conveyor paths carry workpiece {name!r}")
+                self._paths[name] = path
+                self._parts[name].mode = "conveyor"
+                self._parts[name].pose = self._conveyor_pose(name, 0.0)
         for name in self._parts:
             self._write(name)
 
@@ -179,7 +182,7 @@ class PartMotion:
         self._dt = dt
         for name, part in self._parts.items():
             if part.mode == "conveyor":
-                part.pose = self._conveyor_pose(t)
+                part.pose = self._conveyor_pose(name, t)
                 if part.turn:  # (rotation_z(0) is the identity, exactly)
                     part.pose[:3, :3] = rotation_z(part.turn) @ part.pose[:3, :3]
                 part.pose[:3, 3] += part.offset
@@ -277,9 +280,9 @@ class PartMotion:
                 drops.append(d - PRESSED_M)
         return min(drops) if drops else 0.0
 
-    def _conveyor_pose(self, t: float) -> np.ndarray:
-        T = self._nominal[self._carried].copy()
-        T[:2, 3] = self.conveyor.position(t)
+    def _conveyor_pose(self, name: str, t: float) -> np.ndarray:
+        T = self._nominal[name].copy()
+        T[:2, 3] = self._paths[name].position(t)
         return T
 
     def _write(self, name: str) -> None:

@@ -252,8 +252,9 @@ class Hands:
 class World:
     """The simulated cell (see the module docstring).
 
-    ``conveyor``: the conveyor's path (default: still). ``tasks``: robot name -> timed joint
-    waypoints, starting from the robot's initial joints at t = 0. ``errors``: how the world
+    ``conveyor``: the conveyor's path, or one per carried part (a line; default: still).
+    ``tasks``: robot name -> timed joint waypoints, starting from the robot's initial joints at
+    t = 0. ``errors``: how the world
     departs from an ideal one over time and in its sensors
     (:class:`~cellsight.world.imperfections.Imperfections`; its geometry's errors are in
     ``cell``, the world's own). ``render_size``: (width, height) of the
@@ -274,7 +275,7 @@ class World:
         cell: Cell,
         *,
         seed: int = 0,
-        conveyor: ConveyorPath | None = None,
+        conveyor: ConveyorPath | Sequence[ConveyorPath] | None = None,
         tasks: Mapping[str, Sequence[Waypoint]] | None = None,
         errors: Imperfections = IDEAL,
         render_size: tuple[int, int] | None = None,
@@ -289,7 +290,8 @@ class World:
         self._jaws = _jaw_addresses(model, cell) if errors.servo.mujoco else None
         self.robots = RobotJoints(self.scene, cell, initial_joints or {}, tasks or {}, errors,
                                   self.dt_control)
-        self.parts = PartMotion(self.scene, cell, conveyor or ConveyorPath.still(),
+        conveyors = [conveyor] if isinstance(conveyor, ConveyorPath) else list(conveyor or ())
+        self.parts = PartMotion(self.scene, cell, conveyors,
                                 errors.grasp_seat, errors.slip_m_s)
         self.grippers = Grippers(self.scene, cell, self.parts, dict(hands.grasp_poses),
                                  hands.grasp_tolerance, hands.jaw_speed, self.dt_control)
