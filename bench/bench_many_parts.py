@@ -13,15 +13,22 @@ within four frames of its acquisition, its windows wide enough for a neighbour's
 frame, from the ``SETTLE``-th on (every part acquired): the tracker's time
 (every stage, extraction included; the grab not) as its median and p99, per part, and per part
 and camera in view; the median of each stage; the parts tracked, and the RMS of the position
-error against the poses the world was given, over every part and frame.
+error against the poses the world was given, over every part and frame. Then the ``LOADED``
+parts again under load: as many busy processes as the machine has cores, started before and
+stopped after the run (the tracker shares the cores with them), its median and p99 against the
+quiet run's.
 
     .venv/bin/python bench/bench_many_parts.py [FRAMES]
 """
 
 from __future__ import annotations
 
+import os
+import subprocess
 import sys
 import tempfile
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -38,6 +45,7 @@ PARTS = (1, 2, 4, 8)
 FRAMES = 60  # vision frames a run (2.3 s)
 SETTLE = 5  # frames left out of the figures: the parts' acquisition
 SPEED = 0.02  # m/s along the line (+x), as the built-in cell's conveyor
+LOADED = 4  # parts of the run under load
 
 
 def line_cell(parts: int, folder: Path):
@@ -91,6 +99,20 @@ def measure(parts: int, frames: int = FRAMES) -> dict:
             "rmse_mm": 1e3 * float(np.sqrt(np.mean(np.square(errors))))}
 
 
+@contextmanager
+def busy_cores() -> Iterator[int]:
+    """As many busy processes as the machine has cores, for the ``with`` block; their count."""
+    count = os.cpu_count() or 1
+    burners = [subprocess.Popen([sys.executable, "-c", "while True: pass"])
+               for _ in range(count)]
+    try:
+        yield count
+    finally:
+        for burner in burners:
+            burner.kill()
+            burner.wait()
+
+
 def main(frames: int = FRAMES) -> None:
     from rich.console import Console
     from rich.table import Table
@@ -109,6 +131,17 @@ def main(frames: int = FRAMES) -> None:
                       *(f"{r['stages_ms'][s]:.2f}" for s in stages),
                       f"{r['tracked']:.0%}", f"{r['rmse_mm']:.2f}")
     Console().print(table)
+    quiet = next(r for r in rows if r["parts"] == LOADED)
+    with busy_cores() as count:
+        loaded = measure(LOADED, frames)
+    load = Table(title=f"{LOADED} parts, quiet and with {count} busy processes on {count} cores "
+                       "(ms)")
+    for col in ("run", "median", "p99", "p99 / quiet p99"):
+        load.add_column(col, justify="right")
+    for name, r in (("quiet", quiet), ("under load", loaded)):
+        load.add_row(name, f"{r['median_ms']:.2f}", f"{r['p99_ms']:.2f}",
+                     f"{r['p99_ms'] / quiet['p99_ms']:.2f}")
+    Console().print(load)
 
 
 if __name__ == "__main__":

@@ -16,15 +16,18 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from cellsight.control.sequence import PickSequence
-from cellsight.control.task import Phase
+from cellsight.control.task import GraspTask, Phase
 from cellsight.errors import CellFileError, CellsightError
 from cellsight.experiments import RunConfig, scenario
 from cellsight.experiments.cellcheck import check_cell
 from cellsight.experiments.runner import ExperimentRun, run_experiment
+from cellsight.experiments.scenario import place_pose
 from cellsight.model.loader import builtin_cell_path, load_cell
 from cellsight.realism.draws import ScenarioShift
 from cellsight.runfolder.framelog import FrameLog
 from cellsight.runfolder.picks import identity_swaps, part_log_name
+from cellsight.sweep.grid import RunSpec
+from cellsight.sweep.lines import lines_markdown, pick_summary
 from cellsight.world import World
 
 PICKS = ["u1", "l1", "u2", "l2"]
@@ -181,3 +184,43 @@ def test_a_short_line_run_logs_and_scores_every_pick(cell, tmp_path):
         assert set(log.text("phase")) == {"waiting"}  # u1's task waits, the others' turns
     figures = json.loads((out / "metrics.json").read_text())["picks"]
     assert all(f["identity_swaps"] == 0 and f["position_rmse_mm"] < 1.0 for f in figures)
+
+
+def _pick(part, picked, rmse, tracking, wrong, swaps):
+    return {"part": part, "picked": picked, "position_rmse_arm_mm": rmse,
+            "position_rmse_mm": rmse + 1.0, "max_error_tracking_mm": tracking,
+            "confident_wrong_frames": wrong, "identity_swaps": swaps}
+
+
+def test_a_sweeps_lines_are_summed_up_per_run_and_per_group():
+    specs = [RunSpec("line-cell", 3, "rendered", "kinematic", seed, realism="lab")
+             for seed in (0, 1)]
+    results = [{"picks": [_pick("u1", True, 0.4, 2.0, 0, 0), _pick("l1", True, 0.8, 12.5, 3, 2)]},
+               {"picks": [_pick("u1", True, 0.6, 1.0, 0, 0), _pick("l1", None, 1.2, 4.0, 0, 0)]}]
+    assert pick_summary(results[0]) == {
+        "picks": 2, "picks_picked": 2, "picks_worst_rmse_arm_mm": 0.8, "picks_worst_rmse_mm": 1.8,
+        "picks_max_error_tracking_mm": 12.5, "picks_confident_wrong_frames": 3,
+        "picks_identity_swaps": 2}
+    assert pick_summary({"position_rmse_mm": 1.0}) == {}
+    row = lines_markdown(specs, results).splitlines()[2]
+    # every part picked 1 of 2 runs, 3 of 4 parts; mean arm RMSE (0.4+0.8+0.6+1.2)/4 = 0.75
+    assert row.split(" | ")[6:] == ["2", "1/2", "3/4", "0.75", "1.20", "12.50", "1 (3)", "2 |"]
+    assert lines_markdown(specs, [{}, {}]) == ""
+
+
+def test_each_pick_is_put_down_one_place_step_further(cell):
+    """The k-th pick's release pose is FINAL's TCP pose moved by k steps (the cell file's
+    ``place_step``), its orientation FINAL's; the first is put down at FINAL."""
+    robot = cell.robot("R7AX")
+    final = robot.tcp_pose(robot.final)
+    step = np.array(cell.experiments.place_step)
+    assert place_pose(cell, robot, 0) is None and np.linalg.norm(step) > 0.1
+    for k in (1, 2, 3):
+        T = place_pose(cell, robot, k)
+        np.testing.assert_allclose(T[:2, 3], final[:2, 3] + k * step, atol=1e-12)
+        np.testing.assert_allclose(T[2:, 3], final[2:, 3])
+        np.testing.assert_allclose(T[:3, :3], final[:3, :3])
+    source_tasks = [GraspTask(robot, part, place=place_pose(cell, robot, k))
+                    for k, part in enumerate(cell.picked_workpieces())]
+    places = np.array([task.T_final[:2, 3] for task in source_tasks])
+    assert np.all(np.linalg.norm(np.diff(places, axis=0), axis=1) > 0.1)  # apart, one by one

@@ -2,11 +2,11 @@
 phases (:class:`~cellsight.control.task.GraspTask`: Approach, Grasp, Manipulate, Release).
 
 The next part's task starts, from where the robot stands (HOME), at the vision update in which
-the last one is done, with no estimate of its part yet; it waits for one like the first. A pick that fails
-ends the sequence (``failed``): the robot has given up a part, and the line's run stops there.
-Seen from outside the sequence is one task: its ``phase`` and ``stage`` are the current pick's,
-``done`` only once the last pick is. Times in seconds, poses ``T_base_tcp`` in the cell base
-frame.
+the last one is done, with no estimate of its part yet; it waits for one like the first. A
+pick that fails ends the sequence (``failed``): the robot has given up a part, and the line's
+run stops there. Seen from outside the sequence is one task: its ``phase`` and ``stage`` are
+the current pick's, ``done`` only once the last pick is. Times in seconds, poses
+``T_base_tcp`` in the cell base frame.
 """
 
 from __future__ import annotations

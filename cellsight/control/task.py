@@ -208,7 +208,8 @@ class GraspTask:
     :class:`InterpolatingFilter` with their default parameters, the CLIK is the robot's
     :class:`Clik`; the control period is the interpolator's ``dt``. Gripper commands:
     ``robot.tool.max_opening`` open, 0 closed. ``grasp_opening`` (m): the jaws' opening when
-    closed on the part at its grasp (None: any opening counts).
+    closed on the part at its grasp (None: any opening counts). ``place``: the TCP pose
+    ``T_base_tcp`` the part is put down at (None: FINAL's).
     """
 
     def __init__(
@@ -222,6 +223,7 @@ class GraspTask:
         planner: TrajectoryPlanner | None = None,
         interpolator: InterpolatingFilter | None = None,
         grasp_opening: float | None = None,
+        place: np.ndarray | None = None,
     ) -> None:
         if robot.tool is None or robot.final is None:
             raise ValueError(f"GraspTask: robot {robot.name} needs a tool and a FINAL pose")
@@ -236,7 +238,7 @@ class GraspTask:
                                Clik(robot), interpolator or InterpolatingFilter())
         self.planner = self.servo.planner
         self.T_home = robot.tcp_pose(robot.home)
-        self.T_final = robot.tcp_pose(robot.final)
+        self.T_final = robot.tcp_pose(robot.final) if place is None else np.asarray(place)
         self.open_command = robot.tool.max_opening
         self.closed_command = 0.0
         self.grasp_opening = None if grasp_opening is None else float(grasp_opening)

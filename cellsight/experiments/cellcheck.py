@@ -57,6 +57,7 @@ from cellsight.camera import border_distance
 from cellsight.control.ik import converge
 from cellsight.control.task import TaskTolerances
 from cellsight.experiments.crossing_check import Finding, crossing_findings
+from cellsight.experiments.scenario import place_pose
 from cellsight.model.cell import Cell, Workpiece
 from cellsight.model.grasp import HALF_TURN_Z, grasp_opening, grasp_pose
 from cellsight.model.robot import Robot
@@ -219,10 +220,14 @@ def _key_states(cell: Cell, part: Workpiece) -> list[tuple[str, dict, np.ndarray
     robot = _grasping(cell)
     if robot is not None and robot.tool is not None:
         T_tcp_part = np.linalg.inv(grasp_pose(part, robot.tool))
+        names = [p.name for p in cell.picked_workpieces()]
+        place = place_pose(cell, robot, names.index(part.name)) if part.name in names else None
         for name, q in (("HOME", robot.home), ("FINAL", robot.final)):
             if q is not None:
-                states.append((f"held at {robot.name}'s {name}", {robot.name: q},
-                               robot.tcp_pose(q) @ T_tcp_part))
+                T = place if name == "FINAL" and place is not None else robot.tcp_pose(q)
+                moved = ", moved to its place (experiments.place_step)" if T is place else ""
+                states.append((f"held at {robot.name}'s {name}{moved}", {robot.name: q},
+                               T @ T_tcp_part))
     return states
 
 

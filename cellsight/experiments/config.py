@@ -32,9 +32,10 @@ class Sensor(NamedEnum):
 @dataclass(frozen=True)
 class RunConfig:
     """One run. ``duration`` (s of simulated time): None runs until the task is done (plus
-    ``tail_s``), at most ``max_duration`` for each part picked (a line's picks). ``ideal_sigma_px``: pixel noise of the ideal
-    sensor, per coordinate (0.2 px: the rendered sensor's corners lie a median 0.245 px from
-    the true projection on the built-in cell, i.e. 0.21 px per coordinate).
+    ``tail_s``), at most ``max_duration`` for each part picked (a line's picks).
+    ``ideal_sigma_px``: pixel noise of the ideal sensor, per coordinate (0.2 px: the rendered
+    sensor's corners lie a median 0.245 px from the true projection on the built-in cell, i.e.
+    0.21 px per coordinate).
     ``tracker``: the tracker (:class:`~cellsight.trackers.TrackerChoice`). The
     ``kinematic`` one (the default): while the jaws are closed on the part, it predicts it by
     the gripper's motion measured from the joints, and starts it where the gripper holds it (the

@@ -132,3 +132,14 @@ def _grasping_robot(cell: Cell) -> Robot:
             return robot
     raise CellFileError(setup.source, "robots", [r.name for r in cell.robots],
                         "a robot with a tool and a FINAL pose to grasp the part")
+
+
+def place_pose(cell: Cell, robot: Robot, k: int) -> np.ndarray | None:
+    """Where pick ``k`` (0-based) of ``cell``'s line is put down: ``robot``'s FINAL TCP pose
+    moved by ``k`` times the cell file's ``experiments.place_step`` (None: at FINAL)."""
+    step = np.asarray(cell.experiments.place_step, dtype=float)
+    if robot.final is None or k == 0 or not step.any():
+        return None
+    T = robot.tcp_pose(robot.final)
+    T[:2, 3] += k * step
+    return T

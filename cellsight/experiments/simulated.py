@@ -29,7 +29,7 @@ from cellsight.experiments.exposure import Exposures
 from cellsight.experiments.latency import Deliveries, Estimate
 from cellsight.experiments.monitors import GraspMonitor, KidnapMonitor
 from cellsight.experiments.plant import SimulatedCell, frame_truth
-from cellsight.experiments.scenario import Scenario
+from cellsight.experiments.scenario import Scenario, place_pose
 from cellsight.geometry.transforms import invert_pose
 from cellsight.model.cell import Cell, Workpiece
 from cellsight.model.grasp import grasp_opening, grasp_pose
@@ -89,10 +89,13 @@ class SimulatedSource:
         return self.task.part
 
     def _grasp_task(self, part: Workpiece) -> GraspTask:
-        """The grasping task of ``part``, with the opening its grasp closes the jaws to."""
+        """The grasping task of ``part``, with the opening its grasp closes the jaws to and
+        the place it is put down at (:func:`~.scenario.place_pose`)."""
         tool = self.robot.tool  # GraspTask names a robot without one
         return GraspTask(self.robot, part, grasp_opening=None if tool is None else
-                         grasp_opening(part.solid, tool, grasp_pose(part, tool)))
+                         grasp_opening(part.solid, tool, grasp_pose(part, tool)),
+                         place=place_pose(self.cell, self.robot,
+                                          [p.name for p in self.scenario.picks].index(part.name)))
 
     def begin(self) -> None:
         log.info("%s", self.run.heading)

@@ -269,16 +269,19 @@ class LiveSink:
     def __init__(self, address: str, paced: bool = False) -> None:
         self.address, self.paced = parse_address(address), paced
         self.stream: LiveStream | None = None
+        self.part: str | None = None  # the workpiece streamed
         self._start: tuple[float, float] | None = None  # (wall clock, run time) s
 
     def start(self, run: RunContext) -> None:
-        self.stream = LiveStream(run.cell, run.part.name, *self.address)
+        self.part = run.part.name  # a line's first pick, as its frames.csv
+        self.stream = LiveStream(run.cell, self.part, *self.address)
 
     def frame(self, record: FrameRecord) -> None:
-        frame, truth = record.frame, record.frame.truth
+        frame, truth = record.frame, record.frame.truth.about(self.part, record.part.name)
         if self.paced:
             self._wait(frame.t)
-        self.stream.frame(frame.t, frame.joints, record.part, record.result.unknown,
+        self.stream.frame(frame.t, frame.joints, record.result.parts[self.part],
+                          record.result.unknown,
                           frame.observed if frame.images else None,
                           None if truth.part is None else truth.part.T_base_part)
 

@@ -398,7 +398,8 @@ def _experiments(spec: ExperimentsSpec | None, robots: list[Robot], parts: list[
                             f"robots[].final) to grasp the part; {spec.robot} has no "
                             f"{'tool' if grasping.tool is None else 'final'}")
     setup = ExperimentSetup(robot=spec.robot, workpiece=spec.workpiece,
-                            picks=_picks(spec, parts, file), source=file)
+                            picks=_picks(spec, parts, file),
+                            place_step=tuple(spec.place_step or (0.0, 0.0)), source=file)
     if spec.conveyor is not None:
         setup = replace(setup, conveyor_points=np.array(spec.conveyor.points),
                         conveyor_speed=spec.conveyor.speed,

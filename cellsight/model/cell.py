@@ -59,12 +59,15 @@ class ExperimentSetup:
     ``conveyor_t_start`` s) move the part in experiments 2 and 3 (on a line the first pick
     follows the path and the others move with it, keeping their places on the belt);
     ``crossing_robot`` follows ``crossing_waypoints`` ((t s, q) pairs, absolute times) in
-    experiment 3. ``source`` is the cell file, for error messages.
+    experiment 3. On a line, pick ``k`` (0-based) is put down at FINAL's TCP pose moved by ``k``
+    times ``place_step`` (x, y, m, base frame). ``source`` is the cell file, for error
+    messages.
     """
 
     robot: str | None = None
     workpiece: str | None = None
     picks: tuple[str, ...] = ()
+    place_step: tuple[float, float] = (0.0, 0.0)
     conveyor_points: np.ndarray | None = None
     conveyor_speed: float = 0.0
     conveyor_t_start: float = 0.0

@@ -460,6 +460,10 @@ class ExperimentsSpec(_Strict):
         "Manipulate and Release (instead of one workpiece); in experiments 2 and 3 the conveyor "
         "carries them all, the first along its path and the others keeping their places on "
         "the belt.", "-")
+    place_step: Vec2 | None = about(
+        None, "A line: each pick is put down at FINAL's TCP pose moved by this step (x, y in the "
+        "cell's base frame) times its place in the order, the first at FINAL, so that the parts "
+        "do not land on each other; default: all at FINAL.", "m")
     conveyor: ConveyorSpec | None = about(None, "The conveyor moving the part in experiments 2 "
                                           "and 3 (needed for them).", "-")
     crossing: CrossingSpec | None = about(None, "The robot crossing the cameras' views in "

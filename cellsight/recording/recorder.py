@@ -124,15 +124,17 @@ class RecordingSink:
     def __init__(self, path: Path, jpeg: int | None = None) -> None:
         self.path, self.jpeg = Path(path), jpeg
         self.recorder: Recorder | None = None
+        self.part: str | None = None  # the workpiece recorded
         self.writes: RunWrites | None = None
 
     def start(self, run: RunContext) -> None:
         self.writes = run.writes
+        self.part = run.part.name  # a line's first pick, as its frames.csv
         with run.writes.guard(self.path):
-            self.recorder = Recorder(self.path, run.cell, run.part.name, self.jpeg)
+            self.recorder = Recorder(self.path, run.cell, self.part, self.jpeg)
 
     def frame(self, record: FrameRecord) -> None:
-        frame, truth = record.frame, record.frame.truth
+        frame, truth = record.frame, record.frame.truth.about(self.part, record.part.name)
         with self.writes.guard(self.path):
             self.recorder.frame(frame.t, frame.observed, frame.stamps, frame.joints,
                                 frame.openings, None if truth.part is None

@@ -34,7 +34,8 @@ BASELINE = "kinematic"
 GroupKey = tuple[str, int, str, str, str, str]
 
 
-def _key(spec: RunSpec) -> GroupKey:
+def group_key(spec: RunSpec) -> GroupKey:
+    """The group a run belongs to: its cell, experiment, realism, structure, sensor and variant."""
     return (spec.folder.parent.name, spec.experiment, spec.realism, spec.structure,
             spec.sensor, spec.variant)
 
@@ -67,7 +68,7 @@ def crossing_as_designed(metrics: dict) -> bool | None:
 def _groups(specs: Sequence[RunSpec], results: Sequence[dict]) -> dict[GroupKey, dict]:
     groups: dict[GroupKey, dict] = {}
     for spec, m in zip(specs, results, strict=True):
-        g = groups.setdefault(_key(spec), {"runs": [], "seeds": [], "failed": 0})
+        g = groups.setdefault(group_key(spec), {"runs": [], "seeds": [], "failed": 0})
         if m.get("error"):
             g["failed"] += 1
         else:

@@ -18,6 +18,8 @@ from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
 
+from cellsight.sweep.summary import LINES_HEADER as LINES
+
 DATA = Path("docs") / "results" / "data"
 BENCH = Path("docs") / "results" / "bench"
 PHASES = ("approach", "grasp", "manipulate", "release")
@@ -150,6 +152,12 @@ def provenance(root: Path, meta: dict[str, str]) -> str:
     return text + " The code has not changed since.\n"
 
 
+def _section(body: list[str], header: str) -> list[str]:
+    """The table under ``header`` in a ``summary.md`` (its lines up to the next blank one)."""
+    rest = body[body.index(header) + 2:]  # the header, then a blank line
+    return rest[:rest.index("")] if "" in rest else rest
+
+
 def table_page(root: Path, table: Table) -> str:
     """One sweep's page: provenance, the spread per group, per phase, the plot, every run."""
     meta = table.meta
@@ -159,10 +167,13 @@ def table_page(root: Path, table: Table) -> str:
              "(smallest–largest). RMSE and max are over every frame with the part in view "
              "of the whole task.", "", summary_table(table.rows), "",
              "## Per phase", "", "Position RMSE (mm):", "", phase_table(table.rows)]
+    body = (table.folder / "summary.md").read_text().strip().splitlines()
+    if LINES in body:  # a line's runs: each part's own figures, grouped
+        lines += ["## Each part", "", "Every part of the line, each picked in turn, with its "
+                  "own figures:", "", *_section(body, LINES), ""]
     if (table.folder / "summary.png").is_file():
         lines += ["## Every seed", "", f"![{meta['title']}](data/{table.name}/summary.png)", ""]
     lines += ["## Every run", "", "??? note \"The sweep's own summary.md\"", ""]
-    body = (table.folder / "summary.md").read_text().strip().splitlines()
     lines += [f"    {line}" if line else "" for line in body]
     return "\n".join(lines) + "\n"
 
