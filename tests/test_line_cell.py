@@ -16,12 +16,13 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from cellsight.control.sequence import PickSequence
-from cellsight.control.task import GraspTask, Phase
+from cellsight.control.task import Phase
 from cellsight.errors import CellFileError, CellsightError
 from cellsight.experiments import RunConfig, scenario
 from cellsight.experiments.cellcheck import check_cell
 from cellsight.experiments.runner import ExperimentRun, run_experiment
 from cellsight.experiments.scenario import place_pose
+from cellsight.experiments.simulated import pick_task
 from cellsight.model.loader import builtin_cell_path, load_cell
 from cellsight.realism.draws import ScenarioShift
 from cellsight.runfolder.framelog import FrameLog
@@ -220,7 +221,7 @@ def test_each_pick_is_put_down_one_place_step_further(cell):
         np.testing.assert_allclose(T[:2, 3], final[:2, 3] + k * step, atol=1e-12)
         np.testing.assert_allclose(T[2:, 3], final[2:, 3])
         np.testing.assert_allclose(T[:3, :3], final[:3, :3])
-    source_tasks = [GraspTask(robot, part, place=place_pose(cell, robot, k))
-                    for k, part in enumerate(cell.picked_workpieces())]
+    sc = scenario(cell, 3)
+    source_tasks = [pick_task(cell, sc, part) for part in sc.picks]
     places = np.array([task.T_final[:2, 3] for task in source_tasks])
     assert np.all(np.linalg.norm(np.diff(places, axis=0), axis=1) > 0.1)  # apart, one by one

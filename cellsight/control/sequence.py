@@ -5,8 +5,8 @@ The next part's task starts, from where the robot stands (HOME), at the vision u
 the last one is done, with no estimate of its part yet; it waits for one like the first. A
 pick that fails ends the sequence (``failed``): the robot has given up a part, and the line's
 run stops there. Seen from outside the sequence is one task: its ``phase`` and ``stage`` are
-the current pick's, ``done`` only once the last pick is. Times in seconds, poses
-``T_base_tcp`` in the cell base frame.
+the current pick's (``current``, its planner and grasp), ``done`` only once the last pick
+is. Times in seconds, poses ``T_base_tcp`` in the cell base frame.
 """
 
 from __future__ import annotations
@@ -16,8 +16,7 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
-from cellsight.control.planner import TrajectoryPlanner
-from cellsight.control.task import GraspTask, Phase, Stage, TaskTolerances
+from cellsight.control.task import GraspTask, Phase, Stage
 from cellsight.model.cell import Workpiece
 
 log = logging.getLogger(__name__)
@@ -53,18 +52,6 @@ class PickSequence:
     @property
     def stage(self) -> Stage:
         return self.current.stage
-
-    @property
-    def planner(self) -> TrajectoryPlanner:
-        return self.current.planner
-
-    @property
-    def tolerances(self) -> TaskTolerances:
-        return self.current.tolerances
-
-    @property
-    def grasp_opening(self) -> float | None:
-        return self.current.grasp_opening
 
     @property
     def attempts(self) -> int:

@@ -127,12 +127,14 @@ class TaskMoves:
     """The task's moves: the ``approach_height`` (m, 5 cm as in the paper) over the part and
     the ``lift_height`` (m) along base +z; the grasp check may fail ``max_attempts`` times;
     ``retry_shift`` (m): how far a retry after a grasp caught off the part moves the grasp
-    along the jaws' width (module docstring; 0: not at all)."""
+    along the jaws' width (module docstring; 0: not at all); ``place``: the TCP pose
+    ``T_base_tcp`` the part is put down at (None: FINAL's)."""
 
     approach_height: float = 0.05
     lift_height: float = 0.10
     max_attempts: int = 3
     retry_shift: float = 0.0035
+    place: np.ndarray | None = None
 
 
 RETRY_SIDES = (1.0, -1.0)
@@ -208,8 +210,7 @@ class GraspTask:
     :class:`InterpolatingFilter` with their default parameters, the CLIK is the robot's
     :class:`Clik`; the control period is the interpolator's ``dt``. Gripper commands:
     ``robot.tool.max_opening`` open, 0 closed. ``grasp_opening`` (m): the jaws' opening when
-    closed on the part at its grasp (None: any opening counts). ``place``: the TCP pose
-    ``T_base_tcp`` the part is put down at (None: FINAL's).
+    closed on the part at its grasp (None: any opening counts).
     """
 
     def __init__(
@@ -223,7 +224,6 @@ class GraspTask:
         planner: TrajectoryPlanner | None = None,
         interpolator: InterpolatingFilter | None = None,
         grasp_opening: float | None = None,
-        place: np.ndarray | None = None,
     ) -> None:
         if robot.tool is None or robot.final is None:
             raise ValueError(f"GraspTask: robot {robot.name} needs a tool and a FINAL pose")
@@ -238,7 +238,8 @@ class GraspTask:
                                Clik(robot), interpolator or InterpolatingFilter())
         self.planner = self.servo.planner
         self.T_home = robot.tcp_pose(robot.home)
-        self.T_final = robot.tcp_pose(robot.final) if place is None else np.asarray(place)
+        self.T_final = (robot.tcp_pose(robot.final) if moves.place is None
+                        else np.array(moves.place, dtype=float))
         self.open_command = robot.tool.max_opening
         self.closed_command = 0.0
         self.grasp_opening = None if grasp_opening is None else float(grasp_opening)

@@ -163,15 +163,19 @@ class ExperimentRun:
         }
 
     def _picks(self) -> list[dict] | None:
-        """A line's picks (None for one part): each part, whether it was picked, and its
-        figures from its own frame log (:func:`~cellsight.runfolder.picks.pick_figures`)."""
+        """A line's picks (None for one part), in order: each part, whether it was held when
+        its Manipulate began (None: its turn never came that far), its failed grasp checks, and
+        its figures from its own frame log (:func:`~cellsight.runfolder.picks.pick_figures`)."""
         picks = [p.name for p in self.scenario.picks]
         if len(picks) == 1:
             return None
         error = (self.draws.tcp_error(self.robot, self.robot.home)
                  if self.registration is not None and self.robot.home is not None else None)
         figures = pick_figures(Path(self.config.out), picks, error)
-        return [{**pick, **figures[pick["part"]]} for pick in self.source.picks()]
+        held, tasks = self.source.grasp.held, self.source.task.tasks
+        return [{"part": name, "picked": held[k] if k < len(held) else None,
+                 "failed_grasp_checks": tasks[k].attempts if k < len(tasks) else 0,
+                 **figures[name]} for k, name in enumerate(picks)]
 
     def _knock(self) -> dict | None:
         """The knocked camera's figures (:func:`~.monitors.knock_record`), if any."""

@@ -19,12 +19,13 @@ from __future__ import annotations
 import logging
 from collections.abc import Iterator
 from dataclasses import dataclass
+from functools import partial
 
 import numpy as np
 
 from cellsight.control import GraspTask, Phase
 from cellsight.control.sequence import PickSequence
-from cellsight.control.task import grasp_miss, last_setback
+from cellsight.control.task import TaskMoves, grasp_miss, last_setback
 from cellsight.experiments.exposure import Exposures
 from cellsight.experiments.latency import Deliveries, Estimate
 from cellsight.experiments.monitors import GraspMonitor, KidnapMonitor
@@ -59,6 +60,16 @@ class SimulatedRun:
     heading: str = ""
 
 
+def pick_task(cell: Cell, scenario: Scenario, part: Workpiece) -> GraspTask:
+    """The grasping task of ``part`` (one of ``scenario``'s picks), with the opening its grasp
+    closes the jaws to and the place it is put down at (:func:`~.scenario.place_pose`)."""
+    robot, tool = scenario.robot, scenario.robot.tool  # GraspTask names a robot without one
+    order = [p.name for p in scenario.picks].index(part.name)
+    return GraspTask(robot, part, grasp_opening=None if tool is None else
+                     grasp_opening(part.solid, tool, grasp_pose(part, tool)),
+                     moves=TaskMoves(place=place_pose(cell, robot, order)))
+
+
 class SimulatedSource:
     """Frames of the simulated ``world`` of ``scenario`` on the tracker's ``cell`` (module
     docstring). ``exposures``: how the cameras expose (:mod:`.exposure`); ``kinematic``: give
@@ -78,7 +89,7 @@ class SimulatedSource:
                           if kinematic else None)
         kidnap = draws.errors.kidnap
         self.kidnap = None if kidnap is None else KidnapMonitor(kidnap)
-        self.task = PickSequence(scenario.picks, self._grasp_task)
+        self.task = PickSequence(scenario.picks, partial(pick_task, cell, scenario))
         self.grasp = GraspMonitor(world, self.robot.name)
         self.ended_by: str | None = None
         self._fate_latency_s = 0.0
@@ -87,15 +98,6 @@ class SimulatedSource:
     def part(self) -> Workpiece:
         """The part picked now (the tracked part of each frame's record)."""
         return self.task.part
-
-    def _grasp_task(self, part: Workpiece) -> GraspTask:
-        """The grasping task of ``part``, with the opening its grasp closes the jaws to and
-        the place it is put down at (:func:`~.scenario.place_pose`)."""
-        tool = self.robot.tool  # GraspTask names a robot without one
-        return GraspTask(self.robot, part, grasp_opening=None if tool is None else
-                         grasp_opening(part.solid, tool, grasp_pose(part, tool)),
-                         place=place_pose(self.cell, self.robot,
-                                          [p.name for p in self.scenario.picks].index(part.name)))
 
     def begin(self) -> None:
         log.info("%s", self.run.heading)
@@ -168,10 +170,10 @@ class SimulatedSource:
             return None, None
         name, task = self.robot.name, self.task
         closed = self.world.jaws_closed_on_part(name)
-        held = grasp_miss(closed, frame.openings[name], task.grasp_opening,
-                          task.tolerances.opening) is None
-        held_at = (self.robot.tcp_pose(frame.joints[name]) @ invert_pose(task.planner.chosen_grasp)
-                   if held else None)
+        held = grasp_miss(closed, frame.openings[name], task.current.grasp_opening,
+                          task.current.tolerances.opening) is None
+        held_at = (self.robot.tcp_pose(frame.joints[name])
+                   @ invert_pose(task.current.planner.chosen_grasp) if held else None)
         holders: dict = {}
         supports: dict = {}
         for part, prior in self.priors_of.items():
@@ -243,14 +245,6 @@ class SimulatedSource:
             "phase_intervals": [[str(p), round(a, 3), round(b, 3)]
                                 for p, a, b in self.task.phase_intervals(t_end)],
         }
-
-    def picks(self) -> list[dict]:
-        """A line's picks, in order: each part, whether it was held when its Manipulate began
-        (None: its turn never came that far) and its failed grasp checks."""
-        held, tasks = self.grasp.held, self.task.tasks
-        return [{"part": part.name, "picked": held[k] if k < len(held) else None,
-                 "failed_grasp_checks": tasks[k].attempts if k < len(tasks) else 0}
-                for k, part in enumerate(self.scenario.picks)]
 
     def close(self) -> None:
         self.world.close()
