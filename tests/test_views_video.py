@@ -33,14 +33,14 @@ def test_the_video_thread_draws_what_the_run_handed_over(tmp_path: Path, monkeyp
     renderers = {}
     real_add = views_video.ViewsVideo.add
 
-    def add(self, shown, frame, truth_visible, caption) -> None:
+    def add(self, shown, frame, part, truth_visible, caption) -> None:
         shot = next(s for s in shown if isinstance(s, Shot))
         if "r" not in renderers:
             renderers["r"] = shot.renderer.twin(samples=0)
         images = [s.preview(0.5, renderers["r"]) for s in shown]
-        handed.append(draw_frame(images, frame, self._part, truth_visible, self._cameras,
+        handed.append(draw_frame(images, frame, part, truth_visible, self._cameras,
                                  caption, 0.5))
-        real_add(self, shown, frame, truth_visible, caption)
+        real_add(self, shown, frame, part, truth_visible, caption)
 
     def record(self, rgb) -> None:
         written.append((np.array(rgb), threading.current_thread().name))
