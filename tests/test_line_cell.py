@@ -7,6 +7,7 @@ truth read from MuJoCo, the cell file's names, and distances computed by hand fo
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -27,7 +28,7 @@ from cellsight.model.loader import builtin_cell_path, load_cell
 from cellsight.realism.draws import ScenarioShift
 from cellsight.runfolder.framelog import FrameLog
 from cellsight.runfolder.picks import identity_swaps, part_log_name
-from cellsight.sweep.grid import RunSpec
+from cellsight.sweep.grid import RunSpec, SweepAxes, sweep_grid
 from cellsight.sweep.lines import lines_markdown, pick_summary
 from cellsight.world import World
 
@@ -240,3 +241,11 @@ def test_a_camera_may_miss_a_key_pose_only_while_two_others_hold_it_whole(cell, 
     path.write_text(yaml.safe_dump(data))
     two = [f for f in check_cell(load_cell(path)) if f.line.startswith("u1 held at R7AX's FINAL")]
     assert [f.level for f in two if "cam4's image" in f.line] == ["error"]
+
+
+def test_a_sweep_of_a_line_with_the_ideal_sensor_is_refused_before_it_runs():
+    axes = SweepAxes(cells=["line-cell"], experiments=[3], sensors=["rendered", "ideal"],
+                     variants=["kinematic"], seeds=[0])
+    with pytest.raises(CellsightError, match=r"--sensors: line-cell is a line \(4 picks\)"):
+        sweep_grid(axes)
+    assert len(sweep_grid(replace(axes, sensors=["rendered"]))) == 1

@@ -161,7 +161,7 @@ def sweep_grid(axes: SweepAxes, variant_seeds: int | None = None,
     if not cells or not realisms:
         raise CellsightError(f"--cells, --realism: expected one or more of each, got "
                              f"{list(cells)}, {list(realisms)}")
-    _check_cells(cells)
+    _check_cells(cells, sensors)
     for realism in realisms:
         try:
             load_profile(realism)
@@ -176,16 +176,20 @@ def sweep_grid(axes: SweepAxes, variant_seeds: int | None = None,
     return specs
 
 
-def _check_cells(cells: Sequence[str]) -> None:
+def _check_cells(cells: Sequence[str], sensors: Sequence[str]) -> None:
     """Load each cell once (a file or a built-in name): one that does not is refused here,
-    before any run, rather than as every one of its runs failing."""
+    before any run, rather than as every one of its runs failing; so is a line (several
+    picks) with the ideal sensor, which sees one part."""
     from cellsight.model.loader import load_cell
 
     for cell in dict.fromkeys(cells):
         try:
-            load_cell(cell)
+            picks = load_cell(cell).picked_workpieces()
         except CellsightError as exc:
             raise CellsightError(f"--cells: {exc}") from exc
+        if len(picks) > 1 and "ideal" in sensors:
+            raise CellsightError(f"--sensors: {cell} is a line ({len(picks)} picks) and the "
+                                 f"ideal sensor sees one part; give --sensors rendered")
 
 
 def _check_one_folder_each(specs: list[RunSpec]) -> None:
