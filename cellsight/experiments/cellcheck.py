@@ -386,9 +386,9 @@ def _grasp_contacts(cell: Cell, robot: Robot, part: Workpiece,
 
 
 def _workpiece(cell: Cell) -> Workpiece:
-    """The part of the experiments: the cell file's ``experiments.workpiece``, else the first."""
-    setup = cell.experiments
-    return cell.workpiece(setup.workpiece) if setup.workpiece else cell.workpieces[0]
+    """The part of the experiments: the cell file's ``experiments.workpiece`` (a line's first
+    pick), else the first."""
+    return cell.picked_workpieces()[0]
 
 
 def _grasping(cell: Cell) -> Robot | None:

@@ -92,9 +92,8 @@ class Design:
 def design_crossing(cell: Cell, blocks: Sequence[Block], path: TaskPath, *,
                     clearance_m: float = 0.10) -> Design:
     """The crossing of the module docstring for ``blocks`` (in time order)."""
-    setup = cell.experiments
     crosser = _crossing_robot(cell)
-    part = cell.workpiece(setup.workpiece) if setup.workpiece else cell.workpieces[0]
+    part = cell.picked_workpieces()[0]
     designs, predictor = [], visibility_predictor(cell)
     for fraction in FRACTIONS:
         try:

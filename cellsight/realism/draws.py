@@ -215,7 +215,7 @@ def _kidnap(k: _Knobs, p: Profile, cell: Cell) -> Kidnap | None:
     f = p.faults
     if not cell.workpieces or not k.event("faults.kidnap", f.kidnap_probability):
         return None
-    part = cell.workpiece(cell.experiments.workpiece or cell.workpieces[0].name)
+    part = cell.picked_workpieces()[0]
     distance = float(k.draw("faults.kidnap_distance_mm", f.kidnap_distance_mm, (), 1e-3))
     heading = float(k.draw("faults.kidnap_direction_deg", f.kidnap_direction_deg, (),
                            math.pi / 180))
