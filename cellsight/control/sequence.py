@@ -38,7 +38,7 @@ class PickSequence:
     @property
     def part(self) -> Workpiece:
         """The part being picked now (the last one once all are done)."""
-        return self.parts[len(self.finished)]
+        return self.parts[self.index]
 
     @property
     def index(self) -> int:

@@ -57,7 +57,7 @@ from cellsight.camera import border_distance
 from cellsight.control.ik import converge
 from cellsight.control.task import TaskTolerances
 from cellsight.experiments.crossing_check import Finding, crossing_findings
-from cellsight.experiments.scenario import place_pose
+from cellsight.experiments.scenario import belt_place, place_pose
 from cellsight.model.cell import Cell, Workpiece
 from cellsight.model.grasp import HALF_TURN_Z, grasp_opening, grasp_pose
 from cellsight.model.robot import Robot
@@ -212,10 +212,9 @@ def _key_states(cell: Cell, part: Workpiece) -> list[tuple[str, dict, np.ndarray
     setup = cell.experiments
     states = [("at its start", {}, part.T_base_part)]
     if setup.conveyor_points is not None and len(setup.conveyor_points):
-        first = cell.picked_workpieces()[0]  # the path is its; the others keep their places
-        end = part.T_base_part.copy()
-        end[:2, 3] = (setup.conveyor_points[-1] + part.T_base_part[:2, 3]
-                      - first.T_base_part[:2, 3])
+        end = part.T_base_part.copy()  # the path is the first pick's; the others keep places
+        end[:2, 3] = (setup.conveyor_points[-1]
+                      + belt_place(cell.picked_workpieces()[0], part, None))
         states.append(("at the conveyor's end", {}, end))
     robot = _grasping(cell)
     if robot is not None and robot.tool is not None:

@@ -39,9 +39,7 @@ from cellsight.export.rosbag import check_output
 from cellsight.geometry.transforms import transform_points
 from cellsight.model.cell import Cell
 from cellsight.model.loader import load_cell
-from cellsight.model.robot import Robot
 from cellsight.realism import Profile, draw_world
-from cellsight.realism.draws import WorldDraws
 from cellsight.recording.recorder import RecordingSink
 from cellsight.runfolder import FrameLog
 from cellsight.runfolder.figures import position_rmse_in_arm_frame_mm
@@ -110,14 +108,10 @@ class ExperimentRun:
         last."""
         cfg = self.config
         rows = FrameRows(self.robot, len(self.cell.cameras), cfg.sensor.takes_images)
-        picks = self.scenario.picks
-        sinks: list[FrameSink] = [OcclusionEvents()]
-        if len(picks) == 1:
-            sinks.append(FramesCsv(rows, PnPBaseline.of(self.tracker, self.part.feature_points)))
-        else:  # a line: each pick's log, the first's as the run's frames.csv
-            names = [p.name for p in picks]
-            sinks += [FramesCsv(rows, PnPBaseline.of(self.tracker, p.feature_points), p.name,
-                                part_log_name(names, p.name), names) for p in picks]
+        names = [p.name for p in self.scenario.picks]  # each pick's log, the first's frames.csv
+        sinks: list[FrameSink] = [OcclusionEvents()] + [
+            FramesCsv(rows, PnPBaseline.of(self.tracker, p.feature_points), p.name,
+                      part_log_name(names, p.name), names) for p in self.scenario.picks]
         if cfg.live is not None:
             sinks.append(LiveSink(cfg.live))
         if cfg.record is not None:
@@ -158,9 +152,17 @@ class ExperimentRun:
                                 for c, t in self.tracker.camera_check.dropped.items()},
             "knock": self._knock(),
             "registration": self._registration(),
-            **_arm_error(self.draws, self.robot, frames, self.registration is not None),
+            **_arm_error(self._home_error(), frames),
             "picks": self._picks(),
         }
+
+    def _home_error(self) -> np.ndarray | None:
+        """Where the cameras are registered to the grasping arm, the world's truth of that
+        arm's own error at HOME (its TCP there less where its model puts it, m, base frame);
+        None otherwise."""
+        if self.registration is None or self.robot.home is None:
+            return None
+        return self.draws.tcp_error(self.robot, self.robot.home)
 
     def _picks(self) -> list[dict] | None:
         """A line's picks (None for one part), in order: each part, whether it was held when
@@ -169,9 +171,7 @@ class ExperimentRun:
         picks = [p.name for p in self.scenario.picks]
         if len(picks) == 1:
             return None
-        error = (self.draws.tcp_error(self.robot, self.robot.home)
-                 if self.registration is not None and self.robot.home is not None else None)
-        figures = pick_figures(Path(self.config.out), picks, error)
+        figures = pick_figures(Path(self.config.out), picks, self._home_error())
         held, tasks = self.source.grasp.held, self.source.task.tasks
         return [{"part": name, "picked": held[k] if k < len(held) else None,
                  "failed_grasp_checks": tasks[k].attempts if k < len(tasks) else 0,
@@ -203,15 +203,14 @@ class ExperimentRun:
         return out
 
 
-def _arm_error(draws: WorldDraws, robot: Robot, frames: FrameLog, registered: bool) -> dict:
-    """For a run whose cameras are registered to ``robot`` (``registered``), the world's truth
-    of that arm's own error at HOME (``arm_home_error_mm``: its TCP there less where its model
-    puts it, mm, base frame) and the position RMSE against the part's true positions moved by
-    it (``position_rmse_arm_mm``:
-    :func:`~cellsight.runfolder.figures.position_rmse_in_arm_frame_mm`); both None otherwise."""
-    if not registered or robot.home is None:
+def _arm_error(error: np.ndarray | None, frames: FrameLog) -> dict:
+    """The grasping arm's own ``error`` at HOME (m, :meth:`ExperimentRun._home_error`) as
+    ``arm_home_error_mm`` (mm, base frame), and the position RMSE against the part's true
+    positions moved by it (``position_rmse_arm_mm``:
+    :func:`~cellsight.runfolder.figures.position_rmse_in_arm_frame_mm`); both None without
+    it."""
+    if error is None:
         return {"arm_home_error_mm": None, "position_rmse_arm_mm": None}
-    error = draws.tcp_error(robot, robot.home)
     return {"arm_home_error_mm": np.round(error * 1e3, 3).tolist(),
             "position_rmse_arm_mm": position_rmse_in_arm_frame_mm(frames, error)}
 

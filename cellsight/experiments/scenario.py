@@ -80,7 +80,7 @@ def scenario(cell: Cell, number: int, shift: ScenarioShift | None = None) -> Sce
         if shift is not None:
             points, speed = _shifted_path(points, shift), speed * shift.speed_scale
         conveyors = tuple(
-            ConveyorPath(points + _belt_place(picks[0], part, shift), speed,
+            ConveyorPath(points + belt_place(picks[0], part, shift), speed,
                          setup.conveyor_t_start, workpiece=part.name) for part in picks)
     tasks = {}
     if number == 3:
@@ -94,7 +94,7 @@ def scenario(cell: Cell, number: int, shift: ScenarioShift | None = None) -> Sce
     return Scenario(number, robot, picks, conveyors, tasks)
 
 
-def _belt_place(first: Workpiece, part: Workpiece, shift: ScenarioShift | None) -> np.ndarray:
+def belt_place(first: Workpiece, part: Workpiece, shift: ScenarioShift | None) -> np.ndarray:
     """Where ``part`` lies on the belt from the ``first`` pick (x, y, m, base frame): their
     nominal places' difference, turned with the path by ``shift.turn``, and moved by the
     difference of their start shifts (the spacing the seed draws; zero for the first)."""

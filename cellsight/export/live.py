@@ -277,7 +277,7 @@ class LiveSink:
         self.stream = LiveStream(run.cell, self.part, *self.address)
 
     def frame(self, record: FrameRecord) -> None:
-        frame, truth = record.frame, record.frame.truth.about(self.part, record.part.name)
+        frame, truth = record.frame, record.truth_of(self.part)
         if self.paced:
             self._wait(frame.t)
         self.stream.frame(frame.t, frame.joints, record.result.parts[self.part],

@@ -134,7 +134,7 @@ class RecordingSink:
             self.recorder = Recorder(self.path, run.cell, self.part, self.jpeg)
 
     def frame(self, record: FrameRecord) -> None:
-        frame, truth = record.frame, record.frame.truth.about(self.part, record.part.name)
+        frame, truth = record.frame, record.truth_of(self.part)
         with self.writes.guard(self.path):
             self.recorder.frame(frame.t, frame.observed, frame.stamps, frame.joints,
                                 frame.openings, None if truth.part is None

@@ -51,13 +51,6 @@ class FrameTruth:
     grasped: bool
     others: dict[str, PartTruth] = field(default_factory=dict)
 
-    def about(self, name: str, current: str) -> FrameTruth:
-        """This truth with workpiece ``name`` as its ``part`` (``current``: the part that
-        ``part`` is about now; another's from ``others``, None where it is not known)."""
-        if name == current:
-            return self
-        return replace(self, part=self.others.get(name))
-
 
 @dataclass(frozen=True)
 class SourceFrame:
@@ -99,6 +92,12 @@ class FrameRecord:
     @property
     def t(self) -> float:
         return self.frame.t
+
+    def truth_of(self, name: str) -> FrameTruth:
+        """The frame's truth with workpiece ``name`` as its ``part``: as it is for the
+        record's part, else from the truth's ``others`` (None where it is not known)."""
+        truth = self.frame.truth
+        return truth if name == self.part.name else replace(truth, part=truth.others.get(name))
 
     def shown(self) -> list:
         """The cameras' whole images for a picture of this frame."""

@@ -138,7 +138,7 @@ class FramesCsv:
             phase, stage = ("done", "") if before else ("waiting", "")
         pnp = self.baseline.update(record.t, part.measured)
         row = self.rows.row(record.t, phase, stage, record.result, part,
-                            record.frame.truth.about(name, current), pnp)
+                            record.truth_of(name), pnp)
         with self.writes.guard(self.writer.path):
             self.writer.write(row)
 
