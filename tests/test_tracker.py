@@ -9,6 +9,7 @@ predictor is the test-only back-face predictor (render_helpers.BackfacePredictor
 from __future__ import annotations
 
 import dataclasses
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -36,8 +37,16 @@ from cellsight.tracking import (
     TrackerParts,
     estimate_pose,
 )
+from cellsight.tracking.eligibility import NearOccluderHold
 from cellsight.tracking.loss import LossRule
-from cellsight.tracking.prior.fusion import LYING_TOL, lies_on
+from cellsight.tracking.part_track import PartTrack
+from cellsight.tracking.prior.fusion import (
+    LET_GO_TOL,
+    LET_GO_TRUST_S,
+    LYING_TOL,
+    fits_prior,
+    lies_on,
+)
 from cellsight.tracking.selection import SelectionConfig
 from cellsight.tracking.timing import STAGES
 from cellsight.tracking.update import UNREGISTERED
@@ -698,6 +707,47 @@ def test_a_fix_lies_on_its_support_within_its_height_and_tilt(yaw, dz, axis, ang
     elif abs(dz) > LYING_TOL[0] + margin or tilt > LYING_TOL[1] + margin:
         assert not lies_on(lying, fix)
     assert lies_on(None, fix)
+
+
+@settings(max_examples=80, deadline=None)
+@given(st.floats(0.0, 0.06), st.floats(-np.pi, np.pi), st.floats(0.0, 2 * LET_GO_TRUST_S),
+       st.booleans())
+def test_a_fix_of_a_part_just_let_go_lies_where_it_came_to_rest(distance, heading, since,
+                                                               let_go):
+    """``fits_prior`` against the distance across the support, computed apart: for
+    ``LET_GO_TRUST_S`` after a holder let the part go, a fix on its support is refused farther
+    than ``LET_GO_TOL`` from where it came to rest; before any let-go and after that time,
+    anywhere on the support; off the support, never."""
+    lying = make_pose(np.eye(3), [0.5, -0.29, 0.62])
+    fix = lying.copy()
+    fix[:2, 3] += distance * np.array([np.cos(heading), np.sin(heading)])
+    track = SimpleNamespace(lying=lying, let_go=let_go, let_go_t=100.0)
+    t = 100.0 + since
+    margin = 1e-9
+    if not let_go or since > LET_GO_TRUST_S + margin or distance < LET_GO_TOL - margin:
+        assert fits_prior(track, fix, t)
+    elif distance > LET_GO_TOL + margin and since < LET_GO_TRUST_S - margin:
+        assert not fits_prior(track, fix, t)
+    raised = fix.copy()
+    raised[2, 3] += 2 * LYING_TOL[0]
+    assert not fits_prior(track, raised, t)
+
+
+def test_a_track_knows_when_its_holder_let_it_go():
+    """``PartTrack.predict_to``: the frame the holder is gone is when the part was let go;
+    held again, it is not let go."""
+    cfg = TrackerConfig()
+    track = PartTrack(np.zeros((4, 3)), None, NearOccluderHold(0.5), HealthRule().monitor(["c"]))
+    pose = make_pose(np.eye(3), [0.5, 0.0, 0.7])
+    rest = make_pose(np.eye(3), [0.5, 0.0, 0.62])
+    loss = LossRule()
+    track.predict_to(1.0, pose, None, loss, cfg)
+    assert not track.let_go
+    track.predict_to(1.04, None, rest, loss, cfg)
+    track.predict_to(1.08, None, rest, loss, cfg)
+    assert track.let_go and track.let_go_t == 1.04
+    track.predict_to(2.0, pose, None, loss, cfg)
+    assert not track.let_go
 
 
 def test_a_part_let_go_while_the_cameras_are_blind_rests_where_it_was_let_go():

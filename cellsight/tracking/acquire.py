@@ -2,7 +2,8 @@
 references): a fix in windows at the guess or the last prediction, verified where it predicts
 every usable feature; else the whole-image search's best confirmed candidate; then the fix's
 twins (the part turned onto itself) tried, the one confirmed by the most points kept. A fix off
-the support the kinematic prior says the part lies on is refused."""
+the support the kinematic prior says the part lies on, or away from where a holder just let it
+go, is refused."""
 
 from __future__ import annotations
 
@@ -28,7 +29,7 @@ from cellsight.tracking.part_track import (
     record_estimate,
 )
 from cellsight.tracking.pnp import PoseFix
-from cellsight.tracking.prior.fusion import lies_on
+from cellsight.tracking.prior.fusion import fits_prior
 from cellsight.tracking.records import PartFrame
 from cellsight.tracking.status import TrackStatus
 
@@ -92,7 +93,7 @@ class Acquirer:
         track, acquisition = context.track, self.tracker.components.acquisition
         fix = self.fix(context, acquisition.window_px, coarse=True)
         verified = None if fix is None else self.verify(context, fix)
-        if verified is not None and not lies_on(track.lying, verified[1].T_base_part):
+        if verified is not None and not fits_prior(track, verified[1].T_base_part, context.t):
             verified = None  # off the support it lies on: a wrong pose the corners fit
         searched = verified is None
         if searched:
@@ -183,7 +184,7 @@ class Acquirer:
                                           else fix.n_points >= search.min_points)
             if enough:
                 verified = self.verify(trial, fix, on_support=True)
-                if verified is not None and lies_on(track.lying, verified[1].T_base_part):
+                if verified is not None and fits_prior(track, verified[1].T_base_part, t):
                     confirmed.append(verified)
         return max(confirmed, key=lambda c: (c[1].n_points, -c[1].rms_px), default=None)
 

@@ -44,7 +44,8 @@ class PartTrack:
     when it was last searched for in the whole images (``searched``, s); the part's ``twins``
     (:func:`~cellsight.tracking.acquisition.twin_turns`); with the kinematic prior, the pose
     of the part lying on its support this frame (``lying``, None: held, or not known) and
-    whether a holder let it go (``let_go``, until one holds it again)."""
+    whether a holder let it go (``let_go``, until one holds it again) and when (``let_go_t``,
+    s)."""
 
     points: np.ndarray
     guess: np.ndarray | None
@@ -65,6 +66,7 @@ class PartTrack:
     twins: list[np.ndarray] = field(default_factory=list)
     lying: np.ndarray | None = None
     let_go: bool = False
+    let_go_t: float = -np.inf
 
     @property
     def acquiring(self) -> bool:
@@ -90,6 +92,8 @@ class PartTrack:
         go), None when there is none."""
         self.lying = None if holder is not None or lying is None else np.asarray(lying,
                                                                                  dtype=float)
+        if holder is None and self.holder is not None:
+            self.let_go_t = float(t)
         self.let_go = holder is None and (self.let_go or self.holder is not None)
         pose = None
         if self.ekf is not None:

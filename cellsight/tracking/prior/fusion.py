@@ -1,7 +1,7 @@
 """The kinematic prior fused into the tracker's filter (for :mod:`cellsight.tracking.tracker`):
 a held part kept with its holder (along a lone camera's sight line every frame), a part lying
 on its support kept there and no faster than the support moves, a part let go kept at rest,
-and a fix off the support it lies on refused."""
+and a fix off the support it lies on, or away from where it was just let go, refused."""
 
 from __future__ import annotations
 
@@ -26,6 +26,8 @@ from cellsight.tracking.motion import POSE_DIM, POSITION
 HOLD_SIGMAS = 3.0  # a held part's estimate this many holder sigmas off has left the grasp
 ACROSS_SIGHT = 1.0  # m: the sigma across a lone camera's sight line of the hold along it
 LYING_TOL = (0.015, 0.15)  # m, rad: a fix this far from its support's height and tilt is wrong
+LET_GO_TOL = 0.02  # m: a fix this far across its support from where a part was let go is wrong
+LET_GO_TRUST_S = 5.0  # s: ... for this long after it was let go
 
 
 class Fused(Protocol):
@@ -75,6 +77,29 @@ def _keep_support_speed(ekf: PoseEKF, speed: tuple[float, float]) -> None:
     rates[:2] *= min(1.0, lin / max(across, 1e-12))
     rates[5] = np.clip(turn, -ang, ang)
     ekf.fuse_prior(ekf.pose, SUPPORT_RATES, [0.1 * lin, 0.1 * lin, 0.1 * ang], rates=rates)
+
+
+class Resting(Protocol):
+    """What :func:`fits_prior` reads of a track: the pose it lies at on its support (None:
+    held, or not known), whether a holder let it go, and when (s)."""
+
+    lying: np.ndarray | None
+    let_go: bool
+    let_go_t: float
+
+
+def fits_prior(track: Resting, T_base_part: np.ndarray, t: float) -> bool:
+    """Whether a pose found for a part at time ``t`` (s) agrees with the kinematic prior: it
+    lies on its support (:func:`lies_on`), and for ``LET_GO_TRUST_S`` after a holder let the
+    part go, within ``LET_GO_TOL`` (m) across the support of where it came to rest (the
+    holder's pose, known to the arm's accuracy, lowered onto the support). On a line, a part
+    lost as the jaws opened over it was found again 50 mm off, its corners fitted by the
+    opening jaws'; afterwards it may have been moved (pushed, taken away)."""
+    if not lies_on(track.lying, T_base_part):
+        return False
+    if track.lying is None or not track.let_go or t - track.let_go_t > LET_GO_TRUST_S:
+        return True
+    return float(np.hypot(*(T_base_part[:2, 3] - track.lying[:2, 3]))) <= LET_GO_TOL
 
 
 def lies_on(lying: np.ndarray | None, T_base_part: np.ndarray) -> bool:
