@@ -63,6 +63,46 @@ def test_a_region_renders_the_whole_images_pixels(distorted: bool):
     world.close()
 
 
+_RENDER_SCRIPT = """
+import os, sys, numpy as np
+from cellsight import load_cell
+from cellsight.world import World
+world = World(load_cell())
+for _ in range(400):
+    world.step({}, {})
+whole = world.render()
+boxes = [(0, 0, 768, 576), (100, 120, 260, 250), (300, 40, 330, 70)]
+np.savez(sys.argv[1], *[world._renderer.render_region(world.scene.data, c, b)
+                        for c in range(len(whole)) for b in boxes], *whole,
+         threads=np.array(os.environ["LP_NUM_THREADS"]))
+"""
+
+
+@pytest.mark.parametrize("threads", ["2", "1"])
+def test_the_rasteriser_s_threads_do_not_change_a_pixel(tmp_path: Path, threads: str):
+    """``cellsight.world`` renders in the calling thread (``LP_NUM_THREADS=0``, set unless the
+    user set it: :mod:`cellsight.world.gl`): the same regions and whole images as the
+    software rasteriser rendering in threads, judged pixel for pixel, each in its own
+    process."""
+    import os
+    import subprocess
+    import sys
+
+    images, used = {}, {}
+    for name, env in (("default", {}), ("threads", {"LP_NUM_THREADS": threads})):
+        environ = {k: v for k, v in os.environ.items() if k != "LP_NUM_THREADS"}
+        out = tmp_path / f"{name}.npz"
+        subprocess.run([sys.executable, "-c", _RENDER_SCRIPT, str(out)], check=True,
+                       env={**environ, **env})
+        with np.load(out) as saved:
+            used[name] = str(saved["threads"])
+            images[name] = [saved[f"arr_{k}"] for k in range(len(saved.files) - 1)]
+    assert used == {"default": "0", "threads": threads}
+    assert len(images["default"]) == len(images["threads"]) > 3
+    for a, b in zip(images["default"], images["threads"], strict=True):
+        np.testing.assert_array_equal(a, b)
+
+
 class _Picture:
     """A renderer of one fixed picture (for the image effects' region arithmetic alone; the
     renderer itself is judged above)."""

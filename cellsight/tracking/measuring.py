@@ -1,11 +1,12 @@
 """One part's features measured in one frame (for :mod:`.tracker` and :mod:`.acquire`): which
 may be measured (predicted visible, not held back next to an occluder, not under an unknown
 occluder), then, for the selected ones, the windows planned around the other parts' features,
-the image regions grabbed, the corners extracted and the observations built."""
+the image regions grabbed (every tracked part's at once, one grab a camera), the corners
+extracted and the observations built."""
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
@@ -21,6 +22,7 @@ from cellsight.tracking.interfaces import (
 )
 from cellsight.tracking.measurement import Observation
 from cellsight.tracking.part_track import StepContext, observed_of
+from cellsight.tracking.windowing import WindowPlan
 
 
 class Measurer:
@@ -68,32 +70,64 @@ class Measurer:
     def measure(self, context: StepContext,
                  covariance: Callable[[int, np.ndarray], np.ndarray],
                  size_px: float | None = None) -> list[Observation]:
-        """Plan the windows of the selected features (``covariance(c, idx)``: their innovation
-        covariances (n, 2, 2) px^2 in camera ``c``; ``size_px``: fixed window size, px),
-        extract, build the observations."""
-        rec, timer, track = context.rec, context.timer, context.track
-        observations = []
+        """Plan the windows of the selected features (:meth:`plan`), grab each camera's,
+        extract and build the observations (:meth:`extract`)."""
+        plans = self.plan(context, covariance, size_px)
+        with context.timer("grab"):
+            seen = [None if plan is None else
+                    grabbed(observed_of(context.observed, self.cameras, c), plan.boxes)
+                    for c, plan in enumerate(plans)]
+        return self.extract(context, plans, seen)
+
+    def plan(self, context: StepContext, covariance: Callable[[int, np.ndarray], np.ndarray],
+             size_px: float | None = None) -> list[WindowPlan | None]:
+        """Per camera, the windows of the selected features (None: none selected there;
+        ``covariance(c, idx)``: their innovation covariances (n, 2, 2) px^2 in camera ``c``;
+        ``size_px``: fixed window size, px), recorded in ``rec.windows``."""
+        rec = context.rec
+        plans: list[WindowPlan | None] = [None] * len(self.cameras)
         for c, cam in enumerate(self.cameras):
             idx = np.flatnonzero(rec.selected[c])
             if len(idx) == 0:
                 continue
-            with timer("windowing"):
+            with context.timer("windowing"):
                 crowd, offsets = context.crowd[c]
                 own = own_rows(*offsets[rec.name], idx)
-                plan = self.windows.plan(cam, rec.pixels[c, idx], idx,
-                                                    covariance(c, idx), crowd, own, size_px)
-                rec.windows[c] = plan
-            with timer("grab"):
-                seen = grabbed(observed_of(context.observed, self.cameras, c), plan.boxes)
-            with timer("extraction"):
-                found = self.extractor.extract(c, seen, plan)
+                plans[c] = rec.windows[c] = self.windows.plan(
+                    cam, rec.pixels[c, idx], idx, covariance(c, idx), crowd, own, size_px)
+        return plans
+
+    def grab(self, observed: Any, plans: Sequence[Sequence[WindowPlan | None]]) -> list[Any]:
+        """Per camera, what it took (``observed``, as given to the tracker's step) read for
+        the windows of every part's ``plans`` (per part, per camera) at once: one grab a
+        camera, each part's windows a group (:func:`~.grabbing.grabbed`); None where no part
+        has windows."""
+        seen: list[Any] = []
+        for c in range(len(self.cameras)):
+            groups = [plan.boxes for part in plans if (plan := part[c]) is not None]
+            seen.append(None if not groups else
+                        grabbed(observed_of(observed, self.cameras, c), groups=groups))
+        return seen
+
+    def extract(self, context: StepContext, plans: Sequence[WindowPlan | None],
+                seen: Sequence[Any]) -> list[Observation]:
+        """The features found in each camera's windows (``plans``) of what it took
+        (``seen``, read for them), in ``rec.measured``, and their observations."""
+        rec, track = context.rec, context.track
+        observations = []
+        for c, plan in enumerate(plans):
+            if plan is None:
+                continue
+            with context.timer("extraction"):
+                found = self.extractor.extract(c, seen[c], plan)
             if not found:
                 continue
             ids = np.array(sorted(found), dtype=np.int64)
             px = np.array([found[i] for i in ids], dtype=float).reshape(-1, 2)
             rec.measured[c, ids] = px
             observations.append(Observation(self.models[c], c, ids, track.points[ids],
-                                            cam.undistort(px), float(context.lags[c])))
+                                            self.cameras[c].undistort(px),
+                                            float(context.lags[c])))
         return observations
 
 

@@ -9,25 +9,27 @@ protocol of :mod:`.interfaces` with its default in its own module):
 2. the visibility source (:class:`cellsight.visibility.VisibilitySource`: the BSP predictor)
    predicts, at the predicted poses, which features each camera sees; every tracked part is
    passed, so parts can hide each other;
-3. per part: a part not tracked yet, or lost, is acquired (:mod:`.acquisition`: windows at
-   the guess or the last prediction, or where it was let go by a gripper; a part that a
-   gripper holds starts where the gripper holds it, ``holders`` of :meth:`Tracker.step`;
-   failing that, at most every ``search.every_s``, the whole-image search over its support
-   plane, :mod:`.search`, each of its best candidates tried with the same windows and PnP,
-   the confirmed fix of the most points taken; a fix stands only when narrow windows where
-   it predicts the part's features confirm it); otherwise (:mod:`.update`) the selector
-   chooses among the usable features (:mod:`.eligibility`, :mod:`.selection`), the window
-   planner places their windows (:mod:`.windowing`), the extractor finds them in
-   what the sensors took (:mod:`.extraction`), the gate (:mod:`.gate`) screens the innovations
-   and the EKF updates with the accepted ones (:mod:`.measurement`, :mod:`.ekf`); the track's
-   health monitor (:mod:`.health`) takes the frame's outcome, and a tracked part whose figures
-   pass its limits is degraded (so is every tracked part while the cameras await their
-   registration to an arm: ``TrackerConfig.awaiting_registration``); the unknown-occluder
-   map (:mod:`.unknown`, shared by the parts; off by default) learns from the features not
-   found, or rejected where their camera accepted none, and no feature it covers is selected
-   or used for acquisition; the camera check (:mod:`.camera_check`, shared) drops a camera
-   whose innovations are consistently biased while another's are not, and re-estimates its
-   pose.
+3. the parts to acquire after the tracked ones. Each tracked part (:mod:`.update`): the
+   selector chooses among the usable features (:mod:`.eligibility`, :mod:`.selection`) and
+   the window planner places their windows (:mod:`.windowing`); each camera's windows of
+   every tracked part are grabbed at once (:mod:`.grabbing`); then part by part the
+   extractor finds them in what the sensors took (:mod:`.extraction`), the gate
+   (:mod:`.gate`) screens the innovations and the EKF updates with the accepted ones
+   (:mod:`.measurement`, :mod:`.ekf`); the track's health monitor (:mod:`.health`) takes the
+   frame's outcome, and a tracked part whose figures pass its limits is degraded (so is every
+   tracked part while the cameras await their registration to an arm:
+   ``TrackerConfig.awaiting_registration``); the unknown-occluder map (:mod:`.unknown`,
+   shared by the parts; off by default) learns from the features not found, or rejected where
+   their camera accepted none, and no feature it covers is selected or used for acquisition;
+   the camera check (:mod:`.camera_check`, shared) drops a camera whose innovations are
+   consistently biased while another's are not, and re-estimates its pose. A part not
+   tracked yet, or lost, is acquired (:mod:`.acquisition`: windows at the guess or the last
+   prediction, or where it was let go by a gripper; a part that a gripper holds starts where
+   the gripper holds it, ``holders`` of :meth:`Tracker.step`; failing that, at most every
+   ``search.every_s``, the whole-image search over its support plane, :mod:`.search`, each of
+   its best candidates tried with the same windows and PnP, the confirmed fix of the most
+   points taken; a fix stands only when narrow windows where it predicts the part's features
+   confirm it).
 
 Within a step, each part's work carries one :class:`StepContext`. Measured pixels are as in the
 image (distorted); the camera undistorts them before the update. Stage times: :mod:`.timing`;
@@ -36,7 +38,7 @@ statuses: :mod:`.status`; records: :mod:`.records`.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -46,7 +48,6 @@ from cellsight.geometry.transforms import xyz_rpy_from_pose
 from cellsight.tracking.acquire import Acquirer
 from cellsight.tracking.acquisition import twin_turns
 from cellsight.tracking.adaptive_noise import AdaptiveNoise
-from cellsight.tracking.camera_check import CameraCheck
 from cellsight.tracking.config import TrackerConfig, TrackerParts
 from cellsight.tracking.ekf import PoseEKF
 from cellsight.tracking.eligibility import NearOccluderHold
@@ -63,7 +64,7 @@ from cellsight.tracking.part_track import (
 )
 from cellsight.tracking.records import PartFrame, TrackerFrame
 from cellsight.tracking.timing import StageTimer
-from cellsight.tracking.update import Updater
+from cellsight.tracking.update import Updater, with_held_out
 from cellsight.visibility import Recalibrating, Views, VisibilitySource
 
 
@@ -192,25 +193,21 @@ class Tracker:
         mapping by camera name; None for a camera that gave nothing, or for the whole frame), each
         passed to the extractor: an image for the corner extractor, or whatever the extractor
         measures; ``joints``: robot name -> joint vector (m, rad) and ``openings``: robot name ->
-        jaw opening (m), for the visibility source; ``holders`` (the kinematic prior, optional):
-        part name -> ``T_base_part`` where what holds the part rigidly this frame puts it (a
-        gripper closed on it: its TCP from the joint measurements times the grasp's
-        ``T_tcp_part``); a part held at this frame and the last one is predicted by the holder's
-        motion (:meth:`PoseEKF.predict_carried`) instead of its motion model, a held part's
-        estimate is kept with the holder's pose (:func:`~.prior.fusion.fuse_priors`,
-        ``TrackerConfig.hold_std``; along a lone camera's sight line,
-        :func:`~.prior.fusion.hold_along_sight`) and is never lost, a held part never
-        tracked starts there (``TrackerConfig.held_std``), one let go comes to rest (its rates
-        zeroed: it no longer moves with the holder, and stays still), and one let go while not
-        tracked is looked for where it was let go; ``stamps`` (optional): each camera's exposure
-        time (s, at most ``t``; a sequence in camera order or a mapping by camera name, None for
-        ``t``), for cameras not triggered together: the filter is predicted to ``t`` and each
-        camera measures the pose of its own exposure
-        (:class:`~cellsight.tracking.measurement.Observation` ``lag_s``); ``supports`` (the
-        kinematic prior, optional): part name -> ``T_base_part`` of the part lying on the level
-        support it rests on this frame (a conveyor's belt, a table): a tracked part not held keeps
-        that height, roll and pitch (:meth:`PoseEKF.fuse_prior`, ``TrackerConfig.rest_std``), and a
-        lost one is searched for on that support's plane (a fix off it refused, ``LYING_TOL``).
+        jaw opening (m), for the visibility source; ``holders`` and ``supports`` (the
+        kinematic prior, optional; :mod:`.prior`): part name -> ``T_base_part`` where what
+        holds the part rigidly this frame puts it (a gripper closed on it: its TCP from the
+        joint measurements times the grasp's ``T_tcp_part``), and of a part lying on the level
+        support it rests on this frame (a conveyor's belt, a table). A held part is carried
+        by its holder's motion (:meth:`PoseEKF.predict_carried`), kept with the holder's pose
+        (:func:`~.prior.fusion.fuse_priors`, ``TrackerConfig.hold_std``) and never lost; one
+        never tracked starts there (``TrackerConfig.held_std``); one let go comes to rest, and
+        is looked for where it was let go. A lying part keeps its support's height, roll and
+        pitch (``TrackerConfig.rest_std``), and a lost one is searched for on its plane (a fix
+        off the prior refused: :func:`~.prior.fusion.fits_prior`). ``stamps`` (optional): each
+        camera's exposure time (s, at most ``t``; a sequence in camera order or a mapping by
+        camera name, None for ``t``), for cameras not triggered together: the filter is
+        predicted to ``t`` and each camera measures the pose of its own exposure
+        (:class:`~cellsight.tracking.measurement.Observation` ``lag_s``).
         """
         lags = _lags(stamps, self.cameras, t)
         timer = StageTimer()
@@ -226,13 +223,17 @@ class Tracker:
                 with timer("occlusion"):
                     return self.predictor.predict(joints, {**poses, name: T_base_part}, openings)
 
+            tracked, acquiring = [], []
             for name, track in self.tracks.items():
                 part_views = views.get(name)
                 rec = records[name] = track.frame_record(name, part_views, len(self.cameras))
                 if part_views is not None:
                     context = StepContext(t, observed, crowd, timer, track, rec, look, lags)
-                    part_step = self.acquirer.acquire if track.acquiring else self.updater.step
-                    records[name] = _with_held_out(self.camera_check, part_step, context)
+                    (acquiring if track.acquiring else tracked).append(context)
+            records.update(self.updater.step_all(tracked))
+            for context in acquiring:
+                records[context.rec.name] = with_held_out(self.camera_check,
+                                                          self.acquirer.acquire, context)
         masks = [self.unknown.mask(c, t) for c in range(len(self.cameras))]
         return TrackerFrame(float(t), records, timer.seconds, _grabbed(records, len(self.cameras)),
                             masks)
@@ -262,16 +263,6 @@ class Tracker:
             if pose is not None:
                 poses[name] = pose
         return poses
-
-
-def _with_held_out(check: CameraCheck, step: Callable[[StepContext], PartFrame],
-                   context: StepContext) -> PartFrame:
-    """``step(context)``'s record, with the cameras the camera check held out of the filter as
-    the step began (``PartFrame.held_out``; the check moves on at the step's end)."""
-    held_out = ~check.in_filter()
-    rec = step(context)
-    rec.held_out = held_out
-    return rec
 
 
 def _lags(stamps: Any, cameras: Sequence[Camera], t: float) -> np.ndarray:

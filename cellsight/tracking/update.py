@@ -1,13 +1,15 @@
-"""A tracked part's step (for :mod:`.tracker`; the paper's loop): the selector chooses among
-the usable features, the window planner places their windows, the extractor finds them, the gate
-screens the innovations and the EKF updates with the accepted ones; then the track's health
-monitor, the unknown-occluder map, the loss rule and the camera check take the frame's
-outcome."""
+"""The tracked parts' step (for :mod:`.tracker`; the paper's loop): for every tracked part, the
+selector chooses among the usable features and the window planner places their windows; each
+camera's windows of every part are grabbed at once; then part by part the extractor finds
+them, the gate screens the innovations and the EKF updates with the accepted ones, and the
+track's health monitor, the unknown-occluder map, the loss rule and the camera check take the
+frame's outcome."""
 
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import replace
+from functools import partial
 from typing import Any, Protocol
 
 import numpy as np
@@ -30,6 +32,7 @@ from cellsight.tracking.prior.fusion import hold_along_sight, off_holder
 from cellsight.tracking.records import PartFrame
 from cellsight.tracking.selection import camera_resolution
 from cellsight.tracking.status import TrackStatus
+from cellsight.tracking.windowing import WindowPlan
 
 UNREGISTERED = "cameras not registered yet"  # the reason while awaiting the registration
 
@@ -44,14 +47,29 @@ class Updating(Measuring, Protocol):
 
 
 class Updater:
-    """A tracked part's step for ``tracker`` (module docstring)."""
+    """The tracked parts' step for ``tracker`` (module docstring)."""
 
     def __init__(self, tracker: Updating) -> None:
         self.tracker = tracker
 
-    def step(self, context: StepContext) -> PartFrame:
-        """Select, window, extract, gate and update (the paper's loop), then the health
-        monitor: tracking, or degraded when it finds reasons. Returns the part's record."""
+    def step_all(self, contexts: Sequence[StepContext]) -> dict[str, PartFrame]:
+        """Every tracked part's step (the paper's loop) in one pass: each part's features
+        selected and their windows planned, then each camera's windows of every part grabbed
+        at once, then part by part: extract, gate, update and the health monitor (tracking, or
+        degraded when it finds reasons). Returns each part's record, by name."""
+        if not contexts:
+            return {}
+        plans = [self._plan(context) for context in contexts]
+        with contexts[0].timer("grab"):
+            seen = self.tracker.measurer.grab(contexts[0].observed, plans)
+        records = {}
+        for context, plan in zip(contexts, plans, strict=True):
+            finish = partial(self._finish, plans=plan, seen=seen)
+            records[context.rec.name] = with_held_out(self.tracker.camera_check, finish, context)
+        return records
+
+    def _plan(self, context: StepContext) -> list[WindowPlan | None]:
+        """Select among the part's usable features and plan their windows, per camera."""
         tracker = self.tracker
         rec, track, timer = context.rec, context.track, context.timer
         ekf = track.ekf
@@ -65,7 +83,17 @@ class Updater:
         def covariance(c: int, idx: np.ndarray) -> np.ndarray:
             return ekf.innovation_covariance(tracker.models[c], c, track.points[idx])[1]
 
-        obs = tracker.measurer.measure(context, covariance)
+        return tracker.measurer.plan(context, covariance)
+
+    def _finish(self, context: StepContext, plans: Sequence[WindowPlan | None],
+                seen: Sequence[Any]) -> PartFrame:
+        """Extract the part's windows (``plans``) from what each camera gave (``seen``, read
+        for every part's windows), gate, update, then the health monitor. Returns the part's
+        record."""
+        tracker = self.tracker
+        rec, track = context.rec, context.track
+        ekf, timer = track.ekf, context.timer
+        obs = tracker.measurer.extract(context, plans, seen)
         looked = rec.selected & cameras_grabbed(context.observed, tracker.cameras)[:, None]
         check, loss = tracker.camera_check, tracker.components.loss
         filtered = check.in_filter()
@@ -103,6 +131,16 @@ class Updater:
         _check_cameras(check, tracker.measurer.detect, tracker.cameras, context, looked,
                        report.n_accepted > 0)
         return rec
+
+
+def with_held_out(check: CameraCheck, step: Callable[[StepContext], PartFrame],
+                  context: StepContext) -> PartFrame:
+    """``step(context)``'s record, with the cameras the camera check held out of the filter as
+    the step began (``PartFrame.held_out``; the check moves on at the step's end)."""
+    held_out = ~check.in_filter()
+    rec = step(context)
+    rec.held_out = held_out
+    return rec
 
 
 def _learn_unknown(unknown: OccluderMap, t: float, rec: PartFrame, looked: np.ndarray) -> None:

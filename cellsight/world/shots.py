@@ -10,6 +10,14 @@ to that region (:class:`~cellsight.world.images.Imager`), so the pixels read are
 the whole image, which :meth:`Shot.whole` renders, as a whole render of the same state would
 show them (:mod:`cellsight.world.render` says to what precision). It is the
 :class:`~cellsight.tracking.grabbing.OnDemandImage` of the tracker.
+
+The tracker grabs every tracked part's windows of a camera at once, each part's a group. Each
+group's region (the bounding box of its windows) is rendered, except that two regions are
+rendered as one (their bounding box) where that costs less (:func:`merged_regions`): a render
+costs about as much as ``RENDER_PX`` of its pixels. Measured in rendered runs of the line
+(``line-cell``, lab, seed 3; regions of 1,600-32,000 pixels, one render each): 0.91 ms a
+render and 0.046 us a pixel, the ratio 19,800 pixels; rendering regions of one size alone,
+0.33 ms and 0.017 us, 19,400 pixels.
 """
 
 from __future__ import annotations
@@ -21,6 +29,34 @@ import numpy as np
 from cellsight.world.exposure_time import combine
 from cellsight.world.images import Imager
 from cellsight.world.render import GrayRenderer
+
+RENDER_PX = 20_000  # a render costs about as much as this many of its pixels (module docstring)
+
+
+def merged_regions(regions: Sequence[tuple[int, int, int, int]],
+                   render_px: float = RENDER_PX) -> list[tuple[int, int, int, int]]:
+    """Half-open ``(u0, v0, u1, v1)`` regions, two at a time replaced by their bounding box
+    while that saves the most (a render costs ``render_px`` pixels; module docstring), until
+    no pair's does: every region lies inside one of those returned."""
+    out = [tuple(int(x) for x in r) for r in regions]
+    while len(out) > 1:
+        best, pair = 0.0, None
+        for i in range(len(out)):
+            for j in range(i + 1, len(out)):
+                a, b = out[i], out[j]
+                union = (min(a[0], b[0]), min(a[1], b[1]), max(a[2], b[2]), max(a[3], b[3]))
+                saved = render_px + _area(a) + _area(b) - _area(union)
+                if saved > best:
+                    best, pair = saved, (i, j, union)
+        if pair is None:
+            break
+        i, j, union = pair
+        out = [r for k, r in enumerate(out) if k not in (i, j)] + [union]
+    return out
+
+
+def _area(box: tuple[int, int, int, int]) -> int:
+    return (box[2] - box[0]) * (box[3] - box[1])
 
 
 class Shot:
@@ -65,24 +101,26 @@ class Shot:
                                                             scale)
         return image if self._imager is None else self._imager.whole(image, self.t, self.offset)
 
-    def grab(self, boxes: Sequence[Sequence[int]]) -> np.ndarray:
+    def grab(self, boxes: Sequence[Sequence[int]],
+             groups: Sequence[int] | None = None) -> np.ndarray:
         """(H, W) uint8: the image's pixels in the bounding box of ``boxes`` (half-open
-        ``(u0, v0, u1, v1)``, clipped to the image), 0 elsewhere; the whole image once it has
-        been rendered."""
+        ``(u0, v0, u1, v1)``, clipped to the image), or with ``groups`` (per box, its group)
+        in each group's bounding box, those rendered together where that costs less (module
+        docstring), 0 elsewhere; the whole image once it has been rendered."""
         if self._whole is not None:
             return self._whole
         canvas = np.zeros(self.shape, np.uint8)
-        region = self._region(boxes)
-        if region is None:
-            return canvas
-        u0, v0, u1, v1 = region
-        canvas[v0:v1, u0:u1] = self._read(region)
+        b = np.asarray(boxes, dtype=np.int64).reshape(-1, 4)
+        labels = np.zeros(len(b), np.int64) if groups is None else np.asarray(groups)
+        regions = [r for g in np.unique(labels) if (r := self._region(b[labels == g]))]
+        for region in merged_regions(regions):
+            u0, v0, u1, v1 = region
+            canvas[v0:v1, u0:u1] = self._read(region)
         return canvas
 
-    def _region(self, boxes: Sequence[Sequence[int]]) -> tuple[int, int, int, int] | None:
-        """The boxes' bounding box inside the image, widened to whole JPEG blocks when the
-        camera compresses; None when empty."""
-        b = np.asarray(boxes, dtype=np.int64).reshape(-1, 4)
+    def _region(self, b: np.ndarray) -> tuple[int, int, int, int] | None:
+        """The bounding box of boxes ``b`` (n, 4) inside the image, widened to whole JPEG
+        blocks when the camera compresses; None when empty."""
         if len(b) == 0:
             return None
         h, w = self.shape
