@@ -9,6 +9,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from cellsight import load_cell
 from cellsight.camera import Camera
@@ -17,7 +19,7 @@ from cellsight.model import Cell
 from cellsight.tracking.grabbing import OnDemandImage, grabbed
 from cellsight.world import World
 from cellsight.world.images import ImageEffects, Imager
-from cellsight.world.shots import Shot
+from cellsight.world.shots import RENDER_PX, Shot, merged_regions
 
 
 def _distorted(cell: Cell) -> Cell:
@@ -139,6 +141,59 @@ def test_image_effects_give_a_region_the_whole_images_pixels():
     whole = shot.whole()
     assert np.abs(other.astype(int) - whole).mean() > 1.0
     assert np.abs(whole.astype(int) - picture).mean() > 2.0
+
+
+_BOX = st.tuples(st.integers(0, 700), st.integers(0, 500), st.integers(1, 300),
+                 st.integers(1, 300)).map(lambda b: (b[0], b[1], b[0] + b[2], b[1] + b[3]))
+
+
+def _cost(regions, render_px: float) -> float:
+    return sum(render_px + (r[2] - r[0]) * (r[3] - r[1]) for r in regions)
+
+
+def _union(a, b):
+    return (min(a[0], b[0]), min(a[1], b[1]), max(a[2], b[2]), max(a[3], b[3]))
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.lists(_BOX, max_size=7), st.sampled_from([0.0, 2_000.0, RENDER_PX, 200_000.0]))
+def test_regions_are_merged_only_where_one_render_costs_less(regions, render_px):
+    """``merged_regions`` against the cost computed apart (a render's ``render_px`` plus its
+    pixels): every region lies inside one returned, the cost never rises, and no two returned
+    would cost less as one."""
+    out = merged_regions(regions, render_px)
+    assert all(any(o[0] <= r[0] and o[1] <= r[1] and r[2] <= o[2] and r[3] <= o[3] for o in out)
+               for r in regions)
+    assert _cost(out, render_px) <= _cost(regions, render_px)
+    for i, a in enumerate(out):
+        for b in out[i + 1:]:
+            assert _cost([_union(a, b)], render_px) >= _cost([a, b], render_px)
+
+
+def test_every_part_s_windows_in_one_grab_are_the_whole_image_s_pixels():
+    """A grab of several groups of windows (each part's windows, :meth:`Shot.grab` with
+    ``groups``) gives, in every window, the whole render's pixels (to the anti-aliased edge
+    samples of a shifted viewport, :mod:`cellsight.world.render`); with one group, exactly
+    the grab of its boxes."""
+    world = World(load_cell())
+    for _ in range(400):
+        world.step({}, {})
+    whole = world.render()
+    shot = world.render(on_demand=True)[0]
+    rng = np.random.default_rng(3)
+    width, height = world._renderer.size(0)
+    boxes = _boxes(rng, width, height, 30)
+    groups = [int(g) for g in rng.integers(0, 4, len(boxes))]
+    together = shot.grab(boxes, groups)
+    differing = total = 0
+    for u0, v0, u1, v1 in boxes:
+        diff = together[v0:v1, u0:u1].astype(int) - whole[0][v0:v1, u0:u1]
+        differing, total = differing + np.count_nonzero(diff), total + diff.size
+    assert total > 10 ** 5 and differing <= 1e-4 * total
+    one = [b for b, g in zip(boxes, groups, strict=True) if g == 0]
+    assert np.array_equal(world.render(on_demand=True)[0].grab(one, [0] * len(one)),
+                          world.render(on_demand=True)[0].grab(one))
+    world.close()
 
 
 def test_a_shot_is_the_state_it_was_taken_in():
