@@ -7,10 +7,10 @@ Without a GPU, Mesa's software rasteriser (llvmpipe) renders, by default in as m
 there are cores, handing each render to them and waiting. Most renders here are the tracker's
 windows (:meth:`~cellsight.world.render.GrayRenderer.render_region`, about 11,000 pixels),
 for which the hand-over costs more than the threads gain: rendered in the calling thread
-(``LP_NUM_THREADS=0``), a 20 s rendered run of the line (``line-cell``, lab, seed 3) grabs its
-windows in 10.7 ms a frame instead of 13.3 ms, and runs in 24.8 s instead of 26.4 s, with the
-same pixels (its logs identical), on a 2-core machine. It is set unless the user set it; a GPU's
-driver ignores it.
+(``LP_NUM_THREADS=0``), the windows of a frame of the bench line (the cell of
+``bench/bench_many_parts.py``, 4 parts, 6 cameras) render in 4.3-4.7 ms instead of
+5.2-5.8 ms (two runs each, in turn, on a 2-core machine), with the same pixels
+(``tests/test_shots.py``). It is set unless the user set it; a GPU's driver ignores it.
 """
 
 from __future__ import annotations
