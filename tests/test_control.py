@@ -345,8 +345,8 @@ def test_min_jerk_profile() -> None:
 
 
 def test_grasp_pose_geometry() -> None:
-    """Tool z down, tool y along the part's y axis, TCP at the cell file's grasp point (mid-height,
-    1 cm off-centre); of the two symmetric grasps the planner picks the one nearer in
+    """Tool z down, tool y along the part's y axis, TCP at the cell file's grasp point (3 mm above
+    mid-height, 1 cm off-centre); of the two symmetric grasps the planner picks the one nearer in
     orientation."""
     T_part = PART.T_base_part
     planner = TrajectoryPlanner(grasp_pose(PART))
@@ -354,7 +354,7 @@ def test_grasp_pose_geometry() -> None:
     G = planner.grasp_pose(T_part, T_home)
     np.testing.assert_allclose(G[:3, 2], [0.0, 0.0, -1.0], atol=1e-12)
     assert abs(G[:3, 1] @ T_part[:3, 1]) == pytest.approx(1.0)
-    np.testing.assert_allclose(G[:3, 3], (T_part @ [0.0, -0.01, 0.015, 1.0])[:3], atol=1e-12)
+    np.testing.assert_allclose(G[:3, 3], (T_part @ [0.0, -0.01, 0.018, 1.0])[:3], atol=1e-12)
     other = G @ HALF_TURN_Z
     assert _angle(G[:3, :3], T_home[:3, :3]) < _angle(other[:3, :3], T_home[:3, :3])
     np.testing.assert_allclose(planner.grasp_pose(T_part, other), other, atol=1e-12)
