@@ -28,11 +28,11 @@ def test_iiwa_cell_loads_by_name(cell):
     robot = cell.robot("IIWA_A")
     assert robot.chain.n == 7  # joint_a1 .. joint_a7
     assert cell.robot("IIWA_B").chain.n == 7
-    # HOME holds the part 17 cm over the conveyor's near edge, FINAL 3 mm over the table, both
+    # HOME holds the part 17 cm over the conveyor's near edge, FINAL on the table, both
     # at least 25 deg inside every joint's limits
     part = cell.workpiece("part")
     qlim = robot.chain.qlim
-    for q, z in ((robot.home, 0.62 + 0.17), (robot.final, 0.553)):
+    for q, z in ((robot.home, 0.62 + 0.167), (robot.final, 0.55)):
         robot.chain.check_q(q, check_limits=True)
         assert np.degrees(np.minimum(q - qlim[:, 0], qlim[:, 1] - q)).min() > 25.0
         T_part = robot.tcp_pose(q) @ np.linalg.inv(part.T_part_grasp)

@@ -17,7 +17,7 @@ from cellsight.cli import main
 from cellsight.control.ik import BRANCH_FLAGS, IKError, branch_of, solve_ik
 from cellsight.geometry.transforms import pose_from_xyz_rpy
 from cellsight.kinematics import DHChain
-from cellsight.model.grasp import default_grasp_pose
+from cellsight.model.grasp import grasp_pose
 
 
 def _check_every_solution(robot, T_goal, result) -> None:
@@ -91,7 +91,7 @@ def test_the_command_holds_a_part_and_says_what_the_cameras_see(capsys):
     cell = load_cell()
     robot, part = cell.robot("R7AX"), cell.workpiece("part")
     T_part = pose_from_xyz_rpy([0.6, 0.0, 0.62], [0, 0, 0.35])
-    T_tcp = T_part @ default_grasp_pose(part.solid, robot.tool)
+    T_tcp = T_part @ grasp_pose(part, robot.tool)
     for s in out["solutions"]:
         held = robot.tcp_pose(np.array(s["q"]))
         assert np.linalg.norm(held[:3, 3] - T_tcp[:3, 3]) < 1e-4  # q printed to 4 decimals

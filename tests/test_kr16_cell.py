@@ -26,9 +26,9 @@ def test_kr16_cell_loads_by_name(cell):
     assert cell.source == str(builtin_cell_path("kr16-cell"))
     robot = cell.robot("KR16A")
     assert robot.chain.n == 6  # joint_a1 .. joint_a6
-    # HOME holds the part 17 cm over the conveyor's near edge, FINAL 3 mm over the table
+    # HOME holds the part 17 cm over the conveyor's near edge, FINAL on the table
     part = cell.workpiece("part")
-    for q, z in ((robot.home, 0.62 + 0.17), (robot.final, 0.553)):
+    for q, z in ((robot.home, 0.62 + 0.167), (robot.final, 0.55)):
         robot.chain.check_q(q, check_limits=True)
         T_part = robot.tcp_pose(q) @ np.linalg.inv(part.T_part_grasp)
         assert T_part[2, 3] == pytest.approx(z, abs=2e-3)
