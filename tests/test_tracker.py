@@ -721,7 +721,7 @@ def test_a_fix_of_a_part_just_let_go_lies_where_it_came_to_rest(distance, headin
     lying = make_pose(np.eye(3), [0.5, -0.29, 0.62])
     fix = lying.copy()
     fix[:2, 3] += distance * np.array([np.cos(heading), np.sin(heading)])
-    track = SimpleNamespace(lying=lying, let_go=let_go, let_go_t=100.0)
+    track = SimpleNamespace(lying=lying, let_go_t=100.0 if let_go else None)
     t = 100.0 + since
     margin = 1e-9
     if not let_go or since > LET_GO_TRUST_S + margin or distance < LET_GO_TOL - margin:
@@ -742,12 +742,12 @@ def test_a_track_knows_when_its_holder_let_it_go():
     rest = make_pose(np.eye(3), [0.5, 0.0, 0.62])
     loss = LossRule()
     track.predict_to(1.0, pose, None, loss, cfg)
-    assert not track.let_go
+    assert track.let_go_t is None
     track.predict_to(1.04, None, rest, loss, cfg)
     track.predict_to(1.08, None, rest, loss, cfg)
-    assert track.let_go and track.let_go_t == 1.04
+    assert track.let_go_t == 1.04
     track.predict_to(2.0, pose, None, loss, cfg)
-    assert not track.let_go
+    assert track.let_go_t is None
 
 
 def test_a_part_let_go_while_the_cameras_are_blind_rests_where_it_was_let_go():

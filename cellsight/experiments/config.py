@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from cellsight.errors import CellsightError
 from cellsight.export.live import parse_address
@@ -13,6 +14,9 @@ from cellsight.fields import NamedEnum
 from cellsight.realism import Profile
 from cellsight.trackers import DEFAULT_TRACKER, TrackerChoice
 from cellsight.visibility import OBJECT_BVH, STRUCTURES
+
+if TYPE_CHECKING:
+    from cellsight.model.cell import Cell
 
 
 class Sensor(NamedEnum):
@@ -27,6 +31,14 @@ class Sensor(NamedEnum):
     def takes_images(self) -> bool:
         """Its cameras take images (to extract corners from, record, draw)."""
         return self is Sensor.RENDERED
+
+    def cannot_run(self, cell: Cell, name: str) -> str | None:
+        """Why this sensor cannot run ``cell`` (``name``: the cell as the message names it),
+        or None: the ideal sensor draws one part, and a line has several picks."""
+        picks = cell.picked_workpieces()
+        if self is Sensor.IDEAL and len(picks) > 1:
+            return f"{name} is a line ({len(picks)} picks) and the ideal sensor sees one part"
+        return None
 
 
 @dataclass(frozen=True)

@@ -76,15 +76,14 @@ class ExperimentRun:
         self.scenario: Scenario = scenario(self.cell, config.experiment, self.draws.scenario)
         sc, cell = self.scenario, self.cell
         self.robot, self.part = sc.robot, sc.workpiece
+        refused = config.sensor.cannot_run(cell, cell.source)
+        if refused is not None:
+            raise CellsightError(f"{refused}; run it with --sensor rendered")
         self.world: SimulatedCell = (
             world if world is not None
             else World(self.draws.cell, seed=config.seed, conveyor=sc.conveyors, tasks=sc.tasks,
                        errors=self.draws.errors))
         ideal = not config.sensor.takes_images
-        if ideal and len(sc.picks) > 1:
-            raise CellsightError(f"{cell.source}: the ideal sensor sees one part, and this "
-                                 f"cell is a line ({len(sc.picks)} picks, experiments.picks); "
-                                 f"run it with --sensor rendered")
         exposures = Exposures(self.world, self.draws.trigger_skew_s, ideal, self.part.name,
                               config.full_frames or config.record is not None)
         end = (config.duration if config.duration is not None

@@ -180,16 +180,18 @@ def _check_cells(cells: Sequence[str], sensors: Sequence[str]) -> None:
     """Load each cell once (a file or a built-in name): one that does not is refused here,
     before any run, rather than as every one of its runs failing; so is a line (several
     picks) with the ideal sensor, which sees one part."""
+    from cellsight.experiments.config import Sensor
     from cellsight.model.loader import load_cell
 
     for cell in dict.fromkeys(cells):
         try:
-            picks = load_cell(cell).picked_workpieces()
+            loaded = load_cell(cell)
         except CellsightError as exc:
             raise CellsightError(f"--cells: {exc}") from exc
-        if len(picks) > 1 and "ideal" in sensors:
-            raise CellsightError(f"--sensors: {cell} is a line ({len(picks)} picks) and the "
-                                 f"ideal sensor sees one part; give --sensors rendered")
+        for sensor in dict.fromkeys(sensors):
+            refused = Sensor(sensor).cannot_run(loaded, cell)
+            if refused is not None:
+                raise CellsightError(f"--sensors: {refused}; give --sensors rendered")
 
 
 def _check_one_folder_each(specs: list[RunSpec]) -> None:

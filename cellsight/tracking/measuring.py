@@ -74,9 +74,7 @@ class Measurer:
         extract and build the observations (:meth:`extract`)."""
         plans = self.plan(context, covariance, size_px)
         with context.timer("grab"):
-            seen = [None if plan is None else
-                    grabbed(observed_of(context.observed, self.cameras, c), plan.boxes)
-                    for c, plan in enumerate(plans)]
+            seen = self.grab(context.observed, [plans])
         return self.extract(context, plans, seen)
 
     def plan(self, context: StepContext, covariance: Callable[[int, np.ndarray], np.ndarray],

@@ -44,8 +44,7 @@ class PartTrack:
     when it was last searched for in the whole images (``searched``, s); the part's ``twins``
     (:func:`~cellsight.tracking.acquisition.twin_turns`); with the kinematic prior, the pose
     of the part lying on its support this frame (``lying``, None: held, or not known) and
-    whether a holder let it go (``let_go``, until one holds it again) and when (``let_go_t``,
-    s)."""
+    when a holder last let it go (``let_go_t``, s; None: never, or held again since)."""
 
     points: np.ndarray
     guess: np.ndarray | None
@@ -65,8 +64,7 @@ class PartTrack:
     support: np.ndarray | None = None
     twins: list[np.ndarray] = field(default_factory=list)
     lying: np.ndarray | None = None
-    let_go: bool = False
-    let_go_t: float = -np.inf
+    let_go_t: float | None = None
 
     @property
     def acquiring(self) -> bool:
@@ -92,9 +90,10 @@ class PartTrack:
         go), None when there is none."""
         self.lying = None if holder is not None or lying is None else np.asarray(lying,
                                                                                  dtype=float)
-        if holder is None and self.holder is not None:
+        if holder is not None:
+            self.let_go_t = None
+        elif self.holder is not None:
             self.let_go_t = float(t)
-        self.let_go = holder is None and (self.let_go or self.holder is not None)
         pose = None
         if self.ekf is not None:
             if holder is not None and self.holder is not None:

@@ -30,14 +30,21 @@ LET_GO_TOL = 0.02  # m: a fix this far across its support from where a part was 
 LET_GO_TRUST_S = 5.0  # s: ... for this long after it was let go
 
 
-class Fused(Protocol):
-    """What :func:`fuse_priors` reads and writes of a track: its filter, the pose it lies at
-    on its support (None: held, or not known), whether a holder let it go, and the times of
-    its last accepted measurement and since when it was looked for in vain (s)."""
+class Resting(Protocol):
+    """What :func:`fits_prior` reads of a track: the pose it lies at on its support (None:
+    held, or not known) and when a holder last let it go (s; None: never, or held again
+    since)."""
+
+    lying: np.ndarray | None
+    let_go_t: float | None
+
+
+class Fused(Resting, Protocol):
+    """What :func:`fuse_priors` reads and writes of a track: what :class:`Resting` says, its
+    filter, and the times of its last accepted measurement and since when it was looked for
+    in vain (s)."""
 
     ekf: PoseEKF
-    lying: np.ndarray | None
-    let_go: bool
     last_update: float
     unseen_since: float
 
@@ -58,7 +65,7 @@ def fuse_priors(track: Fused, t: float, holder: np.ndarray | None,
     if track.lying is not None:
         track.ekf.fuse_prior(track.lying, RESTING, [h, a, a, h, a, a])
         _keep_support_speed(track.ekf, config.support_speed)
-    if track.let_go:
+    if track.let_go_t is not None:
         track.ekf.fuse_prior(track.ekf.pose, STILL, [h, h, h, a, a, a])
 
 
@@ -79,15 +86,6 @@ def _keep_support_speed(ekf: PoseEKF, speed: tuple[float, float]) -> None:
     ekf.fuse_prior(ekf.pose, SUPPORT_RATES, [0.1 * lin, 0.1 * lin, 0.1 * ang], rates=rates)
 
 
-class Resting(Protocol):
-    """What :func:`fits_prior` reads of a track: the pose it lies at on its support (None:
-    held, or not known), whether a holder let it go, and when (s)."""
-
-    lying: np.ndarray | None
-    let_go: bool
-    let_go_t: float
-
-
 def fits_prior(track: Resting, T_base_part: np.ndarray, t: float) -> bool:
     """Whether a pose found for a part at time ``t`` (s) agrees with the kinematic prior: it
     lies on its support (:func:`lies_on`), and for ``LET_GO_TRUST_S`` after a holder let the
@@ -97,7 +95,7 @@ def fits_prior(track: Resting, T_base_part: np.ndarray, t: float) -> bool:
     opening jaws'; afterwards it may have been moved (pushed, taken away)."""
     if not lies_on(track.lying, T_base_part):
         return False
-    if track.lying is None or not track.let_go or t - track.let_go_t > LET_GO_TRUST_S:
+    if track.lying is None or track.let_go_t is None or t - track.let_go_t > LET_GO_TRUST_S:
         return True
     return float(np.hypot(*(T_base_part[:2, 3] - track.lying[:2, 3]))) <= LET_GO_TOL
 
