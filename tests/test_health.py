@@ -252,10 +252,38 @@ def test_a_held_part_off_its_holder_is_a_reason_with_hysteresis():
              (0.0070, both, ()),  # both cameras: no figure
              (0.0050, cam1, ()),  # and no reason held over
              (None, cam1, ())]  # not held
-    plain = HealthMonitor(rule, CAMS)  # the same frames, not held: the camera figures
-    for k, (off, frame, reasons) in enumerate(steps):
+    plain = HealthMonitor(rule, CAMS)  # the same frames, held where the gripper says: the
+    for k, (off, frame, reasons) in enumerate(steps):  # camera figures alone
         report = monitor.update(k / HZ, *frame, off_holder=off)
-        cameras = plain.update(k / HZ, *frame).reasons
+        cameras = plain.update(k / HZ, *frame, off_holder=0.0).reasons
         assert report.reasons == cameras + reasons, (k, off)
     with pytest.raises(ValueError, match="holder_limit"):
         HealthRule(holder_limit=0.0)
+
+
+def test_a_free_part_seen_by_one_camera_over_the_window_is_a_reason():
+    """A part not held whose accepted measurements come from one camera alone over the whole
+    window is degraded, naming that camera; a measurement of the other within the window, a
+    held part, or a tracker with one camera is not."""
+    rule = HealthRule(window_s=0.5)
+    only = {c: [[1] * 6 if k == c else [0] * 6 for k in range(2)] for c in (0, 1)}
+    cam = {c: _frame(visible=only[c], selected=only[c], found=only[c], rejected=[[0] * 6] * 2)
+           for c in (0, 1)}  # the other camera's view of the part blocked
+    both = _frame(visible=[[1] * 6] * 2, selected=[[1] * 6] * 2, found=[[1] * 6] * 2,
+                  rejected=[[0] * 6] * 2)
+    # cam1 found everything but cam2's features were all gated out: cam1 alone accepted
+    gated = _frame(visible=[[1] * 6] * 2, selected=[[1] * 6] * 2, found=[[1] * 6] * 2,
+                   rejected=[[0] * 6, [1] * 6])
+    free, held = HealthMonitor(rule, CAMS), HealthMonitor(rule, CAMS)
+    alone = "cam1 alone: depth from one view"
+    n_window = int(rule.window_s * HZ)  # 13 frames: a frame 13 / HZ old has left the window
+    for k in range(n_window):
+        assert alone not in free.update(k / HZ, *(both if k == 0 else cam[0])).reasons, k
+        assert not held.update(k / HZ, *(both if k == 0 else cam[0]), off_holder=0.0).reasons
+    assert free.update(n_window / HZ, *cam[0]).reasons == (alone,)  # the last of cam2 gone
+    assert alone in free.update((n_window + 1) / HZ, *gated).reasons
+    assert alone not in free.update((n_window + 2) / HZ, *cam[1]).reasons  # both in the window
+    assert not held.update(n_window / HZ, *cam[0], off_holder=0.0).reasons
+    single = HealthMonitor(rule, ["cam1"])
+    one = tuple(np.asarray(a)[:1] for a in cam[0])
+    assert not any(single.update(k / HZ, *one).reasons for k in range(2 * n_window))

@@ -122,6 +122,17 @@ def _rmse(values) -> float:
     return float(np.sqrt(np.mean(np.square(values))))
 
 
+ONE_VIEW = "degraded: cam1 alone: depth from one view"
+
+
+def _one_view_from(frames: list, start: int) -> int:
+    """The first frame from which camera 1 alone, blind camera 2 from frame ``start`` on,
+    has measured a free part over the health monitor's whole window: camera 2's last frame
+    has left it."""
+    return next(k for k in range(start, len(frames))
+                if (k - start + 1) * VISION_PERIOD > HealthRule().window_s - 1e-9)
+
+
 def test_ekf_beats_per_frame_pnp_on_the_same_measurements():
     run = Run(seed=1)
     n = int(6.0 / VISION_PERIOD)
@@ -144,9 +155,11 @@ def test_one_camera_fully_occluded_keeps_tracking_with_the_other():
         blind = {1} if start <= k < stop else set()
         run.predictor.blind = run.truth_vis.blind = blind
         run.step(k)
+    alone = _one_view_from(run.frames, start)
+    assert alone < stop
     for k in range(start, stop):  # one camera: depth is poorer, but within the covariance
-        rec = run.frames[k]
-        assert rec.status == "tracking"
+        rec = run.frames[k]  # and the status says that one camera alone sees the part
+        assert rec.status_text == ("tracking" if k < alone else ONE_VIEW), k
         assert not rec.selected[1].any() and rec.windows[1] is None
         pos, rot = run.errors(k)
         assert pos < 1e-2 and rot < np.deg2rad(1.5)
@@ -158,7 +171,9 @@ def test_one_camera_fully_occluded_keeps_tracking_with_the_other():
 
 def test_a_held_part_follows_its_holder_where_one_camera_sees_it():
     """The kinematic prior: while camera 2 is blind, the swaying part's depth along camera 1
-    rests on one view; predicted by its holder's measured motion, it stays much closer."""
+    rests on one view; predicted by its holder's measured motion, it stays much closer. The
+    free part's status says one camera alone sees it; the held part's arm witnesses its
+    depth."""
     start, stop = int(2.0 / VISION_PERIOD), int(4.0 / VISION_PERIOD)
     rmse = {}
     for held in (False, True):
@@ -166,7 +181,9 @@ def test_a_held_part_follows_its_holder_where_one_camera_sees_it():
         for k in range(stop):
             run.predictor.blind = run.truth_vis.blind = {1} if k >= start else set()
             run.step(k)
-        assert all(run.frames[k].status == "tracking" for k in range(start, stop))
+        alone = stop if held else _one_view_from(run.frames, start)
+        assert [run.frames[k].status_text for k in range(start, stop)] == \
+            ["tracking"] * (alone - start) + [ONE_VIEW] * (stop - alone)
         rmse[held] = _rmse([run.errors(k)[0] for k in range(start, stop)])
     assert rmse[True] < 0.5 * rmse[False], rmse
 
@@ -301,14 +318,17 @@ def test_a_support_3_mm_off_costs_nothing_with_two_cameras_and_its_error_with_on
     """What a wrong cell file costs: the tracker is told the conveyor lies 3 mm higher than it
     does. Both cameras see the part: they outweigh the support's 2 mm sigma (0.6 mm at most off,
     as with the right support). Camera 2 blind: the support sets the depth, and the height's
-    error follows the support's (2.5 mm at most; the position 4 mm)."""
+    error follows the support's (2.5 mm at most; the position 4 mm); the status says one
+    camera alone sees the part."""
     start, stop = int(1.0 / VISION_PERIOD), int(4.0 / VISION_PERIOD)
     run = Run(seed=5, sway=0.0)
     run.resting, run.support_error_m = True, 0.003
     for k in range(stop):
         run.predictor.blind = run.truth_vis.blind = blind if k >= start else set()
         run.step(k)
-    assert all(run.frames[k].status == "tracking" for k in range(start, stop))
+    alone = _one_view_from(run.frames, start) if blind else stop
+    assert [run.frames[k].status_text for k in range(start, stop)] == \
+        ["tracking"] * (alone - start) + [ONE_VIEW] * (stop - alone)
     worst = max(run.errors(k)[0] for k in range(start, stop))
     assert worst < (1e-3 if not blind else 5e-3), worst
 
@@ -563,7 +583,7 @@ def test_noise_beyond_the_model_and_features_not_found_make_the_track_degraded()
     assert all(f.health.nis_ratio.min() > HealthRule().nis_ratio_limit
                for f in noisy.frames[k0 + lag:])
     last = hidden.frames[-1]
-    assert last.status_text == "degraded: 100% not found in cam2"
+    assert last.status_text == "degraded: 100% not found in cam2; " + ONE_VIEW[len("degraded: "):]
     assert np.isnan(last.health.nis_ratio[1]) and last.health.missing_fraction[0] == 0.0
 
 
