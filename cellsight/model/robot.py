@@ -77,9 +77,13 @@ class ParallelGripper:
 
     def leader_value(self, opening: float) -> float:
         """The leading joint's value (m) for an opening (m) clipped to [0, ``max_opening``]."""
-        opening = float(np.clip(opening, 0.0, self.max_opening))
+        # the scalars clipped with min and max: np.clip costs 5 us a call, twice a frame a robot
+        opening = min(max(float(opening), 0.0), self.max_opening)
         q = (opening - self.opening_at_zero) / self.opening_gain
-        return q if self.leader_range is None else float(np.clip(q, *self.leader_range))
+        if self.leader_range is None:
+            return q
+        low, high = self.leader_range
+        return min(max(q, float(low)), float(high))
 
     def opening_of(self, q_leader: float) -> float:
         """The opening (m) when the leading joint is at ``q_leader`` (m)."""

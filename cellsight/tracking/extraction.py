@@ -65,22 +65,31 @@ def _to_gray(image: np.ndarray) -> np.ndarray:
     return image
 
 
+@numba.njit(cache=True, inline="always")
+def _gradient_at(image, v, u):
+    """``np.gradient`` of a float image (h, w), both at least 2, at pixel (v, u): (gy, gx),
+    central differences inside, one-sided at the borders."""
+    h, w = image.shape
+    if 0 < v < h - 1:
+        gy = (image[v + 1, u] - image[v - 1, u]) / 2.0
+    else:
+        gy = image[1, u] - image[0, u] if v == 0 else image[v, u] - image[v - 1, u]
+    if 0 < u < w - 1:
+        gx = (image[v, u + 1] - image[v, u - 1]) / 2.0
+    else:
+        gx = image[v, 1] - image[v, 0] if u == 0 else image[v, u] - image[v, u - 1]
+    return gy, gx
+
+
 @numba.njit(cache=True)
 def _gradients(image):
-    """``np.gradient`` of a float image (h, w), both at least 2: (gy, gx), central differences
-    inside, one-sided at the borders."""
+    """``np.gradient`` of a float image (h, w), both at least 2: (gy, gx)
+    (:func:`_gradient_at` at every pixel)."""
     h, w = image.shape
     gy, gx = np.empty((h, w)), np.empty((h, w))
     for v in range(h):
         for u in range(w):
-            if 0 < v < h - 1:
-                gy[v, u] = (image[v + 1, u] - image[v - 1, u]) / 2.0
-            else:
-                gy[v, u] = image[1, u] - image[0, u] if v == 0 else image[v, u] - image[v - 1, u]
-            if 0 < u < w - 1:
-                gx[v, u] = (image[v, u + 1] - image[v, u - 1]) / 2.0
-            else:
-                gx[v, u] = image[v, 1] - image[v, 0] if u == 0 else image[v, u] - image[v, u - 1]
+            gy[v, u], gx[v, u] = _gradient_at(image, v, u)
     return gy, gx
 
 
@@ -108,9 +117,14 @@ def _two_directions(patch, min_gradient, min_eigen_ratio):
 
 @numba.njit(cache=True)
 def _gradient_magnitude(image):
-    """``hypot`` of :func:`_gradients` (h, w)."""
-    gy, gx = _gradients(image)
-    return np.hypot(gx, gy)
+    """``hypot`` of :func:`_gradients` (h, w), in one pass."""
+    h, w = image.shape
+    mag = np.empty((h, w))
+    for v in range(h):
+        for u in range(w):
+            gy, gx = _gradient_at(image, v, u)
+            mag[v, u] = math.hypot(gx, gy)
+    return mag
 
 
 _BINS = 36  # direction histogram of the edges around a corner: 10-degree bins
@@ -158,15 +172,18 @@ def _edge_intersection(mag, qx, qy, inner, outer, threshold, max_offset):
     h, w = mag.shape
     ring_max = 0.0
     radius = np.empty((h, w))
-    for v in range(h):
-        for u in range(w):
+    # the ring's pixels lie in its box: the pixels outside it are more than ``outer`` away
+    r0, r1 = max(int(math.floor(qy - outer)), 0), min(int(math.ceil(qy + outer)) + 1, h)
+    c0, c1 = max(int(math.floor(qx - outer)), 0), min(int(math.ceil(qx + outer)) + 1, w)
+    for v in range(r0, r1):
+        for u in range(c0, c1):
             r = radius[v, u] = math.hypot(u - qx, v - qy)
             if inner <= r <= outer and mag[v, u] > ring_max:
                 ring_max = mag[v, u]
     hist = np.zeros(_BINS)
     n_strong = 0
-    for v in range(h):
-        for u in range(w):
+    for v in range(r0, r1):
+        for u in range(c0, c1):
             r = radius[v, u]
             if inner <= r <= outer and mag[v, u] >= threshold * ring_max:
                 phi = math.atan2(v - qy, u - qx)

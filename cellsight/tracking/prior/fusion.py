@@ -118,15 +118,25 @@ def _hold(ekf: PoseEKF, holder: np.ndarray, std: tuple[float, float]) -> None:
     them from it (wrong corners carried it off, or the cameras' shared calibration error
     did), forget it and take the holder's. In between the images alone update it: a holder's
     error is a bias, and fused every frame it would soon outweigh every camera."""
-    T = ekf.pose
-    moved = np.linalg.norm(T[:3, 3] - holder[:3, 3]) / std[0]
-    turned = Rotation.from_matrix(T[:3, :3].T @ holder[:3, :3]).magnitude() / std[1]
-    P = ekf.covariance
-    wide = (np.linalg.eigvalsh(P[:3, :3])[-1] > std[0] ** 2
-            or np.linalg.eigvalsh(P[3:6, 3:6])[-1] > std[1] ** 2)
-    off = max(moved, turned) > HOLD_SIGMAS
+    T, P = ekf.pose, ekf.covariance
+    wide = _widest_above(P[:3, :3], std[0] ** 2) or _widest_above(P[3:6, 3:6], std[1] ** 2)
+    off = (np.linalg.norm(T[:3, 3] - holder[:3, 3]) / std[0] > HOLD_SIGMAS
+           or Rotation.from_matrix(T[:3, :3].T @ holder[:3, :3]).magnitude() / std[1]
+           > HOLD_SIGMAS)  # the turn only where the move is not off already
     if wide or off:
         ekf.fuse_prior(holder, HELD, np.repeat(std, 3), forget=off)
+
+
+def _widest_above(A: np.ndarray, limit: float) -> bool:
+    """Whether the largest eigenvalue of the symmetric positive semi-definite ``A`` exceeds
+    ``limit``: at least its largest diagonal entry, at most its trace, the eigenvalues
+    themselves only between the two."""
+    diagonal = np.diagonal(A)
+    if diagonal.max() > limit:
+        return True
+    if diagonal.sum() <= limit:
+        return False
+    return bool(np.linalg.eigvalsh(A)[-1] > limit)
 
 
 def hold_along_sight(ekf: PoseEKF, holder: np.ndarray, cameras: Sequence[Camera],
