@@ -11,7 +11,13 @@ timing like Open3D's flat vertex and triangle arrays. Open3D tests occlusion
 of the rays viewpoint->point up to ``1 - 1e-4`` of their length (its peer tolerance). On the UR5
 scene, MuJoCo's ``mj_multiRay`` casts the same rays in the world's model of ``ur-cell`` (the
 same meshes; its bodies placed by ``mj_kinematics`` in each call, as a moving cell needs, its
-meshes' trees built once when the model compiled), to the same tolerance.
+meshes' trees built once when the model compiled), to the same tolerance. Two more rows there
+compare like with like: cellsight's per-object hierarchies (the occlusion predictor's
+structure: each body's tree built once in its own frame, the bodies' poses given per call,
+as MuJoCo's) against ``mj_multiRay`` alone, and with the cell's kinematics (``Cell.snapshot``,
+checked) against ``mj_kinematics`` plus ``mj_multiRay``; and the floor of any method handed
+the triangles anew each call: one compiled pass culling every triangle against the segments
+(:func:`~cellsight.occlusion._segment_kernel.cull_segments`, from planes already made).
 """
 
 from __future__ import annotations
@@ -54,6 +60,60 @@ def mujoco_mask():
                            geomid, dist, None, n, float(length.max()) + 1.0)
         return ~((dist >= 0) & (dist < length * (1.0 - PEER_TOLERANCE)))
     return mask
+
+
+def mujoco_rays():
+    """``(points, viewpoint) -> None``: ``mj_multiRay`` alone in the world's model of
+    ``ur-cell`` at HOME, its bodies placed once (the query without the kinematics)."""
+    import mujoco
+
+    import cellsight
+    from cellsight.world.world import World
+
+    world = World(cellsight.load_cell("ur-cell"))
+    model, data = world.scene.model, world.scene.data
+    mujoco.mj_kinematics(model, data)
+
+    def rays(points: np.ndarray, viewpoint: np.ndarray) -> None:
+        vec = points - viewpoint
+        length = np.linalg.norm(vec, axis=1)
+        n = len(points)
+        mujoco.mj_multiRay(model, data, viewpoint, (vec / length[:, None]).ravel(), None, 1,
+                           -1, np.empty(n, np.int32), np.empty(n), None, n,
+                           float(length.max()) + 1.0)
+    return rays
+
+
+def forest_masks():
+    """cellsight's per-object hierarchies of ``ur-cell`` (the occlusion predictor's):
+    ``(points, viewpoint) -> visible`` with the bodies' poses at HOME given, and the same
+    with the cell's kinematics (``Cell.snapshot``) in each call."""
+    import cellsight
+    from cellsight.occlusion.backends import visibility_predictor
+
+    cell = cellsight.load_cell("ur-cell")
+    predictor = visibility_predictor(cell)
+    poses = cell.snapshot().poses
+
+    def given(points: np.ndarray, viewpoint: np.ndarray, poses=poses) -> np.ndarray:
+        return predictor.forest.occluders(poses, viewpoint[None, :],
+                                          np.array([0, len(points)]), points,
+                                          predictor.surface_tolerance) < 0
+
+    def with_kinematics(points: np.ndarray, viewpoint: np.ndarray) -> np.ndarray:
+        return given(points, viewpoint, cell.snapshot().poses)
+    return given, with_kinematics
+
+
+def cull_floor_ms(stacked: np.ndarray, points: np.ndarray, viewpoint: np.ndarray) -> float:
+    """The floor of a query handed its triangles anew (ms): one culling pass over every
+    triangle, its planes already made."""
+    from cellsight.occlusion._segment_kernel import cull_segments
+
+    soup = PolygonSoup.from_arrays(stacked.reshape(-1, 3),
+                                   np.arange(0, 3 * len(stacked) + 1, 3))
+    arrays, spheres = soup.arrays(), soup.spheres
+    return _median_ms(lambda: cull_segments(arrays, spheres, points, viewpoint))
 
 
 def ur_scene_polygons() -> tuple[list[np.ndarray], np.ndarray, np.ndarray]:
@@ -132,6 +192,14 @@ def run() -> list[dict]:
             mj = mujoco_mask()
             row["mujoco"] = _median_ms(lambda: mj(points, viewpoint))  # noqa: B023
             row["mujoco_same"] = int((mj(points, viewpoint) == answer).sum())
+            rays = mujoco_rays()
+            row["mujoco_rays"] = _median_ms(lambda: rays(points, viewpoint))  # noqa: B023
+            given, with_kinematics = forest_masks()
+            row["forest"] = _median_ms(lambda: given(points, viewpoint))  # noqa: B023
+            row["forest_kinematics"] = _median_ms(
+                lambda: with_kinematics(points, viewpoint))  # noqa: B023
+            row["forest_same"] = int((given(points, viewpoint) == answer).sum())
+            row["cull_floor"] = cull_floor_ms(stacked, points, viewpoint)
         rows.append(row)
     return rows
 
@@ -153,6 +221,14 @@ def main() -> None:
                   f"{r['array'] / r['mujoco']:.2f}, joined once/MuJoCo "
                   f"{r['soup'] / r['mujoco']:.2f} | MuJoCo agrees on "
                   f"{r['mujoco_same']}/{r['points']}")
+            print(f"  per-object hierarchies (bodies' trees built once, poses given) "
+                  f"{r['forest']:.4f} ms against mj_multiRay alone {r['mujoco_rays']:.4f} ms: "
+                  f"{r['forest'] / r['mujoco_rays']:.2f}x, agrees on "
+                  f"{r['forest_same']}/{r['points']} | with the cell's kinematics "
+                  f"{r['forest_kinematics']:.4f} ms against mj_kinematics + mj_multiRay: "
+                  f"{r['forest_kinematics'] / r['mujoco']:.2f}x")
+            print(f"  floor of the triangles handed anew: one culling pass "
+                  f"{r['cull_floor']:.4f} ms, {r['cull_floor'] / r['mujoco']:.2f}x MuJoCo")
 
 
 if __name__ == "__main__":
