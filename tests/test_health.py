@@ -252,8 +252,9 @@ def test_a_held_part_off_its_holder_is_a_reason_with_hysteresis():
              (0.0070, both, ()),  # both cameras: no figure
              (0.0050, cam1, ()),  # and no reason held over
              (None, cam1, ())]  # not held
-    plain = HealthMonitor(rule, CAMS)  # the same frames, held where the gripper says: the
-    for k, (off, frame, reasons) in enumerate(steps):  # camera figures alone
+    # the same frames, held just where the gripper says: the camera figures alone
+    plain = HealthMonitor(rule, CAMS)
+    for k, (off, frame, reasons) in enumerate(steps):
         report = monitor.update(k / HZ, *frame, off_holder=off)
         cameras = plain.update(k / HZ, *frame, off_holder=0.0).reasons
         assert report.reasons == cameras + reasons, (k, off)
