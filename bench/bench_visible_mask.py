@@ -39,32 +39,10 @@ def box_scene_polygons() -> tuple[list[np.ndarray], np.ndarray, np.ndarray]:
     return polygons, points[:32], viewpoint
 
 
-def mujoco_mask():
-    """MuJoCo: ``(points, viewpoint) -> visible`` by ``mj_kinematics`` then ``mj_multiRay`` in
-    the world's model of ``ur-cell`` (at HOME, as :func:`ur_scene_polygons` poses it)."""
-    import mujoco
-
-    import cellsight
-    from cellsight.world.world import World
-
-    world = World(cellsight.load_cell("ur-cell"))
-    model, data = world.scene.model, world.scene.data
-
-    def mask(points: np.ndarray, viewpoint: np.ndarray) -> np.ndarray:
-        mujoco.mj_kinematics(model, data)
-        vec = points - viewpoint
-        length = np.linalg.norm(vec, axis=1)
-        n = len(points)
-        geomid, dist = np.empty(n, np.int32), np.empty(n)
-        mujoco.mj_multiRay(model, data, viewpoint, (vec / length[:, None]).ravel(), None, 1, -1,
-                           geomid, dist, None, n, float(length.max()) + 1.0)
-        return ~((dist >= 0) & (dist < length * (1.0 - PEER_TOLERANCE)))
-    return mask
-
-
-def mujoco_rays():
-    """``(points, viewpoint) -> None``: ``mj_multiRay`` alone in the world's model of
-    ``ur-cell`` at HOME, its bodies placed once (the query without the kinematics)."""
+def mujoco_masks():
+    """MuJoCo in the world's model of ``ur-cell`` (at HOME, as :func:`ur_scene_polygons` poses
+    it): ``(points, viewpoint) -> visible`` by ``mj_kinematics`` then ``mj_multiRay``, and by
+    ``mj_multiRay`` alone, its bodies placed once (the query without the kinematics)."""
     import mujoco
 
     import cellsight
@@ -74,14 +52,19 @@ def mujoco_rays():
     model, data = world.scene.model, world.scene.data
     mujoco.mj_kinematics(model, data)
 
-    def rays(points: np.ndarray, viewpoint: np.ndarray) -> None:
+    def rays(points: np.ndarray, viewpoint: np.ndarray) -> np.ndarray:
         vec = points - viewpoint
         length = np.linalg.norm(vec, axis=1)
         n = len(points)
-        mujoco.mj_multiRay(model, data, viewpoint, (vec / length[:, None]).ravel(), None, 1,
-                           -1, np.empty(n, np.int32), np.empty(n), None, n,
-                           float(length.max()) + 1.0)
-    return rays
+        geomid, dist = np.empty(n, np.int32), np.empty(n)
+        mujoco.mj_multiRay(model, data, viewpoint, (vec / length[:, None]).ravel(), None, 1, -1,
+                           geomid, dist, None, n, float(length.max()) + 1.0)
+        return ~((dist >= 0) & (dist < length * (1.0 - PEER_TOLERANCE)))
+
+    def with_kinematics(points: np.ndarray, viewpoint: np.ndarray) -> np.ndarray:
+        mujoco.mj_kinematics(model, data)
+        return rays(points, viewpoint)
+    return with_kinematics, rays
 
 
 def forest_masks():
@@ -189,10 +172,9 @@ def run() -> list[dict]:
         row["open3d"] = _median_ms(lambda: open3d_mask(mesh, points, viewpoint))  # noqa: B023
         row["open3d_same"] = int((open3d_mask(mesh, points, viewpoint) == answer).sum())
         if name == "two UR5":
-            mj = mujoco_mask()
+            mj, rays = mujoco_masks()
             row["mujoco"] = _median_ms(lambda: mj(points, viewpoint))  # noqa: B023
             row["mujoco_same"] = int((mj(points, viewpoint) == answer).sum())
-            rays = mujoco_rays()
             row["mujoco_rays"] = _median_ms(lambda: rays(points, viewpoint))  # noqa: B023
             given, with_kinematics = forest_masks()
             row["forest"] = _median_ms(lambda: given(points, viewpoint))  # noqa: B023
