@@ -138,7 +138,7 @@ def test_not_found_and_rejected_fractions_of_hand_made_records():
     assert np.isnan(report.missing_fraction[1]) and np.isnan(report.rejected_fraction).all()
     assert np.isnan(report.nis_ratio).all() and not report.nis_above.any()
     assert report.reasons == ("100% not found in cam1",)
-    monitor.reset()
+    monitor.reset(0.5)  # a new filter, a window (1 s) before the next frame
     report = monitor.update(2.0, *first)
     np.testing.assert_allclose(report.missing_fraction, [2 / 4, 0.0])
 
@@ -160,7 +160,7 @@ def test_a_reason_holds_until_its_figure_falls_below_the_release_fraction():
                        ("33% not found in cam1",), (), ()]
     monitor.update(1.0, *_found(2))
     assert monitor.update(1.1, *_found(4)).reasons == ("33% not found in cam1",)
-    monitor.reset()  # a new filter: nothing held
+    monitor.reset(1.5)  # a new filter: nothing held
     assert monitor.update(2.0, *_found(4)).reasons == ()
     without = HealthMonitor(HealthRule(window_s=0.01, missing_limit=0.5, min_measurements=1,
                                        release=1.0), CAMS)
@@ -200,7 +200,8 @@ def test_status_text_says_why_a_track_is_degraded():
 @pytest.mark.slow
 def test_a_real_short_run_on_the_exact_world_raises_no_alarm(tmp_path):
     """Experiment 1, ideal sensor, exact world, 4 s: the monitor judges every camera once its
-    window has filled, and never finds the track inconsistent."""
+    window has filled, and never finds the track inconsistent; before that, the new track is
+    tentative."""
     from cellsight.experiments import RunConfig
     from cellsight.experiments.runner import ExperimentRun
     from cellsight.runfolder.framelog import FrameLog
@@ -211,16 +212,22 @@ def test_a_real_short_run_on_the_exact_world_raises_no_alarm(tmp_path):
 
     def recording_step(*args, **kwargs):
         frame = step(*args, **kwargs)
-        records.append(frame.parts[run.part.name])
+        records.append((frame.t, frame.parts[run.part.name]))
         return frame
 
     run.tracker.step = recording_step
     run.run()
     statuses = FrameLog.read(tmp_path / "run" / "frames.csv").text("status")
     assert len(statuses) == len(records) > 90
-    assert not any(s.startswith("degraded") for s in statuses)
-    assert [r.status_text for r in records] == [str(r.status) for r in records]
-    assert sum(s == "tracking" for s in statuses) > 0.9 * len(statuses)
+    acquired = next(t for t, r in records if r.status == "acquired")
+    window = HealthRule().window_s
+    for t, r in records:
+        new = 0 < t - acquired < window - 1e-9
+        assert r.status_text == (f"degraded: acquired {t - acquired:.2f} s ago" if new
+                                 else str(r.status)), t
+    assert all(s == "tracking" for (t, _), s in zip(records, statuses, strict=True)
+               if t - acquired >= window - 1e-9)
+    records = [r for _, r in records]
     judged = [r.health for r in records[30:] if r.health is not None]
     assert len(judged) > 60
     assert all((h.nis_dof >= 2 * HealthRule().min_measurements).all() for h in judged)
@@ -288,3 +295,24 @@ def test_a_free_part_seen_by_one_camera_over_the_window_is_a_reason():
     single = HealthMonitor(rule, ["cam1"])
     one = tuple(np.asarray(a)[:1] for a in cam[0])
     assert not any(single.update(k / HZ, *one).reasons for k in range(2 * n_window))
+
+
+def test_a_new_filter_is_tentative_for_a_window():
+    """After a (re)start at ``t0`` every frame less than ``window_s`` later says how long ago
+    the part was acquired, after the figures' own reasons; from a window on, the figures
+    alone; a monitor never reset (no filter start known) has no such reason."""
+    rule = HealthRule(window_s=0.5)
+    both = _frame(visible=[[1] * 6] * 2, selected=[[1] * 6] * 2, found=[[1] * 6] * 2,
+                  rejected=[[0] * 6] * 2)
+    monitor, t0 = HealthMonitor(rule, CAMS), 3.0
+    monitor.reset(t0)
+    n_window = int(rule.window_s * HZ)  # 13 frames: the 13th is 0.5 s after the start
+    for k in range(1, n_window):
+        assert monitor.update(t0 + k / HZ, *both).reasons == (f"acquired {k / HZ:.2f} s ago",)
+    assert monitor.update(t0 + n_window / HZ, *both).reasons == ()
+    cam1 = _frame(visible=[[1] * 6] * 2, selected=[[1] * 6] * 2,
+                  found=[[1] * 6, [0] * 6], rejected=[[0] * 6] * 2)
+    monitor.reset(10.0)
+    assert monitor.update(10.1, *cam1, off_holder=0.009).reasons == (
+        "9.0 mm from the gripper's hold, cam1 alone", "acquired 0.10 s ago")
+    assert HealthMonitor(rule, CAMS).update(0.0, *both).reasons == ()

@@ -123,6 +123,8 @@ def _rmse(values) -> float:
 
 
 ONE_VIEW = "degraded: cam1 alone: depth from one view"
+TENTATIVE = int(np.ceil(HealthRule().window_s / VISION_PERIOD - 1e-9))
+"""Frames after an acquisition that say ``degraded: acquired ... s ago`` (a window of them)."""
 
 
 def _one_view_from(frames: list, start: int) -> int:
@@ -280,8 +282,11 @@ def test_cameras_not_registered_yet_keep_a_track_degraded(awaiting):
     before = [k for k in range(registered_at) if run.frames[k].status not in ("acquired",)]
     assert min(run.errors(k)[0] for k in before[5:]) > 0.006
     statuses = {str(run.frames[k].status) for k in before}
-    if not awaiting:
-        assert statuses == {"tracking"}
+    if not awaiting:  # tracking, once the new track's tentative window has passed
+        acquired = next(k for k in range(stop) if run.frames[k].status == "acquired")
+        window = run.tracker.components.health.window_s
+        assert {str(run.frames[k].status) for k in before
+                if (k - acquired) * VISION_PERIOD >= window - 1e-9} == {"tracking"}
         return
     assert statuses == {"degraded"}
     assert all(run.frames[k].status_text.endswith(UNREGISTERED) for k in before)
@@ -477,13 +482,15 @@ def test_a_new_filters_first_update_needs_half_of_what_it_looked_for():
     """Right after an acquisition the filter's covariance is wide (the fix's, and the
     velocity's 0.2 m/s). On the next frame two wrong corners a camera are all that is found:
     they are not taken (the track coasts, its estimate where the acquisition put it, no
-    velocity), and the frame after, with every feature found again, tracks within 2 mm."""
+    velocity), and the frame after, with every feature found again, tracks within 2 mm (still a
+    tentative track: a window has not passed since the acquisition)."""
     run = Run(seed=3, sway=0.0)
     run.tracker.extractor = wrong = _FirstFewWrong(run.extractor, wrong_frame=1)
     for k in range(12):
         wrong.frame = k
         run.step(k)
-    assert [r.status for r in run.frames[:3]] == ["acquired", "coasting", "tracking"]
+    assert [r.status for r in run.frames[:3]] == ["acquired", "coasting", "degraded"]
+    assert run.frames[2].status_text == f"degraded: acquired {2 * VISION_PERIOD:.2f} s ago"
     np.testing.assert_allclose(run.frames[1].state[:6], run.frames[0].state[:6], atol=1e-9)
     assert np.abs(run.frames[1].state[6:]).max() < 1e-12
     assert max(run.errors(k)[0] for k in range(2, 12)) < 2e-3
@@ -533,7 +540,8 @@ def test_closed_loop_on_rendered_images():
             T = conveyor_pose(t, part.T_base_part)
             frame = tracker.step([renderer.render(c, T) for c in range(2)], None, t)
             rec = frame.parts[part.name]
-            assert rec.status == ("acquired" if k == 0 else "tracking")
+            assert rec.status == ("acquired" if k == 0 else
+                                  "degraded" if k < TENTATIVE else "tracking")
             if k >= 26:
                 errors.append((np.linalg.norm(rec.T_base_part[:3, 3] - T[:3, 3]),
                                rotation_error(rec.T_base_part[:3, :3], T[:3, :3])))
@@ -575,8 +583,9 @@ def test_noise_beyond_the_model_and_features_not_found_make_the_track_degraded()
         noisy.step(k)
         hidden.step(k)
     for run in (noisy, hidden):
-        assert [f.status for f in run.frames[1:k0]] == ["tracking"] * (k0 - 1)
-        assert all(f.status_text == "tracking" for f in run.frames[1:k0])
+        assert all(f.status_text.startswith("degraded: acquired")
+                   for f in run.frames[1:TENTATIVE])
+        assert all(f.status_text == "tracking" for f in run.frames[TENTATIVE:k0])
         assert all(f.status == "degraded" for f in run.frames[k0 + lag:])
     assert all("NIS" in f.status_text for f in noisy.frames[k0 + lag:])
     assert all(f.status_text.startswith("degraded: ") for f in noisy.frames[k0 + lag:])

@@ -203,17 +203,20 @@ class TrackMonitor(Protocol):
     """One track's health (:mod:`cellsight.tracking.health`), fed every frame the track is
     tracked (not while it is acquired)."""
 
-    def reset(self) -> None:
-        """Forget the past: the track's filter (re)starts."""
+    def reset(self, t: float) -> None:
+        """Forget the past: the track's filter (re)starts at time ``t`` (s)."""
         ...
 
     def update(self, t: float, visible: np.ndarray, selected: np.ndarray, measured: np.ndarray,
                rejected: np.ndarray, mahalanobis2: np.ndarray,
-               unknown: np.ndarray | None = None) -> TrackHealthReport:
+               unknown: np.ndarray | None = None,
+               off_holder: float | None = None) -> TrackHealthReport:
         """Add the frame at time ``t`` (s), the record's arrays per camera and feature (C, F):
         predicted ``visible``, ``selected``, ``measured`` (C, F, 2) px (NaN where not found),
         gate-``rejected``, the gate's ``mahalanobis2`` and ``unknown`` (under the
-        unknown-occluder map); the report, whose reasons make a tracked frame degraded."""
+        unknown-occluder map); ``off_holder``: a held part's estimate's distance (m) from
+        where its holder puts it (None: not held); the report, whose reasons make a tracked
+        frame degraded."""
         ...
 
 

@@ -175,7 +175,7 @@ class Tracker:
         track.coasted = True  # a new filter's first update needs the resume support too
         track.unseen_since = np.inf
         track.held_at = None
-        track.monitor.reset()
+        track.monitor.reset(t)
 
     def step(
         self,
