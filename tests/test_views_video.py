@@ -85,6 +85,16 @@ def test_a_video_that_cannot_be_written_fails_the_run_naming_it(tmp_path: Path, 
     assert 4 <= metrics["frames"] < 26 and (out / "frames.csv").stat().st_size > 0
 
 
+def test_no_video_runs_without_one(tmp_path: Path) -> None:
+    """``run --no-video``: a rendered run that writes everything but ``views.mp4``."""
+    out = tmp_path / "run"
+    assert main(["run", "1", "--quiet", "--duration", "0.5", "--no-video", "--out",
+                 str(out)]) == 0
+    assert finished_metrics(out)["frames"] >= 13
+    assert not (out / "views.mp4").exists() and (out / "report.html").is_file()
+    assert "views.mp4" not in (out / "report.html").read_text()
+
+
 @pytest.mark.slow
 def test_the_video_changes_nothing_the_run_measures(tmp_path: Path) -> None:
     """The harsh world drops frames and draws each image's noise from a random stream: the

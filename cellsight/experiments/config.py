@@ -57,7 +57,7 @@ class RunConfig:
     of where it falls to from the gripper, onto the cell file's static objects; with the
     rendered sensor, the cameras are registered to the gripper at HOME and by the part
     (:mod:`cellsight.tracking.registration`). ``video_every``: a frame of ``views.mp4`` every so
-    many vision frames. ``full_frames``: the rendered cameras render every frame whole, instead of
+    many vision frames (0: no video). ``full_frames``: the rendered cameras render every frame whole, instead of
     only the region the tracker reads (:mod:`cellsight.world.shots`; the same pixels, see
     :mod:`cellsight.world.render`). ``overwrite``: clear ``out`` first when it holds an earlier run
     (:func:`check_out_folder`; else a non-empty ``out`` is refused). ``record``: an MCAP file
