@@ -57,13 +57,14 @@ class RunConfig:
     of where it falls to from the gripper, onto the cell file's static objects; with the
     rendered sensor, the cameras are registered to the gripper at HOME and by the part
     (:mod:`cellsight.tracking.registration`). ``video_every``: a frame of ``views.mp4`` every so
-    many vision frames (0: no video). ``full_frames``: the rendered cameras render every frame whole, instead of
-    only the region the tracker reads (:mod:`cellsight.world.shots`; the same pixels, see
-    :mod:`cellsight.world.render`). ``overwrite``: clear ``out`` first when it holds an earlier run
-    (:func:`check_out_folder`; else a non-empty ``out`` is refused). ``record``: an MCAP file
-    to record the sensor data in as the run goes (:mod:`cellsight.recording.recorder`; the
-    rendered sensor only), its images JPEG of quality ``record_jpeg`` (None: lossless); a
-    recorded run renders whole frames, so that the tracker reads the very pixels recorded.
+    many vision frames (0: no video). ``full_frames``: the rendered cameras render every frame
+    whole, instead of only the region the tracker reads (:mod:`cellsight.world.shots`; the
+    same pixels, see :mod:`cellsight.world.render`). ``overwrite``: clear ``out`` first when it
+    holds an earlier run (:func:`check_out_folder`; else a non-empty ``out`` is refused).
+    ``record``: an MCAP file to record the sensor data in as the run goes
+    (:mod:`cellsight.recording.recorder`; the rendered sensor only), its images JPEG of
+    quality ``record_jpeg`` (None: lossless); a recorded run renders whole frames, so that the
+    tracker reads the very pixels recorded.
     ``live``: ``[HOST:]PORT`` of a Foxglove WebSocket server streaming the run as it happens
     (:mod:`cellsight.export.live`). ``calibration``: a folder of ``cellsight calibrate`` whose
     cameras and robot bases the tracker and the task use instead of the cell file's
