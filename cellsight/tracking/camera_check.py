@@ -106,7 +106,7 @@ class CameraCheck:
     def __init__(self, rule: CameraCheckRule, cameras: Sequence[Camera]) -> None:
         self.rule = rule
         self.cameras = list(cameras)
-        self._innovations: list[deque] = [deque() for _ in self.cameras]
+        self._innovations = [_WindowMoments() for _ in self.cameras]
         self._found: list[deque] = [deque() for _ in self.cameras]
         self._searched = np.full(len(self.cameras), -np.inf)
         self._offsets: dict[int, np.ndarray] = {}
@@ -136,8 +136,7 @@ class CameraCheck:
             return
         for c in range(len(self.cameras)):
             rows = frame.innovation[c][np.isfinite(frame.innovation[c, :, 0])]
-            _slide(self._innovations[c], t, [(t, rows)] if len(rows) else [],
-                   self.rule.window_s)
+            self._innovations[c].slide(t, rows, self.rule.window_s)
             looked = int(frame.looked[c].sum())
             if looked:
                 found = int((frame.looked[c] & np.isfinite(frame.measured[c, :, 0])).sum())
@@ -253,12 +252,10 @@ class CameraCheck:
     def _biased(self, c: int) -> float | None:
         """The mean innovation's length (px) when camera ``c`` is biased, 0.0 when it has
         enough innovations and is not, None when it has too few."""
-        window = self._innovations[c]  # (t, (k, 2) innovations of that frame)
-        if sum(len(block) for _, block in window) < self.rule.min_points:
+        window = self._innovations[c]
+        if window.n < self.rule.min_points:
             return None
-        rows = np.concatenate([block for _, block in window])
-        mean = rows.mean(axis=0)
-        spread = rows.std(axis=0, ddof=1) / np.sqrt(len(rows))
+        mean, spread = window.mean(), window.std() / np.sqrt(window.n)
         length = float(np.linalg.norm(mean))
         return length if (length > self.rule.bias_px
                           and length > self.rule.sigmas * float(np.linalg.norm(spread))) else 0.0
@@ -300,6 +297,46 @@ class CheckFrame:
     updated: bool
     points_base: np.ndarray
     corners: Callable[[int], np.ndarray | None]
+
+
+class _WindowMoments:
+    """The count, sum and sum of squares (per coordinate) of the 2-D rows of a sliding
+    window of frames, kept as frames come and go: the window's mean and standard deviation
+    without gathering its rows again at every frame (the line's four parts each feed every
+    camera's window every frame: gathered for each, the rows took about a fifth of the time
+    of the parts' updates in a profile of the line)."""
+
+    def __init__(self) -> None:
+        self._frames: deque[tuple[float, int, np.ndarray]] = deque()  # (t, rows, their sums)
+        self.n = 0
+        self._sums = np.zeros((2, 2))  # rows: sum, sum of squares; columns: coordinates
+
+    def slide(self, t: float, rows: np.ndarray, span: float) -> None:
+        """Add a frame's ``rows`` (k, 2) at ``t`` (s); drop the frames older than ``span``."""
+        if len(rows):
+            sums = np.array([rows.sum(axis=0), np.square(rows).sum(axis=0)])
+            self._frames.append((t, len(rows), sums))
+            self.n += len(rows)
+            self._sums += sums
+        while self._frames and self._frames[0][0] < t - span - 1e-9:
+            _, k, sums = self._frames.popleft()
+            self.n -= k
+            self._sums -= sums
+        if not self._frames:  # start again from exact zeros
+            self.n, self._sums = 0, np.zeros((2, 2))
+
+    def clear(self) -> None:
+        self._frames.clear()
+        self.n, self._sums = 0, np.zeros((2, 2))
+
+    def mean(self) -> np.ndarray:
+        """(2,) the rows' mean (n >= 1)."""
+        return self._sums[0] / self.n
+
+    def std(self) -> np.ndarray:
+        """(2,) the rows' sample standard deviation (n >= 2)."""
+        centred = self._sums[1] - np.square(self._sums[0]) / self.n
+        return np.sqrt(np.maximum(centred, 0.0) / (self.n - 1))
 
 
 def _slide(window: deque, t: float, rows: list, span: float) -> None:
