@@ -24,6 +24,7 @@ from pathlib import Path
 import numpy as np
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn
 
+from cellsight.calibration import POSES_PER_CAMERA
 from cellsight.calibration.board import Board, board_world
 from cellsight.calibration.folder import read_calibration
 from cellsight.calibration.output import is_calibration_output, write_calibration
@@ -104,7 +105,7 @@ def world_errors(cell: Cell, solution: Solution, world_cell: Cell) -> dict:
 
 
 def calibrate_world(cell_arg: str | Path | None, realism: str, seed: int, board: Board,
-                    per_camera: int = 8, joint_offsets: bool = True,
+                    per_camera: int = POSES_PER_CAMERA, joint_offsets: bool = True,
                     progress: bool = True, log: MotionRecorder | None = None
                     ) -> CellCalibration:
     """The calibration of the seed's world (module docstring); ``log`` records the motion
@@ -219,7 +220,7 @@ class CalibrateRequest:
     realism: str = "lab"
     seed: int = 0
     board: str | None = None
-    poses: int = 8
+    poses: int = POSES_PER_CAMERA
     joint_offsets: bool = True
     record: str | None = None
     record_jpeg: int | None = None

@@ -80,6 +80,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 from scipy.spatial.transform import Rotation
 
+from cellsight.calibration import POSES_PER_CAMERA
 from cellsight.calibration.presenting import (
     BOARD,
     CLEARANCE_M,
@@ -398,7 +399,8 @@ class _Planner:
         return True
 
 
-def plan_poses(cell: Cell, robot: str, board: BoardOnFlange, *, per_camera: int = 8,
+def plan_poses(cell: Cell, robot: str, board: BoardOnFlange, *,
+               per_camera: int = POSES_PER_CAMERA,
                min_poses: int = MIN_POSES, seed: int = 0, cameras: Sequence[str] | None = None,
                start: ArrayLike | None = None) -> Plan:
     """The poses in which ``robot`` presents the ``board`` (its corners, face normal and

@@ -7,6 +7,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from cellsight.calibration import POSES_PER_CAMERA
 from cellsight.commands.text import CELL_HELP
 
 
@@ -39,8 +40,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                      help="the board as a YAML file (squares, square_m, marker_m, dictionary, "
                           "mount); default: 7 x 5 squares of 30 mm, DICT_5X5_100, on the "
                           "flange's face")
-    cal.add_argument("--poses", type=int, default=8, metavar="N",
-                     help="poses planned per camera and robot (default 8, at least 6)")
+    cal.add_argument("--poses", type=int, default=POSES_PER_CAMERA, metavar="N",
+                     help=f"poses planned per camera and robot (default {POSES_PER_CAMERA}, "
+                          f"at least 6)")
     cal.add_argument("--joint-offsets", action=argparse.BooleanOptionalAction, default=True,
                      help="estimate each robot's joint zero offsets too, and report whether "
                           "they are identifiable (default on: the encoders' offsets otherwise "
