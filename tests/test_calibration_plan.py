@@ -29,12 +29,13 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from cellsight.calibration.board import Board
 from cellsight.calibration.plan import SAME_POSE, plan_poses
 from cellsight.calibration.presenting import BoardOnFlange
 from cellsight.camera import Camera
 from cellsight.errors import CellsightError
 from cellsight.geometry.polyhedron import Polyhedron
-from cellsight.geometry.transforms import look_at, make_pose
+from cellsight.geometry.transforms import look_at, make_pose, transform_points
 from cellsight.model.cell import Cell, Workpiece
 from cellsight.model.loader import load_cell
 from cellsight.world import ReplayWorld
@@ -104,6 +105,25 @@ def test_every_camera_gets_enough_poses_inside_the_limits(cell, planned):
     apart = np.abs(plan.joints[:, None] - plan.joints[None]).max(axis=2)
     np.fill_diagonal(apart, np.inf)
     assert apart.min() > SAME_POSE  # no pose twice (two candidates' IK can meet)
+
+
+def test_more_poses_keep_every_pose_of_fewer(cell):
+    """The search gives every camera 8 poses first (``FIRST_ROUND``), then seeks more: the plan
+    of 16 holds every pose of the plan of 8, so no camera has fewer (sought at once, a camera
+    easy to reach drew the tries and a hard one's poses no longer fitted the route: with the
+    default board, seed 6 gave cam2 5 poses of 16 and was refused)."""
+    board = Board()
+    mounted = BoardOnFlange.from_flange(
+        transform_points(board.T_flange_board, board.corners()),
+        board.T_flange_board[:3, :3] @ board.face_normal,
+        transform_points(board.T_flange_board, board.outline()))
+    fewer = plan_poses(cell, "R6AX", mounted, per_camera=8, seed=6)
+    more = plan_poses(cell, "R6AX", mounted, per_camera=16, seed=6)
+    assert len(more.joints) > len(fewer.joints)
+    for q in fewer.joints:
+        assert np.abs(more.joints - q).max(axis=1).min() < 1e-12
+    counts = more.per_camera()
+    assert all(counts[name] >= n for name, n in fewer.per_camera().items()), (counts, fewer)
 
 
 def test_the_intended_cameras_see_the_whole_board_by_opencv(cell, planned):
