@@ -35,7 +35,7 @@ from cellsight.calibration.presenting import BoardOnFlange
 from cellsight.camera import Camera
 from cellsight.errors import CellsightError
 from cellsight.geometry.polyhedron import Polyhedron
-from cellsight.geometry.transforms import look_at, make_pose, transform_points
+from cellsight.geometry.transforms import look_at, make_pose
 from cellsight.model.cell import Cell, Workpiece
 from cellsight.model.loader import load_cell
 from cellsight.world import ReplayWorld
@@ -112,11 +112,7 @@ def test_more_poses_keep_every_pose_of_fewer(cell):
     of 16 holds every pose of the plan of 8, so no camera has fewer (sought at once, a camera
     easy to reach drew the tries and a hard one's poses no longer fitted the route: with the
     default board, seed 6 gave cam2 5 poses of 16 and was refused)."""
-    board = Board()
-    mounted = BoardOnFlange.from_flange(
-        transform_points(board.T_flange_board, board.corners()),
-        board.T_flange_board[:3, :3] @ board.face_normal,
-        transform_points(board.T_flange_board, board.outline()))
+    mounted = Board().on_flange()
     fewer = plan_poses(cell, "R6AX", mounted, per_camera=8, seed=6)
     more = plan_poses(cell, "R6AX", mounted, per_camera=16, seed=6)
     assert len(more.joints) > len(fewer.joints)

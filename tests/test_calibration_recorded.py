@@ -25,11 +25,10 @@ import pytest
 from cellsight.calibration.board import Board
 from cellsight.calibration.command import calibrate_recorded
 from cellsight.calibration.plan import plan_poses
-from cellsight.calibration.presenting import BoardOnFlange
 from cellsight.calibration.recorded import recorded_views
 from cellsight.camera import Camera
 from cellsight.errors import CellsightError
-from cellsight.geometry.transforms import invert_pose, transform_points
+from cellsight.geometry.transforms import invert_pose
 from cellsight.model import Cell
 from cellsight.model.loader import load_cell
 from cellsight.recording.names import TopicMap
@@ -70,11 +69,7 @@ def _board_pose(cell: Cell, robot: str, q: np.ndarray, board: Board) -> np.ndarr
 def recording(tmp_path_factory) -> tuple[Path, dict[str, np.ndarray], Cell]:
     """The recording (module docstring), the planned joints per robot, the cell (its truth)."""
     cell, board = _undistorted(load_cell("dual-arm")), Board()
-    corners = transform_points(board.T_flange_board, board.corners())
-    normal = board.T_flange_board[:3, :3] @ board.face_normal
-    outline = transform_points(board.T_flange_board, board.outline())
-    on_flange = BoardOnFlange.from_flange(corners, normal, outline)
-    plans = {r.name: plan_poses(cell, r.name, on_flange, per_camera=6, seed=3).joints
+    plans = {r.name: plan_poses(cell, r.name, board.on_flange(), per_camera=6, seed=3).joints
              for r in cell.robots}
     path = tmp_path_factory.mktemp("rec") / "motion.mcap"
     recorder = Recorder(path, cell, cell.workpieces[0].name)

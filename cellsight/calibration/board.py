@@ -34,9 +34,10 @@ import cv2
 import numpy as np
 from pydantic import BaseModel, ConfigDict, ValidationError
 
+from cellsight.calibration.presenting import BoardOnFlange
 from cellsight.errors import CellFileError
 from cellsight.fields import about
-from cellsight.geometry.transforms import is_rigid, make_pose
+from cellsight.geometry.transforms import is_rigid, make_pose, transform_points
 from cellsight.model import Cell
 from cellsight.model.robot import Robot
 from cellsight.model.schema import PoseSpec
@@ -157,6 +158,14 @@ class Board:
     def face_normal(self) -> np.ndarray:
         """The unit normal out of the printed face, board frame: -z."""
         return np.array([0.0, 0.0, -1.0])
+
+    def on_flange(self) -> BoardOnFlange:
+        """The board as its mount puts it on the flange: its corners, face normal and outline
+        in the flange frame (what the calibration's plan presents)."""
+        return BoardOnFlange.from_flange(
+            transform_points(self.T_flange_board, self.corners()),
+            self.T_flange_board[:3, :3] @ self.face_normal,
+            transform_points(self.T_flange_board, self.outline()))
 
     def outline(self) -> np.ndarray:
         """(4, 3) m, board frame: the printed face's corners (the plate's outline), from the

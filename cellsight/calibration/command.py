@@ -29,7 +29,6 @@ from cellsight.calibration.board import Board, board_world
 from cellsight.calibration.folder import read_calibration
 from cellsight.calibration.output import is_calibration_output, write_calibration
 from cellsight.calibration.plan import plan_poses
-from cellsight.calibration.presenting import BoardOnFlange
 from cellsight.calibration.record import MotionRecorder
 from cellsight.calibration.recorded import RecordedMotion, recorded_views
 from cellsight.calibration.score import score
@@ -39,7 +38,7 @@ from cellsight.calibration.solve import calibrate
 from cellsight.camera import Camera
 from cellsight.errors import CellsightError
 from cellsight.export.rosbag import check_jpeg, check_output
-from cellsight.geometry.transforms import invert_pose, transform_points
+from cellsight.geometry.transforms import invert_pose
 from cellsight.model import Cell
 from cellsight.model.loader import load_cell
 from cellsight.realism import draw_world
@@ -115,10 +114,7 @@ def calibrate_world(cell_arg: str | Path | None, realism: str, seed: int, board:
     errors = replace(draws.errors, intruders=(), kidnap=None, knock=None)
     reference = reference_robot(cell)
     robots = [reference, *(r.name for r in cell.robots if r.name != reference)]
-    corners_flange = transform_points(board.T_flange_board, board.corners())
-    normal = board.T_flange_board[:3, :3] @ board.face_normal
-    outline = transform_points(board.T_flange_board, board.outline())
-    on_flange = BoardOnFlange.from_flange(corners_flange, normal, outline)
+    on_flange = board.on_flange()
     plans = [plan_poses(cell, r, on_flange, per_camera=per_camera,
                         seed=seed) for r in robots]
     views: list[View] = []
