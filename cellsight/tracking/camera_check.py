@@ -323,7 +323,7 @@ class _WindowMoments:
             self.n -= k
             self._sums -= sums
         if not self._frames:  # start again from exact zeros
-            self.n, self._sums = 0, np.zeros((2, 2))
+            self.clear()
 
     def clear(self) -> None:
         self._frames.clear()

@@ -170,7 +170,6 @@ class HealthMonitor:
         self._holder_held = False  # the holder's reason held (hysteresis)
         self._held_part = False  # something holds the part this frame
         self._started = -np.inf  # when the filter started (s)
-        self._t = -np.inf  # the last frame's time (s)
 
     def reset(self, t: float) -> None:
         """Forget every frame and reason: a new filter started at ``t`` (s), which has
@@ -208,7 +207,6 @@ class HealthMonitor:
                            (looked & ~found).sum(axis=1), found.sum(axis=1),
                            rejected.sum(axis=1), visible.sum(axis=1),
                            covered.sum(axis=1)]).astype(float)
-        self._t = float(t)
         self._frames.append((float(t), counts))
         while self._frames and self._frames[0][0] <= t - self.rule.window_s + _TIME_TOLERANCE_S:
             self._frames.popleft()
@@ -277,8 +275,8 @@ class HealthMonitor:
         return [f"{self.cameras[int(seeing[0])]} alone: depth from one view"]
 
     def _new_reason(self) -> list[str]:
-        """A filter started less than a window ago (module docstring)."""
-        age = self._t - self._started
+        """A filter started less than a window before the last frame (module docstring)."""
+        age = self._frames[-1][0] - self._started if self._frames else np.inf
         if age >= self.rule.window_s - _TIME_TOLERANCE_S:
             return []
         return [f"acquired {age:.2f} s ago"]
