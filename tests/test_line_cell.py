@@ -29,10 +29,11 @@ from cellsight.realism.draws import ScenarioShift
 from cellsight.runfolder.framelog import FrameLog
 from cellsight.runfolder.picks import identity_swaps, part_log_name
 from cellsight.sweep.grid import RunSpec, SweepAxes, sweep_grid
-from cellsight.sweep.lines import lines_markdown, pick_summary
+from cellsight.sweep.lines import lines_markdown, passing_markdown, passing_summary, pick_summary
 from cellsight.world import World
 
 PICKS = ["u1", "l1", "u2", "l2"]
+PASSING = ["u3", "l3"]
 
 
 @pytest.fixture(scope="module")
@@ -85,15 +86,52 @@ def test_the_belt_carries_every_pick_keeping_its_place(cell, turn, scale, shifts
     shift = ScenarioShift(shift=part_shifts["u1"], speed_scale=scale, turn=turn,
                           part_shifts=part_shifts)
     sc = scenario(cell, 2, shift)
-    assert [c.workpiece for c in sc.conveyors] == PICKS
+    assert [c.workpiece for c in sc.conveyors] == PICKS + PASSING
     c, s = np.cos(turn), np.sin(turn)
     first = cell.workpiece("u1").T_base_part[:2, 3]
-    for path, name in zip(sc.conveyors, PICKS, strict=True):
+    for path, name in zip(sc.conveyors[:4], PICKS, strict=True):
         gap = (cell.workpiece(name).T_base_part[:2, 3] - first) @ np.array([[c, s], [-s, c]])
         expected = gap + part_shifts[name] - part_shifts["u1"]
         np.testing.assert_allclose(path.position(t) - sc.conveyors[0].position(t), expected,
                                    atol=1e-12)
         assert path.speed == sc.conveyors[0].speed == pytest.approx(0.01 * scale)
+
+
+@pytest.mark.parametrize("experiment", [2, 3])
+def test_the_passing_parts_enter_the_views_from_upstream_and_leave_them_downstream(
+        cell, experiment):
+    """Each passing part starts with none of its feature points in any camera's image, has
+    every one of them in some camera's image half way, and none at the end of its travel; the
+    picks stay as they were. Oracle: the cameras' own projection (``Camera.sees``)."""
+    sc = scenario(cell, experiment)
+    assert [p.name for p in sc.passing] == PASSING and [p.name for p in sc.picks] == PICKS
+    for path in sc.conveyors[4:]:
+        part = cell.workpiece(path.workpiece)
+        end = path.t_start + path.length / path.speed
+
+        def seen(t, part=part, path=path):
+            T = part.T_base_part.copy()
+            T[:2, 3] = path.position(t)
+            points = part.feature_points @ T[:3, :3].T + T[:3, 3]
+            return np.array([cam.sees(points) for cam in cell.cameras]).any(axis=0)
+
+        assert not seen(0.0).any() and not seen(end).any()
+        assert seen(0.5 * (path.t_start + end)).all()
+    assert scenario(cell, 1).passing == ()
+
+
+@pytest.mark.parametrize("passing, field, expected", [
+    ({"parts": ["u1"]}, r"passing\.parts\[0\]': got 'u1'", "does not pick"),
+    ({"parts": ["u3", "u3"]}, r"passing\.parts\[1\]': got 'u3'", "not listed before"),
+    ({"parts": ["nope"]}, r"passing\.parts\[0\]': got 'nope'", "one of the workpieces"),
+    ({"parts": ["u3"], "travel": [0.0, 0.0]}, r"travel", "at least"),
+])
+def test_a_wrong_passing_part_is_refused_naming_the_field_and_value(tmp_path, passing, field,
+                                                                  expected):
+    spec = {"travel": [2.0, 0.0], "speed": 0.03, **passing}
+    with pytest.raises(CellFileError, match=field) as info:
+        load_cell(_variant(tmp_path, passing=spec))
+    assert expected in str(info.value) and "cell.yaml" in str(info.value)
 
 
 def test_experiment_1_leaves_the_parts_still_and_the_world_moves_them_in_2(cell):
@@ -186,6 +224,29 @@ def test_a_short_line_run_logs_and_scores_every_pick(cell, tmp_path):
         assert set(log.text("phase")) == {"waiting"}  # u1's task waits, the others' turns
     figures = json.loads((out / "metrics.json").read_text())["picks"]
     assert all(f["identity_swaps"] == 0 and f["position_rmse_mm"] < 1.0 for f in figures)
+    passing = metrics["passing"]  # upstream, out of every view: waiting, nothing estimated
+    assert [p["part"] for p in passing] == PASSING
+    assert all(p["entered_s"] is None and p["acquired_after_s"] is None for p in passing)
+    for name in PASSING:
+        log = FrameLog.read(out / part_log_name(PICKS, name))
+        assert set(log.text("phase")) == {"passing"} and set(log.text("status")) == {"waiting"}
+
+
+@pytest.mark.slow
+def test_a_passing_part_is_tracked_from_entering_the_views(tmp_path):
+    """Experiment 2, lab, the first 16 s: u3 enters the views about 9 s in; it is estimated
+    within 1.5 s of being wholly in one camera's image (the search for a part out of view runs
+    every second), within 3 mm while it says ``tracking``, never taken for another part, and
+    no frame says ``tracking`` before it entered. Oracle: the world's truth in its log."""
+    out = tmp_path / "run"
+    metrics = run_experiment(RunConfig(2, out, cell="line-cell", realism="lab", seed=1,
+                                       duration=16.0, progress=False, video_every=0))
+    u3 = next(p for p in metrics["passing"] if p["part"] == "u3")
+    assert 5.0 < u3["entered_s"] < u3["whole_in_view_s"] < 15.0, u3
+    assert u3["acquired_after_s"] is not None and u3["acquired_after_s"] < 1.5, u3
+    assert u3["max_error_tracking_mm"] < 3.0 and u3["identity_swaps"] == 0, u3
+    assert u3["tracking_out_of_view_frames"] == 0
+    assert all(p["identity_swaps"] == 0 for p in metrics["picks"])
 
 
 def _pick(part, picked, rmse, tracking, wrong, swaps):
@@ -208,6 +269,33 @@ def test_a_sweeps_lines_are_summed_up_per_run_and_per_group():
     # every part picked 1 of 2 runs, 3 of 4 parts; mean arm RMSE (0.4+0.8+0.6+1.2)/4 = 0.75
     assert row.split(" | ")[6:] == ["2", "1/2", "3/4", "0.75", "1.20", "12.50", "1 (3)", "2 |"]
     assert lines_markdown(specs, [{}, {}]) == ""
+
+
+def _passing(part, after, rmse, tracking, out_of_view, swaps):
+    return {"part": part, "entered_s": None if after == "never" else 10.0,
+            "acquired_after_s": None if after in ("never", None) else after,
+            "position_rmse_arm_mm": rmse, "max_error_tracking_mm": tracking,
+            "tracking_out_of_view_frames": out_of_view, "identity_swaps": swaps}
+
+
+def test_a_sweeps_passing_parts_are_summed_up_per_run_and_per_group():
+    specs = [RunSpec("line-cell", 3, "rendered", "kinematic", seed, realism="lab")
+             for seed in (0, 1)]
+    results = [{"passing": [_passing("u3", 3.0, 1.0, 2.0, 0, 0),
+                            _passing("l3", None, None, None, 0, 0)]},
+               {"passing": [_passing("u3", 1.0, 0.5, 9.0, 2, 1),
+                            _passing("l3", "never", None, None, 0, 0)]}]
+    assert passing_summary(results[1]) == {
+        "passing": 2, "passing_entered": 1, "passing_acquired": 1,
+        "passing_worst_acquired_after_s": 1.0, "passing_worst_rmse_arm_mm": 0.5,
+        "passing_max_error_tracking_mm": 9.0, "passing_tracking_out_of_view_frames": 2,
+        "passing_identity_swaps": 1}
+    assert passing_summary({"picks": []}) == {}
+    row = passing_markdown(specs, results).splitlines()[2]
+    # 3 of 4 entered, 2 of those 3 estimated: after 3.0 and 1.0 s (median 2.0, worst 3.0)
+    assert row.split(" | ")[6:] == ["2", "3/4", "2/3", "2.0", "3.0", "0.75", "1.00", "9.00",
+                                    "2", "1 |"]
+    assert passing_markdown(specs, [{}, {}]) == ""
 
 
 def test_each_pick_is_put_down_one_place_step_further(cell):

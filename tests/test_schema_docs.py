@@ -12,14 +12,18 @@ import pytest
 import yaml
 from pydantic import BaseModel, ValidationError
 
+from cellsight.model.experiments_schema import (
+    ConveyorSpec,
+    CrossingSpec,
+    ExperimentsSpec,
+    PassingSpec,
+    WaypointSpec,
+)
 from cellsight.model.schema import (
     BoxSpec,
     CalibrationFileSpec,
     CameraSpec,
     CellSpec,
-    ConveyorSpec,
-    CrossingSpec,
-    ExperimentsSpec,
     FingersSpec,
     GripperSpec,
     HandEyeSpec,
@@ -33,7 +37,6 @@ from cellsight.model.schema import (
     SolidSpec,
     StaticSpec,
     UrdfSpec,
-    WaypointSpec,
     WorkpieceSpec,
 )
 from cellsight.realism.profile import (
@@ -50,7 +53,7 @@ from cellsight.realism.profile import (
     UnmodelledKnobs,
     load_profile,
 )
-from cellsight.runfolder.metric_sections import PhaseAccuracy, PickFigures
+from cellsight.runfolder.metric_sections import PassingFigures, PhaseAccuracy, PickFigures
 from cellsight.runfolder.metrics import RunMetrics
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "docs" / "gen"))
@@ -82,13 +85,15 @@ def test_the_walk_reaches_every_model_of_the_three_schemas():
     cell = {PoseSpec, BoxSpec, PrismSpec, SegmentSpec, MeshSpec, SolidSpec, LinkSpec, GripperSpec,
             FingersSpec,
             UrdfSpec, RobotSpec, WorkpieceSpec, StaticSpec, LookAtSpec, CalibrationFileSpec,
-            HandEyeSpec, CameraSpec, ConveyorSpec, WaypointSpec, CrossingSpec, ExperimentsSpec,
+            HandEyeSpec, CameraSpec, ConveyorSpec, PassingSpec, WaypointSpec, CrossingSpec,
+            ExperimentsSpec,
             CellSpec}
     profile = {Profile, Distribution, CameraKnobs, RobotKnobs, ServoKnobs, GeometryKnobs,
                UnmodelledKnobs, FaultKnobs, ImageKnobs, TimingKnobs, ScenarioKnobs}
     assert set(models_of(CellSpec)) == cell
     assert set(models_of(Profile)) == profile
-    assert models_of(RunMetrics) == [RunMetrics, PhaseAccuracy, PickFigures]  # nested ones
+    nested = [RunMetrics, PhaseAccuracy, PickFigures, PassingFigures]
+    assert models_of(RunMetrics) == nested
 
 
 @pytest.mark.parametrize(("model", "name"), _fields(),

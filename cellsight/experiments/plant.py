@@ -111,7 +111,7 @@ def part_truth(world: GroundTruth, part: str) -> PartTruth:
 def frame_truth(world: SimulatedCell, part: str, robot: str,
                 others: Sequence[str] = ()) -> FrameTruth:
     """The world's truth now about workpiece ``part`` and robot ``robot``, and about the
-    workpieces ``others`` (a line's other picks)."""
+    workpieces ``others`` (a line's other picks and its passing parts)."""
     poses, views = world.true_part_poses(), world.true_views()
     truths = {name: PartTruth(poses[name], views[name]) for name in {part, *others}}
     return FrameTruth(truths.pop(part), world.true_joints(), world.jaw_openings()[robot],

@@ -108,9 +108,10 @@ class ExperimentRun:
         cfg = self.config
         rows = FrameRows(self.robot, len(self.cell.cameras), cfg.sensor.takes_images)
         names = [p.name for p in self.scenario.picks]  # each pick's log, the first's frames.csv
+        logged = self.scenario.picks + self.scenario.passing  # and each passing part's
         sinks: list[FrameSink] = [OcclusionEvents()] + [
             FramesCsv(rows, PnPBaseline.of(self.tracker, p.feature_points), p.name,
-                      part_log_name(names, p.name), names) for p in self.scenario.picks]
+                      part_log_name(names, p.name), names) for p in logged]
         if cfg.live is not None:
             sinks.append(LiveSink(cfg.live))
         if cfg.record is not None:
@@ -152,7 +153,7 @@ class ExperimentRun:
             "knock": self._knock(),
             "registration": self._registration(),
             **_arm_error(self._home_error(), frames),
-            "picks": self._picks(),
+            **self._line(),
         }
 
     def _home_error(self) -> np.ndarray | None:
@@ -163,18 +164,24 @@ class ExperimentRun:
             return None
         return self.draws.tcp_error(self.robot, self.robot.home)
 
-    def _picks(self) -> list[dict] | None:
-        """A line's picks (None for one part), in order: each part, whether it was held when
-        its Manipulate began (None: its turn never came that far), its failed grasp checks, and
-        its figures from its own frame log (:func:`~cellsight.runfolder.picks.pick_figures`)."""
+    def _line(self) -> dict:
+        """A line's ``picks`` (None for one part), in order: each part, whether it was held
+        when its Manipulate began (None: its turn never came that far), its failed grasp
+        checks, and its figures from its own frame log; and its ``passing`` parts (None for
+        none), each with its figures and when it entered and left the views
+        (:func:`~cellsight.runfolder.picks.pick_figures`)."""
         picks = [p.name for p in self.scenario.picks]
-        if len(picks) == 1:
-            return None
-        figures = pick_figures(Path(self.config.out), picks, self._home_error())
+        passing = [p.name for p in self.scenario.passing]
+        if len(picks) + len(passing) == 1:
+            return {"picks": None, "passing": None}
+        figures = pick_figures(Path(self.config.out), picks, self._home_error(), passing)
         held, tasks = self.source.grasp.held, self.source.task.tasks
-        return [{"part": name, "picked": held[k] if k < len(held) else None,
-                 "failed_grasp_checks": tasks[k].attempts if k < len(tasks) else 0,
-                 **figures[name]} for k, name in enumerate(picks)]
+        return {
+            "picks": [{"part": name, "picked": held[k] if k < len(held) else None,
+                       "failed_grasp_checks": tasks[k].attempts if k < len(tasks) else 0,
+                       **figures[name]} for k, name in enumerate(picks)],
+            "passing": [{"part": name, **figures[name]} for name in passing] or None,
+        }
 
     def _knock(self) -> dict | None:
         """The knocked camera's figures (:func:`~.monitors.knock_record`), if any."""

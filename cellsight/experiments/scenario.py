@@ -8,7 +8,9 @@ The grasping robot defaults to the first robot with a tool and a FINAL pose, the
 the cell's first one. On a line (the cell file's ``experiments.picks``) the robot picks several
 parts in turn; in experiments 2 and 3 the conveyor carries them all, the first along the cell
 file's path and each other one along the same path moved to its own place on the belt (so
-that they all keep their spacing). A realism profile's seed may shift the scenario
+that they all keep their spacing); it also carries the line's passing parts (the cell file's
+``experiments.passing``), not picked, each from its own place by the same travel, into the
+views and out of them. A realism profile's seed may shift the scenario
 (:class:`~cellsight.realism.ScenarioShift`): the conveyor's path moves with the part's start and
 turns about it, its speed scales, and the crossing robot's waypoints move in time and in joint
 space, all together (so that the crossing keeps its meaning).
@@ -21,7 +23,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from cellsight.errors import CellFileError
-from cellsight.model.cell import Cell, Workpiece
+from cellsight.model.cell import Cell, ExperimentSetup, Workpiece
 from cellsight.model.robot import Robot
 from cellsight.realism import ScenarioShift
 from cellsight.world import ConveyorPath, Waypoint
@@ -36,14 +38,16 @@ DESCRIPTIONS = {
 @dataclass(frozen=True)
 class Scenario:
     """One experiment on one cell: who grasps what (``picks``, in turn; one part but on a
-    line), how the parts move (``conveyors``, one per carried part; none in experiment 1),
-    who else moves (``tasks``)."""
+    line), how the parts move (``conveyors``, one per carried part, the picks' first; none in
+    experiment 1), who else moves (``tasks``), and the parts that pass through the views
+    without being picked (``passing``; experiments 2 and 3 of a line)."""
 
     number: int
     robot: Robot
     picks: tuple[Workpiece, ...]
     conveyors: tuple[ConveyorPath, ...]
     tasks: dict[str, list[Waypoint]] = field(default_factory=dict)
+    passing: tuple[Workpiece, ...] = ()
 
     @property
     def description(self) -> str:
@@ -72,6 +76,9 @@ def scenario(cell: Cell, number: int, shift: ScenarioShift | None = None) -> Sce
         raise CellFileError(setup.source, "workpieces", [], "at least one workpiece")
     picks = cell.picked_workpieces()
     conveyors: tuple[ConveyorPath, ...] = ()
+    passing: tuple[Workpiece, ...] = ()
+    if number >= 2 and setup.passing:
+        passing = tuple(cell.workpiece(name) for name in setup.passing)
     if number >= 2:
         if setup.conveyor_points is None:
             raise CellFileError(setup.source, "experiments.conveyor", None,
@@ -82,6 +89,7 @@ def scenario(cell: Cell, number: int, shift: ScenarioShift | None = None) -> Sce
         conveyors = tuple(
             ConveyorPath(points + belt_place(picks[0], part, shift), speed,
                          setup.conveyor_t_start, workpiece=part.name) for part in picks)
+        conveyors += tuple(passing_path(setup, part, shift) for part in passing)
     tasks = {}
     if number == 3:
         if not setup.crossing_waypoints:
@@ -91,7 +99,23 @@ def scenario(cell: Cell, number: int, shift: ScenarioShift | None = None) -> Sce
         dq = 0.0 if dq is None else dq
         tasks[setup.crossing_robot] = [Waypoint(t + dt, q + dq)
                                        for t, q in setup.crossing_waypoints]
-    return Scenario(number, robot, picks, conveyors, tasks)
+    return Scenario(number, robot, picks, conveyors, tasks, passing)
+
+
+def passing_path(setup: ExperimentSetup, part: Workpiece,
+                 shift: ScenarioShift | None) -> ConveyorPath:
+    """The belt's path of a passing ``part``: from its nominal place (moved by its start shift)
+    by the cell file's travel, at its speed (scaled by ``shift.speed_scale``). It keeps its
+    lane: the picks' path turn (a few degrees) would move it across the belt and off it over
+    a passing part's metres of travel."""
+    start = part.T_base_part[:2, 3].copy()
+    travel = np.asarray(setup.passing_travel, dtype=float)
+    speed = setup.passing_speed
+    if shift is not None:
+        start = start + shift.part_shifts.get(part.name, shift.shift)
+        speed = speed * shift.speed_scale
+    return ConveyorPath(np.array([start, start + travel]), speed, setup.passing_t_start,
+                        workpiece=part.name)
 
 
 def belt_place(first: Workpiece, part: Workpiece, shift: ScenarioShift | None) -> np.ndarray:

@@ -85,8 +85,8 @@ class SimulatedSource:
         self.deliveries = Deliveries()
         self.frames_dropped = 0
         landing = Landing(cell.static)
-        self.priors_of = ({p.name: KinematicPrior(p, landing) for p in scenario.picks}
-                          if kinematic else None)
+        self.priors_of = ({p.name: KinematicPrior(p, landing)
+                           for p in scenario.picks + scenario.passing} if kinematic else None)
         kidnap = draws.errors.kidnap
         self.kidnap = None if kidnap is None else KidnapMonitor(kidnap)
         self.task = PickSequence(scenario.picks, partial(pick_task, cell, scenario))
@@ -134,9 +134,9 @@ class SimulatedSource:
         world, name = self.world, self.robot.name
         fate = self.clock.next()
         self._fate_latency_s = fate.latency_s
-        picks = self.scenario.picks
+        logged = self.scenario.picks + self.scenario.passing
         truth = frame_truth(world, self.part.name, name,
-                            [p.name for p in picks] if len(picks) > 1 else ())
+                            [p.name for p in logged] if len(logged) > 1 else ())
         dropped = fate.dropped or (self.kidnap is not None and self.kidnap.kidnap.blind(t))
         observed = self._grab(dropped, truth.part)
         ideal = self.exposures.ideal
@@ -165,7 +165,8 @@ class SimulatedSource:
         the part picked now is held while the jaws are closed on it at the opening of its
         grasp (the task's own check, :func:`~cellsight.control.task.grasp_miss`; closed at
         another, they caught it off its grasp, and it is not where the task's grasp puts it),
-        at the grasp the task chose; a line's other picks are not held."""
+        at the grasp the task chose; a line's other picks and its passing parts are not
+        held."""
         if self.priors_of is None:
             return None, None
         name, task = self.robot.name, self.task

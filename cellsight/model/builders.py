@@ -28,12 +28,12 @@ from cellsight.geometry.transforms import look_at
 from cellsight.kinematics import DHChain, DHLink, KinematicChain
 from cellsight.model.calibration import CalibrationError, read_hand_eye, read_intrinsics
 from cellsight.model.cell import Cell, ExperimentSetup, StaticObject, Workpiece
+from cellsight.model.experiments_schema import ExperimentsSpec
 from cellsight.model.robot import ParallelGripper, Robot
 from cellsight.model.schema import (
     CalibrationFileSpec,
     CameraSpec,
     CellSpec,
-    ExperimentsSpec,
     FingersSpec,
     GripperSpec,
     HandEyeSpec,
@@ -381,6 +381,23 @@ def _picks(spec: ExperimentsSpec, parts: list[Workpiece], file: str) -> tuple[st
     return tuple(spec.picks)
 
 
+def _passing(spec: ExperimentsSpec, parts: list[Workpiece], picks: tuple[str, ...],
+             file: str) -> tuple[str, ...]:
+    """The ``experiments.passing.parts``: workpieces of the cell, each once, none picked."""
+    if spec.passing is None:
+        return ()
+    names = [w.name for w in parts]
+    for k, name in enumerate(spec.passing.parts):
+        at = f"experiments.passing.parts[{k}]"
+        if name not in names:
+            raise CellFileError(file, at, name, f"one of the workpieces {sorted(names)}")
+        if name in picks or (not picks and name == (spec.workpiece or names[0])):
+            raise CellFileError(file, at, name, "a workpiece the robot does not pick")
+        if name in spec.passing.parts[:k]:
+            raise CellFileError(file, at, name, "a workpiece not listed before")
+    return tuple(spec.passing.parts)
+
+
 def _experiments(spec: ExperimentsSpec | None, robots: list[Robot], parts: list[Workpiece],
                  file: str) -> ExperimentSetup:
     """Check the ``experiments`` section against the cell's robots and workpieces."""
@@ -400,6 +417,10 @@ def _experiments(spec: ExperimentsSpec | None, robots: list[Robot], parts: list[
     setup = ExperimentSetup(robot=spec.robot, workpiece=spec.workpiece,
                             picks=_picks(spec, parts, file),
                             place_step=tuple(spec.place_step or (0.0, 0.0)), source=file)
+    if spec.passing is not None:
+        setup = replace(setup, passing=_passing(spec, parts, setup.picks, file),
+                        passing_travel=tuple(spec.passing.travel),
+                        passing_speed=spec.passing.speed, passing_t_start=spec.passing.t_start)
     if spec.conveyor is not None:
         setup = replace(setup, conveyor_points=np.array(spec.conveyor.points),
                         conveyor_speed=spec.conveyor.speed,

@@ -60,8 +60,10 @@ class ExperimentSetup:
     follows the path and the others move with it, keeping their places on the belt);
     ``crossing_robot`` follows ``crossing_waypoints`` ((t s, q) pairs, absolute times) in
     experiment 3. On a line, pick ``k`` (0-based) is put down at FINAL's TCP pose moved by ``k``
-    times ``place_step`` (x, y, m, base frame). ``source`` is the cell file, for error
-    messages.
+    times ``place_step`` (x, y, m, base frame). In experiments 2 and 3 the belt carries each
+    of ``passing`` (parts not picked) from its nominal place by ``passing_travel`` (x, y, m)
+    at ``passing_speed`` (m/s) from ``passing_t_start`` (s). ``source`` is the cell file, for
+    error messages.
     """
 
     robot: str | None = None
@@ -73,6 +75,10 @@ class ExperimentSetup:
     conveyor_t_start: float = 0.0
     crossing_robot: str | None = None
     crossing_waypoints: tuple[tuple[float, np.ndarray], ...] = ()
+    passing: tuple[str, ...] = ()
+    passing_travel: tuple[float, float] = (0.0, 0.0)
+    passing_speed: float = 0.0
+    passing_t_start: float = 0.0
     source: str = "<memory>"
 
 

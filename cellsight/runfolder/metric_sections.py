@@ -104,8 +104,37 @@ class PickFigures(BaseModel):
     confident_wrong_frames: int | None = about(
         None, "Its evaluated frames more than 10 mm off while its status said tracking.", "-")
     identity_swaps: int | None = about(
-        None, "Its frames with the estimate nearer another pick's true position than its own, "
-        "and more than 10 mm from its own.", "-")
+        None, "Its frames with the estimate nearer another logged part's true position than "
+        "its own, and more than 10 mm from its own.", "-")
+
+
+class PassingFigures(BaseModel):
+    """One passing part of a line (the cell file's ``experiments.passing``): carried through
+    the views, not picked; its figures from its own frame log, and its entry and exit
+    (:mod:`cellsight.runfolder.picks`)."""
+
+    model_config = ConfigDict(extra="allow", strict=True)
+
+    part: str = about(..., "The workpiece.", "-")
+    entered_s: Number = about(
+        None, "When it entered the views (a feature truly in some camera's image; none: "
+        "never).", "s")
+    whole_in_view_s: Number = about(
+        None, "When every feature of it was first in one camera's image (none: never).", "s")
+    left_s: Number = about(
+        None, "When it left them (none: never, or still in view at the end).", "s")
+    acquired_after_s: Number = about(
+        None, "From whole_in_view_s to its first estimate after entering (negative: estimated "
+        "before; none: never estimated, or never wholly in view).", "s")
+    tracking_out_of_view_frames: int | None = about(
+        None, "Its frames said tracking while no camera could see it.", "-")
+    position_rmse_mm: Number = about(
+        None, "Its position RMSE over its evaluated frames (in view, estimated).", "mm")
+    max_error_tracking_mm: Number = about(
+        None, "Its largest error while its status said tracking.", "mm")
+    identity_swaps: int | None = about(
+        None, "Its frames with the estimate nearer another logged part's true position than "
+        "its own, and more than 10 mm from its own.", "-")
 
 
 class TaskMetrics(BaseModel):
@@ -136,6 +165,8 @@ class TaskMetrics(BaseModel):
     collision_count: int | None = about(None, "How many collisions there were.", "-")
     picks: list[PickFigures] | None = about(
         None, "A line's picks, in order, each with its own figures (none: one part).", "-")
+    passing: list[PassingFigures] | None = about(
+        None, "A line's passing parts, each with its own figures (none: no passing part).", "-")
 
 
 class PhaseAccuracy(BaseModel):

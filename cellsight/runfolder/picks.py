@@ -6,7 +6,12 @@ FramesCsv`). :func:`pick_figures` reads them back: each part's estimation figure
 (:func:`~cellsight.runfolder.figures.frame_metrics`) and its identity swaps, the frames in which
 its estimate lies nearer another pick's true position than its own, and more than
 :data:`~cellsight.runfolder.figures.CONFIDENT_WRONG_MM` from its own (the tracker took one part
-for another). Positions m in the base frame; figures mm.
+for another). A line's passing parts (carried through the views, not picked) are logged the
+same way, in ``parts/<name>/frames.csv``; :func:`passing_figures` adds when each entered the
+views, was wholly in one, and left them (its features truly in a camera's image), how long
+after it was wholly in view it was first estimated, and its frames said ``tracking`` while
+out of every view.
+Positions m in the base frame; figures mm.
 """
 
 from __future__ import annotations
@@ -20,6 +25,7 @@ from cellsight.runfolder.figures import (
     CONFIDENT_WRONG_MM,
     evaluated_frames,
     frame_metrics,
+    in_image,
     position_rmse_in_arm_frame_mm,
 )
 from cellsight.runfolder.framelog import FrameLog
@@ -37,17 +43,19 @@ def part_log_name(picks: Sequence[str], name: str) -> str:
     return "frames.csv" if name == picks[0] else f"parts/{name}/frames.csv"
 
 
-def pick_figures(out: Path, picks: Sequence[str],
-                 arm_error_m: np.ndarray | None) -> dict[str, dict]:
-    """Each pick's figures (module docstring) from the logs in run folder ``out``:
-    :data:`KEPT`, ``position_rmse_arm_mm`` (with ``arm_error_m``, the grasping arm's own
-    error at HOME, m; None without it) and ``identity_swaps`` (frames); no figures when a log
-    is missing."""
-    paths = {name: out / part_log_name(picks, name) for name in picks}
+def pick_figures(out: Path, picks: Sequence[str], arm_error_m: np.ndarray | None,
+                 passing: Sequence[str] = ()) -> dict[str, dict]:
+    """Each pick's and passing part's figures (module docstring) from the logs in run folder
+    ``out``: :data:`KEPT`, ``position_rmse_arm_mm`` (with ``arm_error_m``, the grasping arm's
+    own error at HOME, m; None without it) and ``identity_swaps`` (frames; against every
+    logged part), and a passing part's :func:`passing_figures`; no figures when a log is
+    missing."""
+    names = [*picks, *passing]
+    paths = {name: out / part_log_name(picks, name) for name in names}
     if not all(path.is_file() for path in paths.values()):  # a run that failed as it began
-        return {name: {} for name in picks}
+        return {name: {} for name in names}
     logs = {name: FrameLog.read(path) for name, path in paths.items()}
-    truths = np.stack([logs[name].poses("true")[:, :3] for name in picks])  # (P, N, 3)
+    truths = np.stack([logs[name].poses("true")[:, :3] for name in names])  # (P, N, 3)
     out_figures = {}
     for k, (name, log) in enumerate(logs.items()):
         figures = frame_metrics(log)
@@ -56,8 +64,39 @@ def pick_figures(out: Path, picks: Sequence[str],
                                         else position_rmse_in_arm_frame_mm(log, arm_error_m))
         kept["identity_swaps"] = identity_swaps(log.poses("est")[:, :3], truths, k,
                                                 evaluated_frames(log))
+        if name in passing:
+            kept.update(passing_figures(log))
         out_figures[name] = kept
     return out_figures
+
+
+def passing_figures(log: FrameLog) -> dict[str, float | int | None]:
+    """A passing part's entry and exit (module docstring): ``entered_s`` (s: a feature in
+    some camera's image), ``whole_in_view_s`` (s: every feature in one camera's image) and
+    ``left_s`` (s: none in any image again; None: never in view, or still in view at the end),
+    ``acquired_after_s`` (s from the first frame wholly in view to the first estimate after
+    entering; negative: estimated before it was; None: no estimate, or never wholly in view),
+    and ``tracking_out_of_view_frames``."""
+    t = log.floats("t")
+    inside = in_image(log)  # (N, C, F)
+    seen, whole = inside.any(axis=(1, 2)), inside.all(axis=2).any(axis=1)
+    status = np.array(log.text("status"), dtype=str)
+    figures: dict[str, float | int | None] = {
+        "entered_s": None, "whole_in_view_s": None, "left_s": None, "acquired_after_s": None,
+        "tracking_out_of_view_frames": int(np.sum(~seen & (status == "tracking")))}
+    if not seen.any():
+        return figures
+    first = int(np.argmax(seen))
+    last = len(seen) - 1 - int(np.argmax(seen[::-1]))
+    figures["entered_s"] = float(t[first])
+    figures["left_s"] = None if last == len(seen) - 1 else float(t[last + 1])
+    estimated = log.present("est_x") & (np.arange(log.n) >= first)
+    if whole.any():
+        figures["whole_in_view_s"] = float(t[int(np.argmax(whole))])
+        if estimated.any():
+            figures["acquired_after_s"] = round(float(t[int(np.argmax(estimated))]
+                                                      - figures["whole_in_view_s"]), 4)
+    return figures
 
 
 def identity_swaps(estimate: np.ndarray, truths: np.ndarray, k: int, frames: np.ndarray) -> int:

@@ -111,7 +111,8 @@ class FramesCsv:
     PnP ``baseline`` finds from the same corners. On a line, one for each of the ``picks``
     (names, in order): ``part`` names the pick it logs, into ``name`` (in the run folder); its
     phase and stage are the task's while it is picked now, ``waiting`` before its turn and
-    ``done`` after it (None: the record's part, ``frames.csv``)."""
+    ``done`` after it (None: the record's part, ``frames.csv``); a part not among ``picks`` (a
+    line's passing part) is ``passing``."""
 
     def __init__(self, rows: FrameRows, baseline: PnPBaseline, part: str | None = None,
                  name: str = "frames.csv", picks: Sequence[str] = ()) -> None:
@@ -133,7 +134,9 @@ class FramesCsv:
         name = current if self.part is None else self.part
         part = record.result.parts[name]
         phase, stage = record.phase, record.stage
-        if name != current:
+        if name not in self.picks and self.part is not None:
+            phase, stage = "passing", ""
+        elif name != current:
             before = self.picks.index(name) < self.picks.index(current)
             phase, stage = ("done", "") if before else ("waiting", "")
         pnp = self.baseline.update(record.t, part.measured)

@@ -20,7 +20,12 @@ from cellsight.control import Phase  # noqa: E402
 from cellsight.runfolder.writes import write_figure, write_file  # noqa: E402
 from cellsight.sweep.aggregate import aggregate_markdown  # noqa: E402
 from cellsight.sweep.grid import RunSpec  # noqa: E402
-from cellsight.sweep.lines import lines_markdown, pick_summary  # noqa: E402
+from cellsight.sweep.lines import (  # noqa: E402
+    lines_markdown,
+    passing_markdown,
+    passing_summary,
+    pick_summary,
+)
 from cellsight.visibility import OBJECT_BVH  # noqa: E402
 
 COLUMNS = (
@@ -45,6 +50,8 @@ VARIANT_NAMES = {"kinematic": "kinematic", "plain": "plain (the paper's)",
 RUN_KEYS = ("cell", "experiment", "sensor", "variant", "seed")
 LINES_HEADER = "Lines, each part picked in turn (every part's own figures):"
 """The line above the lines' table in ``summary.md`` (:func:`~.lines.lines_markdown`)."""
+PASSING_HEADER = "Parts passing through the views on a line, not picked (each part's own figures):"
+"""The line above the passing parts' table in ``summary.md`` (:func:`~.lines.passing_markdown`)."""
 
 
 def _fmt(metrics: dict, key: str, pattern: str) -> str:
@@ -72,6 +79,7 @@ def flat_row(spec: RunSpec, metrics: dict) -> dict[str, object]:
     row.update({f"kidnap_{k}": v for k, v in (metrics.get("kidnap") or {}).items()
                 if isinstance(v, int | float | str | bool | None)})
     row.update(pick_summary(metrics))
+    row.update(passing_summary(metrics))
     return row
 
 
@@ -176,9 +184,11 @@ def write_summary(out: Path, specs: Sequence[RunSpec], results: Sequence[dict]) 
     paths = [out / "summary.csv", out / "summary.md", out / "summary.png"]
     write_csv(paths[0], [flat_row(s, m) for s, m in zip(specs, results, strict=True)])
     kidnaps, lines = kidnap_markdown(specs, results), lines_markdown(specs, results)
+    passing = passing_markdown(specs, results)
     write_file(paths[1], aggregate_markdown(specs, results) + "\n" + markdown(specs, results)
                + (f"\nKidnapped runs:\n\n{kidnaps}" if kidnaps else "")
-               + (f"\n{LINES_HEADER}\n\n{lines}" if lines else ""))
+               + (f"\n{LINES_HEADER}\n\n{lines}" if lines else "")
+               + (f"\n{PASSING_HEADER}\n\n{passing}" if passing else ""))
     plot(paths[2], specs, results)
     return paths
 

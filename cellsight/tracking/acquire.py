@@ -3,7 +3,16 @@ references): a fix in windows at the guess or the last prediction, verified wher
 every usable feature; else the whole-image search's best confirmed candidate; then the fix's
 twins (the part turned onto itself) tried, the one confirmed by the most points kept. A fix off
 the support the kinematic prior says the part lies on, or away from where a holder just let it
-go, is refused."""
+go, is refused.
+
+Data association: the parts are known by name, and each track keeps its own (its windows lie
+where its own prediction puts its features). A part to be acquired may be found where another
+part lies: the search proposes every place that fits its shape, and a part of the same shape
+nearby fits as well as it does. So a fix whose feature points' centre lies within
+``CLAIM_SHARE`` of the two parts' summed radii of another track's estimate (one neither lost
+nor waiting) is that part's and is refused: two parts cannot lie closer (their points' boxes
+would cross), and the part keeps waiting until it shows itself elsewhere (a passing part
+entering the views, a part put down beside another)."""
 
 from __future__ import annotations
 
@@ -22,6 +31,7 @@ from cellsight.tracking.grabbing import grabbed
 from cellsight.tracking.measuring import Measurer
 from cellsight.tracking.motion import POSE_DIM
 from cellsight.tracking.part_track import (
+    PartTrack,
     StepContext,
     cameras_grabbed,
     looked_at,
@@ -31,9 +41,11 @@ from cellsight.tracking.part_track import (
 from cellsight.tracking.pnp import PoseFix
 from cellsight.tracking.prior.fusion import fits_prior
 from cellsight.tracking.records import PartFrame
+from cellsight.tracking.search import PlaneSearch
 from cellsight.tracking.status import TrackStatus
 
 TWIN_VERTICAL = np.cos(np.radians(10.0))  # a twin's turn axis this close to the vertical
+CLAIM_SHARE = 0.4  # a fix this close (share of the two radii) to another track's is that part's
 
 
 class Measuring(Protocol):
@@ -45,6 +57,7 @@ class Measuring(Protocol):
     config: TrackerConfig
     camera_check: CameraCheck
     measurer: Measurer
+    tracks: dict[str, PartTrack]
 
     def initialise(self, name: str, T_base_part: np.ndarray, t: float,
                    covariance: np.ndarray | None = None,
@@ -93,8 +106,8 @@ class Acquirer:
         track, acquisition = context.track, self.tracker.components.acquisition
         fix = self.fix(context, acquisition.window_px, coarse=True)
         verified = None if fix is None else self.verify(context, fix)
-        if verified is not None and not fits_prior(track, verified[1].T_base_part, context.t):
-            verified = None  # off the support it lies on: a wrong pose the corners fit
+        if verified is not None and not self.fits(context, verified[1].T_base_part):
+            verified = None  # off its support, or another part's: a wrong pose the corners fit
         searched = verified is None
         if searched:
             verified = self.search(context)
@@ -148,6 +161,34 @@ class Acquirer:
                                                          used.sum(axis=1))
         return (trial, again) if confirmed else None
 
+    def search_every(self, track: PartTrack, search: PlaneSearch) -> float | None:
+        """How often (s) the part is searched for: ``search.every_s``; for a part never
+        acquired whose guess lies outside every camera's view (it may come in: a part carried
+        in from upstream), ``search.out_of_view_every_s``; never (None) for a part lost with
+        its last estimate outside every camera's view: it left the views, and its track ends
+        (a part carried out downstream does not come back)."""
+        last = track.guess if track.ekf is None else track.ekf.pose
+        if last is None:
+            return search.every_s
+        centre = track.centre_at(last)[None]
+        if any(camera.sees(centre)[0] for camera in self.tracker.cameras):
+            return search.every_s
+        return search.out_of_view_every_s if track.ekf is None else None
+
+    def fits(self, context: StepContext, T_base_part: np.ndarray) -> bool:
+        """A fix of the context's part at ``T_base_part`` may stand: on the support the
+        kinematic prior says it lies on (:func:`~.prior.fusion.fits_prior`), and not where
+        another track holds its part (module docstring)."""
+        name, track = context.rec.name, context.track
+        if not fits_prior(track, T_base_part, context.t):
+            return False
+        centre = track.centre_at(T_base_part)
+        return not any(
+            np.linalg.norm(other.centre_at(other.ekf.pose) - centre)
+            < CLAIM_SHARE * (track.radius + other.radius)
+            for other_name, other in self.tracker.tracks.items()
+            if other_name != name and other.claims)
+
     def search(self, context: StepContext) -> tuple[StepContext, PoseFix] | None:
         """The whole-image search, when it is due (:mod:`.search`): of its best candidates
         whose windows give a fix of at least ``min_points`` points (seeded by the candidate;
@@ -162,9 +203,9 @@ class Acquirer:
         cameras, check = self.tracker.cameras, self.tracker.camera_check
         observed = [observed_of(context.observed, cameras, c) if check.usable(c) else None
                     for c in range(len(cameras))]
-        if (search is None or detect is None or track.support is None
-                or t - track.searched < search.every_s - 1e-9
-                or all(o is None for o in observed)):
+        every = None if search is None else self.search_every(track, search)
+        if (every is None or detect is None or track.support is None
+                or t - track.searched < every - 1e-9 or all(o is None for o in observed)):
             return None
         track.searched = t
         with context.timer("grab"):
@@ -184,7 +225,7 @@ class Acquirer:
                                           else fix.n_points >= search.min_points)
             if enough:
                 verified = self.verify(trial, fix, on_support=True)
-                if verified is not None and fits_prior(track, verified[1].T_base_part, t):
+                if verified is not None and self.fits(context, verified[1].T_base_part):
                     confirmed.append(verified)
         return max(confirmed, key=lambda c: (c[1].n_points, -c[1].rms_px), default=None)
 

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
+from functools import cached_property
 from typing import Any
 
 import numpy as np
@@ -65,6 +66,26 @@ class PartTrack:
     twins: list[np.ndarray] = field(default_factory=list)
     lying: np.ndarray | None = None
     let_go_t: float | None = None
+
+    @cached_property
+    def centre(self) -> np.ndarray:
+        """(3,) m: the centre of the feature points' box, in the part frame."""
+        return 0.5 * (self.points.min(axis=0) + self.points.max(axis=0))
+
+    @cached_property
+    def radius(self) -> float:
+        """m: the farthest feature point's distance from :attr:`centre`."""
+        return float(np.linalg.norm(self.points - self.centre, axis=1).max())
+
+    def centre_at(self, T_base_part: np.ndarray) -> np.ndarray:
+        """(3,) m, base frame: :attr:`centre` with the part at ``T_base_part``."""
+        return T_base_part[:3, :3] @ self.centre + T_base_part[:3, 3]
+
+    @property
+    def claims(self) -> bool:
+        """The track holds its part's place: it has a filter and is not lost (a pose another
+        part's acquisition finds there is this part's, :mod:`.acquire`)."""
+        return self.ekf is not None and not self.lost
 
     @property
     def acquiring(self) -> bool:

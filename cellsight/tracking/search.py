@@ -36,6 +36,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+import cellsight.tracking._search_kernel as kernel
 from cellsight.camera import Camera
 from cellsight.geometry.transforms import rotation_z
 
@@ -51,9 +52,12 @@ class Candidate:
 @dataclass(frozen=True)
 class PlaneSearch:
     """Search of a resting part over its support plane (module docstring). Units: m, deg, px,
-    s. For the tracker: ``every_s``, how often a part being acquired is searched for; the
-    ``verify`` best candidates are tried, and a candidate's PnP fix counts with at least
-    ``min_points`` points."""
+    s. For the tracker: ``every_s``, how often a part being acquired is searched for, and
+    ``out_of_view_every_s`` one never acquired whose guess lies outside every camera's view
+    (it may enter them: a part carried in from upstream; one lost out of every view left them,
+    and is not searched for); the ``verify`` best
+    candidates are tried, and a candidate's PnP fix counts with at least ``min_points``
+    points."""
 
     extent_m: float = 0.5
     step_m: float = 0.02
@@ -64,6 +68,7 @@ class PlaneSearch:
     match_px: float = 3.0
     min_matches: int = 4
     every_s: float = 0.2
+    out_of_view_every_s: float = 1.0
     verify: int = 5
     min_points: int = 6
 
@@ -150,22 +155,18 @@ class _Board:
         """(G, C) score of each pose ``(x, y, psi)`` (G, 3) in each camera: per point, ``1 - d
         / tol`` for the nearest corner at ``d <= tol`` px, ``tol`` being ``reach`` (m) seen at
         the points' depth, at least ``min_px``; ``hard``: count the points within ``tol``."""
-        c, s = np.cos(poses[:, 2]), np.sin(poses[:, 2])
-        px, py, pz = self.points.T
-        X = c[:, None] * px - s[:, None] * py + poses[:, :1]
-        Y = s[:, None] * px + c[:, None] * py + poses[:, 1:2]
-        Z = np.broadcast_to(pz + self.z, X.shape)
-        world = np.stack([X, Y, Z], -1).reshape(-1, 3)
+        poses = np.ascontiguousarray(poses, dtype=np.float64)
         total = np.zeros((len(poses), len(self.cameras)))
         for c, (cam, dist) in enumerate(zip(self.cameras, self.maps, strict=True)):
             if dist is None:
                 continue
-            cam_pts = cam.to_camera(world)
-            front = cam_pts[:, 2] > 0
-            depth = float(np.median(cam_pts[front, 2])) if front.any() else 1.0
+            R, t = cam.T_cam_base[:3, :3], cam.T_cam_base[:3, 3]
+            z = kernel.depths(poses, self.points, self.z, R, t)
+            front = z[z > 0]
+            depth = float(np.median(front)) if len(front) else 1.0
             tol = max(min_px, cam.K[0, 0] * reach / depth)
-            match = _matched(dist, cam.project_camera(cam_pts), tol)
-            total[:, c] = (match > 0 if hard else match).reshape(len(poses), -1).sum(axis=1)
+            total[:, c] = kernel.scores(poses, self.points, self.z, R, t, cam.K, cam.dist5, dist,
+                                        tol, hard)
         return total
 
 
@@ -179,20 +180,6 @@ def _distance_image(camera: Camera, corners: np.ndarray) -> np.ndarray:
     if not inside.any():
         return np.full(mask.shape, np.inf, dtype=np.float32)
     return cv2.distanceTransform(mask, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
-
-
-def _matched(dist: np.ndarray, uv: np.ndarray, tol: float) -> np.ndarray:
-    """(N,) how well each pixel ``uv`` (N, 2) matches a corner: ``1 - d / tol`` for a corner
-    at ``d <= tol`` px, else 0 (also outside the image)."""
-    h, w = dist.shape
-    ok = np.isfinite(uv).all(axis=1)
-    u = np.full(len(uv), -1)
-    v = np.full(len(uv), -1)
-    u[ok], v[ok] = np.rint(uv[ok, 0]).astype(int), np.rint(uv[ok, 1]).astype(int)
-    ok &= (u >= 0) & (u < w) & (v >= 0) & (v < h)
-    out = np.zeros(len(uv))
-    out[ok] = np.maximum(0.0, 1.0 - dist[v[ok], u[ok]] / tol)
-    return out
 
 
 def _squares(centres: np.ndarray, extent: float, step: float) -> np.ndarray:

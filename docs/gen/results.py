@@ -19,6 +19,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from cellsight.sweep.summary import LINES_HEADER as LINES
+from cellsight.sweep.summary import PASSING_HEADER as PASSING
 
 DATA = Path("docs") / "results" / "data"
 BENCH = Path("docs") / "results" / "bench"
@@ -171,6 +172,10 @@ def table_page(root: Path, table: Table) -> str:
     if LINES in body:  # a line's runs: each part's own figures, grouped
         lines += ["## Each part", "", "Every part of the line, each picked in turn, with its "
                   "own figures:", "", *_section(body, LINES), ""]
+    if PASSING in body:  # its parts passing through the views, not picked
+        lines += ["## Parts passing through", "", "The parts the belt carries into the views "
+                  "from upstream and out of them downstream, tracked and not picked:", "",
+                  *_section(body, PASSING), ""]
     if (table.folder / "summary.png").is_file():
         lines += ["## Every seed", "", f"![{meta['title']}](data/{table.name}/summary.png)", ""]
     lines += ["## Every run", "", "??? note \"The sweep's own summary.md\"", ""]
