@@ -17,9 +17,9 @@ from cellsight._camera_kernel import project_point, to_camera
 
 
 @njit(cache=True, inline="always")
-def _placed(poses, points, z, g, f):  # pragma: no cover - jit
-    """The base-frame point of feature ``f`` with the part at pose ``g``."""
-    c, s = np.cos(poses[g, 2]), np.sin(poses[g, 2])
+def _placed(poses, points, z, g, f, c, s):  # pragma: no cover - jit
+    """The base-frame point of feature ``f`` with the part at pose ``g`` (``c``, ``s``: the
+    cosine and sine of its turn)."""
     px, py = points[f, 0], points[f, 1]
     return (c * px - s * py + poses[g, 0], s * px + c * py + poses[g, 1], points[f, 2] + z)
 
@@ -31,8 +31,9 @@ def depths(poses, points, z, R, t):  # pragma: no cover - jit
     n_f = points.shape[0]
     out = np.empty(poses.shape[0] * n_f)
     for g in range(poses.shape[0]):
+        c, s = np.cos(poses[g, 2]), np.sin(poses[g, 2])
         for f in range(n_f):
-            out[g * n_f + f] = to_camera(R, t, _placed(poses, points, z, g, f))[2]
+            out[g * n_f + f] = to_camera(R, t, _placed(poses, points, z, g, f, c, s))[2]
     return out
 
 
@@ -45,8 +46,9 @@ def scores(poses, points, z, R, t, K, dist, distance, tol, hard):  # pragma: no 
     out = np.zeros(poses.shape[0])
     for g in range(poses.shape[0]):
         total = 0.0
+        c, s = np.cos(poses[g, 2]), np.sin(poses[g, 2])
         for f in range(points.shape[0]):
-            x, y, zc = to_camera(R, t, _placed(poses, points, z, g, f))
+            x, y, zc = to_camera(R, t, _placed(poses, points, z, g, f, c, s))
             if not zc > 0.0:
                 continue
             u, v = project_point(K, dist, x, y, zc)
