@@ -75,3 +75,22 @@ def test_only_a_held_place_refuses(line, state):
         tracks = {"u1": _track(u, T if state == "lost" else None, lost=state == "lost"),
                   "u3": _track(u)}
     assert _fits(tracks, "u3", T)
+
+
+@pytest.mark.parametrize("where, acquired, expected", [
+    ("u1", False, "every_s"), ("u3", False, "out_of_view_every_s"),
+    ("u1", True, "every_s"), ("u3", True, None)])
+def test_a_part_is_searched_for_while_it_may_come_in_and_not_after_it_left(line, where,
+                                                                          acquired, expected):
+    """On the line: a part waiting at u1's place (in view) is searched for every 0.2 s, at u3's
+    (upstream, out of every view) once a second; one lost there after it was tracked left the
+    views, and is not searched for."""
+    from cellsight.tracking.search import PlaneSearch
+
+    search = PlaneSearch()
+    T = line.workpiece(where).T_base_part
+    track = _track(line.workpiece("u3").feature_points, T if acquired else None, lost=acquired)
+    track.guess = T
+    acquirer = Acquirer(SimpleNamespace(tracks={"u3": track}, cameras=line.cameras))
+    every = acquirer.search_every(track, search)
+    assert every == (None if expected is None else getattr(search, expected))

@@ -10,9 +10,10 @@ where its own prediction puts its features). A part to be acquired may be found 
 part lies: the search proposes every place that fits its shape, and a part of the same shape
 nearby fits as well as it does. So a fix whose feature points' centre lies within
 ``CLAIM_SHARE`` of the two parts' summed radii of another track's estimate (one neither lost
-nor waiting) is that part's and is refused: two parts cannot lie closer (their points' boxes
-would cross), and the part keeps waiting until it shows itself elsewhere (a passing part
-entering the views, a part put down beside another)."""
+nor waiting) is that part's and is refused: two parts lying side by side on a support are
+farther apart (the line's U and L prisms, touching, 6 cm or more, against 4.8 cm), and the
+part keeps waiting until it shows itself elsewhere (a passing part entering the views, a part
+put down beside another). Parts stacked on each other are not told apart."""
 
 from __future__ import annotations
 
