@@ -94,3 +94,26 @@ def test_a_part_is_searched_for_while_it_may_come_in_and_not_after_it_left(line,
     acquirer = Acquirer(SimpleNamespace(tracks={"u3": track}, cameras=line.cameras))
     every = acquirer.search_every(track, search)
     assert every == (None if expected is None else getattr(search, expected))
+
+
+def test_a_part_waiting_upstream_is_looked_for_where_it_would_come_into_the_views(line):
+    """u3 waits 0.3 m upstream of the views: the search also looks around the nearest place on
+    the belt at which a camera sees its centre (a grid step from where none does), straight
+    downstream of its guess."""
+    from cellsight.tracking.search import PlaneSearch
+
+    search = PlaneSearch()
+    part = line.workpiece("u3")
+    track = _track(part.feature_points)
+    track.guess = track.support = part.T_base_part
+    acquirer = Acquirer(SimpleNamespace(tracks={"u3": track}, cameras=line.cameras))
+    (entry,) = acquirer.entry(track, search)
+    offset = track.centre_at(part.T_base_part) - part.T_base_part[:3, 3]
+
+    def seen(xy):
+        centre = np.array([[*xy, part.T_base_part[2, 3]]]) + offset
+        return any(camera.sees(centre)[0] for camera in line.cameras)
+
+    guess = part.T_base_part[:2, 3]
+    assert seen(entry) and not seen(entry - [search.step_m, 0.0])
+    assert 0.15 < entry[0] - guess[0] < 0.4 and abs(entry[1] - guess[1]) <= search.step_m + 1e-9

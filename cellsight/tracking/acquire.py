@@ -47,6 +47,7 @@ from cellsight.tracking.status import TrackStatus
 
 TWIN_VERTICAL = np.cos(np.radians(10.0))  # a twin's turn axis this close to the vertical
 CLAIM_SHARE = 0.4  # a fix this close (share of the two radii) to another track's is that part's
+ENTRY_REACH_M = 2.0  # a part waiting out of view is looked for where it would come in, this near
 
 
 class Measuring(Protocol):
@@ -176,6 +177,27 @@ class Acquirer:
             return search.every_s
         return search.out_of_view_every_s if track.ekf is None else None
 
+    def entry(self, track: PartTrack, search: PlaneSearch) -> list[np.ndarray]:
+        """Where a part waiting out of every camera's view would come into them: the nearest
+        place to its guess, on its support plane and within ``ENTRY_REACH_M``, at which some
+        camera sees its centre (x, y, m; none within reach: an empty list). Found once, on a
+        grid of the search's step; the search looks around it too."""
+        if track.entry is None:
+            step = search.step_m
+            n = int(round(ENTRY_REACH_M / step))
+            grid = np.stack(np.meshgrid(np.arange(-n, n + 1), np.arange(-n, n + 1)), -1)
+            offsets = step * grid.reshape(-1, 2)
+            offsets = offsets[np.argsort(np.hypot(*offsets.T), kind="stable")]
+            centres = track.centre_at(track.support) + np.column_stack(
+                [offsets, np.zeros(len(offsets))])
+            seen = np.zeros(len(centres), dtype=bool)
+            for camera in self.tracker.cameras:
+                seen |= camera.sees(centres)
+            first = int(np.argmax(seen))
+            track.entry = [centres[first, :2] - (track.centre_at(track.support)[:2]
+                                                 - track.support[:2, 3])] if seen.any() else []
+        return track.entry
+
     def fits(self, context: StepContext, T_base_part: np.ndarray) -> bool:
         """A fix of the context's part at ``T_base_part`` may stand: on the support the
         kinematic prior says it lies on (:func:`~.prior.fusion.fits_prior`), and not where
@@ -215,6 +237,8 @@ class Acquirer:
             corners = [None if o is None else detect(o) for o in observed]
             centres = [track.support[:2, 3]] + ([] if track.ekf is None else
                                                 [track.ekf.pose[:2, 3]])
+            if track.ekf is None and every == search.out_of_view_every_s:
+                centres += self.entry(track, search)
             candidates = search.candidates(self.tracker.cameras, track.points, track.support,
                                            np.array(centres), corners)
         confirmed = []

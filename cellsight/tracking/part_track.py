@@ -44,8 +44,10 @@ class PartTrack:
     since when its features were looked for in vain (``unseen_since``, s; :mod:`.loss`) and
     when it was last searched for in the whole images (``searched``, s); the part's ``twins``
     (:func:`~cellsight.tracking.acquisition.twin_turns`); with the kinematic prior, the pose
-    of the part lying on its support this frame (``lying``, None: held, or not known) and
-    when a holder last let it go (``let_go_t``, s; None: never, or held again since)."""
+    of the part lying on its support this frame (``lying``, None: held, or not known),
+    when a holder last let it go (``let_go_t``, s; None: never, or held again since), and
+    where a part waiting out of every view would come into them (``entry``, the search's;
+    None: not found yet)."""
 
     points: np.ndarray
     guess: np.ndarray | None
@@ -66,6 +68,7 @@ class PartTrack:
     twins: list[np.ndarray] = field(default_factory=list)
     lying: np.ndarray | None = None
     let_go_t: float | None = None
+    entry: list[np.ndarray] | None = None
 
     @cached_property
     def centre(self) -> np.ndarray:
