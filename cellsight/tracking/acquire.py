@@ -202,15 +202,18 @@ class Acquirer:
         """A fix of the context's part at ``T_base_part`` may stand: on the support the
         kinematic prior says it lies on (:func:`~.prior.fusion.fits_prior`), and not where
         another track holds its part (module docstring)."""
+        return fits_prior(context.track, T_base_part, context.t) and not self.claimed(
+            context, T_base_part)
+
+    def claimed(self, context: StepContext, T_base_part: np.ndarray) -> bool:
+        """Another track holds its part where the context's part would lie at ``T_base_part``
+        (module docstring)."""
         name, track = context.rec.name, context.track
-        if not fits_prior(track, T_base_part, context.t):
-            return False
         centre = track.centre_at(T_base_part)
-        return not any(
-            np.linalg.norm(other.centre_at(other.ekf.pose) - centre)
-            < CLAIM_SHARE * (track.radius + other.radius)
-            for other_name, other in self.tracker.tracks.items()
-            if other_name != name and other.claims)
+        return any(np.linalg.norm(other.centre_at(other.ekf.pose) - centre)
+                   < CLAIM_SHARE * (track.radius + other.radius)
+                   for other_name, other in self.tracker.tracks.items()
+                   if other_name != name and other.claims)
 
     def search(self, context: StepContext) -> tuple[StepContext, PoseFix] | None:
         """The whole-image search, when it is due (:mod:`.search`): of its best candidates
@@ -243,6 +246,8 @@ class Acquirer:
                                            np.array(centres), corners)
         confirmed = []
         for candidate in candidates[:search.verify]:
+            if self.claimed(context, candidate.T_base_part):
+                continue  # another part lies there: not worth a verification
             trial = looked_at(context, candidate.T_base_part, len(self.tracker.cameras))
             fix = self.fix(trial, acquisition.window_px, coarse=True,
                             guess=candidate.T_base_part, on_support=True)

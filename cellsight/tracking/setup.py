@@ -9,9 +9,9 @@ occluders and a coasting track that resumes only on three features passing the g
 with ``camera-offsets``, each camera's calibration error estimated as an image offset; with
 ``awaiting_registration``, a tracked part is
 ``degraded`` until the cameras are first registered to an arm (``TrackerConfig``). A part
-lying on its support is held to twice the cell file's conveyor speed and 1 cm/s
-(``TrackerConfig.support_speed``; the belt's speed is known to a few tens of percent, and
-nothing else in the cell moves a lying part).
+lying on its support is held to twice the cell file's fastest belt speed (the conveyor's,
+or a line's passing parts') and 1 cm/s (``TrackerConfig.support_speed``; the belt's speed is
+known to a few tens of percent, and nothing else in the cell moves a lying part).
 """
 
 from __future__ import annotations
@@ -44,7 +44,8 @@ def build_tracker(cell: Cell, choice: TrackerChoice = DEFAULT_TRACKER, *,
     caller registers the cameras to an arm (the kinematic tracker with images)."""
     predictor = (visibility_predictor(cell, structure=structure) if choice.occlusion_prediction
                  else ProjectionOnly(cell))
-    speed = 2.0 * cell.experiments.conveyor_speed + 0.01
+    setup = cell.experiments
+    speed = 2.0 * max(setup.conveyor_speed, setup.passing_speed) + 0.01
     config = TrackerConfig(camera_offsets_px=choice.camera_offsets_px,
                            support_speed=(speed, TrackerConfig.support_speed[1]),
                            awaiting_registration=awaiting_registration)
