@@ -87,7 +87,8 @@ class CrossingSpec(_Strict):
 
 
 class ExperimentsSpec(_Strict):
-    """The experiments' setup: the grasping robot and workpiece, conveyor, crossing robot."""
+    """The experiments' setup: the grasping robot and workpiece (or a line's picks), the
+    conveyor, the crossing robot and a line's passing parts."""
 
     robot: str | None = about(None, "The grasping robot (it needs a tool and a final); "
                               "default: the first robot with both.", "-")
