@@ -71,15 +71,23 @@ def _fmt(value: float | None, pattern: str = "{:.2f}") -> str:
     return "–" if value is None or not np.isfinite(value) else pattern.format(value)
 
 
+def _groups(specs: Sequence[RunSpec], results: Sequence[dict],
+            key: str) -> dict[GroupKey, list[dict]]:
+    """The runs that have ``key`` (``picks`` or ``passing``) and no error, grouped as
+    :mod:`.aggregate` groups them."""
+    groups: dict[GroupKey, list[dict]] = {}
+    for spec, m in zip(specs, results, strict=True):
+        if m.get(key) and not m.get("error"):
+            groups.setdefault(group_key(spec), []).append(m)
+    return groups
+
+
 def lines_markdown(specs: Sequence[RunSpec], results: Sequence[dict]) -> str:
     """The lines' table (empty when the sweep has none): per group, the runs with every part
     picked, the parts' arm-frame RMSE (mean and worst part), the worst error while
     ``tracking``, the runs with a part more than 10 mm off while ``tracking`` (frames in all)
     and the identity swaps."""
-    groups: dict[GroupKey, list[dict]] = {}
-    for spec, m in zip(specs, results, strict=True):
-        if m.get("picks") and not m.get("error"):
-            groups.setdefault(group_key(spec), []).append(m)
+    groups = _groups(specs, results, "picks")
     if not groups:
         return ""
     lines = ["| cell | exp. | realism | structure | sensor | variant | seeds | every part picked "
@@ -106,10 +114,7 @@ def lines_markdown(specs: Sequence[RunSpec], results: Sequence[dict]) -> str:
 
 def passing_markdown(specs: Sequence[RunSpec], results: Sequence[dict]) -> str:
     """The passing parts' table (empty when the sweep has none; module docstring)."""
-    groups: dict[GroupKey, list[dict]] = {}
-    for spec, m in zip(specs, results, strict=True):
-        if m.get("passing") and not m.get("error"):
-            groups.setdefault(group_key(spec), []).append(m)
+    groups = _groups(specs, results, "passing")
     if not groups:
         return ""
     lines = ["| cell | exp. | realism | structure | sensor | variant | seeds | parts entered the "
