@@ -43,7 +43,7 @@ from cellsight.realism import Profile, draw_world
 from cellsight.recording.recorder import RecordingSink
 from cellsight.runfolder import FrameLog
 from cellsight.runfolder.figures import position_rmse_in_arm_frame_mm
-from cellsight.runfolder.picks import part_log_name, pick_figures
+from cellsight.runfolder.picks import line_figures, part_log_name
 from cellsight.session.baseline import PnPBaseline
 from cellsight.session.events import OcclusionEvents
 from cellsight.session.protocols import FrameSink
@@ -169,12 +169,12 @@ class ExperimentRun:
         when its Manipulate began (None: its turn never came that far), its failed grasp
         checks, and its figures from its own frame log; and its ``passing`` parts (None for
         none), each with its figures and when it entered and left the views
-        (:func:`~cellsight.runfolder.picks.pick_figures`)."""
+        (:func:`~cellsight.runfolder.picks.line_figures`)."""
         picks = [p.name for p in self.scenario.picks]
         passing = [p.name for p in self.scenario.passing]
         if len(picks) + len(passing) == 1:
             return {"picks": None, "passing": None}
-        figures = pick_figures(Path(self.config.out), picks, self._home_error(), passing)
+        figures = line_figures(Path(self.config.out), picks, self._home_error(), passing)
         held, tasks = self.source.grasp.held, self.source.task.tasks
         return {
             "picks": [{"part": name, "picked": held[k] if k < len(held) else None,

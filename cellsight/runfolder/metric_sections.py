@@ -84,19 +84,16 @@ class RunFacts(BaseModel):
         None, "The robot crossing the cameras' views (experiment 3); none in the others.", "-")
 
 
-class PickFigures(BaseModel):
-    """One part of a line (the cell file's ``experiments.picks``): whether it was picked, and
-    its figures from its own frame log (:mod:`cellsight.runfolder.picks`)."""
+class LinePartFigures(BaseModel):
+    """One part of a line: its figures from its own frame log
+    (:mod:`cellsight.runfolder.picks`)."""
 
     model_config = ConfigDict(extra="allow", strict=True)
 
     part: str = about(..., "The workpiece.", "-")
-    picked: bool | None = about(
-        None, "Whether it was truly held when its Manipulate began (none: its turn never came "
-        "that far).", "-")
-    failed_grasp_checks: int = about(0, "Its failed grasp checks.", "-")
     position_rmse_mm: Number = about(
-        None, "Its position RMSE over its evaluated frames, the whole run.", "mm")
+        None, "Its position RMSE over its evaluated frames (in view, estimated), the whole "
+        "run.", "mm")
     position_rmse_arm_mm: Number = about(
         None, "The same in the grasping arm's frame (with the cameras registered to it).", "mm")
     max_error_tracking_mm: Number = about(
@@ -108,14 +105,20 @@ class PickFigures(BaseModel):
         "its own, and more than 10 mm from its own.", "-")
 
 
-class PassingFigures(BaseModel):
+class PickFigures(LinePartFigures):
+    """One pick of a line (the cell file's ``experiments.picks``): whether it was picked, and
+    its figures."""
+
+    picked: bool | None = about(
+        None, "Whether it was truly held when its Manipulate began (none: its turn never came "
+        "that far).", "-")
+    failed_grasp_checks: int = about(0, "Its failed grasp checks.", "-")
+
+
+class PassingFigures(LinePartFigures):
     """One passing part of a line (the cell file's ``experiments.passing``): carried through
-    the views, not picked; its figures from its own frame log, and its entry and exit
-    (:mod:`cellsight.runfolder.picks`)."""
+    the views, not picked; its figures, and its entry and exit."""
 
-    model_config = ConfigDict(extra="allow", strict=True)
-
-    part: str = about(..., "The workpiece.", "-")
     entered_s: Number = about(
         None, "When it entered the views (a feature truly in some camera's image; none: "
         "never).", "s")
@@ -128,13 +131,6 @@ class PassingFigures(BaseModel):
         "before; none: never estimated, or never wholly in view).", "s")
     tracking_out_of_view_frames: int | None = about(
         None, "Its frames said tracking while no camera could see it.", "-")
-    position_rmse_mm: Number = about(
-        None, "Its position RMSE over its evaluated frames (in view, estimated).", "mm")
-    max_error_tracking_mm: Number = about(
-        None, "Its largest error while its status said tracking.", "mm")
-    identity_swaps: int | None = about(
-        None, "Its frames with the estimate nearer another logged part's true position than "
-        "its own, and more than 10 mm from its own.", "-")
 
 
 class TaskMetrics(BaseModel):

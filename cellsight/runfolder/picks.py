@@ -2,7 +2,7 @@
 
 On a line (a cell file's ``experiments.picks``) the run's ``frames.csv`` logs the first pick and
 ``parts/<name>/frames.csv`` each other one, every frame (:class:`~cellsight.session.rows.
-FramesCsv`). :func:`pick_figures` reads them back: each part's estimation figures
+FramesCsv`). :func:`line_figures` reads them back: each part's estimation figures
 (:func:`~cellsight.runfolder.figures.frame_metrics`) and its identity swaps, the frames in which
 its estimate lies nearer another pick's true position than its own, and more than
 :data:`~cellsight.runfolder.figures.CONFIDENT_WRONG_MM` from its own (the tracker took one part
@@ -43,7 +43,7 @@ def part_log_name(picks: Sequence[str], name: str) -> str:
     return "frames.csv" if name == picks[0] else f"parts/{name}/frames.csv"
 
 
-def pick_figures(out: Path, picks: Sequence[str], arm_error_m: np.ndarray | None,
+def line_figures(out: Path, picks: Sequence[str], arm_error_m: np.ndarray | None,
                  passing: Sequence[str] = ()) -> dict[str, dict]:
     """Each pick's and passing part's figures (module docstring) from the logs in run folder
     ``out``: :data:`KEPT`, ``position_rmse_arm_mm`` (with ``arm_error_m``, the grasping arm's

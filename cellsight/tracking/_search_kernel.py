@@ -2,10 +2,11 @@
 part on its support plane, its feature points projected into one camera and matched against
 that camera's distance image, without the (G * F, 3) arrays the same sums need in NumPy.
 
-Same arithmetic, in the same order, as :meth:`~.search._Board.scores` wrote it in NumPy: the
-point ``(c px - s py + x, s px + c py + y, pz + z)``, the camera's ``T_cam_base``
+The same sums as with NumPy arrays (``tests/test_search_kernel.py``, ``bench/bench_search.py``):
+the point ``(c px - s py + x, s px + c py + y, pz + z)``, the camera's ``T_cam_base``
 (:func:`cellsight._camera_kernel.to_camera`), the distorted projection
-(:func:`cellsight._camera_kernel.project_point`), the pixel rounded half to even.
+(:func:`cellsight._camera_kernel.project_point`), the pixel rounded half to even; each match
+in float64 (NumPy divides the float32 distance image in float32).
 """
 
 from __future__ import annotations

@@ -169,13 +169,22 @@ class Acquirer:
         in from upstream), ``search.out_of_view_every_s``; never (None) for a part lost with
         its last estimate outside every camera's view: it left the views, and its track ends
         (a part carried out downstream does not come back)."""
-        last = track.guess if track.ekf is None else track.ekf.pose
-        if last is None:
-            return search.every_s
-        centre = track.centre_at(last)[None]
-        if any(camera.sees(centre)[0] for camera in self.tracker.cameras):
+        if not self.out_of_view(track):
             return search.every_s
         return search.out_of_view_every_s if track.ekf is None else None
+
+    def out_of_view(self, track: PartTrack) -> bool:
+        """The part's last known place (its last estimate, else its guess) puts its centre
+        outside every camera's view (False without one)."""
+        last = track.guess if track.ekf is None else track.ekf.pose
+        return last is not None and not self.seen(track.centre_at(last)[None])[0]
+
+    def seen(self, points: np.ndarray) -> np.ndarray:
+        """(N,) bool: some camera sees each base-frame point (N, 3) (m)."""
+        seen = np.zeros(len(points), dtype=bool)
+        for camera in self.tracker.cameras:
+            seen |= camera.sees(points)
+        return seen
 
     def entry(self, track: PartTrack, search: PlaneSearch) -> list[np.ndarray]:
         """Where a part waiting out of every camera's view would come into them: the nearest
@@ -183,19 +192,14 @@ class Acquirer:
         camera sees its centre (x, y, m; none within reach: an empty list). Found once, on a
         grid of the search's step; the search looks around it too."""
         if track.entry is None:
-            step = search.step_m
-            n = int(round(ENTRY_REACH_M / step))
-            grid = np.stack(np.meshgrid(np.arange(-n, n + 1), np.arange(-n, n + 1)), -1)
-            offsets = step * grid.reshape(-1, 2)
+            n = int(round(ENTRY_REACH_M / search.step_m))
+            steps = np.arange(-n, n + 1)
+            offsets = search.step_m * np.stack(np.meshgrid(steps, steps), -1).reshape(-1, 2)
             offsets = offsets[np.argsort(np.hypot(*offsets.T), kind="stable")]
-            centres = track.centre_at(track.support) + np.column_stack(
-                [offsets, np.zeros(len(offsets))])
-            seen = np.zeros(len(centres), dtype=bool)
-            for camera in self.tracker.cameras:
-                seen |= camera.sees(centres)
-            first = int(np.argmax(seen))
-            track.entry = [centres[first, :2] - (track.centre_at(track.support)[:2]
-                                                 - track.support[:2, 3])] if seen.any() else []
+            seen = self.seen(track.centre_at(track.support)
+                             + np.column_stack([offsets, np.zeros(len(offsets))]))
+            track.entry = ([track.support[:2, 3] + offsets[int(np.argmax(seen))]]
+                           if seen.any() else [])
         return track.entry
 
     def fits(self, context: StepContext, T_base_part: np.ndarray) -> bool:
@@ -240,7 +244,7 @@ class Acquirer:
             corners = [None if o is None else detect(o) for o in observed]
             centres = [track.support[:2, 3]] + ([] if track.ekf is None else
                                                 [track.ekf.pose[:2, 3]])
-            if track.ekf is None and every == search.out_of_view_every_s:
+            if track.ekf is None and self.out_of_view(track):
                 centres += self.entry(track, search)
             candidates = search.candidates(self.tracker.cameras, track.points, track.support,
                                            np.array(centres), corners)
