@@ -26,7 +26,7 @@ import cellsight
 from cellsight import threads
 
 BENCHES = ["bench_cell_occlusion", "bench_ur_cell", "bench_bsp_scaling", "bench_tracking",
-           "bench_latency", "bench_many_parts",
+           "bench_latency", "bench_many_parts", "bench_task_tracker",
            "bench_kinematics", "bench_control", "bench_visible_mask", "bench_scale",
            "bench_placement", "bench_search"]
 

@@ -180,7 +180,7 @@ def test_kidnap_moves_a_free_part_once_and_the_conveyor_keeps_the_move(cell):
 @given(st.floats(-math.pi, math.pi), st.lists(st.floats(-1.0, 1.0), min_size=3, max_size=3))
 def test_rotation_helpers_match_their_closed_forms(angle, axis):
     """``rotation_z`` is the textbook matrix; ``rotation_angle`` is ``acos((tr R - 1) / 2)``,
-    the angle the kidnap and knock figures report."""
+    the angle the kidnap and knock figures report, and SciPy's axis-angle magnitude."""
     from scipy.spatial.transform import Rotation
 
     from cellsight.geometry.transforms import rotation_angle, rotation_z
@@ -191,6 +191,7 @@ def test_rotation_helpers_match_their_closed_forms(angle, axis):
     R = Rotation.from_rotvec(np.asarray(axis) * angle).as_matrix()
     expected = math.acos(min(1.0, max(-1.0, (np.trace(R) - 1) / 2)))
     assert rotation_angle(R) == pytest.approx(expected, abs=1e-6)
+    assert rotation_angle(R) == pytest.approx(Rotation.from_matrix(R).magnitude(), abs=1e-12)
 
 
 def test_lost_after_looking_in_vain_or_after_long_without_measurements():

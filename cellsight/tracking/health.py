@@ -200,7 +200,8 @@ class HealthMonitor:
         self._held_part = off_holder is not None
         self._off_holder = (float(off_holder), self.cameras[int(alone[0])]) if (
             off_holder is not None and len(alone) == 1) else None
-        d2 = np.where(accepted, np.nan_to_num(np.asarray(mahalanobis2, dtype=float)), 0.0)
+        mahalanobis2 = np.asarray(mahalanobis2, dtype=float)
+        d2 = np.where(accepted & ~np.isnan(mahalanobis2), mahalanobis2, 0.0)
         visible = np.asarray(visible, dtype=bool)
         covered = visible & (False if unknown is None else np.asarray(unknown, dtype=bool))
         counts = np.stack([d2.sum(axis=1), accepted.sum(axis=1), looked.sum(axis=1),
@@ -216,17 +217,17 @@ class HealthMonitor:
         """The figures and reasons over the frames in the window (all NaN when empty)."""
         rule = self.rule
         C = len(self.cameras)
-        total = sum((counts for _, counts in self._frames), np.zeros((8, C)))
+        total = (np.add.reduce([counts for _, counts in self._frames]) if self._frames
+                 else np.zeros((8, C)))
         dof = 2 * total[_ACCEPTED].astype(int)
+        bands = np.array([nis_band(int(n), rule.band_probability) if n else (np.nan, np.nan)
+                          for n in dof]).reshape(C, 2)
         with np.errstate(invalid="ignore", divide="ignore"):
             ratio = total[_NIS] / dof
             missing = total[_MISSING] / total[_SELECTED]
             rejected = total[_REJECTED] / total[_MEASURED]
             unknown = total[_UNKNOWN] / total[_VISIBLE]
-        bands = np.array([nis_band(int(n), rule.band_probability) if n else (np.nan, np.nan)
-                          for n in dof]).reshape(C, 2)
-        above, below = total[_NIS] > bands[:, 1], total[_NIS] < bands[:, 0]
-        with np.errstate(invalid="ignore"):
+            above, below = total[_NIS] > bands[:, 1], total[_NIS] < bands[:, 0]
             # per figure: its values, what it counts, its limit, where it passes it, its reason
             figures = [
                 (ratio, _ACCEPTED, rule.nis_ratio_limit, above & (ratio >= rule.nis_ratio_limit),
@@ -237,18 +238,17 @@ class HealthMonitor:
                  "{:.0f}% rejected in {}", 100),
                 (unknown, _VISIBLE, rule.unknown_limit, unknown > rule.unknown_limit,
                  "{:.0f}% under unknown occluders in {}", 100)]
-        reasons = []
-        for f, (value, kind, limit, over, text, scale) in enumerate(figures):
-            judged = total[kind] >= rule.min_measurements
-            passes = judged & over
-            with np.errstate(invalid="ignore"):
+            reasons = []
+            for f, (value, kind, limit, over, text, scale) in enumerate(figures):
+                judged = total[kind] >= rule.min_measurements
+                passes = judged & over
                 holds = judged & (value > rule.release * limit)
-            for c, cam in enumerate(self.cameras):
-                if passes[c] or ((f, c) in self._held and holds[c]):
-                    self._held.add((f, c))
-                    reasons.append(text.format(scale * value[c], cam))
-                else:
-                    self._held.discard((f, c))
+                for c, cam in enumerate(self.cameras):
+                    if passes[c] or ((f, c) in self._held and holds[c]):
+                        self._held.add((f, c))
+                        reasons.append(text.format(scale * value[c], cam))
+                    else:
+                        self._held.discard((f, c))
         reasons += (self._holder_reason() + self._one_view_reason(total[_ACCEPTED])
                     + self._new_reason())
         return TrackHealthReport(ratio, dof, above, below, missing, rejected, tuple(reasons),

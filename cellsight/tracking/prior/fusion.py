@@ -9,9 +9,9 @@ from collections.abc import Sequence
 from typing import Protocol
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from cellsight.camera import Camera
+from cellsight.geometry.transforms import rotation_angle
 from cellsight.tracking.config import TrackerConfig
 from cellsight.tracking.ekf import (
     HELD,
@@ -121,7 +121,7 @@ def _hold(ekf: PoseEKF, holder: np.ndarray, std: tuple[float, float]) -> None:
     T, P = ekf.pose, ekf.covariance
     wide = _widest_above(P[:3, :3], std[0] ** 2) or _widest_above(P[3:6, 3:6], std[1] ** 2)
     off = (np.linalg.norm(T[:3, 3] - holder[:3, 3]) / std[0] > HOLD_SIGMAS
-           or Rotation.from_matrix(T[:3, :3].T @ holder[:3, :3]).magnitude() / std[1]
+           or rotation_angle(T[:3, :3].T @ holder[:3, :3]) / std[1]
            > HOLD_SIGMAS)  # the turn only where the move is not off already
     if wide or off:
         ekf.fuse_prior(holder, HELD, np.repeat(std, 3), forget=off)
