@@ -218,13 +218,23 @@ class Board:
     def detect(self, gray: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The board's corners found in the (H, W) uint8 image ``gray`` by OpenCV's
         ``CharucoDetector`` (markers' and corners' sub-pixel refinement on): their ids (m,)
-        and pixels (m, 2) (OpenCV's: the top-left pixel's centre at (0, 0)), by id."""
+        and pixels (m, 2) (OpenCV's: the top-left pixel's centre at (0, 0)), by id. None
+        (empty arrays) where the corners found lie on one line of the board (a row, a
+        column, a diagonal): no pose follows from them, and one such view of six corners in a
+        row sent OpenCV's calibrateCamera of a whole camera astray."""
         corners, ids, _, _ = self._detector.detectBoard(gray)
-        if ids is None:
+        if ids is None or self._on_a_line(ids.ravel()):
             return np.zeros(0, dtype=int), np.zeros((0, 2))
         ids = ids.ravel().astype(int)
         order = np.argsort(ids)
         return ids[order], corners.reshape(-1, 2).astype(float)[order]
+
+    def _on_a_line(self, ids: np.ndarray) -> bool:
+        """Whether the corners ``ids`` span less than half a square across their main line
+        (the second singular value of their board coordinates, centred)."""
+        points = self.corners()[ids.astype(int), :2]
+        spread = np.linalg.svd(points - points.mean(axis=0), compute_uv=False)
+        return bool(len(spread) < 2 or spread[1] < 0.5 * self.square_m)
 
 
 class BoardSpec(BaseModel):

@@ -26,9 +26,9 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn
 
 from cellsight.calibration import POSES_PER_CAMERA
 from cellsight.calibration.board import Board, board_world
+from cellsight.calibration.cell_plan import plan_cell
 from cellsight.calibration.folder import read_calibration
 from cellsight.calibration.output import is_calibration_output, write_calibration
-from cellsight.calibration.plan import plan_poses
 from cellsight.calibration.record import MotionRecorder
 from cellsight.calibration.recorded import RecordedMotion, recorded_views
 from cellsight.calibration.score import score
@@ -115,8 +115,7 @@ def calibrate_world(cell_arg: str | Path | None, realism: str, seed: int, board:
     reference = reference_robot(cell)
     robots = [reference, *(r.name for r in cell.robots if r.name != reference)]
     on_flange = board.on_flange()
-    plans = [plan_poses(cell, r, on_flange, per_camera=per_camera,
-                        seed=seed) for r in robots]
+    plans = plan_cell(cell, robots, on_flange, per_camera=per_camera, seed=seed)
     views: list[View] = []
     with Progress(TextColumn("calibrating {task.description}"), BarColumn(),
                   MofNCompleteColumn(), disable=not progress) as bar:

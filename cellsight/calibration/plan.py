@@ -416,13 +416,13 @@ class _Planner:
 def plan_poses(cell: Cell, robot: str, board: BoardOnFlange, *,
                per_camera: int = POSES_PER_CAMERA,
                min_poses: int = MIN_POSES, seed: int = 0, cameras: Sequence[str] | None = None,
-               start: ArrayLike | None = None) -> Plan:
+               start: ArrayLike | None = None, every_camera: bool = True) -> Plan:
     """The poses in which ``robot`` presents the ``board`` (its corners, face normal and
     plate outline in its flange frame: :meth:`BoardOnFlange.from_flange`) to the cell's
     cameras (or to those named in ``cameras``), until each has ``per_camera``, in visiting
     order from ``start`` (joints, rad or m; default HOME), where the board is mounted (module
-    docstring); ``seed`` draws the candidates. A :class:`CellsightError` when a camera gets
-    fewer than ``min_poses``, or the board is not clear at the start."""
+    docstring); ``seed`` draws the candidates. A :class:`CellsightError` when the board is not
+    clear at the start, or (``every_camera``) when a camera gets fewer than ``min_poses``."""
     try:
         presenter = cell.robot(robot)
         if cameras is not None:
@@ -450,7 +450,8 @@ def plan_poses(cell: Cell, robot: str, board: BoardOnFlange, *,
     plan = Plan(robot, np.array([p.q for p in poses]).reshape(-1, presenter.n_joints),
                 np.array([presenter.link_poses(p.q)[-1] for p in poses]).reshape(-1, 4, 4),
                 tuple(tuple(names[k] for k in p.cameras) for p in poses), dict(dropped))
-    _refuse_short(plan, cell, min_poses)
+    if every_camera:
+        _refuse_short(plan, cell, min_poses)
     return plan
 
 
@@ -485,3 +486,4 @@ def _refuse_short(plan: Plan, cell: Cell, min_poses: int) -> None:
         f"than the {min_poses} a calibration needs (candidate poses dropped: {why}); aim "
         f"{' and '.join(short)} at the work area around {centre} m where {plan.robot} can "
         f"reach, or leave it out (cameras=...) and calibrate it with another robot")
+
