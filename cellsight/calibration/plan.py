@@ -486,4 +486,3 @@ def _refuse_short(plan: Plan, cell: Cell, min_poses: int) -> None:
         f"than the {min_poses} a calibration needs (candidate poses dropped: {why}); aim "
         f"{' and '.join(short)} at the work area around {centre} m where {plan.robot} can "
         f"reach, or leave it out (cameras=...) and calibrate it with another robot")
-
