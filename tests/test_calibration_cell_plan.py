@@ -17,7 +17,7 @@ import json
 import numpy as np
 import pytest
 
-from cellsight.calibration.board import Board
+from cellsight.calibration.board import Board, _on_a_line
 from cellsight.calibration.cell_plan import _refuse_untied
 from cellsight.calibration.plan import MIN_POSES, Plan
 from cellsight.cli import main
@@ -69,7 +69,8 @@ def test_a_robot_whose_cameras_are_all_its_own_is_named(line):
     (np.arange(24), False),
 ])
 def test_corners_on_one_line_of_the_board_give_no_view(ids, on_a_line):
-    assert Board()._on_a_line(ids) is on_a_line
+    board = Board()
+    assert _on_a_line(board.corners()[ids, :2], board.square_m) is on_a_line
 
 
 @pytest.mark.slow

@@ -30,7 +30,8 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from cellsight.calibration.board import Board
-from cellsight.calibration.plan import SAME_POSE, plan_poses
+from cellsight.calibration.cell_plan import plan_poses
+from cellsight.calibration.plan import SAME_POSE
 from cellsight.calibration.presenting import BoardOnFlange
 from cellsight.camera import Camera
 from cellsight.errors import CellsightError

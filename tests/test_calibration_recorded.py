@@ -2,8 +2,8 @@
 
 The recording is written with the recorder of ``cellsight run --record`` (MCAP, ROS 2
 messages) for the built-in cell: each robot in turn carries the board through the poses the
-planner gives (:func:`~cellsight.calibration.plan.plan_poses`), the joint states at the start,
-halfway through the settling and at each shot, plus a frame taken while the robot still
+planner gives (:func:`~cellsight.calibration.cell_plan.plan_poses`), the joint states at the
+start, halfway through the settling and at each shot, plus a frame taken while the robot still
 moved and a second frame of the same pose. The images are the oracle's, not the renderer's:
 OpenCV's own printed board (``CharucoBoard.generateImage``) warped by the homography of the
 true board pose in each camera (``K [r1 r2 t]``, the cell file's cameras, no distortion).
@@ -23,8 +23,8 @@ import numpy as np
 import pytest
 
 from cellsight.calibration.board import Board
+from cellsight.calibration.cell_plan import plan_poses
 from cellsight.calibration.command import calibrate_recorded
-from cellsight.calibration.plan import plan_poses
 from cellsight.calibration.recorded import recorded_views
 from cellsight.camera import Camera
 from cellsight.errors import CellsightError

@@ -223,18 +223,18 @@ class Board:
         column, a diagonal): no pose follows from them, and one such view of six corners in a
         row sent OpenCV's calibrateCamera of a whole camera astray."""
         corners, ids, _, _ = self._detector.detectBoard(gray)
-        if ids is None or self._on_a_line(ids.ravel()):
+        if ids is None or _on_a_line(self.corners()[ids.ravel().astype(int), :2], self.square_m):
             return np.zeros(0, dtype=int), np.zeros((0, 2))
         ids = ids.ravel().astype(int)
         order = np.argsort(ids)
         return ids[order], corners.reshape(-1, 2).astype(float)[order]
 
-    def _on_a_line(self, ids: np.ndarray) -> bool:
-        """Whether the corners ``ids`` span less than half a square across their main line
-        (the second singular value of their board coordinates, centred)."""
-        points = self.corners()[ids.astype(int), :2]
-        spread = np.linalg.svd(points - points.mean(axis=0), compute_uv=False)
-        return bool(len(spread) < 2 or spread[1] < 0.5 * self.square_m)
+
+def _on_a_line(points: np.ndarray, square_m: float) -> bool:
+    """Whether the board points (n, 2) (m, board frame) span less than half a square (of side
+    ``square_m``) across their main line: the second singular value of them, centred."""
+    spread = np.linalg.svd(points - points.mean(axis=0), compute_uv=False)
+    return bool(len(spread) < 2 or spread[1] < 0.5 * square_m)
 
 
 class BoardSpec(BaseModel):

@@ -1,6 +1,7 @@
-"""The whole cell's calibration poses (``cellsight calibrate``): every robot's plan
-(:func:`.plan.plan_poses`), each robot presenting the board to the cameras it can reach, tied
-together: every camera seen by some robot, every robot's base placed through a camera it
+"""The calibration poses judged (``cellsight calibrate``): one robot's, every camera needing
+enough of them (:func:`plan_poses`), or the whole cell's (:func:`plan_cell`): every robot's
+plan (:func:`.plan.plan_reach`), each robot presenting the board to the cameras it can reach,
+tied together: every camera seen by some robot, every robot's base placed through a camera it
 shares with the others."""
 
 from __future__ import annotations
@@ -8,25 +9,43 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from cellsight.calibration import POSES_PER_CAMERA
-from cellsight.calibration.plan import MIN_POSES, Plan, plan_poses, work_centre
+from cellsight.calibration.plan import MIN_POSES, Plan, plan_reach, with_cameras, work_centre
 from cellsight.calibration.presenting import BoardOnFlange
 from cellsight.errors import CellsightError
 from cellsight.model.cell import Cell
 
 
+def plan_poses(cell: Cell, robot: str, board: BoardOnFlange, *,
+               per_camera: int = POSES_PER_CAMERA,
+               min_poses: int = MIN_POSES, seed: int = 0, cameras: Sequence[str] | None = None,
+               start: ArrayLike | None = None) -> Plan:
+    """The poses in which ``robot`` presents the ``board`` to the cell's cameras (or to those
+    named in ``cameras``) (:func:`~.plan.plan_reach`, the same arguments); a
+    :class:`CellsightError` when a camera gets fewer than ``min_poses``, naming it, why poses
+    were dropped and what to do."""
+    if not 1 <= min_poses <= per_camera:
+        raise CellsightError(f"calibration plan for robot {robot}: needs 1 <= min_poses <= "
+                             f"per_camera, got min_poses={min_poses}, per_camera={per_camera}")
+    plan = plan_reach(cell, robot, board, per_camera=per_camera, seed=seed, cameras=cameras,
+                      start=start)
+    _refuse_short(plan, with_cameras(cell, cameras), min_poses)
+    return plan
+
+
 def plan_cell(cell: Cell, robots: Sequence[str], board: BoardOnFlange, *,
               per_camera: int = POSES_PER_CAMERA, min_poses: int = MIN_POSES,
               seed: int = 0) -> list[Plan]:
-    """The poses of each of ``robots`` (:func:`plan_poses`), the first the reference (its base
-    is the calibration's frame), each presenting the board to the cameras it can: a camera
-    needs ``min_poses`` from one robot at least (on a line, each arm reaches the views near
-    it), and each robot a camera it shares with the others, so that the cameras and bases tie
-    together from the reference's. Else a :class:`CellsightError` naming the camera or the
-    robot, each robot's poses there, why poses were dropped and what to do."""
-    plans = [plan_poses(cell, robot, board, per_camera=per_camera, min_poses=min_poses,
-                        seed=seed, every_camera=False) for robot in robots]
+    """The poses of each of ``robots`` (:func:`~.plan.plan_reach`), the first the reference
+    (its base is the calibration's frame), each presenting the board to the cameras it can:
+    a camera needs ``min_poses`` from one robot at least (on a line, each arm reaches the
+    views near it), and each robot a camera it shares with the others, so that the cameras
+    and bases tie together from the reference's. Else a :class:`CellsightError` naming the
+    camera or the robot, each robot's poses there, why poses were dropped and what to do."""
+    plans = [plan_reach(cell, robot, board, per_camera=per_camera, seed=seed)
+             for robot in robots]
     _refuse_untied(plans, cell, min_poses)
     return plans
 
@@ -67,3 +86,20 @@ def _refuse_untied(plans: list[Plan], cell: Cell, min_poses: int) -> None:
                 f"camera tied to {plans[0].robot}'s base ({', '.join(sorted(cameras))}): its "
                 f"base cannot be placed in the calibration's frame; give it a camera it shares "
                 f"with the others")
+
+
+def _refuse_short(plan: Plan, cell: Cell, min_poses: int) -> None:
+    """A :class:`CellsightError` naming the robot and each camera with fewer than
+    ``min_poses`` poses, why poses were dropped, and what to do."""
+    counts = plan.per_camera()
+    short = [cam.name for cam in cell.cameras if counts.get(cam.name, 0) < min_poses]
+    if not short:
+        return
+    centre = np.round(work_centre(cell), 2).tolist()
+    why = ", ".join(f"{n} {reason}" for reason, n in sorted(plan.dropped.items())) or "none"
+    raise CellsightError(
+        f"calibration plan: robot {plan.robot} can present the board to camera "
+        f"{', '.join(f'{name} in {counts.get(name, 0)}' for name in short)} pose(s), fewer "
+        f"than the {min_poses} a calibration needs (candidate poses dropped: {why}); aim "
+        f"{' and '.join(short)} at the work area around {centre} m where {plan.robot} can "
+        f"reach, or leave it out (cameras=...) and calibrate it with another robot")

@@ -62,10 +62,10 @@ map grows, by batches, while no candidate is worth ``WORTH_MIN``.
   best places where the straight joint-space moves to it and from it, sampled every
   ``MOVE_STEP`` (rad or m, in every joint), are free of collisions (the same check).
 
-**Refusal.** A camera that cannot see the board around the work area, or that has fewer than
-``min_poses`` poses at the end, and a start where the board is not clear, are a
-:class:`~cellsight.errors.CellsightError` naming the robot, the camera or the solids, why poses
-were dropped and what to do.
+**Refusal.** A camera that cannot see the board around the work area, a start where the board
+is not clear, and (:mod:`.cell_plan`) a camera with fewer than ``min_poses`` poses at the end,
+are a :class:`~cellsight.errors.CellsightError` naming the robot, the camera or the solids, why
+poses were dropped and what to do.
 """
 
 from __future__ import annotations
@@ -80,7 +80,6 @@ import numpy as np
 from numpy.typing import ArrayLike
 from scipy.spatial.transform import Rotation
 
-from cellsight.calibration import POSES_PER_CAMERA
 from cellsight.calibration.presenting import (
     BOARD,
     CLEARANCE_M,
@@ -413,27 +412,25 @@ class _Planner:
         return True
 
 
-def plan_poses(cell: Cell, robot: str, board: BoardOnFlange, *,
-               per_camera: int = POSES_PER_CAMERA,
-               min_poses: int = MIN_POSES, seed: int = 0, cameras: Sequence[str] | None = None,
-               start: ArrayLike | None = None, every_camera: bool = True) -> Plan:
+def plan_reach(cell: Cell, robot: str, board: BoardOnFlange, *, per_camera: int,
+               seed: int = 0, cameras: Sequence[str] | None = None,
+               start: ArrayLike | None = None) -> Plan:
     """The poses in which ``robot`` presents the ``board`` (its corners, face normal and
     plate outline in its flange frame: :meth:`BoardOnFlange.from_flange`) to the cell's
-    cameras (or to those named in ``cameras``), until each has ``per_camera``, in visiting
-    order from ``start`` (joints, rad or m; default HOME), where the board is mounted (module
-    docstring); ``seed`` draws the candidates. A :class:`CellsightError` when the board is not
-    clear at the start, or (``every_camera``) when a camera gets fewer than ``min_poses``."""
+    cameras (or to those named in ``cameras``), until each has ``per_camera`` or the search
+    gives up, in visiting order from ``start`` (joints, rad or m; default HOME), where the
+    board is mounted (module docstring); ``seed`` draws the candidates. A
+    :class:`CellsightError` when the board is not clear at the start; a camera with few poses
+    is for the caller to judge (:mod:`.cell_plan`)."""
     try:
         presenter = cell.robot(robot)
-        if cameras is not None:
-            cell = copy.copy(cell)
-            cell.cameras = [cell.camera(name) for name in dict.fromkeys(cameras)]
     except KeyError as error:
         raise CellsightError(str(error.args[0])) from None
-    if not cell.cameras or not 1 <= min_poses <= per_camera:
-        raise CellsightError(f"calibration plan for robot {robot}: needs a camera and 1 <= "
-                             f"min_poses <= per_camera, got {len(cell.cameras)} camera(s), "
-                             f"min_poses={min_poses}, per_camera={per_camera}")
+    cell = with_cameras(cell, cameras)
+    if not cell.cameras or per_camera < 1:
+        raise CellsightError(f"calibration plan for robot {robot}: needs a camera and "
+                             f"per_camera >= 1, got {len(cell.cameras)} camera(s), "
+                             f"per_camera={per_camera}")
     start = presenter.chain.check_q(presenter.home if start is None else start,
                                     check_limits=True)
     spans = _spans_or_refuse(cell, robot, board)
@@ -447,12 +444,23 @@ def plan_poses(cell: Cell, robot: str, board: BoardOnFlange, *,
             f"board is clear (start=...)")
     poses, dropped = planner.search(per_camera)
     names = [cam.name for cam in cell.cameras]
-    plan = Plan(robot, np.array([p.q for p in poses]).reshape(-1, presenter.n_joints),
+    return Plan(robot, np.array([p.q for p in poses]).reshape(-1, presenter.n_joints),
                 np.array([presenter.link_poses(p.q)[-1] for p in poses]).reshape(-1, 4, 4),
                 tuple(tuple(names[k] for k in p.cameras) for p in poses), dict(dropped))
-    if every_camera:
-        _refuse_short(plan, cell, min_poses)
-    return plan
+
+
+def with_cameras(cell: Cell, cameras: Sequence[str] | None) -> Cell:
+    """``cell`` with only the cameras named (all of them for None); an unknown name is a
+    :class:`CellsightError`."""
+    if cameras is None:
+        return cell
+    try:
+        chosen = [cell.camera(name) for name in dict.fromkeys(cameras)]
+    except KeyError as error:
+        raise CellsightError(str(error.args[0])) from None
+    cell = copy.copy(cell)
+    cell.cameras = chosen
+    return cell
 
 
 def _spans_or_refuse(cell: Cell, robot: str, board: BoardOnFlange) -> list[tuple[float, float]]:
@@ -469,20 +477,3 @@ def _spans_or_refuse(cell: Cell, robot: str, board: BoardOnFlange) -> list[tuple
             f"too near for the whole board to fit in its image); aim it at the work area, or "
             f"leave it out (cameras=...) and calibrate it with another robot")
     return spans
-
-
-def _refuse_short(plan: Plan, cell: Cell, min_poses: int) -> None:
-    """A :class:`CellsightError` naming the robot and each camera with fewer than
-    ``min_poses`` poses, why poses were dropped, and what to do."""
-    counts = plan.per_camera()
-    short = [cam.name for cam in cell.cameras if counts.get(cam.name, 0) < min_poses]
-    if not short:
-        return
-    centre = np.round(work_centre(cell), 2).tolist()
-    why = ", ".join(f"{n} {reason}" for reason, n in sorted(plan.dropped.items())) or "none"
-    raise CellsightError(
-        f"calibration plan: robot {plan.robot} can present the board to camera "
-        f"{', '.join(f'{name} in {counts.get(name, 0)}' for name in short)} pose(s), fewer "
-        f"than the {min_poses} a calibration needs (candidate poses dropped: {why}); aim "
-        f"{' and '.join(short)} at the work area around {centre} m where {plan.robot} can "
-        f"reach, or leave it out (cameras=...) and calibrate it with another robot")

@@ -117,9 +117,8 @@ def _two_directions(patch, min_gradient, min_eigen_ratio):
 
 @numba.njit(cache=True)
 def _gradient_magnitude(image):
-    """The length of :func:`_gradients` (h, w), in one pass: ``sqrt(gx^2 + gy^2)``, not
-    ``math.hypot``, whose call took half of a window's acceptance (np.hypot's values on the
-    gradients of gray levels, ``tests/test_extraction.py``)."""
+    """``sqrt(gx^2 + gy^2)`` of :func:`_gradients` (h, w), in one pass (np.hypot's values on
+    gray levels' gradients; ``math.hypot`` took half of a window's acceptance)."""
     h, w = image.shape
     mag = np.empty((h, w))
     for v in range(h):
@@ -180,11 +179,9 @@ def _edge_intersection(mag, qx, qy, inner, outer, threshold, max_offset):
     c0, c1 = max(int(math.floor(qx - outer)), 0), min(int(math.ceil(qx + outer)) + 1, w)
     for v in range(r0, r1):
         for u in range(c0, c1):
-            r2 = (u - qx) * (u - qx) + (v - qy) * (v - qy)
-            if inner2 <= r2 <= outer2:
-                ring[v, u] = True
-                if mag[v, u] > ring_max:
-                    ring_max = mag[v, u]
+            ring[v, u] = inner2 <= (u - qx) * (u - qx) + (v - qy) * (v - qy) <= outer2
+            if ring[v, u] and mag[v, u] > ring_max:
+                ring_max = mag[v, u]
     hist = np.zeros(_BINS)
     n_strong = 0
     for v in range(r0, r1):
