@@ -56,8 +56,7 @@ def figures(folder: Path) -> dict:
     return {"frames": len(total), "median_ms": float(np.median(total)),
             "p99_ms": float(np.percentile(total, 99)),
             "stages_ms": {s: float(np.median(log.floats(f"t_{s}_ms"))) for s in STAGES},
-            "rmse_mm": metrics.get("position_rmse_mm"),
-            "wall_s": metrics.get("wall_s")}
+            "rmse_mm": metrics.get("position_rmse_mm")}
 
 
 def main() -> None:
