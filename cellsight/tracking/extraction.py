@@ -353,10 +353,11 @@ def _accept(crop, runs, start, half, max_spread, border, max_shift, min_gradient
     if math.hypot(mu - start[0], mv - start[1]) > max_shift:
         return False, 0.0, 0.0
     iu, iv = _round_half_even(mu), _round_half_even(mv)
-    patch = crop[max(iv - half, 0):iv + half + 1, max(iu - half, 0):iu + half + 1]
-    if not _two_directions(patch.astype(np.float64), min_gradient, min_eigen_ratio):
+    image = crop.astype(np.float64)
+    patch = image[max(iv - half, 0):iv + half + 1, max(iu - half, 0):iu + half + 1]
+    if not _two_directions(patch, min_gradient, min_eigen_ratio):
         return False, 0.0, 0.0
-    mag = _gradient_magnitude(crop.astype(np.float64))
+    mag = _gradient_magnitude(image)
     qu, qv = mu, mv
     for _ in range(2):
         ok, lu, lv = _edge_intersection(mag, qu, qv, inner, outer, threshold, max_offset)
