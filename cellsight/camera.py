@@ -14,6 +14,7 @@ these two modules only.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 
 import cv2
@@ -261,6 +262,15 @@ class Camera:
     def depth(self, points_base: np.ndarray) -> np.ndarray:
         """Depth along the optical axis (m) of base-frame points."""
         return self.to_camera(points_base)[:, 2]
+
+
+def seen_by_any(cameras: Sequence[Camera], points_base: np.ndarray) -> np.ndarray:
+    """(N,) bool: some camera of ``cameras`` sees each base-frame point (N, 3) (m;
+    :meth:`Camera.sees`)."""
+    seen = np.zeros(len(points_base), dtype=bool)
+    for camera in cameras:
+        seen |= camera.sees(points_base)
+    return seen
 
 
 def border_distance(camera: Camera, pixels: np.ndarray) -> np.ndarray:

@@ -223,9 +223,9 @@ class Board:
         column, a diagonal): no pose follows from them, and one such view of six corners in a
         row sent OpenCV's calibrateCamera of a whole camera astray."""
         corners, ids, _, _ = self._detector.detectBoard(gray)
-        if ids is None or _on_a_line(self.corners()[ids.ravel().astype(int), :2], self.square_m):
+        ids = None if ids is None else ids.ravel().astype(int)
+        if ids is None or _on_a_line(self.corners()[ids, :2], self.square_m):
             return np.zeros(0, dtype=int), np.zeros((0, 2))
-        ids = ids.ravel().astype(int)
         order = np.argsort(ids)
         return ids[order], corners.reshape(-1, 2).astype(float)[order]
 

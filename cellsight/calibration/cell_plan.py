@@ -62,9 +62,7 @@ def _refuse_untied(plans: list[Plan], cell: Cell, min_poses: int) -> None:
         poses = "; ".join(f"{name}: " + ", ".join(f"{robot} {seen.get(name, 0)}"
                                                   for robot, seen in counts.items())
                           for name in short)
-        why = "; ".join(f"{plan.robot}: " + (", ".join(
-            f"{n} {reason}" for reason, n in sorted(plan.dropped.items())) or "none")
-            for plan in plans)
+        why = "; ".join(f"{plan.robot}: {_dropped(plan)}" for plan in plans)
         raise CellsightError(
             f"calibration plan: no robot can present the board to camera {' or '.join(short)} "
             f"in the {min_poses} poses a calibration needs (poses per robot, {poses}; "
@@ -96,10 +94,15 @@ def _refuse_short(plan: Plan, cell: Cell, min_poses: int) -> None:
     if not short:
         return
     centre = np.round(work_centre(cell), 2).tolist()
-    why = ", ".join(f"{n} {reason}" for reason, n in sorted(plan.dropped.items())) or "none"
     raise CellsightError(
         f"calibration plan: robot {plan.robot} can present the board to camera "
         f"{', '.join(f'{name} in {counts.get(name, 0)}' for name in short)} pose(s), fewer "
-        f"than the {min_poses} a calibration needs (candidate poses dropped: {why}); aim "
+        f"than the {min_poses} a calibration needs (candidate poses dropped: "
+        f"{_dropped(plan)}); aim "
         f"{' and '.join(short)} at the work area around {centre} m where {plan.robot} can "
         f"reach, or leave it out (cameras=...) and calibrate it with another robot")
+
+
+def _dropped(plan: Plan) -> str:
+    """How many candidate poses each check of ``plan`` dropped, as words ("none": none)."""
+    return ", ".join(f"{n} {reason}" for reason, n in sorted(plan.dropped.items())) or "none"

@@ -24,7 +24,7 @@ from typing import Protocol
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from cellsight.camera import Camera
+from cellsight.camera import Camera, seen_by_any
 from cellsight.tracking.acquisition import rates_covariance
 from cellsight.tracking.camera_check import CameraCheck
 from cellsight.tracking.config import TrackerConfig, TrackerParts
@@ -177,14 +177,8 @@ class Acquirer:
         """The part's last known place (its last estimate, else its guess) puts its centre
         outside every camera's view (False without one)."""
         last = track.guess if track.ekf is None else track.ekf.pose
-        return last is not None and not self.seen(track.centre_at(last)[None])[0]
-
-    def seen(self, points: np.ndarray) -> np.ndarray:
-        """(N,) bool: some camera sees each base-frame point (N, 3) (m)."""
-        seen = np.zeros(len(points), dtype=bool)
-        for camera in self.tracker.cameras:
-            seen |= camera.sees(points)
-        return seen
+        return last is not None and not seen_by_any(self.tracker.cameras,
+                                                    track.centre_at(last)[None])[0]
 
     def entry(self, track: PartTrack, search: PlaneSearch) -> list[np.ndarray]:
         """Where a part waiting out of every camera's view would come into them: the nearest
@@ -196,8 +190,8 @@ class Acquirer:
             steps = np.arange(-n, n + 1)
             offsets = search.step_m * np.stack(np.meshgrid(steps, steps), -1).reshape(-1, 2)
             offsets = offsets[np.argsort(np.hypot(*offsets.T), kind="stable")]
-            seen = self.seen(track.centre_at(track.support)
-                             + np.column_stack([offsets, np.zeros(len(offsets))]))
+            seen = seen_by_any(self.tracker.cameras, track.centre_at(track.support)
+                               + np.column_stack([offsets, np.zeros(len(offsets))]))
             track.entry = ([track.support[:2, 3] + offsets[int(np.argmax(seen))]]
                            if seen.any() else [])
         return track.entry

@@ -37,7 +37,7 @@ import cv2
 import numpy as np
 
 import cellsight.tracking._search_kernel as kernel
-from cellsight.camera import Camera
+from cellsight.camera import Camera, seen_by_any
 from cellsight.geometry.transforms import rotation_z
 
 
@@ -139,11 +139,8 @@ class _Board:
     def seen(self, xy: np.ndarray) -> np.ndarray:
         """(G,) bool: the part's centroid at each ``xy`` (G, 2) is inside some camera's view."""
         c = np.column_stack([xy, np.full(len(xy), self.z)]) + self.centroid
-        out = np.zeros(len(xy), dtype=bool)
-        for cam, m in zip(self.cameras, self.maps, strict=True):
-            if m is not None:
-                out |= cam.sees(c)
-        return out
+        return seen_by_any([cam for cam, m in zip(self.cameras, self.maps, strict=True)
+                            if m is not None], c)
 
     def score(self, poses: np.ndarray, reach: float, min_px: float,
               hard: bool = False) -> np.ndarray:
