@@ -96,16 +96,19 @@ def test_a_part_is_searched_for_while_it_may_come_in_and_not_after_it_left(line,
     assert every == (None if expected is None else getattr(search, expected))
 
 
-def test_a_part_waiting_upstream_is_looked_for_where_it_would_come_into_the_views(line):
-    """u3 waits 0.3 m upstream of the views: the search also looks around the nearest place on
-    the belt at which a camera sees its centre (a grid step from where none does), straight
-    downstream of its guess."""
+@pytest.mark.parametrize("travel", [None, (2.0, 0.0)])
+def test_a_part_waiting_upstream_is_looked_for_where_it_would_come_into_the_views(line, travel):
+    """u3 waits 0.3 m upstream of the views: the search also looks around where it would come
+    into them, straight downstream of its guess: the first place along its travel at which a
+    camera sees its centre (a grid step from where none does), or without its travel, the
+    nearest place on the belt at which one does (here the same)."""
     from cellsight.tracking.search import PlaneSearch
 
     search = PlaneSearch()
     part = line.workpiece("u3")
     track = _track(part.feature_points)
     track.guess = track.support = part.T_base_part
+    track.travel = None if travel is None else np.array(travel)
     acquirer = Acquirer(SimpleNamespace(tracks={"u3": track}, cameras=line.cameras))
     (entry,) = acquirer.entry(track, search)
     offset = track.centre_at(part.T_base_part) - part.T_base_part[:3, 3]

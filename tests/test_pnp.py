@@ -119,3 +119,15 @@ def test_the_acquisition_falls_back_on_the_support_where_six_numbers_need_more(c
     assert np.allclose(np.diag(fix.covariance)[2:5], [h**2, a**2, a**2])
     assert not acquisition.enough(PoseFix(T, np.eye(6), 0.1, 3, 2, on_support=True))
     assert not acquisition.enough(PoseFix(T, np.eye(6), 0.1, 5, 2))
+
+
+@pytest.mark.parametrize("looked, used, stands", [
+    ((1, 12), (1, 5), False),  # one found of one looked for, and 5 of 12: nothing confirms
+    ((4, 12), (3, 5), True),  # 3 of 4 looked for in the first camera
+    ((3, 12), (3, 8), True),  # 8 of 12 in the second
+    ((0, 0), (0, 0), False)])
+def test_a_verification_stands_on_a_camera_that_looked_for_enough(looked, used, stands):
+    """A verifying fix of 6 points stands where some camera that looked for at least
+    ``verify_looked`` (4) features found ``verify_support`` (0.6) of them."""
+    fix = PoseFix(np.eye(4), np.eye(6), 1.0, 6, 2)
+    assert PnPAcquisition().confirms(fix, np.array(looked), np.array(used)) is stands

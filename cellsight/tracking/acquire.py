@@ -181,15 +181,22 @@ class Acquirer:
                                                     track.centre_at(last)[None])[0]
 
     def entry(self, track: PartTrack, search: PlaneSearch) -> list[np.ndarray]:
-        """Where a part waiting out of every camera's view would come into them: the nearest
-        place to its guess, on its support plane and within ``ENTRY_REACH_M``, at which some
-        camera sees its centre (x, y, m; none within reach: an empty list). Found once, on a
-        grid of the search's step; the search looks around it too."""
+        """Where a part waiting out of every camera's view would come into them, on its
+        support plane (x, y, m; the search looks around it too; none within reach: an empty
+        list): a part a line carries (``track.travel``) at the first place along its travel
+        at which some camera sees its centre; any other at the nearest place to its guess,
+        within ``ENTRY_REACH_M``, at which some camera does. Found once, on a grid of the
+        search's step."""
         if track.entry is None:
-            n = int(round(ENTRY_REACH_M / search.step_m))
-            steps = np.arange(-n, n + 1)
-            offsets = search.step_m * np.stack(np.meshgrid(steps, steps), -1).reshape(-1, 2)
-            offsets = offsets[np.argsort(np.hypot(*offsets.T), kind="stable")]
+            if track.travel is not None:
+                length = float(np.hypot(*track.travel[:2]))
+                way = track.travel[:2] / length
+                offsets = np.arange(0.0, length + 1e-9, search.step_m)[:, None] * way
+            else:
+                n = int(round(ENTRY_REACH_M / search.step_m))
+                steps = np.arange(-n, n + 1)
+                offsets = search.step_m * np.stack(np.meshgrid(steps, steps), -1).reshape(-1, 2)
+                offsets = offsets[np.argsort(np.hypot(*offsets.T), kind="stable")]
             seen = seen_by_any(self.tracker.cameras, track.centre_at(track.support)
                                + np.column_stack([offsets, np.zeros(len(offsets))]))
             track.entry = ([track.support[:2, 3] + offsets[int(np.argmax(seen))]]
@@ -215,7 +222,7 @@ class Acquirer:
 
     def search(self, context: StepContext) -> tuple[StepContext, PoseFix] | None:
         """The whole-image search, when it is due (:mod:`.search`): of its best candidates
-        whose windows give a fix of at least ``min_points`` points (seeded by the candidate;
+        where no other track holds its part (:meth:`claimed`) whose windows give a fix of at least ``min_points`` points (seeded by the candidate;
         a part lying on its support may be fitted there, from fewer: :mod:`.acquisition`)
         that verification confirms, the one whose verifying fix has the most points (the
         fewest pixels of RMS among equals; a nearly symmetric part's turned twin fits fewer of
@@ -242,10 +249,9 @@ class Acquirer:
                 centres += self.entry(track, search)
             candidates = search.candidates(self.tracker.cameras, track.points, track.support,
                                            np.array(centres), corners)
-        confirmed = []
-        for candidate in candidates[:search.verify]:
-            if self.claimed(context, candidate.T_base_part):
-                continue  # another part lies there: not worth a verification
+        unclaimed = [c for c in candidates if not self.claimed(context, c.T_base_part)]
+        confirmed = []  # a candidate where another part lies is not worth a verification
+        for candidate in unclaimed[:search.verify]:
             trial = looked_at(context, candidate.T_base_part, len(self.tracker.cameras))
             fix = self.fix(trial, acquisition.window_px, coarse=True,
                             guess=candidate.T_base_part, on_support=True)

@@ -8,8 +8,10 @@ reprojection error exceeds ``max_rms_px`` or a corner lies more than ``max_resid
 its reprojection). A fix whose RMS is at most ``coarse_rms_px`` is then verified against every
 feature it predicts: the predictor runs at the fix, windows of ``verify_window_px`` are placed
 on every usable feature it predicts visible, and the corners found there must give a fix again
-(within ``max_rms_px``) of at least ``min_points`` points, and in some camera of at least
-``verify_support`` of the features looked for there (:meth:`PnPAcquisition.confirms`). The
+(within ``max_rms_px``) of at least ``min_points`` points, and in some camera that looked for
+at least ``verify_looked`` features, of at least ``verify_support`` of them
+(:meth:`PnPAcquisition.confirms`; one found of the one looked for confirms nothing: on the line,
+an L entering the views was taken 46 mm and 138 deg off so). The
 filter starts from that second fix, with the PnP covariance inflated by ``pose_inflation`` and a
 velocity uncertainty ``velocity_std`` (m/s, rad/s); the corners it dropped are recorded as
 rejected.
@@ -111,6 +113,7 @@ class PnPAcquisition:
     camera_offsets: bool = True
     verify_window_px: float = 24.0
     verify_support: float = 0.6
+    verify_looked: int = 4
     min_points: int = 6
     coarse_rms_px: float = 6.0
     min_points_on_support: int = 4
@@ -173,10 +176,12 @@ class PnPAcquisition:
 
     def confirms(self, fix: PoseFix, looked: np.ndarray, used: np.ndarray) -> bool:
         """Whether a verifying fix (module docstring) stands: at least ``min_points`` points,
-        and in some camera at least ``verify_support`` of the features looked for. ``looked``,
-        ``used`` (C,): per camera, the features looked for and those the fix kept."""
+        and in some camera that looked for at least ``verify_looked`` features, at least
+        ``verify_support`` of them. ``looked``, ``used`` (C,): per camera, the features looked
+        for and those the fix kept."""
         looked, used = np.asarray(looked), np.asarray(used)
-        support = np.divide(used, looked, out=np.zeros(len(used)), where=looked > 0)
+        support = np.divide(used, looked, out=np.zeros(len(used)),
+                            where=looked >= max(self.verify_looked, 1))
         return self.enough(fix) and bool(np.any(support >= self.verify_support))
 
     def covariance(self, pose_covariance: np.ndarray) -> np.ndarray:

@@ -47,7 +47,8 @@ class PartTrack:
     of the part lying on its support this frame (``lying``, None: held, or not known),
     when a holder last let it go (``let_go_t``, s; None: never, or held again since), and
     where a part waiting out of every view would come into them (``entry``, the search's;
-    None: not found yet)."""
+    None: not found yet), and the way a line carries it across the cell (``travel``, x, y,
+    m, base frame: a line's passing part; None: not known)."""
 
     points: np.ndarray
     guess: np.ndarray | None
@@ -69,6 +70,7 @@ class PartTrack:
     lying: np.ndarray | None = None
     let_go_t: float | None = None
     entry: list[np.ndarray] | None = None
+    travel: np.ndarray | None = None
 
     @cached_property
     def centre(self) -> np.ndarray:

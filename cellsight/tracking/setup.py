@@ -11,12 +11,16 @@ with ``camera-offsets``, each camera's calibration error estimated as an image o
 ``degraded`` until the cameras are first registered to an arm (``TrackerConfig``). A part
 lying on its support is held to twice the cell file's fastest belt speed (the conveyor's,
 or a line's passing parts') and 1 cm/s (``TrackerConfig.support_speed``; the belt's speed is
-known to a few tens of percent, and nothing else in the cell moves a lying part).
+known to a few tens of percent, and nothing else in the cell moves a lying part). A line's
+passing part waiting out of view is looked for where it would come in along its travel
+(:meth:`~cellsight.tracking.acquire.Acquirer.entry`).
 """
 
 from __future__ import annotations
 
 from dataclasses import replace
+
+import numpy as np
 
 from cellsight.model.cell import Cell
 from cellsight.occlusion.backends import visibility_predictor
@@ -53,4 +57,7 @@ def build_tracker(cell: Cell, choice: TrackerChoice = DEFAULT_TRACKER, *,
     if choice.unknown_occluders:
         config = replace(config, resume_support=3)
         parts = replace(parts, unknown=UnknownOccluderRule())
-    return Tracker.from_cell(cell, predictor, extractor, config, parts)
+    tracker = Tracker.from_cell(cell, predictor, extractor, config, parts)
+    for name in setup.passing:  # a part waiting upstream comes into the views along it
+        tracker.tracks[name].travel = np.array(setup.passing_travel, dtype=float)
+    return tracker
