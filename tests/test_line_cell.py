@@ -342,9 +342,14 @@ def test_a_sweep_of_a_line_with_the_ideal_sensor_is_refused_before_it_runs():
 def test_a_lying_part_is_held_to_the_fastest_belt_of_the_cell(cell):
     """The line's passing parts ride at 3 cm/s (the picks at 1 cm/s): a lying part's rates are
     bounded by twice the faster belt and 1 cm/s, 7 cm/s, not 3 cm/s, which would hold a
-    passing part drawn 20 % fast back behind itself."""
+    passing part drawn 20 % fast back behind itself. The passing parts' tracks know their
+    travel (where they come into the views), the picks' do not."""
     from cellsight.tracking.setup import build_tracker
 
-    speed = build_tracker(cell).config.support_speed[0]
+    tracker = build_tracker(cell)
+    speed = tracker.config.support_speed[0]
     assert speed == pytest.approx(2 * 0.03 + 0.01)
     assert speed > 1.2 * cell.experiments.passing_speed
+    travels = {name: track.travel for name, track in tracker.tracks.items()}
+    assert {name for name, way in travels.items() if way is not None} == {"u3", "l3"}
+    assert np.allclose(travels["u3"], cell.experiments.passing_travel)

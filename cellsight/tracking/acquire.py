@@ -222,12 +222,13 @@ class Acquirer:
 
     def search(self, context: StepContext) -> tuple[StepContext, PoseFix] | None:
         """The whole-image search, when it is due (:mod:`.search`): of its best candidates
-        where no other track holds its part (:meth:`claimed`) whose windows give a fix of at least ``min_points`` points (seeded by the candidate;
-        a part lying on its support may be fitted there, from fewer: :mod:`.acquisition`)
-        that verification confirms, the one whose verifying fix has the most points (the
-        fewest pixels of RMS among equals; a nearly symmetric part's turned twin fits fewer of
-        its features than the part), with the context of its record; None otherwise. A camera
-        held out of the filter (:meth:`fix`) is not searched."""
+        where no other track holds its part (:meth:`claimed`) whose windows give a fix of at
+        least ``min_points`` points (seeded by the candidate; a part lying on its support
+        may be fitted there, from fewer: :mod:`.acquisition`) that verification confirms,
+        the one whose verifying fix has the most points (the fewest pixels of RMS among
+        equals; a nearly symmetric part's turned twin fits fewer of its features than the
+        part), with the context of its record; None otherwise. A camera held out of the
+        filter (:meth:`fix`) is not searched."""
         search, track, t = self.tracker.components.search, context.track, context.t
         acquisition = self.tracker.components.acquisition
         detect = self.tracker.measurer.detect

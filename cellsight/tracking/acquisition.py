@@ -10,11 +10,10 @@ feature it predicts: the predictor runs at the fix, windows of ``verify_window_p
 on every usable feature it predicts visible, and the corners found there must give a fix again
 (within ``max_rms_px``) of at least ``min_points`` points, and in some camera that looked for
 at least ``verify_looked`` features, of at least ``verify_support`` of them
-(:meth:`PnPAcquisition.confirms`; one found of the one looked for confirms nothing: on the line,
-an L entering the views was taken 46 mm and 138 deg off so). The
-filter starts from that second fix, with the PnP covariance inflated by ``pose_inflation`` and a
-velocity uncertainty ``velocity_std`` (m/s, rad/s); the corners it dropped are recorded as
-rejected.
+(:meth:`PnPAcquisition.confirms`: one found of the one looked for confirms nothing; on the
+line, such a camera confirmed an L entering the views 46 mm and 138 deg off). The filter starts
+from that second fix, with the PnP covariance inflated by ``pose_inflation`` and a velocity
+uncertainty ``velocity_std`` (m/s, rad/s); the corners it dropped are recorded as rejected.
 
 Why the verification: wide windows at a guess take whatever corner lies nearest to each
 prediction, and a few of those corners (four in one camera, or each the corner next to the
